@@ -1,0 +1,622 @@
+"""Reading and checking a site description, ``scenes/<site>/scene.toml``.
+
+The format is documented in ``docs/scene-format.md``. Every problem raises :class:`SceneError`
+naming the file, the key and what is wrong, before anything is written. Geometry comes out in
+the world frame of DESIGN.md (metres, +Y up, +X east, -Z north).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+import zoneinfo
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import trimesh
+
+from bake.dome import MAX_LIGHTS, MIN_LIGHTS
+
+QUALITY_DEFAULTS = {
+    # samples_per_patch: visibility rays per texel per light (soft shadows across the patch).
+    # bounce_rays: cosine-weighted gather rays per texel for the indirect bounce.
+    # cache_spacing_m: spacing of the bounce cache points on every surface.
+    # texel_scale: multiplies every texel size (draft bakes are coarser).
+    # view_scale: multiplies fixed-view resolutions.
+    "draft": {
+        "samples_per_patch": 2,
+        "bounce_rays": 24,
+        "cache_spacing_m": 1.5,
+        "texel_scale": 2.0,
+        "view_scale": 0.5,
+    },
+    "final": {
+        "samples_per_patch": 6,
+        "bounce_rays": 96,
+        "cache_spacing_m": 0.6,
+        "texel_scale": 1.0,
+        "view_scale": 1.0,
+    },
+}
+
+
+class SceneError(ValueError):
+    """A mistake in a site description: which file, which key, what is wrong."""
+
+    def __init__(self, path: Path | str, key: str, message: str):
+        self.path = str(path)
+        self.key = key
+        self.message = message
+        super().__init__(f"{self.path}: {key}: {message}" if key else f"{self.path}: {message}")
+
+
+@dataclass
+class Part:
+    """One piece of the scene's geometry in the world frame.
+
+    Attributes
+    ----------
+    name : str
+        ``object`` or ``object/node`` for a part of a split virtual object.
+    object_name : str
+        The ``[[virtual]]`` or ``[[real]]`` entry it came from.
+    mesh : trimesh.Trimesh
+        Triangles in world coordinates, metres.
+    albedo : (F, 3) float
+        Linear diffuse reflectance of each face.
+    """
+
+    name: str
+    object_name: str
+    mesh: trimesh.Trimesh
+    albedo: np.ndarray
+
+
+@dataclass
+class RealProxy:
+    """A real-world object standing in for what the camera sees (building, wall, tree)."""
+
+    name: str
+    part: Part
+    receiver: bool
+
+
+@dataclass
+class View:
+    """A fixed, calibrated viewpoint (Sato's Camera A): pinhole intrinsics and pose.
+
+    ``world_from_camera`` maps camera coordinates (OpenCV convention: +X right, +Y down, +Z
+    forward) to world coordinates.
+    """
+
+    name: str
+    width: int
+    height: int
+    K: np.ndarray  # (3, 3) pixels
+    world_from_camera: np.ndarray  # (4, 4)
+
+
+@dataclass
+class Ground:
+    """The real ground: a horizontal rectangle at y = 0 in the world frame."""
+
+    center_m: tuple[float, float]  # (x, z)
+    size_m: tuple[float, float]  # (along x, along z)
+    albedo: np.ndarray  # (3,)
+    part: Part | None = None
+
+
+@dataclass
+class Settings:
+    lights: int
+    quality: str
+    samples_per_patch: int
+    bounce_rays: int
+    cache_spacing_m: float
+    texel_scale: float
+    view_scale: float
+    seed: int
+    shadow_texel_m: float
+    hull_texel_m: float
+    hull_offset_m: float
+    min_sun_elevation_deg: float
+    min_plane_area_m2: float
+    max_atlas_size: int
+    lightmap_texel_m: float
+    compression: dict = field(default_factory=dict)
+
+
+@dataclass
+class Site:
+    """A whole site description, checked and in world coordinates."""
+
+    scene_dir: Path
+    scene_file: Path
+    scene_id: str
+    name: str
+    latitude_deg: float
+    longitude_deg: float
+    elevation_m: float
+    timezone: str
+    north_deg: float
+    ground: Ground
+    virtual: list[Part]
+    real: list[RealProxy]
+    views: list[View]
+    settings: Settings
+    source_files: list[Path]
+
+    @property
+    def virtual_objects(self) -> list[str]:
+        return list(dict.fromkeys(p.object_name for p in self.virtual))
+
+
+# --------------------------------------------------------------------------------------------
+# Key checking
+
+
+class _Table:
+    """A TOML table with the path of keys that led to it, for error messages."""
+
+    def __init__(self, file: Path, prefix: str, data: Any):
+        self.file = file
+        self.prefix = prefix
+        if not isinstance(data, dict):
+            raise SceneError(file, prefix, f"must be a table, got {_kind(data)}")
+        self.data = data
+        self.used: set[str] = set()
+
+    def key(self, name: str) -> str:
+        return f"{self.prefix}.{name}" if self.prefix else name
+
+    def has(self, name: str) -> bool:
+        return name in self.data
+
+    def raw(self, name: str, default: Any = ..., required: bool = False) -> Any:
+        self.used.add(name)
+        if name not in self.data:
+            if required or default is ...:
+                raise SceneError(self.file, self.key(name), "is required but missing")
+            return default
+        return self.data[name]
+
+    def number(self, name, default=..., lo=None, hi=None, integer=False, lo_open=False):
+        value = self.raw(name, default)
+        if value is None:
+            return None
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise SceneError(self.file, self.key(name), f"must be a number, got {_kind(value)}")
+        if not math.isfinite(value):
+            raise SceneError(self.file, self.key(name), f"must be finite, got {value}")
+        if integer and int(value) != value:
+            raise SceneError(self.file, self.key(name), f"must be a whole number, got {value}")
+        if lo is not None and (value <= lo if lo_open else value < lo):
+            bound = f"greater than {lo}" if lo_open else f"at least {lo}"
+            raise SceneError(self.file, self.key(name), f"must be {bound}, got {value}")
+        if hi is not None and value > hi:
+            raise SceneError(self.file, self.key(name), f"must be at most {hi}, got {value}")
+        return int(value) if integer else float(value)
+
+    def vector(self, name, length, default=..., lo=None, hi=None, positive=False):
+        value = self.raw(name, default)
+        if value is None:
+            return None
+        if not isinstance(value, list) or len(value) != length:
+            raise SceneError(
+                self.file, self.key(name), f"must be a list of {length} numbers, got {value!r}"
+            )
+        out = []
+        for i, x in enumerate(value):
+            if isinstance(x, bool) or not isinstance(x, int | float):
+                raise SceneError(
+                    self.file, f"{self.key(name)}[{i}]", f"must be a number, got {_kind(x)}"
+                )
+            if not math.isfinite(x):
+                raise SceneError(self.file, f"{self.key(name)}[{i}]", f"must be finite, got {x}")
+            if positive and x <= 0:
+                raise SceneError(self.file, f"{self.key(name)}[{i}]", f"must be positive, got {x}")
+            if lo is not None and x < lo or hi is not None and x > hi:
+                raise SceneError(
+                    self.file, f"{self.key(name)}[{i}]", f"must be within [{lo}, {hi}], got {x}"
+                )
+            out.append(float(x))
+        return np.array(out)
+
+    def string(self, name, default=..., choices=None):
+        value = self.raw(name, default)
+        if value is None:
+            return None
+        if not isinstance(value, str) or not value.strip():
+            raise SceneError(
+                self.file, self.key(name), f"must be a non-empty string, got {value!r}"
+            )
+        if choices is not None and value not in choices:
+            raise SceneError(
+                self.file, self.key(name), f"must be one of {', '.join(choices)}; got {value!r}"
+            )
+        return value
+
+    def boolean(self, name, default=...):
+        value = self.raw(name, default)
+        if not isinstance(value, bool):
+            raise SceneError(self.file, self.key(name), f"must be true or false, got {value!r}")
+        return value
+
+    def table(self, name, required=False) -> _Table:
+        value = self.raw(name, {} if not required else ...)
+        return _Table(self.file, self.key(name), value)
+
+    def tables(self, name) -> list[_Table]:
+        value = self.raw(name, [])
+        if not isinstance(value, list):
+            raise SceneError(self.file, self.key(name), "must be an array of tables ([[...]])")
+        return [_Table(self.file, f"{self.key(name)}[{i}]", v) for i, v in enumerate(value)]
+
+    def finish(self) -> None:
+        """Reject keys nobody asked for: they are almost always typos."""
+        unknown = sorted(set(self.data) - self.used)
+        if unknown:
+            known = ", ".join(sorted(self.used)) or "none"
+            raise SceneError(
+                self.file, self.key(unknown[0]), f"unknown key (known keys here: {known})"
+            )
+
+
+def _kind(value: Any) -> str:
+    return {dict: "a table", list: "a list", str: "a string", bool: "a boolean"}.get(
+        type(value), type(value).__name__
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# Loading
+
+
+def load_site(scene_dir: Path | str, lights: int | None = None, quality: str | None = None) -> Site:
+    """Read and check ``scene_dir/scene.toml`` and every model it names.
+
+    ``lights`` and ``quality`` override the file's ``dome.lights`` and ``quality.default``.
+    Raises :class:`SceneError` on the first problem found.
+    """
+    scene_dir = Path(scene_dir)
+    scene_file = scene_dir / "scene.toml" if scene_dir.is_dir() else scene_dir
+    if scene_file.name != "scene.toml" and scene_dir.is_dir():
+        scene_file = scene_dir / "scene.toml"
+    if not scene_file.is_file():
+        raise SceneError(scene_file, "", "no such file; a site is a folder with a scene.toml")
+    scene_dir = scene_file.parent
+    try:
+        data = tomllib.loads(scene_file.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(scene_file, "", f"not valid TOML: {exc}") from None
+    except UnicodeDecodeError:
+        raise SceneError(scene_file, "", "not UTF-8 text") from None
+
+    root = _Table(scene_file, "", data)
+    site_t = root.table("site", required=True)
+    name = site_t.string("name")
+    latitude = site_t.number("latitude_deg", lo=-90.0, hi=90.0)
+    longitude = site_t.number("longitude_deg", lo=-180.0, hi=180.0)
+    elevation = site_t.number("elevation_m", 0.0, lo=-500.0, hi=9000.0)
+    timezone = site_t.string("timezone")
+    try:
+        zoneinfo.ZoneInfo(timezone)
+    except (zoneinfo.ZoneInfoNotFoundError, ValueError):
+        raise SceneError(
+            scene_file,
+            site_t.key("timezone"),
+            f"unknown time zone {timezone!r} (use an IANA name such as 'Asia/Tokyo')",
+        ) from None
+    north_deg = site_t.number("north_deg", 0.0, lo=-360.0, hi=360.0)
+    site_id = site_t.string("id", scene_dir.resolve().name)
+    if not all(c.isalnum() or c in "-_" for c in site_id):
+        raise SceneError(scene_file, site_t.key("id"), "may hold only letters, digits, - and _")
+    site_t.finish()
+    world_from_scene = _rotation_y(north_deg)
+
+    settings = _load_settings(root, scene_file, lights, quality)
+    sources = [scene_file]
+
+    ground_t = root.table("ground", required=True)
+    ground = Ground(
+        center_m=tuple(ground_t.vector("center_m", 2, [0.0, 0.0])),
+        size_m=tuple(ground_t.vector("size_m", 2, positive=True)),
+        albedo=ground_t.vector("albedo", 3, lo=0.0, hi=1.0),
+    )
+    ground_t.finish()
+    ground.part = _ground_part(ground)
+
+    virtual: list[Part] = []
+    names: set[str] = set()
+    for t in root.tables("virtual"):
+        obj = t.string("name")
+        _unique(names, obj, t, scene_file)
+        model = _model_path(t, scene_dir)
+        sources.append(model)
+        parts_mode = t.string("parts", "nodes", choices=("nodes", "whole"))
+        albedo = t.vector("albedo", 3, None, lo=0.0, hi=1.0)
+        transform = world_from_scene @ _object_transform(t)
+        t.finish()
+        virtual += _load_model_parts(model, obj, transform, albedo, parts_mode, t)
+    if not virtual:
+        raise SceneError(scene_file, "virtual", "the site needs at least one [[virtual]] model")
+
+    real: list[RealProxy] = []
+    for t in root.tables("real"):
+        obj = t.string("name")
+        _unique(names, obj, t, scene_file)
+        albedo = t.vector("albedo", 3, lo=0.0, hi=1.0)
+        receiver = t.boolean("receiver", True)
+        box = t.vector("box_m", 3, None, positive=True)
+        transform = world_from_scene @ _object_transform(t)
+        if box is not None and t.has("model"):
+            raise SceneError(scene_file, t.key("model"), "give either box_m or model, not both")
+        if box is not None:
+            mesh = trimesh.creation.box(extents=box)
+            mesh.apply_translation([0.0, box[1] / 2.0, 0.0])  # base on the ground
+            mesh.apply_transform(transform)
+            part = Part(obj, obj, mesh, np.tile(albedo, (len(mesh.faces), 1)))
+        elif t.has("model"):
+            model = _model_path(t, scene_dir)
+            sources.append(model)
+            parts = _load_model_parts(model, obj, transform, albedo, "whole", t)
+            part = parts[0]
+        else:
+            raise SceneError(scene_file, t.key("box_m"), "a [[real]] proxy needs box_m or model")
+        t.finish()
+        real.append(RealProxy(obj, part, receiver))
+
+    views = []
+    for t in root.tables("view"):
+        views.append(_load_view(t, scene_file, world_from_scene, settings.view_scale))
+        _unique(names, views[-1].name, t, scene_file)
+
+    root.finish()
+    return Site(
+        scene_dir=scene_dir,
+        scene_file=scene_file,
+        scene_id=site_id,
+        name=name,
+        latitude_deg=latitude,
+        longitude_deg=longitude,
+        elevation_m=elevation,
+        timezone=timezone,
+        north_deg=north_deg,
+        ground=ground,
+        virtual=virtual,
+        real=real,
+        views=views,
+        settings=settings,
+        source_files=sources,
+    )
+
+
+def _load_settings(root: _Table, file: Path, lights: int | None, quality: str | None) -> Settings:
+    dome_t = root.table("dome")
+    file_lights = dome_t.number("lights", 160, lo=MIN_LIGHTS, hi=MAX_LIGHTS, integer=True)
+    dome_t.finish()
+    if lights is not None and not MIN_LIGHTS <= lights <= MAX_LIGHTS:
+        raise SceneError("--lights", "", f"must be between {MIN_LIGHTS} and {MAX_LIGHTS}")
+
+    quality_t = root.table("quality")
+    default_quality = quality_t.string("default", "final", choices=tuple(QUALITY_DEFAULTS))
+    chosen = quality or default_quality
+    if chosen not in QUALITY_DEFAULTS:
+        raise SceneError("--quality", "", f"must be one of {', '.join(QUALITY_DEFAULTS)}")
+    levels = {}
+    for level, defaults in QUALITY_DEFAULTS.items():
+        t = quality_t.table(level)
+        levels[level] = {
+            "samples_per_patch": t.number(
+                "samples_per_patch", defaults["samples_per_patch"], lo=1, hi=256, integer=True
+            ),
+            "bounce_rays": t.number(
+                "bounce_rays", defaults["bounce_rays"], lo=0, hi=4096, integer=True
+            ),
+            "cache_spacing_m": t.number(
+                "cache_spacing_m", defaults["cache_spacing_m"], lo=0.05, hi=50.0
+            ),
+            "texel_scale": t.number("texel_scale", defaults["texel_scale"], lo=0.1, hi=16.0),
+            "view_scale": t.number("view_scale", defaults["view_scale"], lo=0.05, hi=4.0),
+        }
+        t.finish()
+    quality_t.finish()
+
+    bake_t = root.table("bake")
+    seed = bake_t.number("seed", 1, lo=0, hi=2**31 - 1, integer=True)
+    bake_t.finish()
+
+    shadow_t = root.table("shadowing")
+    shadow_texel = shadow_t.number("texel_m", 0.5, lo=0.01, hi=10.0)
+    hull_texel = shadow_t.number("hull_texel_m", 0.25, lo=0.01, hi=10.0)
+    hull_offset = shadow_t.number("hull_offset_m", 0.03, lo=0.0, hi=1.0)
+    min_elev = shadow_t.number("min_sun_elevation_deg", 10.0, lo=1.0, hi=89.0)
+    min_area = shadow_t.number("min_plane_area_m2", 0.25, lo=0.0, hi=1e6)
+    max_atlas = shadow_t.number("max_atlas_size", 2048, lo=64, hi=8192, integer=True)
+    shadow_t.finish()
+
+    lightmap_t = root.table("lightmap")
+    lightmap_texel = lightmap_t.number("texel_m", 0.2, lo=0.005, hi=10.0)
+    lightmap_t.finish()
+
+    compression_t = root.table("compression")
+    compression = {
+        "budget": compression_t.number("budget", 0.01, lo=1e-5, hi=0.5),
+        "max_rank": compression_t.number("max_rank", 64, lo=1, hi=512, integer=True),
+        "encoding": compression_t.string("encoding", "uastc", choices=("uastc", "etc1s")),
+    }
+    compression_t.finish()
+
+    q = levels[chosen]
+    return Settings(
+        lights=lights if lights is not None else file_lights,
+        quality=chosen,
+        samples_per_patch=q["samples_per_patch"],
+        bounce_rays=q["bounce_rays"],
+        cache_spacing_m=q["cache_spacing_m"],
+        texel_scale=q["texel_scale"],
+        view_scale=q["view_scale"],
+        seed=seed,
+        shadow_texel_m=shadow_texel,
+        hull_texel_m=hull_texel,
+        hull_offset_m=hull_offset,
+        min_sun_elevation_deg=min_elev,
+        min_plane_area_m2=min_area,
+        max_atlas_size=max_atlas,
+        lightmap_texel_m=lightmap_texel,
+        compression=compression,
+    )
+
+
+def _unique(names: set[str], name: str, t: _Table, file: Path) -> None:
+    if name in names:
+        raise SceneError(file, t.key("name"), f"the name {name!r} is used twice")
+    names.add(name)
+
+
+def _model_path(t: _Table, scene_dir: Path) -> Path:
+    rel = t.string("model")
+    path = (scene_dir / rel).resolve()
+    if not path.is_file():
+        raise SceneError(t.file, t.key("model"), f"model file {rel!r} not found (looked at {path})")
+    if path.suffix.lower() not in (".glb", ".gltf", ".obj"):
+        raise SceneError(t.file, t.key("model"), f"{rel!r}: models must be .glb, .gltf or .obj")
+    return path
+
+
+def _rotation_y(angle_deg: float) -> np.ndarray:
+    """4x4 right-handed rotation about +Y (counter-clockwise seen from above)."""
+    a = np.radians(angle_deg)
+    m = np.eye(4)
+    m[0, 0], m[0, 2], m[2, 0], m[2, 2] = np.cos(a), np.sin(a), -np.sin(a), np.cos(a)
+    return m
+
+
+def _object_transform(t: _Table) -> np.ndarray:
+    """scene_from_object: scale, then yaw about +Y, then translation."""
+    translation = t.vector("translation_m", 3, [0.0, 0.0, 0.0])
+    yaw = t.number("yaw_deg", 0.0, lo=-360.0, hi=360.0)
+    scale = t.number("scale", 1.0, lo=0.0, lo_open=True)
+    m = _rotation_y(yaw)
+    m[:3, :3] *= scale
+    m[:3, 3] = translation
+    return m
+
+
+def _load_model_parts(
+    path: Path, obj: str, transform: np.ndarray, albedo_override, mode: str, t: _Table
+) -> list[Part]:
+    """Meshes of a model file in world coordinates, one part per node (or one in all)."""
+    try:
+        loaded = trimesh.load(str(path), force="scene", process=False)
+    except Exception as exc:  # trimesh raises many kinds for broken files
+        raise SceneError(t.file, t.key("model"), f"cannot read {path.name}: {exc}") from None
+    parts: list[Part] = []
+    for node in loaded.graph.nodes_geometry:
+        node_transform, geom_name = loaded.graph[node]
+        geom = loaded.geometry[geom_name]
+        if not isinstance(geom, trimesh.Trimesh) or len(geom.faces) == 0:
+            continue
+        mesh = trimesh.Trimesh(
+            vertices=np.asarray(geom.vertices, dtype=float),
+            faces=np.asarray(geom.faces),
+            process=False,
+        )
+        mesh.apply_transform(transform @ node_transform)
+        if not np.all(np.isfinite(mesh.vertices)):
+            raise SceneError(
+                t.file, t.key("model"), f"{path.name}: node {node!r} has non-finite vertices"
+            )
+        albedo = albedo_override if albedo_override is not None else _material_albedo(geom)
+        if albedo is None:
+            raise SceneError(
+                t.file,
+                t.key("albedo"),
+                f"{path.name}: node {node!r} has no base colour; give albedo = [r, g, b]",
+            )
+        keep = mesh.area_faces > 1e-10
+        mesh.update_faces(keep)
+        mesh.remove_unreferenced_vertices()
+        parts.append(Part(f"{obj}/{node}", obj, mesh, np.tile(albedo, (len(mesh.faces), 1))))
+    if not parts or sum(p.mesh.area for p in parts) < 1e-8:
+        raise SceneError(t.file, t.key("model"), f"{path.name}: degenerate mesh (no area)")
+    for p in parts:
+        if len(p.mesh.faces) == 0:
+            raise SceneError(t.file, t.key("model"), f"{path.name}: node {p.name!r} is degenerate")
+    if mode == "whole" and len(parts) > 1:
+        mesh = trimesh.util.concatenate([p.mesh for p in parts])
+        return [Part(obj, obj, mesh, np.concatenate([p.albedo for p in parts]))]
+    return parts
+
+
+def _material_albedo(geom: trimesh.Trimesh) -> np.ndarray | None:
+    """Linear base colour of a mesh's material, or ``None`` if it has none."""
+    visual = geom.visual
+    material = getattr(visual, "material", None)
+    if material is None:
+        return None
+    factor = getattr(material, "baseColorFactor", None)
+    if factor is not None:
+        return np.asarray(factor[:3], dtype=float) / 255.0
+    diffuse = getattr(material, "diffuse", None)
+    if diffuse is not None:
+        return np.asarray(diffuse[:3], dtype=float) / 255.0
+    return None
+
+
+def _ground_part(ground: Ground) -> Part:
+    cx, cz = ground.center_m
+    sx, sz = ground.size_m
+    x0, x1, z0, z1 = cx - sx / 2, cx + sx / 2, cz - sz / 2, cz + sz / 2
+    vertices = np.array([[x0, 0, z0], [x1, 0, z0], [x1, 0, z1], [x0, 0, z1]], dtype=float)
+    faces = np.array([[0, 2, 1], [0, 3, 2]])  # counter-clockwise from above: normal +Y
+    mesh = trimesh.Trimesh(vertices=vertices, faces=faces, process=False)
+    return Part("ground", "ground", mesh, np.tile(ground.albedo, (2, 1)))
+
+
+def _load_view(t: _Table, file: Path, world_from_scene: np.ndarray, view_scale: float) -> View:
+    name = t.string("name")
+    width = t.number("width", lo=16, hi=8192, integer=True)
+    height = t.number("height", lo=16, hi=8192, integer=True)
+    position = t.vector("position_m", 3)
+    look_at = t.vector("look_at_m", 3)
+    fov = t.number("fov_y_deg", None, lo=1.0, hi=170.0)
+    intr = t.raw("intrinsics", None)
+    if (fov is None) == (intr is None):
+        raise SceneError(file, t.key("fov_y_deg"), "give exactly one of fov_y_deg or intrinsics")
+    if intr is not None:
+        it = _Table(file, t.key("intrinsics"), intr)
+        fx = it.number("fx", lo=1.0)
+        fy = it.number("fy", lo=1.0)
+        cx = it.number("cx", lo=0.0, hi=width)
+        cy = it.number("cy", lo=0.0, hi=height)
+        it.finish()
+    else:
+        fy = fx = 0.5 * height / math.tan(math.radians(fov) / 2.0)
+        cx, cy = width / 2.0, height / 2.0
+    t.finish()
+    forward = look_at - position
+    if np.linalg.norm(forward) < 1e-6:
+        raise SceneError(file, t.key("look_at_m"), "must differ from position_m")
+    forward /= np.linalg.norm(forward)
+    if abs(forward[1]) > 0.999:
+        raise SceneError(file, t.key("look_at_m"), "the view may not look straight up or down")
+    right = np.cross(forward, [0.0, 1.0, 0.0])
+    right /= np.linalg.norm(right)
+    down = np.cross(forward, right)
+    scene_from_camera = np.eye(4)
+    scene_from_camera[:3, 0], scene_from_camera[:3, 1], scene_from_camera[:3, 2] = (
+        right,
+        down,
+        forward,
+    )
+    scene_from_camera[:3, 3] = position
+    # Resolution scaled by the quality level, intrinsics with it.
+    s = view_scale
+    w, h = max(16, round(width * s)), max(16, round(height * s))
+    K = np.array(
+        [[fx * w / width, 0, cx * w / width], [0, fy * h / height, cy * h / height], [0, 0, 1]]
+    )
+    return View(name, w, h, K, world_from_scene @ scene_from_camera)
