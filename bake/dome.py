@@ -26,7 +26,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from daylit.spherical import centroid_direction, normalize, solid_angle
+from daylit.spherical import (
+    centroid_direction,
+    clipped_cosine_integral,
+    normalize,
+    patch_sh9,
+    solid_angle,
+)
 
 MIN_LIGHTS = 4
 MAX_LIGHTS = 20000
@@ -96,9 +102,15 @@ class Dome:
         return cls.build(kind, frequency)
 
     def to_manifest(self) -> dict:
-        """The dome as the manifest lists it: every light with index, vertices, centroid, sr."""
+        """The dome as the manifest lists it: every light with index, vertices, centroid, sr.
+
+        ``cosine_weighted_sr`` is the irradiance an open upward surface gets from the light at
+        unit radiance; ``sh9`` its spherical-harmonic projection (for shading by normal).
+        """
         omega = self.solid_angles_sr
         centroids = self.centroids
+        up = clipped_cosine_integral(self.vertices, np.array([[0.0, 1.0, 0.0]]))[0]
+        sh9 = patch_sh9(self.vertices)
         return {
             "kind": self.kind,
             "frequency": self.frequency,
@@ -109,6 +121,8 @@ class Dome:
                     "vertices": [[round(float(x), 12) for x in v] for v in self.vertices[i]],
                     "centroid": [round(float(x), 12) for x in centroids[i]],
                     "solid_angle_sr": float(omega[i]),
+                    "cosine_weighted_sr": float(up[i]),
+                    "sh9": [round(float(x), 10) for x in sh9[i]],
                 }
                 for i in range(self.count)
             ],

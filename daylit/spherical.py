@@ -215,3 +215,38 @@ def sample_triangles(tris: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.n
     h = np.einsum("nj,nj->n", a, plane_normal)
     weight = h / (r2 * r)
     return dirs, weight
+
+
+def sh9_basis(dirs: np.ndarray) -> np.ndarray:
+    """Real spherical harmonics up to l = 2 at unit directions, shape ``(..., 9)``.
+
+    Order and constants of Ramamoorthi & Hanrahan (2001), applied to the world-frame
+    components ``(x, y, z)`` as they are: ``Y00, Y1-1 (y), Y10 (z), Y11 (x), Y2-2 (xy),
+    Y2-1 (yz), Y20 (3z^2 - 1), Y21 (xz), Y22 (x^2 - y^2)``. Irradiance convolution is
+    rotation invariant, so the choice of axes only has to agree between baker and client.
+    """
+    x, y, z = dirs[..., 0], dirs[..., 1], dirs[..., 2]
+    return np.stack(
+        [
+            0.282095 * np.ones_like(x),
+            0.488603 * y,
+            0.488603 * z,
+            0.488603 * x,
+            1.092548 * x * y,
+            1.092548 * y * z,
+            0.315392 * (3.0 * z * z - 1.0),
+            1.092548 * x * z,
+            0.546274 * (x * x - y * y),
+        ],
+        axis=-1,
+    )
+
+
+def patch_sh9(tris: np.ndarray, samples_per_side: int = 16) -> np.ndarray:
+    """SH projection of unit radiance over each patch, ``integral_patch Y_lm dw``: ``(n, 9)``."""
+    k = samples_per_side
+    grid = (np.arange(k) + 0.5) / k
+    uv = np.stack(np.meshgrid(grid, grid, indexing="ij"), axis=-1).reshape(-1, 1, 2)
+    dirs, weight = sample_triangles(tris, np.broadcast_to(uv, (k * k, tris.shape[0], 2)))
+    mean = np.einsum("sn,snk->nk", weight, sh9_basis(dirs)) / weight.sum(axis=0)[:, None]
+    return mean * solid_angle(tris)[:, None]
