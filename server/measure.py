@@ -1,0 +1,651 @@
+"""Measuring the light vector ``r`` (n x RGB) from a fisheye sky frame (Sato Sec. 5, Kakuta 2.2.3).
+
+Per frame the work is small and fixed: linearise with the inverse response curve (one table
+look-up per pixel), bin to the working resolution, one sparse matrix product, one small sparse
+solve. Everything that depends only on the lens and the dome is precomputed once in
+:class:`PatchMatrix`.
+
+Why a solve and not a plain mean
+--------------------------------
+Sato averages the pixels inside each projected triangle. Pixels cut by a triangle's edge hold a
+mix of two patches, and with a few hundred patches they are a fifth of all pixels, so the plain
+mean leaks several per cent between neighbours wherever the sky has contrast (the sun's patch,
+cloud edges). We model each pixel as the coverage-weighted sum of the patches it overlaps,
+``v = A r`` (``A``: pixels x n coverage fractions from supersampling), and solve the weighted
+least-squares problem ``(A^T W A) r = A^T W v`` with ``W`` the pixels' solid angles. For a
+piecewise-constant sky this recovers every patch exactly; for a smooth sky it is the patch's
+solid-angle weighted mean. ``A^T W A`` couples only neighbouring patches, so it is sparse and
+factorised once.
+
+Pixels that are not wholly above the horizon and inside the lens's field of view are left out
+(the ground, trees and the black border outside the image circle are not sky).
+
+Units: a frame's linear value ``x = exposure * vignetting * L / photometric_factor`` for sky
+radiance ``L`` in W/(m^2 sr); the measurement returns ``L`` per patch, i.e. the ``r_i`` of
+DESIGN.md including the photometric factor of Sato Sec. 5.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import scipy.sparse as sp
+from scipy.spatial import cKDTree
+
+from daylit.spherical import PatchLookup, centroid_direction
+from server.fisheye import FisheyeCamera
+
+# Frames are binned (after linearising) to at most this many pixels: a few hundred pixels per
+# light of a 400-light dome, plenty for a patch mean, and it keeps the per-frame cost near one
+# table look-up per full-resolution pixel. Setting: measure.max_working_pixels.
+DEFAULT_WORKING_PIXELS = 1 << 18
+
+# Pixels are classified in chunks of this many, so a 4-megapixel lens needs little memory.
+_CHUNK_PIXELS = 1 << 18
+
+
+# ---------------------------------------------------------------------------------- photometry
+
+
+def inverse_response_table(spec, levels: int = 256) -> np.ndarray:
+    """The inverse camera response as a table ``(levels, 3)`` float32: code -> linear in [0, 1].
+
+    ``spec`` is ``"linear"``, ``"srgb"`` (IEC 61966-2-1, the usual default of webcams),
+    ``"gamma:G"`` (``x = (code / max)^G``), or a list of ``levels`` numbers (one curve for all
+    channels) or of ``levels`` RGB triples, e.g. from a Debevec-Malik or Robertson calibration.
+    """
+    code = np.arange(levels, dtype=np.float64) / (levels - 1)
+    if isinstance(spec, str):
+        if spec == "linear":
+            curve = code
+        elif spec == "srgb":
+            curve = np.where(code <= 0.04045, code / 12.92, ((code + 0.055) / 1.055) ** 2.4)
+        elif spec.startswith("gamma:"):
+            try:
+                g = float(spec.split(":", 1)[1])
+            except ValueError:
+                raise ValueError(f"response {spec!r}: gamma must be a number") from None
+            if not 0.1 <= g <= 10.0:
+                raise ValueError(f"response {spec!r}: gamma must be between 0.1 and 10")
+            curve = code**g
+        else:
+            raise ValueError(f"unknown response {spec!r}: use linear, srgb, gamma:G or a table")
+        return np.repeat(curve[:, None], 3, axis=1).astype(np.float32)
+    table = np.asarray(spec, dtype=np.float64)
+    if table.ndim == 1:
+        table = np.repeat(table[:, None], 3, axis=1)
+    if table.shape != (levels, 3):
+        raise ValueError(f"a response table needs {levels} values or RGB triples: {table.shape}")
+    if not np.all(np.isfinite(table)) or np.any(np.diff(table, axis=0) < 0):
+        raise ValueError("a response table must be finite and non-decreasing")
+    return (table / max(table[-1].max(), 1e-12)).astype(np.float32)
+
+
+@dataclass
+class Photometry:
+    """How pixel codes become radiance (Sato Sec. 5).
+
+    Attributes
+    ----------
+    response : str or list
+        Inverse response curve, see :func:`inverse_response_table`.
+    exposure : float
+        Linear value of unit radiance (W/(m^2 sr)) at the camera's fixed setting; a frame
+        that reports its own exposure (the simulated sky, auto-exposing cameras) overrides it.
+    photometric_factor : RGB
+        Multiplies the result: the calibration between camera units and the unit radiance of
+        the baked basis (white balance included).
+    vignetting : tuple of float
+        Relative illumination ``g(theta) = 1 + a1 theta^2 + a2 theta^4 + ...`` (theta in radians
+        from the optical axis); measured values are divided by it. Empty: none.
+    saturation_level : float
+        Fraction of full scale at or above which a code counts as clipped.
+    """
+
+    response: object = "srgb"
+    exposure: float = 1.0
+    photometric_factor: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    vignetting: tuple[float, ...] = ()
+    saturation_level: float = 0.98
+
+    def vignetting_gain(self, theta_rad: np.ndarray) -> np.ndarray:
+        gain = np.ones_like(theta_rad)
+        t2 = theta_rad * theta_rad
+        power = np.ones_like(theta_rad)
+        for a in self.vignetting:
+            power = power * t2
+            gain = gain + a * power
+        return gain
+
+
+# ---------------------------------------------------------------------------- the geometry
+
+
+@dataclass
+class PatchMatrix:
+    """Precomputed pixel -> patch weights for one lens, image size and dome.
+
+    Pixels wholly inside one patch ("whole") add ``w_p x_p`` to it through one sparse product.
+    A pixel cut by patch edges ("cut") is shared between the patches it overlaps in proportion
+    to ``c_pk * x_ref(p,k)``: its coverage times the value of the nearest whole pixel of that
+    patch (see the module notes). Pairs ``(p, k)`` are stored sorted by pixel.
+
+    Attributes
+    ----------
+    camera : FisheyeCamera
+        The lens at the *working* resolution (after binning), whole frame.
+    binning : int
+        Frames are area-averaged by this factor (after linearisation) before measuring.
+    crop : (x0, y0, x1, y1)
+        The part of the full-resolution frame that holds every used pixel (a multiple of
+        ``binning``); flat pixel indices below count row-major in this part at working
+        resolution (P pixels).
+    whole : (n, P) float32 CSR
+        ``w_p / g_p`` (solid angle over vignetting gain) for whole pixels.
+    pair_pixel, pair_ref, pair_group : (m,) int
+        For each cut pair: its pixel, the reference pixel for its patch, and the index of its
+        pixel among the cut pixels.
+    pair_cover : (m,) float32
+        Coverage fraction of the pair's patch in its pixel.
+    cut_pixel : (g,) int
+        The cut pixels.
+    pairs_to_pixel : (g, m) float32 CSR
+        Coverage of each pair, summed per cut pixel.
+    pairs_to_light : (n, m) float32 CSR
+        ``w_p / g_p`` from each pair to its patch.
+    norm : (n,) float64
+        ``sum_p w_p c_pk``: the solid angle each light is measured over, sr.
+    by_pixel : (P, n) CSR
+        Coverage, used to name the lights that clipped pixels fall on.
+    covered : (n,) bool
+        Lights that have pixels; the others copy ``fill_from``.
+    fill_from : (n,) int
+        For every light, the covered light whose value it takes (itself when covered).
+    """
+
+    camera: FisheyeCamera
+    binning: int
+    crop: tuple[int, int, int, int]
+    whole: sp.csr_matrix
+    pair_pixel: np.ndarray
+    pair_ref: np.ndarray
+    pair_group: np.ndarray
+    pair_cover: np.ndarray
+    cut_pixel: np.ndarray
+    pairs_to_pixel: sp.csr_matrix
+    pairs_to_light: sp.csr_matrix
+    norm: np.ndarray
+    by_pixel: sp.csr_matrix
+    covered: np.ndarray
+    fill_from: np.ndarray
+    pixels_used: int
+    build_s: float
+
+    @property
+    def count(self) -> int:
+        return int(self.whole.shape[0])
+
+    @classmethod
+    def build(
+        cls,
+        camera: FisheyeCamera,
+        dome_vertices: np.ndarray,
+        supersample: int = 6,
+        vignetting: Photometry | None = None,
+        max_working_pixels: int = DEFAULT_WORKING_PIXELS,
+        sky_mask: np.ndarray | None = None,
+    ) -> PatchMatrix:
+        """Classify every pixel against the dome.
+
+        Parameters
+        ----------
+        camera : FisheyeCamera
+            The lens at the frames' full resolution.
+        dome_vertices : (n, 3, 3) float
+            The manifest's light triangles (site frame).
+        supersample : int
+            Sub-pixel grid ``s x s`` for pixels cut by a patch edge.
+        vignetting : Photometry, optional
+            Supplies the vignetting gain folded into the weights.
+        max_working_pixels : int
+            Frames larger than this are binned by an integer factor first.
+        sky_mask : (H, W) array, optional
+            Full-resolution mask, nonzero where the camera sees open sky (excludes trees,
+            masts, the camera's own housing).
+        """
+        t0 = time.perf_counter()
+        tris = np.asarray(dome_vertices, dtype=np.float64)
+        n = tris.shape[0]
+        binning = max(1, math.ceil(math.sqrt(camera.width * camera.height / max_working_pixels)))
+        cam = camera.scaled_to(camera.width // binning, camera.height // binning)
+        W, H = cam.width, cam.height
+        lookup = PatchLookup(tris)
+        edge_normals = lookup.edge_normals  # (n, 3, 3), pointing into each patch
+        mask_small = None
+        if sky_mask is not None:
+            if sky_mask.shape[:2] != (camera.height, camera.width):
+                raise ValueError("sky mask size differs from the frames")
+            m = (np.asarray(sky_mask) > 0).astype(np.float32)
+            mask_small = cv2.resize(
+                m[: H * binning, : W * binning], (W, H), interpolation=cv2.INTER_AREA
+            )
+        s = max(1, int(supersample))
+        offsets = (np.arange(s) + 0.5) / s - 0.5
+        sub = np.stack(np.meshgrid(offsets, offsets), axis=-1).reshape(-1, 2)  # (s^2, 2)
+        max_theta = math.radians(cam.max_theta_deg)
+        rng = np.random.default_rng(0)  # fixed: the same lens always gets the same matrix
+
+        whole_pix, whole_light = [], []
+        cut_pix, cut_light, cut_cover = [], [], []
+        weight = np.zeros(W * H)  # solid angle of each used pixel over its vignetting gain
+        omega_all = np.zeros(W * H)
+        for start in range(0, W * H, _CHUNK_PIXELS):
+            flat = np.arange(start, min(start + _CHUNK_PIXELS, W * H))
+            px = np.stack([flat % W, flat // W], axis=-1).astype(np.float64)
+            d, _ = cam.unproject(px)
+            theta = np.arccos(np.clip((d @ cam.site_from_camera)[:, 2], -1, 1))
+            # Footprint size from the pixel's neighbours: solid angle and an angular radius.
+            du = cam.unproject(px + [0.5, 0.0])[0] - cam.unproject(px - [0.5, 0.0])[0]
+            dv = cam.unproject(px + [0.0, 0.5])[0] - cam.unproject(px - [0.0, 0.5])[0]
+            omega = np.linalg.norm(np.cross(du, dv), axis=-1)
+            radius = 0.6 * np.sqrt((du * du).sum(-1) + (dv * dv).sum(-1))  # half diagonal + 20%
+            inside = (d[:, 1] >= np.sin(radius)) & (theta + radius <= max_theta)
+            if mask_small is not None:
+                inside &= mask_small.ravel()[flat] >= 1.0 - 1e-6
+            gain = np.ones(flat.size)
+            if vignetting is not None and vignetting.vignetting:
+                gain = vignetting.vignetting_gain(theta)
+            flat, d, radius, px = flat[inside], d[inside], radius[inside], px[inside]
+            weight[flat] = (omega / gain)[inside]
+            omega_all[flat] = omega[inside]
+            if flat.size == 0:
+                continue
+            patch = lookup(d)
+            margin = np.einsum("mej,mj->me", edge_normals[patch], d).min(axis=1)
+            is_whole = margin >= np.sin(radius)
+            whole_pix.append(flat[is_whole])
+            whole_light.append(patch[is_whole])
+            cut = np.flatnonzero(~is_whole)
+            if cut.size:
+                # Jittered strata: a regular grid would bias every pixel along an edge that
+                # runs nearly along the pixel grid by the same fraction.
+                jitter = (rng.random((cut.size, sub.shape[0], 2)) - 0.5) / s
+                sub_px = px[cut][:, None, :] + sub[None] + jitter
+                sub_dirs, _ = cam.unproject(sub_px.reshape(-1, 2))
+                # Most samples fall in the centre's patch: test that first, look up the rest.
+                home = np.repeat(patch[cut], sub.shape[0])
+                in_home = np.einsum("mej,mj->me", edge_normals[home], sub_dirs).min(axis=1) >= 0
+                sub_patch = home.copy()
+                away = np.flatnonzero(~in_home)
+                sub_patch[away] = lookup(sub_dirs[away])
+                key = np.repeat(flat[cut], sub.shape[0]) * n + sub_patch
+                uniq, counts = np.unique(key[sub_patch >= 0], return_counts=True)
+                cut_pix.append(uniq // n)
+                cut_light.append(uniq % n)
+                cut_cover.append(counts / sub.shape[0])
+
+        def cat(parts, dtype):
+            return np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype)
+
+        wp, wl = cat(whole_pix, np.int64), cat(whole_light, np.int64)
+        cp, cl, cc = cat(cut_pix, np.int64), cat(cut_light, np.int64), cat(cut_cover, np.float64)
+        norm = np.bincount(wl, omega_all[wp], minlength=n) + np.bincount(cl, omega_all[cp] * cc, n)
+        # Crop to the used pixels: less to linearise and bin per frame.
+        used = np.concatenate([wp, cp])
+        if used.size == 0:
+            raise ValueError("no light of the dome is seen by this camera (check its calibration)")
+        ux, uy = used % W, used // W
+        x0, y0, x1, y1 = int(ux.min()), int(uy.min()), int(ux.max()) + 1, int(uy.max()) + 1
+        cw = x1 - x0
+
+        def local(flat):
+            return (flat // W - y0) * cw + (flat % W - x0)
+
+        wp, cp = local(wp), local(cp)
+        P = cw * (y1 - y0)
+        order = np.lexsort((cl, cp))  # pairs grouped by pixel
+        cp, cl, cc = cp[order], cl[order], cc[order]
+        cut_weight = weight.reshape(H, W)[y0:y1, x0:x1].ravel()
+        whole = sp.csr_matrix((cut_weight[wp], (wl, wp)), shape=(n, P), dtype=np.float32)
+        m = cp.size
+        pairs_to_light = sp.csr_matrix(
+            (cut_weight[cp], (cl, np.arange(m))), shape=(n, m), dtype=np.float32
+        )
+        cut_pixel, pair_group = np.unique(cp, return_inverse=True)
+        pairs_to_pixel = sp.csr_matrix(
+            (cc, (pair_group, np.arange(m))), shape=(cut_pixel.size, m), dtype=np.float32
+        )
+        pair_ref = _reference_pixels(cp, cl, wp, wl, cw)
+        by_pixel = sp.csr_matrix(
+            (np.concatenate([np.ones(wp.size), cc]), (np.concatenate([wp, cp]),
+                                                      np.concatenate([wl, cl]))),
+            shape=(P, n), dtype=np.float32,
+        )
+        covered = norm > 0
+        if not covered.any():
+            raise ValueError("no light of the dome is seen by this camera (check its calibration)")
+        # Lights the lens cannot see take the value of the nearest light it can.
+        centroids = centroid_direction(tris)
+        seen = np.flatnonzero(covered)
+        nearest = seen[np.argmax(centroids @ centroids[seen].T, axis=1)]
+        fill_from = np.where(covered, np.arange(n), nearest)
+        return cls(
+            camera=cam,
+            binning=binning,
+            crop=(x0 * binning, y0 * binning, x1 * binning, y1 * binning),
+            whole=whole,
+            pair_pixel=cp,
+            pair_ref=pair_ref,
+            pair_group=pair_group.astype(np.int64),
+            pair_cover=cc.astype(np.float32),
+            cut_pixel=cut_pixel,
+            pairs_to_pixel=pairs_to_pixel,
+            pairs_to_light=pairs_to_light,
+            norm=norm,
+            by_pixel=by_pixel,
+            covered=covered,
+            fill_from=fill_from,
+            pixels_used=int(np.count_nonzero(omega_all)),
+            build_s=time.perf_counter() - t0,
+        )
+
+    def apply(self, linear: np.ndarray) -> np.ndarray:
+        """Mean value of each patch ``(n, 3)`` of a linear image of the crop at working size."""
+        x = linear.reshape(-1, 3)
+        total = self.whole @ x
+        if self.pair_pixel.size:
+            # Share each cut pixel in proportion to coverage x the value just inside each patch.
+            inside = np.take(x, self.pair_ref, axis=0) + np.float32(1e-7)
+            share = np.take(x, self.cut_pixel, axis=0) / (self.pairs_to_pixel @ inside)
+            part = inside * np.take(share, self.pair_group, axis=0)
+            part *= self.pair_cover[:, None]
+            total += self.pairs_to_light @ part
+        out = np.zeros((self.count, 3))
+        seen = self.covered
+        out[seen] = total[seen] / self.norm[seen, None]
+        return out[self.fill_from]
+
+    def lights_at_pixels(self, flat_pixels: np.ndarray) -> np.ndarray:
+        """Indices of lights that any of the given working-image pixels cover."""
+        if flat_pixels.size == 0:
+            return np.zeros(0, dtype=np.int64)
+        return np.unique(self.by_pixel[np.unique(flat_pixels)].indices).astype(np.int64)
+
+
+def _reference_pixels(
+    cut_pix: np.ndarray, cut_light: np.ndarray, whole_pix: np.ndarray, whole_light: np.ndarray,
+    width: int, neighbours: int = 64,
+) -> np.ndarray:
+    """For each cut pair, the nearest whole pixel of the same patch (itself if none is near)."""
+    ref = cut_pix.copy()
+    if cut_pix.size == 0 or whole_pix.size == 0:
+        return ref
+    tree = cKDTree(np.stack([whole_pix % width, whole_pix // width], axis=-1))
+    k = min(neighbours, whole_pix.size)
+    dist, idx = tree.query(np.stack([cut_pix % width, cut_pix // width], axis=-1), k=k)
+    idx = idx.reshape(cut_pix.size, -1)
+    dist = dist.reshape(cut_pix.size, -1)
+    match = (whole_light[idx] == cut_light[:, None]) & (dist <= 8.0)
+    found = match.any(axis=1)
+    first = np.argmax(match, axis=1)
+    ref[found] = whole_pix[idx[found, first[found]]]
+    return ref
+
+
+# ------------------------------------------------------------------------------ measuring
+
+
+@dataclass
+class Measurement:
+    """One frame's light vector.
+
+    Attributes
+    ----------
+    radiance : (n, 3) float32
+        Mean radiance of each patch, W/(m^2 sr) times the photometric factor.
+    saturated : (n,) bool
+        Lights with clipped pixels; their value is a lower bound.
+    capture_time_s : float
+        Unix time of the exposure.
+    saturated_pixels : int
+        Clipped pixels in the frame.
+    """
+
+    radiance: np.ndarray
+    saturated: np.ndarray
+    capture_time_s: float
+    saturated_pixels: int = 0
+
+
+@dataclass
+class Frame:
+    """A sky image from a source.
+
+    ``image`` is (H, W, 3) uint8 or uint16 camera codes, or float32 linear values; ``bgr`` says
+    whether the channels come in OpenCV's order. ``exposure`` (linear value of unit radiance)
+    overrides the configured one when the source knows it.
+    """
+
+    image: np.ndarray
+    capture_time_s: float
+    bgr: bool = True
+    exposure: float | None = None
+    truth: object = None  # the simulated sky's known answer, for tests; None for real frames
+
+
+class FrameError(ValueError):
+    """A frame that cannot be measured (wrong size, type or shape); it is skipped."""
+
+
+class SkyMeter:
+    """Turns frames into :class:`Measurement` s for one lens, dome and photometry.
+
+    The matrix is built for the first frame's size (or the calibration's) and rebuilt when
+    the size changes.
+    """
+
+    def __init__(
+        self,
+        dome_vertices: np.ndarray,
+        photometry: Photometry | None = None,
+        camera: FisheyeCamera | None = None,
+        fov_deg: float = 180.0,
+        supersample: int = 6,
+        max_working_pixels: int = DEFAULT_WORKING_PIXELS,
+        sky_mask: np.ndarray | None = None,
+    ):
+        self.dome_vertices = np.asarray(dome_vertices, dtype=np.float64)
+        self.photometry = photometry or Photometry()
+        self.camera = camera
+        self.fov_deg = fov_deg
+        self.supersample = supersample
+        self.max_working_pixels = max_working_pixels
+        self.sky_mask = sky_mask
+        self.matrix: PatchMatrix | None = None
+        self._luts: dict[int, np.ndarray] = {}
+        self._factor = np.asarray(self.photometry.photometric_factor, dtype=np.float64)
+
+    def camera_for(self, width: int, height: int) -> FisheyeCamera:
+        """The calibrated lens, or an ideal equidistant one centred on a frame of this size."""
+        if self.camera is None:
+            return FisheyeCamera.equidistant(width, height, self.fov_deg)
+        if (self.camera.width, self.camera.height) == (width, height):
+            return self.camera
+        if abs(width / self.camera.width - height / self.camera.height) < 1e-3:
+            return self.camera.scaled_to(width, height)  # same sensor, other resolution
+        raise FrameError(
+            f"frame is {width}x{height} but the calibration is for "
+            f"{self.camera.width}x{self.camera.height}"
+        )
+
+    def prepare(self, width: int, height: int) -> PatchMatrix:
+        """Build (or reuse) the matrix for frames of this size."""
+        if self.matrix is None or self._full_size != (width, height):
+            self.matrix = PatchMatrix.build(
+                self.camera_for(width, height),
+                self.dome_vertices,
+                supersample=self.supersample,
+                vignetting=self.photometry,
+                max_working_pixels=self.max_working_pixels,
+                sky_mask=self.sky_mask,
+            )
+            self._full_size = (width, height)
+        return self.matrix
+
+    _full_size: tuple[int, int] = (0, 0)
+
+    def _lut(self, levels: int) -> np.ndarray:
+        if levels not in self._luts:
+            self._luts[levels] = inverse_response_table(self.photometry.response, levels)
+        return self._luts[levels]
+
+    def linearize(self, image: np.ndarray, m: PatchMatrix) -> tuple[np.ndarray, np.ndarray]:
+        """The crop's linear image at working size (float32, unit: full scale = ``scale``),
+        and the flat working-size indices of pixels with a clipped channel.
+
+        8-bit frames go through a 16-bit table (``cv2.LUT``) and are binned in 16 bits: the
+        cheapest exact path (a 16-bit linear value resolves even code 1 of an sRGB camera).
+        """
+        if image.ndim != 3 or image.shape[2] != 3:
+            raise FrameError(f"expected an H x W x 3 image, got shape {image.shape}")
+        x0, y0, x1, y1 = m.crop
+        crop = image[y0:y1, x0:x1]
+        h, w = crop.shape[:2]
+        level = self.photometry.saturation_level
+        if image.dtype == np.uint8:
+            table = self._lut(256)
+            threshold = math.ceil(level * 255)
+            if np.all(table == table[:, :1]):  # one curve for all channels: 1-channel look-up
+                lut = np.round(table[:, 0] * 65535).astype(np.uint16).reshape(1, 256)
+                codes = cv2.LUT(crop.reshape(h, w * 3), lut).reshape(h, w, 3)
+            else:
+                lut = np.round(table * 65535).astype(np.uint16).reshape(1, 256, 3)
+                codes = cv2.LUT(np.ascontiguousarray(crop), lut)
+            linear = codes
+            scale = 65535.0
+            _, peak, _, _ = cv2.minMaxLoc(crop.reshape(h, w * 3))
+        elif image.dtype == np.uint16:
+            linear = self._lut(65536)[crop, np.arange(3)]
+            threshold = math.ceil(level * 65535)
+            scale = 1.0
+            peak = float(crop.max())
+        elif image.dtype in (np.float32, np.float64):
+            linear = crop.astype(np.float32)
+            if not np.all(np.isfinite(linear)):
+                raise FrameError("frame has non-finite values")
+            threshold = level
+            scale = 1.0
+            peak = float(linear.max())
+        else:
+            raise FrameError(f"unsupported pixel type {image.dtype}")
+        b = m.binning
+        if b > 1:
+            linear = cv2.resize(linear, (w // b, h // b), interpolation=cv2.INTER_AREA)
+        linear = linear.astype(np.float32)
+        if scale != 1.0:
+            linear *= np.float32(1.0 / scale)
+        clipped = np.zeros(0, dtype=np.int64)
+        if peak >= threshold:
+            # Clipping is rare and local (the sun): find the rows first, then the pixels.
+            rows = np.flatnonzero(crop.reshape(h, w * 3).max(axis=1) >= threshold)
+            y, x3 = np.nonzero(crop[rows].reshape(rows.size, w * 3) >= threshold)
+            y, x = rows[y], x3 // 3
+            keep = (y < (h // b) * b) & (x < (w // b) * b)
+            clipped = np.unique((y[keep] // b) * (w // b) + x[keep] // b)
+        return linear, clipped
+
+    def measure(self, frame: Frame) -> Measurement:
+        """Measure one frame. Raises :class:`FrameError` for frames that cannot be used."""
+        image = frame.image
+        if not isinstance(image, np.ndarray) or image.ndim != 3:
+            raise FrameError("frame is not an H x W x 3 image")
+        exposure = frame.exposure if frame.exposure is not None else self.photometry.exposure
+        if not exposure or exposure <= 0 or not math.isfinite(exposure):
+            raise FrameError(f"frame exposure {exposure!r} is not a positive number")
+        h, w = image.shape[:2]
+        m = self.prepare(w, h)
+        linear, clipped = self.linearize(image, m)
+        radiance = m.apply(linear)
+        if frame.bgr:
+            radiance = radiance[:, ::-1]
+        radiance = np.maximum(radiance, 0.0) * (self._factor / exposure)
+        saturated = np.zeros(m.count, dtype=bool)
+        if clipped.size:
+            saturated[m.lights_at_pixels(clipped)] = True
+            # A light that the lens cannot see but copies a clipped one is clipped too.
+            saturated |= saturated[m.fill_from]
+        return Measurement(
+            radiance=radiance.astype(np.float32),
+            saturated=saturated,
+            capture_time_s=frame.capture_time_s,
+            saturated_pixels=int(clipped.size),
+        )
+
+
+# --------------------------------------------------------------------------- time filtering
+
+
+@dataclass
+class TemporalFilter:
+    """Exponential smoothing plus a change threshold for the streamed vector.
+
+    Parameters
+    ----------
+    time_constant_s : float
+        Each new measurement moves the smoothed vector by ``1 - exp(-dt / tau)``; 0 turns
+        smoothing off. A few seconds hides sensor noise; clouds over the sun still come through.
+    change_threshold : float
+        A new vector is sent only when some light's value has moved by more than this fraction
+        of the sky's mean radiance since the last vector sent (or its flags changed).
+    max_interval_s : float
+        Send anyway after this long, so clients see that the server is alive.
+    """
+
+    time_constant_s: float = 2.0
+    change_threshold: float = 0.002
+    max_interval_s: float = 5.0
+    value: np.ndarray | None = None
+    _time_s: float = 0.0
+    _sent: np.ndarray | None = None
+    _sent_time_s: float = -math.inf
+    _sent_flags: object = None
+
+    def reset(self) -> None:
+        self.value = None
+        self._sent = None
+        self._sent_time_s = -math.inf
+        self._sent_flags = None
+
+    def update(self, radiance: np.ndarray, time_s: float) -> np.ndarray:
+        """Fold in one measurement (n, 3) taken at ``time_s``; returns the smoothed vector."""
+        radiance = np.asarray(radiance, dtype=np.float64)
+        if self.value is None or self.value.shape != radiance.shape:
+            self.value = radiance.copy()
+        else:
+            dt = max(0.0, time_s - self._time_s)
+            tau = self.time_constant_s
+            alpha = 1.0 - math.exp(-dt / tau) if tau > 0 else 1.0
+            self.value += alpha * (radiance - self.value)
+        self._time_s = time_s
+        return self.value
+
+    def should_send(self, now_s: float, flags: object = None) -> bool:
+        """Whether the current value differs enough from the last one sent."""
+        if self.value is None:
+            return False
+        if self._sent is None or flags != self._sent_flags:
+            return True
+        if now_s - self._sent_time_s >= self.max_interval_s:
+            return True
+        scale = max(float(np.mean(np.abs(self._sent))), 1e-9)
+        return float(np.max(np.abs(self.value - self._sent))) > self.change_threshold * scale
+
+    def mark_sent(self, now_s: float, flags: object = None) -> None:
+        self._sent = None if self.value is None else self.value.copy()
+        self._sent_time_s = now_s
+        self._sent_flags = flags
+
