@@ -1,0 +1,82 @@
+"""The wire format: encoder output is pinned by the stored vectors, the decoder reads them."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from server import protocol
+from server.protocol import ProtocolError, decode, parse_client_message, parse_streams
+
+VECTORS = Path(__file__).resolve().parents[1] / "protocol_vectors"
+
+
+def load_vectors():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("make_vectors", VECTORS / "make_vectors.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.vectors()
+
+
+def test_encoder_reproduces_the_stored_vectors():
+    for name, (data, expected) in load_vectors().items():
+        assert (VECTORS / f"{name}.bin").read_bytes() == data, name
+        assert json.loads((VECTORS / f"{name}.json").read_text()) == expected, name
+
+
+@pytest.mark.parametrize("path", sorted(VECTORS.glob("*.bin")), ids=lambda p: p.stem)
+def test_python_decoder_reads_the_vectors(path):
+    expected = json.loads(path.with_suffix(".json").read_text())
+    data = path.read_bytes()
+    if "error" in expected:
+        with pytest.raises(ProtocolError, match=expected["error"]):
+            decode(data)
+        return
+    m = decode(data)
+    assert (m.type, m.type_name, m.version, m.flags, m.sequence, m.capture_time_s, m.count) == (
+        expected["type"], expected["type_name"], expected["version"], expected["flags"],
+        expected["sequence"], expected["capture_time_s"], expected["count"])
+    if m.type == protocol.MessageType.LIGHT:
+        assert m.rgb.tolist() == expected["rgb"]
+        assert np.flatnonzero(m.saturated).tolist() == expected["saturated"]
+        assert bool(m.flags & protocol.Flags.STALE) == expected["stale"]
+        assert bool(m.flags & protocol.Flags.SIMULATED) == expected["simulated"]
+    else:
+        assert m.payload.hex() == expected["payload_hex"]
+
+
+def test_header_layout_is_24_bytes_and_light_size_formula():
+    assert protocol.HEADER_BYTES == 24
+    data = protocol.encode_light(np.ones((400, 3)), np.zeros(400, bool), 1, 2.0)
+    assert len(data) == protocol.light_message_bytes(400) == 24 + 4800 + 50
+
+
+@pytest.mark.parametrize(
+    ("text", "reason"),
+    [
+        ("hello", "not JSON"),
+        ("[1, 2]", "JSON object"),
+        ('{"type": "dance"}', "unknown message type"),
+        ('{"type": "subscribe", "streams": "light"}', "list"),
+        ('{"type": "subscribe", "streams": ["weather"]}', "unknown stream"),
+        ('{"type": "ping", "id": {"a": 1}}', "ping id"),
+        ('{"type": "ping", "id": 1, "x": 2}', "unexpected keys"),
+        ('{"type": "ping", "id": "' + "x" * 2000 + '"}', "too long"),
+    ],
+)
+def test_client_messages_outside_the_protocol_are_refused(text, reason):
+    with pytest.raises(ProtocolError, match=reason):
+        parse_client_message(text)
+
+
+def test_client_messages_in_the_protocol_are_accepted():
+    m = parse_client_message('{"type": "subscribe", "streams": ["light", "site-camera"]}')
+    assert m.streams == ["light", "site-camera"]
+    assert parse_client_message('{"type": "ping", "id": 17}').id == 17
+    assert parse_streams(None) == ["light"]
+    assert parse_streams("site-camera,light") == ["site-camera", "light"]
+    with pytest.raises(ProtocolError):
+        parse_streams("light,tv")

@@ -1,0 +1,136 @@
+// The light stream's wire format, protocol version 1 (docs/protocol.md).
+// A pure ES module: no DOM, no network; the web client and the Node tests import it.
+//
+// Binary messages are little-endian: a 24-byte header
+//   0 magic "DLYT" | 4 u8 version | 5 u8 type | 6 u16 flags | 8 u32 sequence
+//   12 u32 count | 16 f64 capture time (Unix seconds)
+// then, for LIGHT, count x RGB float32 and a saturated bitmask of ceil(count / 8) bytes
+// (bit i % 8 of byte i >> 3, least significant bit first); for other types, count bytes.
+
+export const PROTOCOL_VERSION = 1;
+export const MAGIC = 'DLYT';
+export const HEADER_BYTES = 24;
+
+export const MessageType = Object.freeze({
+  LIGHT: 1,
+  SITE_CAMERA: 2,
+  OCCLUSION_MASK: 3, // reserved (issue 6)
+});
+
+export const Flags = Object.freeze({
+  STALE: 1,
+  SATURATED: 2,
+  SIMULATED: 4,
+  REPLAY: 8,
+});
+
+const TYPE_NAMES = { 1: 'light', 2: 'site-camera', 3: 'occlusion-mask' };
+
+export class ProtocolError extends Error {}
+
+function asDataView(data) {
+  if (data instanceof ArrayBuffer) return new DataView(data);
+  if (ArrayBuffer.isView(data)) return new DataView(data.buffer, data.byteOffset, data.byteLength);
+  throw new ProtocolError('expected an ArrayBuffer or a typed array');
+}
+
+/**
+ * Decode one binary message.
+ * @param {ArrayBuffer|ArrayBufferView} data
+ * @returns {{type:number, typeName:string, version:number, flags:number, stale:boolean,
+ *   saturatedFlag:boolean, simulated:boolean, replay:boolean, sequence:number,
+ *   captureTime:number, count:number, rgb?:Float32Array, saturated?:Uint8Array,
+ *   payload?:Uint8Array}}
+ *   rgb holds count x 3 values (light-major); saturated[i] is 1 when light i clipped.
+ * @throws {ProtocolError} when the message is malformed.
+ */
+export function decodeMessage(data) {
+  const view = asDataView(data);
+  if (view.byteLength < HEADER_BYTES) {
+    throw new ProtocolError(`message of ${view.byteLength} bytes is shorter than the header`);
+  }
+  const magic = String.fromCharCode(
+    view.getUint8(0), view.getUint8(1), view.getUint8(2), view.getUint8(3));
+  if (magic !== MAGIC) throw new ProtocolError('bad magic');
+  const version = view.getUint8(4);
+  if (version !== PROTOCOL_VERSION) {
+    throw new ProtocolError(`unsupported protocol version ${version}`);
+  }
+  const type = view.getUint8(5);
+  const flags = view.getUint16(6, true);
+  const msg = {
+    type,
+    typeName: TYPE_NAMES[type] ?? 'unknown',
+    version,
+    flags,
+    stale: (flags & Flags.STALE) !== 0,
+    saturatedFlag: (flags & Flags.SATURATED) !== 0,
+    simulated: (flags & Flags.SIMULATED) !== 0,
+    replay: (flags & Flags.REPLAY) !== 0,
+    sequence: view.getUint32(8, true),
+    count: view.getUint32(12, true),
+    captureTime: view.getFloat64(16, true),
+  };
+  const bodyBytes = view.byteLength - HEADER_BYTES;
+  if (type === MessageType.LIGHT) {
+    const n = msg.count;
+    const need = 12 * n + ((n + 7) >> 3);
+    if (bodyBytes !== need) {
+      throw new ProtocolError(`light message of ${n} lights needs ${need} payload bytes`);
+    }
+    const rgb = new Float32Array(3 * n);
+    for (let i = 0; i < 3 * n; i++) rgb[i] = view.getFloat32(HEADER_BYTES + 4 * i, true);
+    const saturated = new Uint8Array(n);
+    const maskStart = HEADER_BYTES + 12 * n;
+    for (let i = 0; i < n; i++) {
+      saturated[i] = (view.getUint8(maskStart + (i >> 3)) >> (i & 7)) & 1;
+    }
+    msg.rgb = rgb;
+    msg.saturated = saturated;
+  } else {
+    if (bodyBytes !== msg.count) {
+      throw new ProtocolError(`payload is ${bodyBytes} bytes, header says ${msg.count}`);
+    }
+    msg.payload = new Uint8Array(view.buffer, view.byteOffset + HEADER_BYTES, bodyBytes);
+  }
+  return msg;
+}
+
+/**
+ * Parse the server's first (text) message.
+ * @param {string} text
+ * @returns {object} the hello: protocol, scene, lights, manifest, streams, ...
+ */
+export function parseHello(text) {
+  let hello;
+  try {
+    hello = JSON.parse(text);
+  } catch {
+    throw new ProtocolError('hello is not JSON');
+  }
+  if (!hello || hello.type !== 'hello') throw new ProtocolError('expected a hello message');
+  if (hello.protocol !== PROTOCOL_VERSION) {
+    throw new ProtocolError(`server speaks protocol ${hello.protocol}, client ${PROTOCOL_VERSION}`);
+  }
+  if (!Number.isInteger(hello.lights) || hello.lights < 1) {
+    throw new ProtocolError('hello has no light count');
+  }
+  return hello;
+}
+
+/** The text message that selects streams, e.g. ['light', 'site-camera']. */
+export function subscribeMessage(streams) {
+  return JSON.stringify({ type: 'subscribe', streams });
+}
+
+/** A ping; the server answers {type: 'pong', id, server_time_s}. */
+export function pingMessage(id) {
+  return JSON.stringify({ type: 'ping', id });
+}
+
+/** WebSocket URL of the light stream for a page at `location` (an URL or Location). */
+export function lightStreamUrl(location, streams = ['light']) {
+  const scheme = location.protocol === 'https:' ? 'wss:' : 'ws:';
+  const query = streams.length ? `?streams=${streams.join(',')}` : '';
+  return `${scheme}//${location.host}/ws/light${query}`;
+}
