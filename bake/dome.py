@@ -184,9 +184,7 @@ def _octahedral_equal_area(p: np.ndarray) -> np.ndarray:
     )
 
 
-def _subdivide(
-    verts: np.ndarray, faces: np.ndarray, frequency: int, place=normalize
-) -> np.ndarray:
+def _subdivide(verts: np.ndarray, faces: np.ndarray, frequency: int, place=normalize) -> np.ndarray:
     """Split each face into ``frequency^2`` triangles on a barycentric grid, then project.
 
     ``place`` maps the flat grid points onto the unit sphere (central projection by default).

@@ -7,6 +7,7 @@ the world frame of DESIGN.md (metres, +Y up, +X east, -Z north).
 
 from __future__ import annotations
 
+import difflib
 import math
 import tomllib
 import zoneinfo
@@ -20,25 +21,67 @@ import trimesh
 from bake.dome import MAX_LIGHTS, MIN_LIGHTS
 
 QUALITY_DEFAULTS = {
-    # samples_per_patch: visibility rays per texel per light (soft shadows across the patch).
+    # direct_rays: visibility rays per point over the whole sky; each light gets
+    #   max(2, ceil(direct_rays / lights)) of them, spread over its patch (soft shadows), so
+    #   a finer dome costs about the same for the same shadow quality.
     # bounce_rays: cosine-weighted gather rays per texel for the indirect bounce.
     # cache_spacing_m: spacing of the bounce cache points on every surface.
     # texel_scale: multiplies every texel size (draft bakes are coarser).
     # view_scale: multiplies fixed-view resolutions.
     "draft": {
-        "samples_per_patch": 2,
+        "direct_rays": 160,
         "bounce_rays": 24,
         "cache_spacing_m": 1.5,
         "texel_scale": 2.0,
         "view_scale": 0.5,
     },
     "final": {
-        "samples_per_patch": 6,
+        "direct_rays": 960,
         "bounce_rays": 96,
         "cache_spacing_m": 0.6,
         "texel_scale": 1.0,
         "view_scale": 1.0,
     },
+}
+
+
+# Every key the format knows, per kind of table (docs/scene-format.md). Unknown keys are
+# reported before anything else: they are almost always typos of one of these.
+FORMAT_KEYS = {
+    "": {
+        "site",
+        "dome",
+        "quality",
+        "bake",
+        "ground",
+        "shadowing",
+        "lightmap",
+        "compression",
+        "virtual",
+        "real",
+        "view",
+    },
+    "site": {"id", "name", "latitude_deg", "longitude_deg", "elevation_m", "timezone", "north_deg"},
+    "dome": {"lights"},
+    "quality": {"default", "draft", "final"},
+    "quality-level": {"direct_rays", "bounce_rays", "cache_spacing_m", "texel_scale", "view_scale"},
+    "bake": {"seed"},
+    "ground": {"center_m", "size_m", "albedo"},
+    "shadowing": {
+        "texel_m",
+        "hull_texel_m",
+        "hull_offset_m",
+        "min_sun_elevation_deg",
+        "min_plane_area_m2",
+        "max_planes_per_part",
+        "max_atlas_size",
+    },
+    "lightmap": {"texel_m"},
+    "compression": {"budget", "max_rank", "encoding"},
+    "virtual": {"name", "model", "parts", "albedo", "translation_m", "yaw_deg", "scale"},
+    "real": {"name", "albedo", "receiver", "box_m", "model", "translation_m", "yaw_deg", "scale"},
+    "view": {"name", "width", "height", "position_m", "look_at_m", "fov_y_deg", "intrinsics"},
+    "intrinsics": {"fx", "fy", "cx", "cy"},
 }
 
 
@@ -112,7 +155,7 @@ class Ground:
 class Settings:
     lights: int
     quality: str
-    samples_per_patch: int
+    direct_rays: int
     bounce_rays: int
     cache_spacing_m: float
     texel_scale: float
@@ -123,6 +166,7 @@ class Settings:
     hull_offset_m: float
     min_sun_elevation_deg: float
     min_plane_area_m2: float
+    max_planes_per_part: int
     max_atlas_size: int
     lightmap_texel_m: float
     compression: dict = field(default_factory=dict)
@@ -158,15 +202,27 @@ class Site:
 
 
 class _Table:
-    """A TOML table with the path of keys that led to it, for error messages."""
+    """A TOML table of a known kind, with the path of keys that led to it for messages.
 
-    def __init__(self, file: Path, prefix: str, data: Any):
+    Unknown keys are rejected on construction, with the closest known key as a hint.
+    """
+
+    def __init__(self, file: Path, prefix: str, data: Any, kind: str):
         self.file = file
         self.prefix = prefix
         if not isinstance(data, dict):
             raise SceneError(file, prefix, f"must be a table, got {_kind(data)}")
         self.data = data
-        self.used: set[str] = set()
+        self.known = FORMAT_KEYS[kind]
+        for key in sorted(data):
+            if key not in self.known:
+                close = difflib.get_close_matches(key, sorted(self.known), n=1, cutoff=0.5)
+                hint = (
+                    f"did you mean {close[0]!r}?"
+                    if close
+                    else f"known keys here: {', '.join(sorted(self.known))}"
+                )
+                raise SceneError(file, self.key(key), f"unknown key ({hint})")
 
     def key(self, name: str) -> str:
         return f"{self.prefix}.{name}" if self.prefix else name
@@ -175,7 +231,7 @@ class _Table:
         return name in self.data
 
     def raw(self, name: str, default: Any = ..., required: bool = False) -> Any:
-        self.used.add(name)
+        assert name in self.known, f"{name} missing from FORMAT_KEYS"
         if name not in self.data:
             if required or default is ...:
                 raise SceneError(self.file, self.key(name), "is required but missing")
@@ -244,24 +300,15 @@ class _Table:
             raise SceneError(self.file, self.key(name), f"must be true or false, got {value!r}")
         return value
 
-    def table(self, name, required=False) -> _Table:
+    def table(self, name, required=False, kind=None) -> _Table:
         value = self.raw(name, {} if not required else ...)
-        return _Table(self.file, self.key(name), value)
+        return _Table(self.file, self.key(name), value, kind or name)
 
     def tables(self, name) -> list[_Table]:
         value = self.raw(name, [])
         if not isinstance(value, list):
             raise SceneError(self.file, self.key(name), "must be an array of tables ([[...]])")
-        return [_Table(self.file, f"{self.key(name)}[{i}]", v) for i, v in enumerate(value)]
-
-    def finish(self) -> None:
-        """Reject keys nobody asked for: they are almost always typos."""
-        unknown = sorted(set(self.data) - self.used)
-        if unknown:
-            known = ", ".join(sorted(self.used)) or "none"
-            raise SceneError(
-                self.file, self.key(unknown[0]), f"unknown key (known keys here: {known})"
-            )
+        return [_Table(self.file, f"{self.key(name)}[{i}]", v, name) for i, v in enumerate(value)]
 
 
 def _kind(value: Any) -> str:
@@ -294,7 +341,7 @@ def load_site(scene_dir: Path | str, lights: int | None = None, quality: str | N
     except UnicodeDecodeError:
         raise SceneError(scene_file, "", "not UTF-8 text") from None
 
-    root = _Table(scene_file, "", data)
+    root = _Table(scene_file, "", data, "")
     site_t = root.table("site", required=True)
     name = site_t.string("name")
     latitude = site_t.number("latitude_deg", lo=-90.0, hi=90.0)
@@ -313,7 +360,6 @@ def load_site(scene_dir: Path | str, lights: int | None = None, quality: str | N
     site_id = site_t.string("id", scene_dir.resolve().name)
     if not all(c.isalnum() or c in "-_" for c in site_id):
         raise SceneError(scene_file, site_t.key("id"), "may hold only letters, digits, - and _")
-    site_t.finish()
     world_from_scene = _rotation_y(north_deg)
 
     settings = _load_settings(root, scene_file, lights, quality)
@@ -325,7 +371,6 @@ def load_site(scene_dir: Path | str, lights: int | None = None, quality: str | N
         size_m=tuple(ground_t.vector("size_m", 2, positive=True)),
         albedo=ground_t.vector("albedo", 3, lo=0.0, hi=1.0),
     )
-    ground_t.finish()
     ground.part = _ground_part(ground)
 
     virtual: list[Part] = []
@@ -338,7 +383,6 @@ def load_site(scene_dir: Path | str, lights: int | None = None, quality: str | N
         parts_mode = t.string("parts", "nodes", choices=("nodes", "whole"))
         albedo = t.vector("albedo", 3, None, lo=0.0, hi=1.0)
         transform = world_from_scene @ _object_transform(t)
-        t.finish()
         virtual += _load_model_parts(model, obj, transform, albedo, parts_mode, t)
     if not virtual:
         raise SceneError(scene_file, "virtual", "the site needs at least one [[virtual]] model")
@@ -365,15 +409,12 @@ def load_site(scene_dir: Path | str, lights: int | None = None, quality: str | N
             part = parts[0]
         else:
             raise SceneError(scene_file, t.key("box_m"), "a [[real]] proxy needs box_m or model")
-        t.finish()
         real.append(RealProxy(obj, part, receiver))
 
     views = []
     for t in root.tables("view"):
         views.append(_load_view(t, scene_file, world_from_scene, settings.view_scale))
         _unique(names, views[-1].name, t, scene_file)
-
-    root.finish()
     return Site(
         scene_dir=scene_dir,
         scene_file=scene_file,
@@ -396,7 +437,6 @@ def load_site(scene_dir: Path | str, lights: int | None = None, quality: str | N
 def _load_settings(root: _Table, file: Path, lights: int | None, quality: str | None) -> Settings:
     dome_t = root.table("dome")
     file_lights = dome_t.number("lights", 160, lo=MIN_LIGHTS, hi=MAX_LIGHTS, integer=True)
-    dome_t.finish()
     if lights is not None and not MIN_LIGHTS <= lights <= MAX_LIGHTS:
         raise SceneError("--lights", "", f"must be between {MIN_LIGHTS} and {MAX_LIGHTS}")
 
@@ -407,10 +447,10 @@ def _load_settings(root: _Table, file: Path, lights: int | None, quality: str | 
         raise SceneError("--quality", "", f"must be one of {', '.join(QUALITY_DEFAULTS)}")
     levels = {}
     for level, defaults in QUALITY_DEFAULTS.items():
-        t = quality_t.table(level)
+        t = quality_t.table(level, kind="quality-level")
         levels[level] = {
-            "samples_per_patch": t.number(
-                "samples_per_patch", defaults["samples_per_patch"], lo=1, hi=256, integer=True
+            "direct_rays": t.number(
+                "direct_rays", defaults["direct_rays"], lo=8, hi=65536, integer=True
             ),
             "bounce_rays": t.number(
                 "bounce_rays", defaults["bounce_rays"], lo=0, hi=4096, integer=True
@@ -421,12 +461,9 @@ def _load_settings(root: _Table, file: Path, lights: int | None, quality: str | 
             "texel_scale": t.number("texel_scale", defaults["texel_scale"], lo=0.1, hi=16.0),
             "view_scale": t.number("view_scale", defaults["view_scale"], lo=0.05, hi=4.0),
         }
-        t.finish()
-    quality_t.finish()
 
     bake_t = root.table("bake")
     seed = bake_t.number("seed", 1, lo=0, hi=2**31 - 1, integer=True)
-    bake_t.finish()
 
     shadow_t = root.table("shadowing")
     shadow_texel = shadow_t.number("texel_m", 0.5, lo=0.01, hi=10.0)
@@ -434,12 +471,11 @@ def _load_settings(root: _Table, file: Path, lights: int | None, quality: str | 
     hull_offset = shadow_t.number("hull_offset_m", 0.03, lo=0.0, hi=1.0)
     min_elev = shadow_t.number("min_sun_elevation_deg", 10.0, lo=1.0, hi=89.0)
     min_area = shadow_t.number("min_plane_area_m2", 0.25, lo=0.0, hi=1e6)
+    max_planes = shadow_t.number("max_planes_per_part", 24, lo=4, hi=1000, integer=True)
     max_atlas = shadow_t.number("max_atlas_size", 2048, lo=64, hi=8192, integer=True)
-    shadow_t.finish()
 
     lightmap_t = root.table("lightmap")
     lightmap_texel = lightmap_t.number("texel_m", 0.2, lo=0.005, hi=10.0)
-    lightmap_t.finish()
 
     compression_t = root.table("compression")
     compression = {
@@ -447,13 +483,12 @@ def _load_settings(root: _Table, file: Path, lights: int | None, quality: str | 
         "max_rank": compression_t.number("max_rank", 64, lo=1, hi=512, integer=True),
         "encoding": compression_t.string("encoding", "uastc", choices=("uastc", "etc1s")),
     }
-    compression_t.finish()
 
     q = levels[chosen]
     return Settings(
         lights=lights if lights is not None else file_lights,
         quality=chosen,
-        samples_per_patch=q["samples_per_patch"],
+        direct_rays=q["direct_rays"],
         bounce_rays=q["bounce_rays"],
         cache_spacing_m=q["cache_spacing_m"],
         texel_scale=q["texel_scale"],
@@ -464,6 +499,7 @@ def _load_settings(root: _Table, file: Path, lights: int | None, quality: str | 
         hull_offset_m=hull_offset,
         min_sun_elevation_deg=min_elev,
         min_plane_area_m2=min_area,
+        max_planes_per_part=max_planes,
         max_atlas_size=max_atlas,
         lightmap_texel_m=lightmap_texel,
         compression=compression,
@@ -587,16 +623,14 @@ def _load_view(t: _Table, file: Path, world_from_scene: np.ndarray, view_scale: 
     if (fov is None) == (intr is None):
         raise SceneError(file, t.key("fov_y_deg"), "give exactly one of fov_y_deg or intrinsics")
     if intr is not None:
-        it = _Table(file, t.key("intrinsics"), intr)
+        it = _Table(file, t.key("intrinsics"), intr, "intrinsics")
         fx = it.number("fx", lo=1.0)
         fy = it.number("fy", lo=1.0)
         cx = it.number("cx", lo=0.0, hi=width)
         cy = it.number("cy", lo=0.0, hi=height)
-        it.finish()
     else:
         fy = fx = 0.5 * height / math.tan(math.radians(fov) / 2.0)
         cx, cy = width / 2.0, height / 2.0
-    t.finish()
     forward = look_at - position
     if np.linalg.norm(forward) < 1e-6:
         raise SceneError(file, t.key("look_at_m"), "must differ from position_m")

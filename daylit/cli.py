@@ -46,7 +46,6 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.run(args) or 0)
     except KeyboardInterrupt:
-        print("\ninterrupted", file=sys.stderr)
         return 130
 
 

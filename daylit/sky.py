@@ -171,9 +171,7 @@ class CIESky(Sky):
         def indicatrix(angle):
             return 1.0 + c * (np.exp(d * angle) - np.exp(d * np.pi / 2)) + e * np.cos(angle) ** 2
 
-        return (indicatrix(chi) * gradation(cos_z)) / (
-            indicatrix(z_sun) * gradation(1.0)
-        )
+        return (indicatrix(chi) * gradation(cos_z)) / (indicatrix(z_sun) * gradation(1.0))
 
     def radiance(self, dirs: np.ndarray) -> np.ndarray:
         rel = self.relative_luminance(dirs)

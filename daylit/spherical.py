@@ -34,7 +34,9 @@ def solid_angle(tris: np.ndarray) -> np.ndarray:
     a, b, c = tris[:, 0], tris[:, 1], tris[:, 2]
     numerator = np.abs(np.einsum("ij,ij->i", a, np.cross(b, c)))
     denominator = (
-        1.0 + np.einsum("ij,ij->i", a, b) + np.einsum("ij,ij->i", b, c)
+        1.0
+        + np.einsum("ij,ij->i", a, b)
+        + np.einsum("ij,ij->i", b, c)
         + np.einsum("ij,ij->i", c, a)
     )
     return 2.0 * np.arctan2(numerator, denominator)

@@ -13,8 +13,14 @@ from daylit.spherical import (
     solid_angle,
 )
 
-DOMES = [("icosahedral", 2), ("icosahedral", 4), ("icosahedral", 6), ("octahedral", 3),
-         ("octahedral", 10), ("icosahedral", 10)]
+DOMES = [
+    ("icosahedral", 2),
+    ("icosahedral", 4),
+    ("icosahedral", 6),
+    ("octahedral", 3),
+    ("octahedral", 10),
+    ("icosahedral", 10),
+]
 
 
 @pytest.mark.parametrize(("kind", "frequency"), DOMES)
@@ -53,10 +59,17 @@ def test_patch_lookup_agrees_with_exhaustive_containment(kind, frequency):
     assert np.all(PatchLookup(dome.vertices)(-np.abs(dirs[:10]) - [0, 1e-3, 0]) == -1)
 
 
-@pytest.mark.parametrize(("requested", "count", "kind"), [
-    (40, 40, "icosahedral"), (160, 160, "icosahedral"), (400, 400, "octahedral"),
-    (360, 360, "icosahedral"), (1000, 1000, "icosahedral"), (45, 40, "icosahedral"),
-])
+@pytest.mark.parametrize(
+    ("requested", "count", "kind"),
+    [
+        (40, 40, "icosahedral"),
+        (160, 160, "icosahedral"),
+        (400, 400, "octahedral"),
+        (360, 360, "icosahedral"),
+        (1000, 1000, "icosahedral"),
+        (45, 40, "icosahedral"),
+    ],
+)
 def test_light_count_is_matched(requested, count, kind):
     dome = Dome.for_light_count(requested)
     assert dome.count == count

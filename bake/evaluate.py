@@ -1,0 +1,198 @@
+"""Evaluating a build: irradiance at a point under a sky, from the baked basis.
+
+This is what ``daylit probe`` prints, what the tests compare with physics, and what the
+benchmarks use. Given a world point on a receiver and its normal, it finds the receiver
+(a hull or ground/wall plane, else a lightmap surface), interpolates the basis stacks
+bilinearly at that texel and takes the weighted sum with the sky's light vector:
+
+    E(x) = sum_i r_i B_i(x)      (per RGB channel)
+
+For shadowing planes it returns the irradiance with (``I``) and without (``d``) the virtual
+objects; for a lightmap surface only ``I`` exists.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from daylit import manifest as manifest_io
+from daylit import sky as skies
+from daylit.stackio import read_stack_exr
+
+PLANE_TOLERANCE_M = 0.05
+
+
+class ProbeError(ValueError):
+    """The point is not on any receiver, or the sky cannot be understood."""
+
+
+@dataclass
+class Sample:
+    """Where a point landed: atlas, receiver name and continuous texel coordinates."""
+
+    atlas: str
+    receiver: str
+    kind: str
+    x: float  # texel coordinates: texel centres at integer + 0.5
+    y: float
+    distance_m: float
+
+
+def parse_sky(spec: str) -> skies.Sky:
+    """A named sky: ``uniform[:L]``, ``overcast[:Lz]`` or ``clear:AZIMUTH_DEG,ELEVATION_DEG``."""
+    name, _, args = spec.partition(":")
+    try:
+        values = [float(v) for v in args.split(",")] if args else []
+    except ValueError:
+        raise ProbeError(f"sky {spec!r}: arguments must be numbers") from None
+    if name == "uniform" and len(values) <= 1:
+        L = values[0] if values else 1.0
+        return skies.UniformSky(L=(L, L, L))
+    if name == "overcast" and len(values) <= 1:
+        return skies.overcast_sky(values[0] if values else 30.0)
+    if name == "clear" and len(values) == 2:
+        if not -5.0 <= values[1] <= 90.0:
+            raise ProbeError(f"sky {spec!r}: sun elevation must be within [-5, 90] degrees")
+        return skies.clear_sky(values[0], values[1])
+    raise ProbeError(
+        f"unknown sky {spec!r}: use uniform[:L], overcast[:Lz] or clear:AZIMUTH_DEG,ELEVATION_DEG"
+    )
+
+
+class Build:
+    """A baked site, read from its directory. Stacks are loaded on first use and kept."""
+
+    def __init__(self, build_dir: Path | str):
+        self.dir = Path(build_dir)
+        self.manifest = manifest_io.load(self.dir)
+        self.dome_vertices = manifest_io.dome_vertices(self.manifest)
+        self.atlases = {a["id"]: a for a in self.manifest["atlases"]}
+        self._stacks: dict = {}
+        self._surfaces = None
+
+    @property
+    def light_count(self) -> int:
+        return self.manifest["dome"]["count"]
+
+    def stack(self, atlas: str, name: str) -> np.ndarray:
+        """The master stack (H, W, n, 3) of an atlas (or view) ``atlas``."""
+        key = (atlas, name)
+        if key not in self._stacks:
+            entry = self.atlases.get(atlas) or {v["id"]: v for v in self.manifest["views"]}[atlas]
+            self._stacks[key] = read_stack_exr(self.dir / entry["stacks"][name]["master"])
+        return self._stacks[key]
+
+    def light_vector(self, sky) -> np.ndarray:
+        """(n, 3) patch radiances of a named sky, a :class:`daylit.sky.Sky` or an array."""
+        if isinstance(sky, str):
+            sky = parse_sky(sky)
+        if isinstance(sky, skies.Sky):
+            return skies.patch_mean_radiance(sky, self.dome_vertices)
+        r = np.asarray(sky, dtype=np.float64)
+        if r.ndim == 1:
+            r = np.repeat(r[:, None], 3, axis=1)
+        if r.shape != (self.light_count, 3):
+            raise ProbeError(f"a light vector needs shape ({self.light_count}, 3), got {r.shape}")
+        return r
+
+    # ---------------------------------------------------------------------------------------
+    def locate(self, point, normal) -> Sample:
+        """The receiver texel at a world point with a given normal.
+
+        Planes of the ``ground`` and ``hull`` atlases are tried first (they carry ``d``); then
+        the lightmap surfaces. Raises :class:`ProbeError` when nothing is within 5 cm.
+        """
+        point = np.asarray(point, dtype=float)
+        normal = np.asarray(normal, dtype=float)
+        normal = normal / np.linalg.norm(normal)
+        best = None
+        for atlas_id in ("ground", "hull"):
+            for r in self.atlases.get(atlas_id, {}).get("receivers", []):
+                n = np.array(r["normal"])
+                if n @ normal < 0.99:
+                    continue
+                rel = point - np.array(r["origin_m"])
+                distance = abs(rel @ n)
+                u = rel @ np.array(r["axis_u"]) / r["texel_m"]
+                v = rel @ np.array(r["axis_v"]) / r["texel_m"]
+                w, h = r["rect"][2], r["rect"][3]
+                inside = 0.5 <= u <= w - 0.5 and 0.5 <= v <= h - 0.5
+                if (
+                    distance < PLANE_TOLERANCE_M
+                    and inside
+                    and (best is None or distance < best.distance_m)
+                ):
+                    best = Sample(
+                        atlas_id,
+                        r["name"],
+                        r["kind"],
+                        r["rect"][0] + u,
+                        r["rect"][1] + v,
+                        distance,
+                    )
+            if best is not None:
+                return best
+        return self._locate_surface(point, normal)
+
+    def _locate_surface(self, point, normal) -> Sample:
+        import trimesh
+
+        from bake.gltf import read_site_glb
+
+        if self._surfaces is None:
+            nodes = read_site_glb(self.dir / self.manifest["model"]["path"])
+            self._surfaces = [
+                (name, trimesh.Trimesh(node["vertices"], node["faces"], process=False), node["uv"])
+                for name, node in nodes.items()
+                if node["extras"].get("atlas") == "lightmap"
+            ]
+        lightmap = self.atlases["lightmap"]
+        best = None
+        for name, mesh, uv in self._surfaces:
+            closest, distance, face = trimesh.proximity.closest_point(mesh, point[None, :])
+            if distance[0] > PLANE_TOLERANCE_M or mesh.face_normals[face[0]] @ normal < 0.9:
+                continue
+            if best is None or distance[0] < best[0]:
+                bary = trimesh.triangles.points_to_barycentric(
+                    mesh.triangles[face[0]][None], closest
+                )[0]
+                tex = bary @ uv[mesh.faces[face[0]]]
+                best = (distance[0], name, tex[0] * lightmap["width"], tex[1] * lightmap["height"])
+        if best is None:
+            raise ProbeError(
+                f"no receiver within {PLANE_TOLERANCE_M} m of {point.tolist()} "
+                f"facing {normal.tolist()}"
+            )
+        distance, name, x, y = best
+        return Sample("lightmap", name.split("/", 1)[1], "surface", x, y, distance)
+
+    def basis_at(self, sample: Sample, stack: str) -> np.ndarray:
+        """Bilinearly interpolated basis values (n, 3) at a located sample."""
+        image = self.stack(sample.atlas, stack)
+        h, w = image.shape[:2]
+        x, y = sample.x - 0.5, sample.y - 0.5
+        x0, y0 = int(np.floor(x)), int(np.floor(y))
+        fx, fy = x - x0, y - y0
+        out = np.zeros(image.shape[2:], dtype=np.float64)
+        for dy, wy in ((0, 1.0 - fy), (1, fy)):
+            for dx, wx in ((0, 1.0 - fx), (1, fx)):
+                yy, xx = min(max(y0 + dy, 0), h - 1), min(max(x0 + dx, 0), w - 1)
+                out += wy * wx * image[yy, xx]
+        return out
+
+    def irradiance(self, point, normal, sky) -> dict:
+        """Irradiance (W/m^2, RGB) at a receiver point under a sky.
+
+        Returns ``{"with": (3,), "without": (3,) or None, "sample": Sample}``: with the
+        virtual objects present (``I``) and without them (``d``: real proxies only on ground
+        and walls, nothing on hull planes); ``None`` where the receiver has no ``d``.
+        """
+        sample = self.locate(point, normal)
+        r = self.light_vector(sky)
+        stacks = self.atlases[sample.atlas]["stacks"]
+        with_ = np.einsum("nc,nc->c", self.basis_at(sample, "I"), r)
+        without = np.einsum("nc,nc->c", self.basis_at(sample, "d"), r) if "d" in stacks else None
+        return {"with": with_, "without": without, "sample": sample}

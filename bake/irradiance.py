@@ -1,0 +1,406 @@
+"""Basis irradiance: what each sky patch, at unit radiance, delivers to a receiver point.
+
+Renderer choice
+---------------
+A small purpose-built estimator on Embree (``embreex``) rather than Mitsuba 3. What we need is
+irradiance at many scattered points (texels of several atlases, pixels of fixed views) for
+hundreds of separate lights, twice (with and without the virtual objects). A path tracer
+renders one light configuration per image; here one batch of visibility rays serves every light
+and both configurations at once, and the light-independent parts are exact:
+
+- **Direct light** from patch ``i`` at a point with normal ``n`` is
+  ``E_i = integral over patch i of V(w) max(0, n.w) dw``. The unoccluded integral is computed
+  exactly with Lambert's polygon formula (the patch clipped to the surface's hemisphere), and
+  multiplied by the cosine-weighted visible fraction estimated from ``samples_per_patch`` rays
+  spread over the patch (stratified lattice with a random shift per point and patch). So soft
+  shadows come from sampling the whole patch, and an unoccluded point is *exact*: pi*L under a
+  uniform sky, pi*L/2 on a wall.
+- **One bounce** (colour bleeding between real proxies and virtual objects, Sato Fig. 7):
+  direct irradiance is first computed at a *bounce cache* of points spread over every surface.
+  A receiver point then casts ``bounce_rays`` cosine-weighted rays; a ray that hits a surface
+  picks up ``albedo * E_cache / bounce_rays`` from the nearest cache point on the same face, a
+  ray that escapes downward meets the infinite ground beyond the modelled extent, lit by the
+  open sky. Summing over all lights is one sparse matrix product.
+
+Light configurations
+--------------------
+``"all"``: virtual objects, real proxies and ground block light (``I``, ``O``).
+``"real"``: only the real proxies and ground (``d`` of ground/wall planes, ``S``).
+``"none"``: nothing but the infinite ground (``d`` of hull planes: the unshadowed shading the
+client applies to virtual objects in hull-plane mode).
+
+Every function is deterministic for a given ``numpy.random.Generator`` state.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse
+from scipy.spatial import cKDTree
+
+from bake.raytrace import RAY_OFFSET_M, Geometry, RayScene
+from daylit.spherical import clipped_cosine_integral, sample_triangles
+
+GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
+CONFIGS = ("all", "real", "none")
+FACE_SEPARATION = 1e6  # keeps k-d tree neighbours on the same face
+POOL_FACTOR = 64  # directions per patch in the pool, per sample drawn
+CACHE_NEIGHBOURS = 4  # cache points interpolated per bounce hit
+
+
+def lattice(count: int) -> np.ndarray:
+    """A Fibonacci lattice of ``count`` points in the unit square, shape ``(count, 2)``."""
+    i = np.arange(count)
+    return np.stack([(i + 0.5) / count, (i * GOLDEN) % 1.0], axis=-1)
+
+
+def tangent_frames(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit tangents orthogonal to each normal (Duff et al. 2017, branchless)."""
+    x, y, z = normals[:, 0], normals[:, 1], normals[:, 2]
+    sign = np.where(z >= 0.0, 1.0, -1.0)
+    a = -1.0 / (sign + z)
+    b = x * y * a
+    t1 = np.stack([1.0 + sign * x * x * a, sign * b, -sign * x], axis=-1)
+    t2 = np.stack([b, sign + y * y * a, -y], axis=-1)
+    return t1, t2
+
+
+@dataclass
+class SceneSet:
+    """The ray scenes of each light configuration plus the one geometry they index into.
+
+    ``face_ids[config]`` maps a face of that configuration's scene to the global face index.
+    """
+
+    geometry: Geometry
+    scenes: dict
+    face_ids: dict
+    ground_albedo: np.ndarray
+
+    @classmethod
+    def build(cls, geometry: Geometry, ground_albedo: np.ndarray) -> SceneSet:
+        everything = np.arange(len(geometry.faces))
+        real = np.flatnonzero(~geometry.virtual)
+        return cls(
+            geometry=geometry,
+            scenes={
+                "all": RayScene(geometry),
+                "real": RayScene(geometry.subset(~geometry.virtual)),
+                "none": RayScene(geometry.subset(np.zeros(len(geometry.faces), bool))),
+            },
+            face_ids={"all": everything, "real": real, "none": np.zeros(0, np.int64)},
+            ground_albedo=np.asarray(ground_albedo, dtype=np.float64),
+        )
+
+
+@dataclass
+class BounceCache:
+    """Points on every surface with their direct basis irradiance.
+
+    Attributes
+    ----------
+    points : (C, 3) float, metres, on the surfaces
+    normals : (C, 3) float, the face normals
+    faces : (C,) int, global face index of each point
+    albedo : (C, 3) float
+    E : dict config -> (C, n) float32, direct irradiance at unit patch radiance
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    faces: np.ndarray
+    albedo: np.ndarray
+    E: dict
+
+    def __post_init__(self):
+        key = np.concatenate([self.points, FACE_SEPARATION * self.faces[:, None]], axis=1)
+        self._tree = cKDTree(key)
+        # Albedo times irradiance, flattened to (C, n * 3): what one bounce ray picks up.
+        self._picked_up = {
+            config: (E[:, :, None] * self.albedo[:, None, :]).reshape(len(self.points), -1)
+            for config, E in self.E.items()
+        }
+
+    def nearest(self, points: np.ndarray, faces: np.ndarray, k: int = CACHE_NEIGHBOURS):
+        """The ``k`` nearest cache points on the same face and their interpolation weights.
+
+        Returns index (m, k) and weight (m, k), rows summing to 1: inverse distance, limited
+        to points of the hit face (a face has at least one; missing neighbours get weight 0).
+        """
+        key = np.concatenate([points, FACE_SEPARATION * faces[:, None]], axis=1)
+        k = min(k, len(self.points))
+        distance, index = self._tree.query(key, k=k)
+        distance = distance.reshape(len(points), k)
+        index = index.reshape(len(points), k)
+        same_face = self.faces[index] == faces[:, None]
+        weight = np.where(same_face, 1.0 / np.maximum(distance, 1e-3), 0.0)
+        weight /= weight.sum(axis=1, keepdims=True)
+        return index, weight
+
+    def picked_up(self, config: str) -> np.ndarray:
+        return self._picked_up[config]
+
+
+def cache_points(geometry: Geometry, spacing_m: float, far_spacing_m: float, rng):
+    """Spread bounce-cache points over every face: about one per ``spacing_m^2``, at least one.
+
+    The ground is mostly open and far from anything: within a margin of the other geometry's
+    footprint (twice its height) it gets ``spacing_m``, beyond that ``far_spacing_m``.
+    Returns points (C, 3), normals (C, 3), faces (C,).
+    """
+    normals = geometry.face_normals
+    areas = geometry.face_areas_m2
+    is_ground = _ground_faces(geometry)
+    counts = np.maximum(1, np.round(areas / spacing_m**2)).astype(np.int64)
+    counts[is_ground] = 0
+    faces = np.repeat(np.arange(len(geometry.faces)), counts)
+    # Stratified along a lattice per face, shifted randomly: even cover, no shared pattern.
+    index_in_face = np.arange(len(faces)) - np.repeat(np.cumsum(counts) - counts, counts)
+    n_in_face = counts[faces]
+    u = (index_in_face + rng.random(len(faces))) / n_in_face
+    v = (index_in_face * GOLDEN + rng.random(len(faces))) % 1.0
+    su = np.sqrt(u)
+    tri = geometry.vertices[geometry.faces[faces]]
+    points = (
+        (1.0 - su)[:, None] * tri[:, 0]
+        + (su * (1.0 - v))[:, None] * tri[:, 1]
+        + (su * v)[:, None] * tri[:, 2]
+    )
+    ground_points, ground_faces = _ground_cache(geometry, is_ground, spacing_m, far_spacing_m, rng)
+    points = np.concatenate([points, ground_points])
+    faces = np.concatenate([faces, ground_faces])
+    return points, normals[faces], faces
+
+
+def _ground_cache(geometry, is_ground, spacing_m, far_spacing_m, rng):
+    """Jittered grid points on the ground faces: fine near the other geometry, coarse away."""
+    ground_faces = np.flatnonzero(is_ground)
+    if len(ground_faces) == 0:
+        return np.zeros((0, 3)), np.zeros(0, np.int64)
+    ground_v = geometry.vertices[geometry.faces[ground_faces]].reshape(-1, 3)
+    lo, hi = ground_v.min(axis=0), ground_v.max(axis=0)
+    others = geometry.vertices[geometry.faces[~is_ground]].reshape(-1, 3)
+    if len(others):
+        margin = 2.0 * max(others[:, 1].max(), 1.0)
+        near_lo = np.maximum(others.min(axis=0) - margin, lo)
+        near_hi = np.minimum(others.max(axis=0) + margin, hi)
+    else:
+        near_lo, near_hi = lo, lo
+    out = []
+    for spacing in (spacing_m, far_spacing_m):
+        xs = np.arange(lo[0] + spacing / 2, hi[0], spacing)
+        zs = np.arange(lo[2] + spacing / 2, hi[2], spacing)
+        gx, gz = np.meshgrid(xs, zs)
+        pts = np.stack([gx.ravel(), np.zeros(gx.size), gz.ravel()], axis=1)
+        pts[:, [0, 2]] += (rng.random((len(pts), 2)) - 0.5) * spacing
+        pts[:, [0, 2]] = np.clip(pts[:, [0, 2]], lo[[0, 2]], hi[[0, 2]])
+        inside = np.all(
+            (pts[:, [0, 2]] >= near_lo[[0, 2]]) & (pts[:, [0, 2]] <= near_hi[[0, 2]]), axis=1
+        )
+        out.append(pts[inside] if spacing == spacing_m else pts[~inside])
+    points = np.concatenate(out)
+    # Which ground triangle each point lies on (point-in-triangle in the XZ plane).
+    tri = geometry.vertices[geometry.faces[ground_faces]][:, :, [0, 2]]
+    face = np.full(len(points), ground_faces[0])
+    for k, t in enumerate(tri):
+        face[_in_triangle_2d(points[:, [0, 2]], t)] = ground_faces[k]
+    return points, face
+
+
+def _in_triangle_2d(p: np.ndarray, t: np.ndarray) -> np.ndarray:
+    def side(a, b):
+        return (b[0] - a[0]) * (p[:, 1] - a[1]) - (b[1] - a[1]) * (p[:, 0] - a[0])
+
+    s0, s1, s2 = side(t[0], t[1]), side(t[1], t[2]), side(t[2], t[0])
+    return ((s0 >= 0) & (s1 >= 0) & (s2 >= 0)) | ((s0 <= 0) & (s1 <= 0) & (s2 <= 0))
+
+
+def _ground_faces(geometry: Geometry) -> np.ndarray:
+    """Faces lying flat at y = 0 facing up (the ground rectangle)."""
+    v = geometry.vertices[geometry.faces]
+    return np.all(np.abs(v[:, :, 1]) < 1e-9, axis=1) & (geometry.face_normals[:, 1] > 0.999)
+
+
+class Estimator:
+    """Computes basis irradiance at points for the lights of one dome.
+
+    Parameters
+    ----------
+    dome_vertices : (n, 3, 3) float
+    scenes : SceneSet
+    samples_per_patch : int
+        Visibility rays per point and light.
+    bounce_rays : int
+        Gather rays per point for the indirect bounce (0: direct light only).
+    cache : BounceCache or None
+        Needed when ``bounce_rays > 0``.
+    """
+
+    def __init__(
+        self,
+        dome_vertices,
+        scenes: SceneSet,
+        samples_per_patch: int,
+        bounce_rays: int,
+        cache: BounceCache | None = None,
+    ):
+        self.tris = np.asarray(dome_vertices, dtype=np.float64)
+        self.n = self.tris.shape[0]
+        self.scenes = scenes
+        self.samples_per_patch = samples_per_patch
+        self.bounce_rays = bounce_rays
+        self.cache = cache
+        self.up_irradiance = clipped_cosine_integral(self.tris, np.array([[0.0, 1.0, 0.0]]))[0]
+        # Direction pool per patch: a Fibonacci lattice of POOL_FACTOR * M points over the
+        # patch, with solid-angle weights (float32: this is the hot loop's data).
+        pool = POOL_FACTOR * samples_per_patch
+        uv = np.broadcast_to(lattice(pool)[:, None, :], (pool, self.n, 2))
+        dirs, weight = sample_triangles(self.tris, uv)  # (pool, n, 3), (pool, n)
+        self._pool_dirs = np.ascontiguousarray(dirs.transpose(1, 0, 2), dtype=np.float32)
+        self._pool_weight = np.ascontiguousarray(weight.T, dtype=np.float32)
+        self._hemisphere_lattice = lattice(max(bounce_rays, 1))
+        self._exact_cache: dict[bytes, np.ndarray] = {}
+
+    # ---------------------------------------------------------------------------------------
+    def exact_unoccluded(self, normals: np.ndarray) -> np.ndarray:
+        """Lambert's exact unoccluded irradiance ``(T, n)``, computed once per distinct normal
+        (plane receivers share one normal; lightmap texels share their face's)."""
+        key = np.ascontiguousarray(np.round(np.asarray(normals, dtype=np.float64), 9))
+        rows = key.view(np.dtype((np.void, key.dtype.itemsize * 3))).ravel()
+        unique_rows, first, inverse = np.unique(rows, return_index=True, return_inverse=True)
+        missing = [j for j, r in enumerate(unique_rows) if r.tobytes() not in self._exact_cache]
+        if missing:
+            values = clipped_cosine_integral(self.tris, key[first[missing]])
+            for j, row in zip(missing, values, strict=True):
+                self._exact_cache[unique_rows[j].tobytes()] = row
+        table = np.stack([self._exact_cache[r.tobytes()] for r in unique_rows])
+        return table[inverse.ravel()]
+
+    def direct(self, points, normals, configs, rng) -> dict:
+        """Direct irradiance from each patch: ``{config: (T, n) float32}``.
+
+        ``configs`` is any of ``"all"``, ``"real"``, ``"none"``; one set of rays serves all.
+        Each (point, patch) pair traces ``samples_per_patch`` directions: every
+        ``POOL_FACTOR``-th entry of the patch's direction pool from a random start, i.e. a
+        randomly shifted rank-1 lattice over the patch (stratified, independent per pair).
+        """
+        points = np.asarray(points, dtype=np.float64)
+        normals = np.asarray(normals, dtype=np.float64)
+        exact = self.exact_unoccluded(normals)  # (T, n)
+        out = {}
+        if "none" in configs:
+            out["none"] = exact.astype(np.float32)
+        traced = [c for c in configs if c != "none"]
+        if not traced:
+            return out
+        M, pool = self.samples_per_patch, self._pool_dirs.shape[1]
+        t_idx, i_idx = np.nonzero(exact > 0.0)  # pairs that can receive anything
+        start = rng.integers(0, pool, size=len(t_idx))
+        k = (start[:, None] + np.arange(M)[None, :] * (pool // M)) % pool  # (pairs, M)
+        flat = k + (i_idx * pool)[:, None]  # (pairs, M) into the flattened pool
+        dirs = np.take(self._pool_dirs.reshape(-1, 3), flat, axis=0)  # (pairs, M, 3)
+        normals32 = normals.astype(np.float32)
+        cos = np.einsum("pmj,pj->pm", dirs, normals32[t_idx])
+        w = np.take(self._pool_weight.ravel(), flat) * np.maximum(cos, 0.0)  # (pairs, M)
+        # Every sample is traced, also the few below the surface's horizon (weight 0): cheaper
+        # than compressing the arrays, and their result is multiplied by 0.
+        origins32 = (points + RAY_OFFSET_M * normals).astype(np.float32)
+        origins = np.repeat(origins32[t_idx], M, axis=0)
+        ray_dirs = dirs.reshape(-1, 3)
+        pair_of_ray = np.repeat(np.arange(len(t_idx)), M)
+        blocked = {"all": self.scenes.scenes["all"].occluded(origins, ray_dirs)}
+        rays = len(origins)
+        if "real" in traced:
+            # The real scene is a subset of everything: only rays blocked there can be blocked.
+            real_blocked = np.zeros_like(blocked["all"])
+            maybe = np.flatnonzero(blocked["all"])
+            real_blocked[maybe] = self.scenes.scenes["real"].occluded(
+                origins[maybe], ray_dirs[maybe]
+            )
+            blocked["real"] = real_blocked
+            rays += len(maybe)
+        total_w = w.sum(axis=1)  # (pairs,)
+        w_flat = w.ravel()
+        for config in traced:
+            visible = np.bincount(
+                pair_of_ray, weights=w_flat * ~blocked[config], minlength=len(t_idx)
+            )
+            fraction = np.ones(len(t_idx))
+            np.divide(visible, total_w, out=fraction, where=total_w > 0.0)
+            E = np.zeros_like(exact)
+            E[t_idx, i_idx] = exact[t_idx, i_idx] * fraction
+            out[config] = E.astype(np.float32)
+        self.rays_cast = getattr(self, "rays_cast", 0) + rays
+        return out
+
+    # ---------------------------------------------------------------------------------------
+    def bounce(self, points, normals, config: str, rng) -> np.ndarray:
+        """Irradiance after one diffuse bounce, ``(T, n, 3)`` float32 (RGB from albedos)."""
+        T, K = len(points), self.bounce_rays
+        out = np.zeros((T, self.n * 3), dtype=np.float64)
+        if K == 0 or T == 0:
+            return out.reshape(T, self.n, 3).astype(np.float32)
+        # Cosine-weighted directions around each normal: Malley's method on a shifted lattice.
+        uv = (self._hemisphere_lattice[None, :, :] + rng.random((T, 1, 2))) % 1.0
+        r = np.sqrt(uv[..., 0])
+        phi = 2.0 * np.pi * uv[..., 1]
+        local = np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(1.0 - uv[..., 0])], -1)
+        t1, t2 = tangent_frames(normals)
+        dirs = (
+            local[..., 0:1] * t1[:, None, :]
+            + local[..., 1:2] * t2[:, None, :]
+            + local[..., 2:3] * normals[:, None, :]
+        ).reshape(-1, 3)
+        owner = np.repeat(np.arange(T), K)
+        origins = points[owner] + RAY_OFFSET_M * normals[owner]
+        scene = self.scenes.scenes[config]
+        face, distance = scene.first_hit(origins, dirs)
+        self.rays_cast = getattr(self, "rays_cast", 0) + len(origins)
+        hit = face >= 0
+        if np.any(hit):
+            global_face = self.scenes.face_ids[config][face[hit]]
+            facing = (
+                np.einsum("ij,ij->i", dirs[hit], self.scenes.geometry.face_normals[global_face])
+                < 0.0
+            )
+            hit_points = origins[hit] + distance[hit, None] * dirs[hit]
+            index, weight = self.cache.nearest(hit_points, global_face)
+            # Back faces (inside closed objects) reflect nothing.
+            weight *= facing[:, None] / K
+            rows = np.repeat(owner[hit], index.shape[1])
+            gather = scipy.sparse.csr_matrix(
+                (weight.ravel(), (rows, index.ravel())), shape=(T, len(self.cache.points))
+            )
+            out += gather @ self.cache.picked_up(config)
+        # Rays that leave the modelled geometry downward meet the open ground beyond it.
+        down = ~hit & (dirs[:, 1] < 0.0)
+        if np.any(down):
+            per_point = np.bincount(owner[down], minlength=T) / K  # (T,)
+            ground = self.up_irradiance[:, None] * self.scenes.ground_albedo[None, :]  # (n, 3)
+            out += per_point[:, None] * ground.reshape(1, -1)
+        return out.reshape(T, self.n, 3).astype(np.float32)
+
+    # ---------------------------------------------------------------------------------------
+    def basis(self, points, normals, configs, rng) -> dict:
+        """Direct plus one bounce, ``{config: (T, n, 3) float32}``.
+
+        For ``"none"`` the bounce is the open ground's, in closed form:
+        ``albedo_ground * E_up_i * (1 - n_y) / 2`` (a uniformly lit lower hemisphere).
+        """
+        direct = self.direct(points, normals, configs, rng)
+        out = {}
+        for config in configs:
+            E = np.repeat(direct[config][:, :, None], 3, axis=2)
+            if config == "none":
+                lower = 0.5 * (1.0 - np.asarray(normals)[:, 1])  # (T,)
+                E = E + (
+                    lower[:, None, None]
+                    * self.up_irradiance[None, :, None]
+                    * self.scenes.ground_albedo[None, None, :]
+                ).astype(np.float32)
+            elif self.bounce_rays > 0:
+                E = E + self.bounce(points, normals, config, rng)
+            out[config] = E
+        return out
