@@ -36,6 +36,10 @@ from daylit.sky import (
 from server.fisheye import FisheyeCamera
 from server.measure import Frame, Photometry, inverse_response_table
 
+# Linear value of unit radiance at the camera's longest exposure: full scale at 1 W/(m^2 sr),
+# about a hundredth of a daylight sky.
+MAX_EXPOSURE = 1.0
+
 
 @dataclass
 class SimClock:
@@ -270,6 +274,7 @@ class SimulatedSky:
         # Auto-exposure in third stops: the bright end of the sky (not the sun) near 80 %.
         bright = np.percentile(radiance[is_sky].max(axis=1), 99.5) if is_sky.any() else 1.0
         exposure = 2.0 ** (round(3.0 * math.log2(0.8 / max(bright, 1e-9))) / 3.0)
+        exposure = min(exposure, MAX_EXPOSURE)  # the longest shutter: night stays dark
         linear = radiance * (exposure * gain)[:, None]
         linear = linear.reshape(cam.height, cam.width, 3)
         if sky.sun is not None and sky.sun.direction[1] > -0.01:

@@ -1,0 +1,293 @@
+"""The aiohttp application of ``daylit serve``: factory, shared state and background tasks.
+
+:func:`create_app` reads the build's manifest (the dome comes from there, never from the
+baker), builds the measuring chain from the settings and registers the routes. Its
+``cleanup_ctx`` runs the background tasks under a supervisor that logs and restarts any that
+fail, with a pause that doubles up to 30 s, so the server keeps going for days:
+
+- the sky source (sim, replay or camera) -> ``LightPipeline.deliver``;
+- measuring (newest frame -> vector -> hub), and the stale-light watchdog;
+- the site camera, when configured.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import time
+from collections.abc import Awaitable, Callable
+from pathlib import Path
+
+import cv2
+import numpy as np
+from aiohttp import web
+
+from daylit import __version__
+from daylit import manifest as manifest_io
+from server import protocol
+from server.config import ConfigError, Settings, SourceSpec, load_settings
+from server.fisheye import FisheyeCamera, load_calibration
+from server.lightstream import LightHub
+from server.measure import Photometry, SkyMeter, TemporalFilter
+from server.pipeline import LightPipeline
+from server.routes import add_static_routes
+from server.simsky import SimulatedSky
+from server.sitecamera import SiteCameraFeed
+from server.sources import CameraSource, ReplaySource, SimSource, Source
+
+log = logging.getLogger("daylit.server")
+
+SETTINGS = web.AppKey("settings", Settings)
+MANIFEST = web.AppKey("manifest", dict)
+HUB = web.AppKey("hub", LightHub)
+PIPELINE = web.AppKey("pipeline", LightPipeline)
+SITE_CAMERA = web.AppKey("site_camera", object)  # SiteCameraFeed or None
+SUPERVISOR = web.AppKey("supervisor", object)
+
+
+class Supervisor:
+    """Runs named background coroutines forever, restarting any that end or fail."""
+
+    def __init__(self, min_backoff_s: float = 1.0, max_backoff_s: float = 30.0):
+        self.min_backoff_s = min_backoff_s
+        self.max_backoff_s = max_backoff_s
+        self.tasks: dict[str, asyncio.Task] = {}
+        self.restarts: dict[str, int] = {}
+
+    def start(self, name: str, factory: Callable[[], Awaitable[None]]) -> None:
+        self.restarts[name] = 0
+        self.tasks[name] = asyncio.create_task(self._keep(name, factory), name=name)
+
+    async def _keep(self, name: str, factory) -> None:
+        backoff = self.min_backoff_s
+        while True:
+            started = time.monotonic()
+            try:
+                await factory()
+                log.warning("%s ended; restarting in %.0f s", name, backoff)
+            except asyncio.CancelledError:
+                raise
+            except Exception as exc:
+                log.error("%s failed: %s; restarting in %.0f s", name, exc, backoff,
+                          exc_info=not isinstance(exc, OSError | ValueError | RuntimeError))
+            if time.monotonic() - started > 60.0:
+                backoff = self.min_backoff_s  # it ran well for a while: start over
+            self.restarts[name] += 1
+            await asyncio.sleep(backoff)
+            backoff = min(2.0 * backoff, self.max_backoff_s)
+
+    async def stop(self) -> None:
+        for task in self.tasks.values():
+            task.cancel()
+        await asyncio.gather(*self.tasks.values(), return_exceptions=True)
+        self.tasks.clear()
+
+
+def make_sky_source(spec: SourceSpec, settings: Settings, scene: dict) -> Source:
+    sky = settings.sky
+    if spec.kind == "sim":
+        sim = settings.sim
+        simulated = SimulatedSky.for_site(
+            scene["latitude_deg"], scene["longitude_deg"], scene["elevation_m"],
+            scene["timezone"], cloud_cover=sim.cloud_cover, clock_speed=sim.clock_speed,
+            start=sim.start, seed=sim.seed, noise=sim.noise, size_px=sim.size_px,
+        )
+        return SimSource(simulated, sky.rate_hz)
+    if spec.kind == "replay":
+        return ReplaySource(spec.target, sky.rate_hz)
+    return CameraSource(spec.camera_target, sky.rate_hz, sky.reconnect_min_s,
+                        sky.reconnect_max_s)
+
+
+def make_site_source(spec: SourceSpec, settings: Settings) -> Source:
+    cam = settings.site_camera
+    if spec.kind == "replay":
+        source = ReplaySource(spec.target, cam.rate_hz)
+    else:
+        source = CameraSource(spec.camera_target, cam.rate_hz, settings.sky.reconnect_min_s,
+                              settings.sky.reconnect_max_s)
+    source.name = f"site {source.name}"
+    return source
+
+
+def make_photometry(settings: Settings) -> Photometry:
+    sky = settings.sky
+    response: object = sky.response
+    if sky.response not in ("srgb", "linear") and not sky.response.startswith("gamma:"):
+        path = Path(sky.response)
+        try:
+            response = json.loads(path.read_text("utf-8"))
+        except (OSError, json.JSONDecodeError) as exc:
+            raise ConfigError(f"[sky] response: cannot read table {path}: {exc}") from None
+    photometry = Photometry(
+        response=response,
+        exposure=sky.exposure,
+        photometric_factor=tuple(sky.photometric_factor),
+        vignetting=tuple(sky.vignetting),
+        saturation_level=sky.saturation_level,
+    )
+    try:
+        from server.measure import inverse_response_table
+
+        inverse_response_table(photometry.response)
+    except ValueError as exc:
+        raise ConfigError(f"[sky] response: {exc}") from None
+    return photometry
+
+
+def make_meter(settings: Settings, manifest: dict, simulated: SimulatedSky | None) -> SkyMeter:
+    sky = settings.sky
+    camera: FisheyeCamera | None = None
+    if sky.calibration:
+        camera, _ = load_calibration(sky.calibration)
+    elif simulated is not None:
+        camera = simulated.camera  # the simulated lens is known exactly
+    mask = None
+    if sky.sky_mask:
+        mask = cv2.imread(sky.sky_mask, cv2.IMREAD_GRAYSCALE)
+        if mask is None:
+            raise ConfigError(f"[sky] sky_mask: cannot read {sky.sky_mask}")
+    photometry = make_photometry(settings)
+    if simulated is not None:
+        simulated.photometry = Photometry(response=photometry.response,
+                                          vignetting=photometry.vignetting)
+    return SkyMeter(
+        manifest_io.dome_vertices(manifest),
+        photometry,
+        camera=camera,
+        fov_deg=sky.fov_deg,
+        supersample=sky.supersample,
+        max_working_pixels=sky.max_working_pixels,
+        sky_mask=mask,
+    )
+
+
+def create_app(
+    build_dir: Path | str,
+    settings: Settings | None = None,
+    sky_source: Source | None = None,
+    site_source: Source | None = None,
+    meter: SkyMeter | None = None,
+) -> web.Application:
+    """The application for one build.
+
+    ``sky_source``, ``site_source`` and ``meter`` replace what the settings describe (tests
+    use them to inject a controllable source).
+    """
+    build_dir = Path(build_dir)
+    settings = settings or load_settings()
+    manifest = manifest_io.load(build_dir)
+    scene = manifest["scene"]
+    if sky_source is None:
+        sky_source = make_sky_source(settings.sky.source, settings, scene)
+    simulated = sky_source.sim if isinstance(sky_source, SimSource) else None
+    meter = meter or make_meter(settings, manifest, simulated)
+    if site_source is None and settings.site_camera.source is not None:
+        site_source = make_site_source(settings.site_camera.source, settings)
+
+    light_count = manifest["dome"]["count"]
+    stream = settings.stream
+    site_feed: SiteCameraFeed | None = None
+
+    def hello(streams: list[str]) -> str:
+        site = None
+        if site_feed is not None:
+            site = {"source": site_feed.source.name, "size": site_feed.size}
+        return protocol.hello_message(
+            scene_id=scene["id"],
+            light_count=light_count,
+            manifest_url="/build/manifest.json",
+            source=sky_source.name,
+            simulated=bool(sky_source.flags & protocol.Flags.SIMULATED),
+            streams=streams,
+            site_camera=site,
+            smoothing_s=stream.smoothing_s,
+            server_time_s=time.time(),
+            extra={"server": f"daylit {__version__}", "asset_query": "v",
+                   "views": [v["id"] for v in manifest["views"]]},
+        )
+
+    srv = settings.server
+    hub = LightHub(
+        hello,
+        max_clients=srv.max_clients,
+        allowed_origins=srv.allowed_origins,
+        slow_client_timeout_s=srv.slow_client_timeout_s,
+        client_max_messages_per_s=srv.client_max_messages_per_s,
+        site_camera_available=site_source is not None,
+    )
+    if site_source is not None:
+        site_feed = SiteCameraFeed(site_source, hub, settings.site_camera.jpeg_quality,
+                                   settings.site_camera.max_width)
+    temporal = TemporalFilter(stream.smoothing_s, stream.change_threshold, stream.max_interval_s)
+    pipeline = LightPipeline(meter, temporal, hub, sky_source, settings.sky.stale_after_s)
+
+    app = web.Application()
+    app[SETTINGS] = settings
+    app[MANIFEST] = manifest
+    app[HUB] = hub
+    app[PIPELINE] = pipeline
+    app[SITE_CAMERA] = site_feed
+    app[SUPERVISOR] = Supervisor(settings.sky.reconnect_min_s, settings.sky.reconnect_max_s)
+    app.cleanup_ctx.append(background_tasks)
+    app.router.add_get("/ws/light", hub.handle, name="light")
+    app.router.add_get("/api/status", status, name="status")
+    app.router.add_get("/api/sky.jpg", sky_jpeg, name="sky")
+    checksums = {f["path"]: f["sha256"] for f in manifest["files"]}
+    add_static_routes(app, Path(srv.web_root), Path(srv.three_root), build_dir, checksums)
+    return app
+
+
+async def background_tasks(app: web.Application):
+    """``cleanup_ctx``: start the supervised tasks, and stop them (and the clients) at exit."""
+    supervisor: Supervisor = app[SUPERVISOR]
+    pipeline = app[PIPELINE]
+    supervisor.start("sky source", lambda: pipeline.source.run(pipeline.deliver))
+    supervisor.start("measuring", pipeline.measure_forever)
+    supervisor.start("stale watchdog", pipeline.watch_forever)
+    feed = app[SITE_CAMERA]
+    if feed is not None:
+        supervisor.start("site camera", lambda: feed.source.run(feed.deliver))
+        supervisor.start("site camera encoder", feed.run_forever)
+    yield
+    await supervisor.stop()
+    await app[HUB].close_all()
+
+
+async def status(request: web.Request) -> web.Response:
+    """``GET /api/status``."""
+    app = request.app
+    pipeline = app[PIPELINE]
+    hub = app[HUB]
+    feed = app[SITE_CAMERA]
+    body = {
+        **pipeline.status(),
+        **hub.status(),
+        "sequence": hub.sequence["light"],
+        "scene": app[MANIFEST]["scene"]["id"],
+        "lights": app[MANIFEST]["dome"]["count"],
+        "uptime_s": round(time.time() - pipeline.started_s, 1),
+        "server_time_s": time.time(),
+        "restarts": app[SUPERVISOR].restarts,
+        "site_camera": feed.status() if feed is not None else None,
+    }
+    if pipeline.temporal.value is not None:
+        body["mean_radiance"] = np.round(pipeline.temporal.value.mean(axis=0), 4).tolist()
+    resp = web.json_response(body, headers={"Cache-Control": "no-store"})
+    resp.enable_compression()
+    return resp
+
+
+async def sky_jpeg(request: web.Request) -> web.Response:
+    """``GET /api/sky.jpg``: the newest sky frame, at most 320 px (``?size=`` up to 1024)."""
+    try:
+        size = min(1024, max(32, int(request.query.get("size", "320"))))
+    except ValueError:
+        raise web.HTTPBadRequest(text="size must be an integer\n") from None
+    data = await asyncio.to_thread(request.app[PIPELINE].sky_jpeg, size)
+    if data is None:
+        raise web.HTTPServiceUnavailable(text="no sky frame yet\n",
+                                         headers={"Retry-After": "1"})
+    return web.Response(body=data, content_type="image/jpeg",
+                        headers={"Cache-Control": "no-store"})

@@ -1,0 +1,283 @@
+"""Settings of ``daylit serve``: defaults, a TOML file, then command-line flags.
+
+Every setting has a section, a key, a type, a default and a check; a wrong one stops the server
+before it starts with a message that names it, e.g.
+``site.toml: [sky] rate_hz must be a number > 0, got -2``. Unknown keys are errors too (a typo
+would otherwise be silently ignored). ``docs/server.md`` lists every key; ``SCHEMA`` is the
+source of that list.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+
+
+class ConfigError(ValueError):
+    """A setting that is missing, of the wrong type, or out of range."""
+
+
+@dataclass(frozen=True)
+class Key:
+    default: Any
+    kind: str  # "str", "int", "float", "bool", "list[str]", "list[float]", "rgb", "source"
+    help: str
+    minimum: float | None = None
+    maximum: float | None = None
+    exclusive_minimum: bool = False
+
+
+SCHEMA: dict[str, dict[str, Key]] = {
+    "server": {
+        "host": Key("0.0.0.0", "str", "address to listen on (0.0.0.0: every interface)"),
+        "port": Key(8000, "int", "TCP port", 1, 65535),
+        "max_clients": Key(1000, "int", "WebSocket clients served at once; more are refused "
+                            "with close code 1013", 1, 100000),
+        "allowed_origins": Key([], "list[str]", "origins (scheme://host[:port]) allowed to "
+                               "open the light stream besides the page's own; \"*\" for any"),
+        "client_max_messages_per_s": Key(10.0, "float", "messages a client may send per "
+                                         "second (averaged over 5 s) before it is closed", 0.1),
+        "slow_client_timeout_s": Key(30.0, "float", "a client whose connection accepts no "
+                                     "data for this long is dropped", 1.0),
+        "web_root": Key(str(REPO_ROOT / "web"), "str", "folder served at /"),
+        "three_root": Key(str(REPO_ROOT / "node_modules" / "three"), "str",
+                          "the three package, served at /vendor/three/"),
+    },
+    "sky": {
+        "source": Key("sim", "source", "sim | replay:PATH | camera:INDEX_OR_URL"),
+        "rate_hz": Key(2.0, "float", "frames per second of the simulated sky and of replays; "
+                       "the most a camera is measured per second", 0.0, 120.0, True),
+        "stale_after_s": Key(5.0, "float", "no frame for this long marks the light stale", 0.1),
+        "reconnect_min_s": Key(1.0, "float", "first wait before reopening a camera", 0.01),
+        "reconnect_max_s": Key(30.0, "float", "longest wait between reopening attempts", 0.01),
+        "calibration": Key("", "str", "calibration JSON from `daylit calibrate` (intrinsics "
+                           "and rotation to north); empty: ideal equidistant lens, north up"),
+        "fov_deg": Key(180.0, "float", "field of view of the ideal lens when there is no "
+                       "calibration; its circle touches the shorter image side", 10.0, 360.0),
+        "sky_mask": Key("", "str", "image, white where the camera sees open sky (optional)"),
+        "response": Key("srgb", "str", "inverse response: srgb | linear | gamma:G | path to "
+                        "a JSON list of 256 values or RGB triples"),
+        "exposure": Key(1.0, "float", "linear camera value of unit radiance, W/(m^2 sr), at "
+                        "the camera's fixed exposure", 0.0, None, True),
+        "photometric_factor": Key([1.0, 1.0, 1.0], "rgb", "multiplies the measured radiance "
+                                  "(Sato Sec. 5 calibration, white balance)"),
+        "vignetting": Key([], "list[float]", "relative illumination 1 + a1 t^2 + a2 t^4 + ... "
+                          "(t: angle from the optical axis, rad): [a1, a2, ...]"),
+        "saturation_level": Key(0.98, "float", "fraction of full scale counted as clipped",
+                                0.5, 1.0),
+        "supersample": Key(6, "int", "sub-pixel grid for pixels cut by patch edges", 1, 16),
+        "max_working_pixels": Key(1 << 18, "int", "frames are binned to at most this many "
+                                  "pixels after linearising", 4096),
+    },
+    "stream": {
+        "smoothing_s": Key(2.0, "float", "time constant of the exponential smoothing; 0: off",
+                           0.0, 3600.0),
+        "change_threshold": Key(0.002, "float", "send a new vector only when a light moved by "
+                                "more than this fraction of the mean sky radiance", 0.0, 1.0),
+        "max_interval_s": Key(5.0, "float", "send at least this often anyway", 0.1),
+    },
+    "sim": {
+        "start": Key("now", "str", "simulated start: now, or an ISO date-time (local time "
+                     "at the site if it has no offset), e.g. 2026-06-21T07:00"),
+        "clock_speed": Key(1.0, "float", "simulated seconds per real second", 0.0, 100000.0,
+                           True),
+        "cloud_cover": Key(0.3, "float", "fraction of the sky covered by cloud", 0.0, 1.0),
+        "size_px": Key(640, "int", "width and height of the simulated fisheye image", 64, 4096),
+        "noise": Key(0.002, "float", "sensor noise, fraction of full scale", 0.0, 0.2),
+        "seed": Key(0, "int", "cloud pattern", 0),
+    },
+    "site_camera": {
+        "source": Key("", "source", "kiosk camera: camera:INDEX_OR_URL | replay:PATH; empty: "
+                      "none (kiosks then draw the baked surface images)"),
+        "rate_hz": Key(10.0, "float", "most frames per second sent to kiosks", 0.0, 60.0, True),
+        "jpeg_quality": Key(80, "int", "JPEG quality of streamed frames", 10, 100),
+        "max_width": Key(1280, "int", "frames wider than this are scaled down", 64, 8192),
+    },
+}
+
+
+@dataclass(frozen=True)
+class SourceSpec:
+    """A parsed ``sim``, ``replay:PATH`` or ``camera:INDEX_OR_URL``."""
+
+    kind: str
+    target: str = ""
+
+    def __str__(self) -> str:
+        return self.kind if not self.target else f"{self.kind}:{self.target}"
+
+    @property
+    def camera_target(self) -> int | str:
+        """A device index (int) or a file/stream URL (str)."""
+        return int(self.target) if self.target.isdigit() else self.target
+
+
+def parse_source(text: str, allow_sim: bool = True) -> SourceSpec:
+    """Parse a source spec; raises :class:`ConfigError` naming what is wrong."""
+    text = text.strip()
+    if text == "sim" and allow_sim:
+        return SourceSpec("sim")
+    kind, _, target = text.partition(":")
+    if kind == "replay" and target:
+        path = Path(target).expanduser()
+        if not path.exists():
+            raise ConfigError(f"replay source {target!r} does not exist")
+        return SourceSpec("replay", str(path))
+    if kind == "camera" and target:
+        return SourceSpec("camera", target)
+    choices = ("sim | " if allow_sim else "") + "replay:PATH | camera:INDEX_OR_URL"
+    raise ConfigError(f"source {text!r} is not one of {choices}")
+
+
+def _check(where: str, key: Key, value: Any) -> Any:
+    """Coerce and check one value against its key; raise ConfigError naming ``where``."""
+    kind = key.kind
+
+    def fail(what: str) -> ConfigError:
+        return ConfigError(f"{where} must be {what}, got {value!r}")
+
+    if kind == "str":
+        if not isinstance(value, str):
+            raise fail("a string")
+        return value
+    if kind == "source":
+        if not isinstance(value, str):
+            raise fail("a string such as sim, replay:PATH or camera:0")
+        if value == "":
+            return None
+        try:
+            return parse_source(value, allow_sim=not where.startswith("[site_camera]"))
+        except ConfigError as exc:
+            raise ConfigError(f"{where}: {exc}") from None
+    if kind == "bool":
+        if not isinstance(value, bool):
+            raise fail("true or false")
+        return value
+    if kind in ("int", "float"):
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise fail("an integer" if kind == "int" else "a number")
+        if kind == "int" and not float(value).is_integer():
+            raise fail("an integer")
+        value = int(value) if kind == "int" else float(value)
+        if not math.isfinite(value):
+            raise fail("a finite number")
+        lo, hi = key.minimum, key.maximum
+        if lo is not None and (value <= lo if key.exclusive_minimum else value < lo):
+            raise fail(f"a number {'>' if key.exclusive_minimum else '>='} {lo:g}")
+        if hi is not None and value > hi:
+            raise fail(f"a number <= {hi:g}")
+        return value
+    if kind in ("list[str]", "list[float]", "rgb"):
+        if not isinstance(value, list):
+            raise fail("a list")
+        if kind == "list[str]":
+            if not all(isinstance(v, str) for v in value):
+                raise fail("a list of strings")
+            return list(value)
+        if not all(isinstance(v, int | float) and not isinstance(v, bool) for v in value):
+            raise fail("a list of numbers")
+        out = [float(v) for v in value]
+        if kind == "rgb" and (len(out) != 3 or min(out) <= 0):
+            raise fail("three positive numbers [r, g, b]")
+        return out
+    raise AssertionError(kind)
+
+
+class Settings:
+    """Checked settings: ``settings.sky.rate_hz`` and so on (read-only sections)."""
+
+    def __init__(self, values: dict[str, dict[str, Any]], origin: dict[str, str]):
+        self._values = values
+        self.origin = origin  # "section.key" -> where the value came from
+        for section, keys in values.items():
+            setattr(self, section, _Section(section, keys))
+
+    def as_dict(self) -> dict[str, dict[str, Any]]:
+        out = {}
+        for section, keys in self._values.items():
+            out[section] = {k: (str(v) if isinstance(v, SourceSpec) else v)
+                            for k, v in keys.items()}
+        return out
+
+
+class _Section:
+    def __init__(self, name: str, values: dict[str, Any]):
+        self.__dict__.update(values)
+        self._name = name
+
+    def __repr__(self) -> str:
+        return f"[{self._name}] " + ", ".join(
+            f"{k}={v!r}" for k, v in self.__dict__.items() if not k.startswith("_"))
+
+
+def load_settings(
+    path: Path | str | None = None, overrides: dict[str, Any] | None = None
+) -> Settings:
+    """Defaults, then the TOML file at ``path``, then ``overrides`` {"section.key": value}."""
+    raw: dict[str, dict[str, Any]] = {s: {} for s in SCHEMA}
+    origin: dict[str, str] = {}
+    label = "config"
+    if path is not None:
+        path = Path(path)
+        label = str(path)
+        try:
+            data = tomllib.loads(path.read_text("utf-8"))
+        except FileNotFoundError:
+            raise ConfigError(f"{path}: no such config file") from None
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"{path}: cannot read: {exc}") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+        for section, keys in data.items():
+            if section not in SCHEMA:
+                raise ConfigError(
+                    f"{path}: unknown section [{section}] (known: {', '.join(SCHEMA)})")
+            if not isinstance(keys, dict):
+                raise ConfigError(f"{path}: {section} must be a [section] of keys")
+            for key, value in keys.items():
+                if key not in SCHEMA[section]:
+                    raise ConfigError(
+                        f"{path}: unknown key [{section}] {key} "
+                        f"(known: {', '.join(SCHEMA[section])})")
+                raw[section][key] = value
+                origin[f"{section}.{key}"] = str(path)
+    for dotted, value in (overrides or {}).items():
+        section, _, key = dotted.partition(".")
+        if section not in SCHEMA or key not in SCHEMA[section]:
+            raise ConfigError(f"unknown setting {dotted!r}")
+        raw[section][key] = value
+        origin[dotted] = "command line"
+    values: dict[str, dict[str, Any]] = {}
+    for section, keys in SCHEMA.items():
+        values[section] = {}
+        for key, spec in keys.items():
+            value = raw[section].get(key, spec.default)
+            src = origin.get(f"{section}.{key}", "default")
+            where = f"[{section}] {key}"
+            prefix = f"{src}: " if src not in ("default",) else ""
+            try:
+                values[section][key] = _check(where, spec, value)
+            except ConfigError as exc:
+                raise ConfigError(f"{prefix}{exc}") from None
+    settings = Settings(values, origin)
+    sky = settings.sky
+    if sky.reconnect_min_s > sky.reconnect_max_s:
+        raise ConfigError(f"{label}: [sky] reconnect_min_s must not exceed reconnect_max_s")
+    return settings
+
+
+def parse_override(text: str) -> tuple[str, Any]:
+    """``section.key=value`` from ``--set``; the value is read as TOML, else as a string."""
+    dotted, sep, value = text.partition("=")
+    if not sep or "." not in dotted:
+        raise ConfigError(f"--set {text!r}: expected section.key=value")
+    try:
+        parsed = tomllib.loads(f"v = {value}")["v"]
+    except tomllib.TOMLDecodeError:
+        parsed = value
+    return dotted.strip(), parsed

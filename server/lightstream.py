@@ -1,0 +1,259 @@
+"""Broadcasting the light vector (and kiosk camera frames) to every WebSocket client.
+
+The hub keeps only the newest encoded message of each stream. Each client has its own sender
+task that wakes when something new is published and sends the newest message at that moment;
+while a client's connection is slow, newer messages simply replace older ones, so nothing queues
+up and no client waits for another. Publishing is a plain function call that never waits.
+
+Per connection (``GET /ws/light``):
+- the Origin must be the page's own or in ``allowed_origins`` (else HTTP 403);
+- beyond ``max_clients`` the connection is accepted and closed at once with 1013;
+- the first message is the JSON hello, then binary messages (:mod:`server.protocol`);
+- the client may send small JSON messages (subscribe, ping); anything else closes that client
+  alone: 1003 for binary data, 1008 for text outside the protocol or too many messages,
+  1009 for a message over the size limit;
+- a client whose connection has accepted nothing for ``slow_client_timeout_s`` is dropped.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from aiohttp import WSCloseCode, WSMsgType, web
+from yarl import URL
+
+from server import protocol
+from server.protocol import MessageType, ProtocolError
+
+log = logging.getLogger("daylit.stream")
+
+LIGHT = "light"
+SITE_CAMERA = "site-camera"
+
+
+@dataclass(eq=False)  # identity: each connection is its own client
+class Client:
+    """One connected viewer."""
+
+    ws: web.WebSocketResponse
+    remote: str
+    streams: set[str]
+    transport: asyncio.BaseTransport | None = None
+    wake: asyncio.Event = field(default_factory=asyncio.Event)
+    sent: dict[str, int] = field(default_factory=dict)
+    connected_at_s: float = field(default_factory=time.time)
+    tokens: float = 0.0
+    token_time_s: float = field(default_factory=time.monotonic)
+    messages_sent: int = 0
+    skipped: int = 0  # newer messages that replaced older ones while the client was slow
+
+
+class LightHub:
+    """The newest message of each stream and the clients that receive them.
+
+    Parameters
+    ----------
+    hello : callable
+        ``hello(streams) -> str``: the JSON hello for a client with those streams.
+    max_clients : int
+    allowed_origins : list of str
+        Extra allowed ``Origin`` values, or ``["*"]``.
+    slow_client_timeout_s : float
+    client_max_messages_per_s : float
+    """
+
+    def __init__(
+        self,
+        hello: Callable[[list[str]], str],
+        max_clients: int = 1000,
+        allowed_origins: list[str] | None = None,
+        slow_client_timeout_s: float = 30.0,
+        client_max_messages_per_s: float = 10.0,
+        site_camera_available: bool = False,
+    ):
+        self.hello = hello
+        self.max_clients = max_clients
+        self.allowed_origins = {o.rstrip("/") for o in (allowed_origins or [])}
+        self.slow_client_timeout_s = slow_client_timeout_s
+        self.client_rate = client_max_messages_per_s
+        self.site_camera_available = site_camera_available
+        self.clients: set[Client] = set()
+        self.latest: dict[str, tuple[int, bytes]] = {}
+        self.sequence: dict[str, int] = {LIGHT: 0, SITE_CAMERA: 0}
+        self.refused = 0
+        self.closed_for_protocol = 0
+
+    # --------------------------------------------------------------------------- publishing
+
+    def publish(self, stream: str, data: bytes, sequence: int) -> None:
+        """Make ``data`` the newest message of ``stream`` and wake its subscribers."""
+        self.latest[stream] = (sequence, data)
+        for client in self.clients:
+            if stream in client.streams:
+                client.wake.set()
+
+    def publish_light(self, rgb, saturated, capture_time_s: float, flags: int) -> int:
+        """Encode and publish a light vector; returns its sequence number."""
+        seq = self.sequence[LIGHT] = (self.sequence[LIGHT] + 1) & 0xFFFFFFFF
+        data = protocol.encode_light(rgb, saturated, seq, capture_time_s, flags)
+        self.publish(LIGHT, data, seq)
+        return seq
+
+    def publish_site_camera(self, jpeg: bytes, capture_time_s: float, flags: int = 0) -> int:
+        seq = self.sequence[SITE_CAMERA] = (self.sequence[SITE_CAMERA] + 1) & 0xFFFFFFFF
+        data = protocol.encode_blob(MessageType.SITE_CAMERA, jpeg, seq, capture_time_s, flags)
+        self.publish(SITE_CAMERA, data, seq)
+        return seq
+
+    # ----------------------------------------------------------------------------- clients
+
+    def origin_allowed(self, request: web.Request) -> bool:
+        origin = request.headers.get("Origin")
+        if origin is None or "*" in self.allowed_origins:
+            return True  # non-browser clients send none
+        if origin.rstrip("/") in self.allowed_origins:
+            return True
+        try:
+            url = URL(origin)
+        except ValueError:
+            return False
+        # Same origin: the page was served by this server under the same host and port.
+        return url.host is not None and url.raw_authority == request.host
+
+    async def handle(self, request: web.Request) -> web.StreamResponse:
+        """The ``GET /ws/light`` handler."""
+        remote = request.remote or "?"
+        if not self.origin_allowed(request):
+            log.warning("refused light stream from %s: origin %s not allowed", remote,
+                        request.headers.get("Origin"))
+            raise web.HTTPForbidden(text="origin not allowed\n")
+        try:
+            streams = protocol.parse_streams(request.query.get("streams"))
+        except ProtocolError as exc:
+            raise web.HTTPBadRequest(text=f"{exc}\n") from None
+        ws = web.WebSocketResponse(
+            max_msg_size=protocol.MAX_CLIENT_MESSAGE_BYTES,
+            compress=False,  # float vectors and JPEG do not deflate; spare the CPU
+            heartbeat=30.0,
+        )
+        await ws.prepare(request)
+        if len(self.clients) >= self.max_clients:
+            self.refused += 1
+            log.warning("refused light stream from %s: %d clients already (max_clients)",
+                        remote, len(self.clients))
+            await ws.close(code=WSCloseCode.TRY_AGAIN_LATER, message=b"server full")
+            return ws
+        client = Client(ws, remote, set(streams), request.transport,
+                        tokens=5.0 * self.client_rate)
+        self._filter_streams(client)
+        await ws.send_str(self.hello(sorted(client.streams)))
+        self.clients.add(client)
+        client.wake.set()  # send the newest vector right away
+        sender = asyncio.create_task(self._send_loop(client), name=f"send {remote}")
+        try:
+            await self._read_loop(client)
+        finally:
+            self.clients.discard(client)
+            sender.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await sender
+        return ws
+
+    def _filter_streams(self, client: Client) -> None:
+        if not self.site_camera_available:
+            client.streams.discard(SITE_CAMERA)
+
+    async def _close(self, client: Client, code: int, reason: str) -> None:
+        self.closed_for_protocol += 1
+        log.warning("closing light stream of %s: %s (%d)", client.remote, reason, code)
+        with contextlib.suppress(Exception):
+            await asyncio.wait_for(
+                client.ws.close(code=code, message=reason.encode()[:120]), timeout=5.0
+            )
+
+    async def _read_loop(self, client: Client) -> None:
+        ws = client.ws
+        async for msg in ws:
+            if msg.type == WSMsgType.BINARY:
+                await self._close(client, WSCloseCode.UNSUPPORTED_DATA,
+                                  "binary messages are not part of the protocol")
+                return
+            if msg.type != WSMsgType.TEXT:
+                return  # errors (e.g. 1009 too big) are answered and closed by aiohttp
+            if not self._take_token(client):
+                await self._close(client, WSCloseCode.POLICY_VIOLATION, "too many messages")
+                return
+            try:
+                request = protocol.parse_client_message(msg.data)
+            except ProtocolError as exc:
+                await self._close(client, WSCloseCode.POLICY_VIOLATION, str(exc))
+                return
+            if request.type == "subscribe":
+                client.streams = set(request.streams)
+                self._filter_streams(client)
+                client.wake.set()
+            elif request.type == "ping":
+                pong = {"type": "pong", "id": request.id, "server_time_s": time.time()}
+                await ws.send_json(pong)
+
+    def _take_token(self, client: Client) -> bool:
+        """Token bucket: ``client_rate`` per second, bursts up to five seconds' worth."""
+        now = time.monotonic()
+        capacity = 5.0 * self.client_rate
+        client.tokens = min(capacity, client.tokens + (now - client.token_time_s) *
+                            self.client_rate)
+        client.token_time_s = now
+        if client.tokens < 1.0:
+            return False
+        client.tokens -= 1.0
+        return True
+
+    async def _send_loop(self, client: Client) -> None:
+        ws = client.ws
+        try:
+            while not ws.closed:
+                await client.wake.wait()
+                client.wake.clear()
+                for stream in (LIGHT, SITE_CAMERA):
+                    if stream not in client.streams or stream not in self.latest:
+                        continue
+                    seq, data = self.latest[stream]
+                    last = client.sent.get(stream)
+                    if last == seq:
+                        continue
+                    if last is not None:
+                        client.skipped += max(0, ((seq - last) & 0xFFFFFFFF) - 1)
+                    # Blocks only while this client's connection is full (flow control).
+                    await asyncio.wait_for(ws.send_bytes(data), self.slow_client_timeout_s)
+                    client.sent[stream] = seq
+                    client.messages_sent += 1
+        except TimeoutError:
+            log.warning("dropping light stream of %s: nothing accepted for %.0f s",
+                        client.remote, self.slow_client_timeout_s)
+            if client.transport is not None:
+                client.transport.abort()  # a close frame could not get through either
+        except (ConnectionError, RuntimeError):
+            pass  # the client went away; the read loop ends the connection
+
+    async def close_all(self) -> None:
+        """Close every client with 1001 (server shutting down)."""
+        clients = list(self.clients)
+        await asyncio.gather(
+            *(asyncio.wait_for(c.ws.close(code=WSCloseCode.GOING_AWAY,
+                                          message=b"server shutting down"), 5.0)
+              for c in clients),
+            return_exceptions=True,
+        )
+
+    def status(self) -> dict:
+        return {
+            "clients": len(self.clients),
+            "clients_site_camera": sum(SITE_CAMERA in c.streams for c in self.clients),
+            "clients_refused": self.refused,
+            "clients_closed_for_protocol": self.closed_for_protocol,
+        }

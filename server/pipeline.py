@@ -1,0 +1,204 @@
+"""From frames to streamed vectors: measure the newest frame, smooth, decide, publish.
+
+A source hands frames to :meth:`LightPipeline.deliver`, which keeps only the newest; the
+measuring task measures it off the event loop, folds it into the temporal filter and publishes
+when the change threshold says so. A watchdog marks the light stale when frames stop coming,
+keeps re-sending the last good vector with the STALE flag (so clients know), and the stale flag
+clears with the next good frame. Frames that cannot be measured are skipped with a log line.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import logging
+import time
+
+import cv2
+import numpy as np
+
+from server.lightstream import LightHub
+from server.measure import Frame, FrameError, Measurement, SkyMeter, TemporalFilter
+from server.protocol import Flags
+from server.sources.base import Source
+
+log = logging.getLogger("daylit.pipeline")
+
+
+class LightPipeline:
+    """Measuring and publishing for one sky source."""
+
+    def __init__(
+        self,
+        meter: SkyMeter,
+        temporal: TemporalFilter,
+        hub: LightHub,
+        source: Source,
+        stale_after_s: float = 5.0,
+    ):
+        self.meter = meter
+        self.temporal = temporal
+        self.hub = hub
+        self.source = source
+        self.stale_after_s = stale_after_s
+        self.stale = False
+        self.latest_frame: Frame | None = None
+        self.latest_measurement: Measurement | None = None
+        self.last_frame_wall_s: float | None = None
+        self.frames_in = 0
+        self.frames_measured = 0
+        self.frames_skipped = 0
+        self.frames_replaced = 0
+        self.measure_ms: collections.deque[float] = collections.deque(maxlen=50)
+        self._frame_times: collections.deque[float] = collections.deque(maxlen=64)
+        self._pending: Frame | None = None
+        self._new = asyncio.Event()
+        self._saturated = np.zeros(0, dtype=bool)
+        self._last_skip_log_s = -1e9
+        self.started_s = time.time()
+
+    # ------------------------------------------------------------------------------- input
+
+    def deliver(self, frame: Frame) -> None:
+        """Called by the source for each frame; never blocks, keeps only the newest."""
+        if self._pending is not None:
+            self.frames_replaced += 1  # measuring is slower than the source: drop the older
+        self._pending = frame
+        self.frames_in += 1
+        self._new.set()
+
+    # ---------------------------------------------------------------------------- tasks
+
+    async def measure_forever(self) -> None:
+        while True:
+            await self._new.wait()
+            self._new.clear()
+            frame, self._pending = self._pending, None
+            if frame is None:
+                continue
+            t0 = time.perf_counter()
+            try:
+                m = await asyncio.to_thread(self.meter.measure, frame)
+            except FrameError as exc:
+                self._skip(f"skipping a frame from {self.source.name}: {exc}")
+                continue
+            except Exception as exc:  # a bad frame must never stop the stream
+                log.exception("measuring failed")
+                self._skip(f"skipping a frame from {self.source.name}: {exc!r}")
+                continue
+            self.measure_ms.append(1e3 * (time.perf_counter() - t0))
+            self.accept(frame, m)
+
+    def _skip(self, message: str) -> None:
+        self.frames_skipped += 1
+        now = time.monotonic()
+        if now - self._last_skip_log_s > 10.0:  # one line per 10 s, not one per frame
+            log.warning("%s (%d skipped so far)", message, self.frames_skipped)
+            self._last_skip_log_s = now
+
+    def accept(self, frame: Frame, m: Measurement) -> None:
+        """Fold one measurement in and publish if it changed enough (or flags changed)."""
+        now = time.time()
+        self.latest_frame = frame
+        self.latest_measurement = m
+        self.last_frame_wall_s = now
+        self._frame_times.append(time.monotonic())
+        self.frames_measured += 1
+        if self.frames_measured == 1:
+            mat = self.meter.matrix
+            log.info("first frame from %s: %dx%d, measured at %dx%d (%d pixels, %d lights, "
+                     "matrix built in %.1f s)", self.source.name, frame.image.shape[1],
+                     frame.image.shape[0], mat.camera.width, mat.camera.height,
+                     mat.pixels_used, mat.count, mat.build_s)
+        if self.stale:
+            log.info("%s: frames again; light no longer stale", self.source.name)
+            self.stale = False
+        if m.saturated.any() and not self._saturated.any():
+            log.info("saturated lights (clipped pixels, e.g. the sun): %s",
+                     np.flatnonzero(m.saturated).tolist())
+        self._saturated = m.saturated
+        self.temporal.update(m.radiance, m.capture_time_s)
+        self._maybe_publish(now, m.capture_time_s)
+
+    def _flags(self) -> int:
+        flags = int(self.source.flags)
+        if self.stale:
+            flags |= Flags.STALE
+        if self._saturated.any():
+            flags |= Flags.SATURATED
+        return flags
+
+    def _maybe_publish(self, now_s: float, capture_time_s: float, force: bool = False) -> None:
+        flags = self._flags()
+        key = (flags, self._saturated.tobytes())
+        if force or self.temporal.should_send(now_s, key):
+            self.hub.publish_light(
+                self.temporal.value.astype(np.float32), self._saturated, capture_time_s, flags
+            )
+            self.temporal.mark_sent(now_s, key)
+
+    async def watch_forever(self, period_s: float = 0.25) -> None:
+        """Stale detection and keep-alive re-sends."""
+        while True:
+            await asyncio.sleep(period_s)
+            if self.temporal.value is None:
+                continue
+            now = time.time()
+            idle_s = now - (self.last_frame_wall_s or self.started_s)
+            if not self.stale and idle_s > self.stale_after_s:
+                self.stale = True
+                log.warning("%s: no frame for %.1f s; light marked stale, serving the last "
+                            "good vector", self.source.name, idle_s)
+            capture = self.latest_measurement.capture_time_s if self.latest_measurement else now
+            self._maybe_publish(now, capture)
+
+    # ---------------------------------------------------------------------------- reports
+
+    @property
+    def fps(self) -> float:
+        times = self._frame_times
+        if len(times) < 2 or time.monotonic() - times[-1] > self.stale_after_s:
+            return 0.0
+        return (len(times) - 1) / max(times[-1] - times[0], 1e-9)
+
+    def status(self) -> dict:
+        m = self.latest_measurement
+        last = self.last_frame_wall_s
+        return {
+            "source": self.source.name,
+            "simulated": bool(self.source.flags & Flags.SIMULATED),
+            "connected": bool(self.source.connected),
+            "fps": round(self.fps, 3),
+            "last_frame_time": (None if last is None else time.strftime(
+                "%Y-%m-%dT%H:%M:%SZ", time.gmtime(last))),
+            "last_frame_time_s": last,
+            "stale": self.stale,
+            "saturated_lights": [] if m is None else np.flatnonzero(m.saturated).tolist(),
+            "saturated_pixels": 0 if m is None else m.saturated_pixels,
+            "frames_measured": self.frames_measured,
+            "frames_skipped": self.frames_skipped,
+            "frames_replaced": self.frames_replaced,
+            "measure_ms": round(float(np.median(self.measure_ms)), 3) if self.measure_ms
+            else None,
+            **self.source.status(),
+        }
+
+    def sky_jpeg(self, max_size_px: int = 320, quality: int = 80) -> bytes | None:
+        """The newest sky frame, scaled to fit ``max_size_px``, as JPEG (None before any)."""
+        frame = self.latest_frame
+        if frame is None:
+            return None
+        image = frame.image
+        if image.dtype != np.uint8:
+            image = np.clip(image.astype(np.float32) * (255.0 if image.dtype.kind == "f" else
+                                                        255.0 / 65535.0), 0, 255)
+            image = image.astype(np.uint8)
+        if not frame.bgr:
+            image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
+        h, w = image.shape[:2]
+        scale = min(1.0, max_size_px / max(h, w))
+        if scale < 1.0:
+            image = cv2.resize(image, (max(1, round(w * scale)), max(1, round(h * scale))),
+                               interpolation=cv2.INTER_AREA)
+        ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, quality])
+        return buf.tobytes() if ok else None

@@ -1,0 +1,155 @@
+"""HTTP routes: the web client, three.js, the build, and the operator endpoints.
+
+============================  ==========================================================
+``GET /``, ``/{path}``        the ``web/`` folder (``index.html`` for a folder)
+``GET /vendor/three/{path}``  the installed ``three`` package (``build/``, ``examples/jsm/``,
+                              including the Basis transcoder in ``examples/jsm/libs/basis/``)
+``GET /build/{path}``         the baked build directory
+``GET /api/status``           JSON status for operators and the HUD
+``GET /api/sky.jpg``          the newest sky frame, small
+``GET /ws/light``             the light stream (:mod:`server.lightstream`)
+============================  ==========================================================
+
+No request can leave its root: paths with ``..``, absolute paths, hidden names (``.git``), NUL
+or backslashes are refused, and every path is resolved (following symlinks) and must still lie
+inside the root.
+
+Caching: ``manifest.json`` and HTML are ``no-cache`` (always revalidated); files the manifest
+lists with a checksum are ``immutable`` for a year when requested with ``?v=<sha256 prefix>``
+(the client adds it from the manifest, so a re-bake changes the URL), else revalidated; three.js
+is cached for a day. JSON, JavaScript, HTML and CSS are sent gzip-compressed to clients that
+accept it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import gzip
+import hashlib
+from pathlib import Path, PurePosixPath
+
+from aiohttp import web
+
+CONTENT_TYPES = {
+    ".glb": "model/gltf-binary",
+    ".gltf": "model/gltf+json",
+    ".ktx2": "image/ktx2",
+    ".exr": "image/x-exr",
+    ".bin": "application/octet-stream",
+    ".json": "application/json",
+    ".map": "application/json",
+    ".html": "text/html; charset=utf-8",
+    ".js": "text/javascript; charset=utf-8",
+    ".mjs": "text/javascript; charset=utf-8",
+    ".css": "text/css; charset=utf-8",
+    ".glsl": "text/plain; charset=utf-8",
+    ".vert": "text/plain; charset=utf-8",
+    ".frag": "text/plain; charset=utf-8",
+    ".txt": "text/plain; charset=utf-8",
+    ".md": "text/markdown; charset=utf-8",
+    ".wasm": "application/wasm",
+    ".png": "image/png",
+    ".jpg": "image/jpeg",
+    ".jpeg": "image/jpeg",
+    ".webp": "image/webp",
+    ".svg": "image/svg+xml",
+    ".ico": "image/x-icon",
+}
+COMPRESSIBLE = {".json", ".map", ".html", ".js", ".mjs", ".css", ".gltf", ".svg", ".txt", ".md"}
+MAX_COMPRESSED_FILE_BYTES = 32 << 20
+NO_CACHE = "no-cache"
+IMMUTABLE = "public, max-age=31536000, immutable"
+ONE_DAY = "public, max-age=86400"
+
+
+def safe_path(root: Path, tail: str) -> Path | None:
+    """The file ``tail`` names inside ``root``, or None if it is missing or would escape."""
+    if not tail:
+        return root.resolve()
+    if "\x00" in tail or "\\" in tail or tail.startswith("/"):
+        return None
+    parts = PurePosixPath(tail).parts
+    if any(p in ("..", ".") or p.startswith(".") for p in parts):
+        return None
+    try:
+        resolved = (root / tail).resolve(strict=True)
+    except (OSError, RuntimeError):
+        return None
+    if not resolved.is_relative_to(root.resolve()):
+        return None  # a symlink pointing outside
+    return resolved
+
+
+class StaticRoot:
+    """Serves one folder with explicit types, cache headers and gzip for text."""
+
+    def __init__(self, root: Path, name: str, default_cache: str = NO_CACHE,
+                 checksums: dict[str, str] | None = None):
+        self.root = Path(root)
+        self.name = name
+        self.default_cache = default_cache
+        self.checksums = checksums or {}
+        self._gz_cache: dict[Path, tuple[tuple[int, int], bytes, str]] = {}
+
+    def cache_control(self, rel: str, request: web.Request) -> str:
+        if rel.endswith((".html", "manifest.json")) or rel == "":
+            return NO_CACHE
+        digest = self.checksums.get(rel)
+        if digest is not None:
+            v = request.query.get("v", "")
+            if len(v) >= 8 and digest.startswith(v.lower()):
+                return IMMUTABLE
+            return NO_CACHE
+        return self.default_cache
+
+    async def handle(self, request: web.Request) -> web.StreamResponse:
+        tail = request.match_info.get("tail", "")
+        path = safe_path(self.root, tail)
+        if path is not None and path.is_dir():
+            tail = (tail.rstrip("/") + "/index.html").lstrip("/")
+            path = safe_path(self.root, tail)
+        if path is None or not path.is_file():
+            raise web.HTTPNotFound(text=f"not found: /{self.name}{tail}\n")
+        rel = path.relative_to(self.root.resolve()).as_posix()
+        suffix = path.suffix.lower()
+        headers = {
+            "Content-Type": CONTENT_TYPES.get(suffix, "application/octet-stream"),
+            "Cache-Control": self.cache_control(rel, request),
+            "X-Content-Type-Options": "nosniff",
+        }
+        accepts_gzip = "gzip" in request.headers.get("Accept-Encoding", "").lower()
+        if suffix in COMPRESSIBLE and accepts_gzip:
+            stat = path.stat()
+            if stat.st_size <= MAX_COMPRESSED_FILE_BYTES:
+                return await self._gzip_response(request, path, stat, headers)
+        return web.FileResponse(path, headers=headers)
+
+    async def _gzip_response(self, request, path: Path, stat, headers) -> web.StreamResponse:
+        key = (stat.st_mtime_ns, stat.st_size)
+        cached = self._gz_cache.get(path)
+        if cached is None or cached[0] != key:
+            raw = await asyncio.to_thread(path.read_bytes)
+            body = await asyncio.to_thread(gzip.compress, raw, 6, mtime=0)
+            etag = '"' + hashlib.sha256(raw).hexdigest()[:32] + '-gz"'
+            cached = (key, body, etag)
+            if len(self._gz_cache) > 256:
+                self._gz_cache.clear()
+            self._gz_cache[path] = cached
+        _, body, etag = cached
+        headers = dict(headers, ETag=etag, Vary="Accept-Encoding")
+        if request.headers.get("If-None-Match") == etag:
+            return web.Response(status=304, headers={k: v for k, v in headers.items()
+                                                     if k != "Content-Type"})
+        headers["Content-Encoding"] = "gzip"
+        return web.Response(body=body, headers=headers)
+
+
+def add_static_routes(app: web.Application, web_root: Path, three_root: Path, build_dir: Path,
+                      checksums: dict[str, str]) -> None:
+    """Register the three static roots (the catch-all web root last)."""
+    build = StaticRoot(build_dir, "build/", NO_CACHE, checksums)
+    three = StaticRoot(three_root, "vendor/three/", ONE_DAY)
+    site = StaticRoot(web_root, "", NO_CACHE)
+    app.router.add_get("/build/{tail:.*}", build.handle, name="build")
+    app.router.add_get("/vendor/three/{tail:.*}", three.handle, name="three")
+    app.router.add_get("/{tail:.*}", site.handle, name="web")

@@ -1,0 +1,92 @@
+"""Replay of a recorded sky: a folder of images (sorted by name) or a video file, looping."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from pathlib import Path
+
+import cv2
+
+from server.measure import Frame
+from server.protocol import Flags
+from server.sources.base import Deliver, Source
+
+log = logging.getLogger("daylit.sources")
+
+IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp", ".exr", ".hdr"}
+
+
+class ReplayError(RuntimeError):
+    """A replay that has nothing to play."""
+
+
+class ReplaySource(Source):
+    """Plays ``path`` at ``rate_hz`` frames per second, forever.
+
+    Images that cannot be read are skipped with a log line. Frames are stamped with the time
+    they are played (the recording's own time is not known in general).
+    """
+
+    flags = Flags.REPLAY
+
+    def __init__(self, path: Path | str, rate_hz: float = 2.0):
+        self.path = Path(path)
+        self.period_s = 1.0 / rate_hz
+        self.name = f"replay:{self.path}"
+        self.played = 0
+
+    def _images(self) -> list[Path]:
+        files = sorted(p for p in self.path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+        if not files:
+            raise ReplayError(f"{self.path}: no images ({', '.join(sorted(IMAGE_SUFFIXES))})")
+        return files
+
+    async def run(self, deliver: Deliver) -> None:
+        next_s = time.monotonic()
+        if self.path.is_dir():
+            frames = self._images_forever()
+        elif self.path.is_file():
+            frames = self._video_forever()
+        else:
+            raise ReplayError(f"{self.path}: no such file or folder")
+        async for image in frames:
+            deliver(Frame(image, time.time(), bgr=True))
+            self.played += 1
+            next_s = max(next_s + self.period_s, time.monotonic())
+            await asyncio.sleep(next_s - time.monotonic())
+
+    async def _images_forever(self):
+        while True:
+            good = 0
+            for path in self._images():
+                image = await asyncio.to_thread(cv2.imread, str(path), cv2.IMREAD_UNCHANGED)
+                if image is None or image.ndim != 3 or image.shape[2] < 3:
+                    log.warning("replay: skipping %s (not a colour image OpenCV can read)", path)
+                    continue
+                good += 1
+                yield image[:, :, :3]
+            if not good:
+                raise ReplayError(f"{self.path}: none of the images could be read")
+
+    async def _video_forever(self):
+        while True:
+            cap = await asyncio.to_thread(cv2.VideoCapture, str(self.path))
+            try:
+                if not cap.isOpened():
+                    raise ReplayError(f"{self.path}: OpenCV cannot open this video")
+                count = 0
+                while True:
+                    ok, image = await asyncio.to_thread(cap.read)
+                    if not ok:
+                        break
+                    count += 1
+                    yield image
+                if not count:
+                    raise ReplayError(f"{self.path}: the video has no frames")
+            finally:
+                cap.release()
+
+    def status(self) -> dict:
+        return {"replayed_frames": self.played}
