@@ -46,23 +46,24 @@ def sky_frame(value: float = 0.5, size: int = 64, bgr: bool = True) -> Frame:
 
 
 class ManualSource(Source):
-    """A source whose frames the test pushes; ``fail_after`` frames, it raises once."""
+    """A source whose frames the test pushes, and which the test can make crash."""
 
-    def __init__(self, name: str = "manual", fail_after: int | None = None):
+    def __init__(self, name: str = "manual"):
         self.name = name
         self.flags = Flags.NONE
         self.deliver = None
         self.runs = 0
-        self.fail_after = fail_after
-        self.pushed = 0
         self._running = asyncio.Event()
+        self._crash = asyncio.Event()
 
     async def run(self, deliver) -> None:
         self.deliver = deliver
         self.runs += 1
+        self._crash = asyncio.Event()
         self._running.set()
         try:
-            await asyncio.Event().wait()
+            await self._crash.wait()
+            raise RuntimeError("source crashed")
         finally:
             self._running.clear()
             self.deliver = None
@@ -70,11 +71,10 @@ class ManualSource(Source):
     async def started(self) -> None:
         await asyncio.wait_for(self._running.wait(), 10.0)
 
+    def crash(self) -> None:
+        self._crash.set()
+
     def push(self, frame: Frame) -> None:
-        if self.fail_after is not None and self.pushed >= self.fail_after:
-            self.fail_after = None
-            raise RuntimeError("source crashed")
-        self.pushed += 1
         self.deliver(frame)
 
 
