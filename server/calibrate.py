@@ -100,15 +100,48 @@ def calibrate_intrinsics(
         raise CalibrateError(
             f"the {board[0]}x{board[1]} board was found in {len(used)} image(s); at least 3 "
             "are needed (check --board: it counts inner corners)")
-    K0 = np.array([[w / math.pi, 0, (w - 1) / 2], [0, w / math.pi, (h - 1) / 2], [0, 0, 1.0]])
-    flags = cv2.fisheye.CALIB_RECOMPUTE_EXTRINSIC | cv2.fisheye.CALIB_FIX_SKEW
+    flags = cv2.CALIB_RECOMPUTE_EXTRINSIC | cv2.CALIB_FIX_SKEW | cv2.CALIB_USE_INTRINSIC_GUESS
     criteria = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-10)
+
+    def fit(objs, imgs):
+        """OpenCV's fit from a few starting focal lengths (it is known to stall from a poor
+        start); the one with the smallest reprojection error wins."""
+        best, failure = None, None
+        for f0 in (max(w, h) / math.pi, min(w, h) / math.pi, 0.7 * min(w, h) / math.pi):
+            K0 = np.array([[f0, 0, (w - 1) / 2], [0, f0, (h - 1) / 2], [0, 0, 1.0]])
+            try:
+                result = cv2.fisheye.calibrate(objs, imgs, (w, h), K0, np.zeros(4),
+                                               flags=flags, criteria=criteria)
+            except cv2.error as exc:
+                failure = exc
+                continue
+            if best is None or result[0] < best[0]:
+                best = result
+        if best is None:
+            raise failure
+        return best
+
     try:
-        rms, K, D, rvecs, tvecs = cv2.fisheye.calibrate(
-            object_points, image_points, (w, h), K0, np.zeros(4), flags=flags, criteria=criteria
-        )
-    except cv2.error as exc:
-        raise CalibrateError(f"OpenCV fisheye calibration failed: {exc.err}") from None
+        rms, K, D, rvecs, tvecs = fit(object_points, image_points)
+    except cv2.error:
+        # OpenCV's initial pose estimate fails on some views; drop those and try again.
+        keep = []
+        for k in range(len(used)):
+            try:
+                fit(object_points[k:k + 1], image_points[k:k + 1])
+                keep.append(k)
+            except cv2.error:
+                rejected.append(used[k])
+        used = [used[k] for k in keep]
+        object_points = [object_points[k] for k in keep]
+        image_points = [image_points[k] for k in keep]
+        if len(used) < 3:
+            raise CalibrateError("OpenCV's fisheye calibration failed on all but "
+                                 f"{len(used)} image(s); take more, varied views") from None
+        try:
+            rms, K, D, rvecs, tvecs = fit(object_points, image_points)
+        except cv2.error as exc:
+            raise CalibrateError(f"OpenCV fisheye calibration failed: {exc.err}") from None
     per_image = {}
     for name, objp, imgp, rvec, tvec in zip(used, object_points, image_points, rvecs, tvecs,
                                             strict=True):
