@@ -81,6 +81,23 @@ def _lan_address() -> str | None:
     return None if address.startswith("127.") else address
 
 
+def _raise_open_file_limit(wanted: int, log: logging.Logger) -> None:
+    """Each client is a socket: lift the soft limit on open files toward the hard limit."""
+    try:
+        import resource
+
+        soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+        target = wanted if hard == resource.RLIM_INFINITY else min(wanted, hard)
+        if soft != resource.RLIM_INFINITY and soft < target:
+            resource.setrlimit(resource.RLIMIT_NOFILE, (target, hard))
+            soft = target
+        if soft != resource.RLIM_INFINITY and soft < wanted:
+            log.warning("only %d open files allowed (ulimit -n): fewer clients than "
+                        "max_clients may connect", soft)
+    except (ImportError, ValueError, OSError):
+        pass
+
+
 def run_serve(args: argparse.Namespace) -> int:
     from daylit.manifest import ManifestError
     from server.config import ConfigError, load_settings, parse_override
@@ -101,6 +118,7 @@ def run_serve(args: argparse.Namespace) -> int:
     except (ConfigError, ManifestError, CalibrationError) as exc:
         print(f"daylit serve: error: {exc}", file=sys.stderr)
         return 2
+    _raise_open_file_limit(settings.server.max_clients + 256, log)
     try:
         return asyncio.run(_serve(app, settings, log))
     except OSError as exc:

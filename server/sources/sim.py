@@ -26,10 +26,10 @@ class SimSource(Source):
     async def run(self, deliver: Deliver) -> None:
         next_s = time.monotonic()
         while True:
-            wall_s = time.time()
-            sky_s = self.sim.clock.now(wall_s)
+            sky_s = self.sim.clock.now()
             # Rendering takes tens of milliseconds of numpy: keep it off the event loop.
-            frame = await asyncio.to_thread(self.sim.render_at, sky_s, wall_s)
+            frame = await asyncio.to_thread(self.sim.render_at, sky_s)
+            frame.capture_time_s = time.time()  # when the "camera" hands the image over
             self._last_sky_time_s = sky_s
             deliver(frame)
             next_s = max(next_s + self.period_s, time.monotonic())

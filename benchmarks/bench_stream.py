@@ -1,0 +1,181 @@
+"""Capture-to-client latency and fan-out of ``GET /ws/light`` over loopback.
+
+Starts ``daylit serve`` in a subprocess on a 400-light build, replaying 1280x960 JPEG sky frames
+(rendered once by the simulated sky) at 10 Hz with smoothing and the change threshold off, so
+every frame becomes a vector. Clients in this process connect and record, for every vector,
+``arrival time - capture time`` (the header's capture time is stamped when the frame is handed
+over by the source, before decoding is finished, measuring and sending). Client and server share
+the machine's two cores, so the client side's own cost is inside the figures.
+
+Levels: 10 clients (latency), then 100, 250, 500 and 1000 clients (fan-out). Each level runs for
+``--seconds`` (default 8) after a one-second warm-up. Printed per level: clients, vectors per
+client per second, median, 99th percentile and maximum latency in ms, and how many clients got
+at least 90 % of the vectors.
+
+Run: ``.venv/bin/python benchmarks/bench_stream.py`` (about two minutes).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import os
+import resource
+import socket
+import struct
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import aiohttp  # noqa: E402
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+from server.fisheye import FisheyeCamera  # noqa: E402
+from server.simsky import SimulatedSky  # noqa: E402
+from tests.server.conftest import make_build  # noqa: E402
+
+HEADER = struct.Struct("<4sBBHIId")
+RATE_HZ = 10.0
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def make_frames(folder: Path, count: int = 10) -> None:
+    camera = FisheyeCamera.equidistant(1280, 960)
+    sim = SimulatedSky.for_site(45.0, 10.0, 0.0, "UTC", camera=camera, cloud_cover=0.4)
+    for k in range(count):
+        frame = sim.render_at(sim.clock.start_s + 60.0 * k)
+        bgr = cv2.cvtColor(frame.image, cv2.COLOR_RGB2BGR)
+        cv2.imwrite(str(folder / f"{k:03d}.jpg"), bgr, [cv2.IMWRITE_JPEG_QUALITY, 92])
+
+
+def start_server(build: Path, frames: Path, port: int) -> subprocess.Popen:
+    cmd = [
+        sys.executable, "-m", "daylit.cli", "serve", str(build), "--host", "127.0.0.1",
+        "--port", str(port), "--sky", f"replay:{frames}", "--log-level", "warning",
+        "--set", f"sky.rate_hz={RATE_HZ}", "--set", "stream.smoothing_s=0",
+        "--set", "stream.change_threshold=0", "--set", "server.max_clients=5000",
+        "--set", "sky.stale_after_s=60",
+    ]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, cwd=ROOT,
+                            env=dict(os.environ, PYTHONUNBUFFERED="1"))
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        if "open http://" in line:
+            return proc
+        if proc.poll() is not None:
+            break
+    proc.kill()
+    raise SystemExit("the server did not start")
+
+
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU time of a process (Linux /proc)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+async def wait_for_first_vector(base: str) -> None:
+    """The first frame builds the measuring matrix (about a second): keep it out of the run."""
+    async with aiohttp.ClientSession() as session:
+        for _ in range(600):
+            async with session.get(f"{base}/api/status") as resp:
+                if (await resp.json())["sequence"] > 0:
+                    return
+            await asyncio.sleep(0.1)
+    raise SystemExit("no vector from the server")
+
+
+async def run_level(url: str, clients: int, seconds: float, server_pid: int) -> dict:
+    latencies: list[list[float]] = [[] for _ in range(clients)]
+    measuring = {"on": False}
+
+    async def listen(ws, k):
+        async for msg in ws:
+            if msg.type == aiohttp.WSMsgType.BINARY and measuring["on"]:
+                _, _, mtype, _, _, _, captured = HEADER.unpack_from(msg.data)
+                if mtype == 1:
+                    latencies[k].append(time.time() - captured)
+
+    connector = aiohttp.TCPConnector(limit=0)
+    async with aiohttp.ClientSession(connector=connector) as session:
+        sockets = []
+        for start in range(0, clients, 100):
+            batch = range(start, min(start + 100, clients))
+            sockets += await asyncio.gather(*(session.ws_connect(url) for _ in batch))
+        tasks = [asyncio.create_task(listen(ws, k)) for k, ws in enumerate(sockets)]
+        await asyncio.sleep(1.0)
+        measuring["on"] = True
+        cpu0, own0, t0 = cpu_seconds(server_pid), time.process_time(), time.monotonic()
+        await asyncio.sleep(seconds)
+        measuring["on"] = False
+        wall = time.monotonic() - t0
+        server_cpu = (cpu_seconds(server_pid) - cpu0) / wall
+        client_cpu = (time.process_time() - own0) / wall
+        await asyncio.gather(*(ws.close() for ws in sockets), return_exceptions=True)
+        for task in tasks:
+            task.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+    every = np.concatenate([np.asarray(x) for x in latencies]) * 1e3
+    expected = RATE_HZ * seconds
+    return {
+        "clients": clients,
+        "rate": len(every) / clients / seconds,
+        "p50": float(np.median(every)) if every.size else float("nan"),
+        "p99": float(np.percentile(every, 99)) if every.size else float("nan"),
+        "max": float(every.max()) if every.size else float("nan"),
+        "full": sum(len(x) >= 0.9 * expected for x in latencies),
+        "server_cpu": server_cpu,
+        "client_cpu": client_cpu,
+    }
+
+
+async def main_async(levels: list[int], seconds: float) -> None:
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        build = make_build(tmp / "build", lights=400, scene_id="bench")
+        frames = tmp / "frames"
+        frames.mkdir()
+        make_frames(frames)
+        port = free_port()
+        proc = start_server(build, frames, port)
+        try:
+            url = f"http://127.0.0.1:{port}/ws/light"
+            await wait_for_first_vector(f"http://127.0.0.1:{port}")
+            print(f"400 lights ({12 * 400 + 74} bytes a vector), 1280x960 JPEG replay at "
+                  f"{RATE_HZ:g} Hz, {seconds:g} s a level, loopback, 2 cores shared\n")
+            print(f"{'clients':>7} {'vec/s each':>10} {'p50 ms':>7} {'p99 ms':>7} "
+                  f"{'max ms':>7} {'>=90% of vectors':>16} {'server CPU':>10} {'client CPU':>10}")
+            for n in levels:
+                r = await run_level(url, n, seconds, proc.pid)
+                print(f"{r['clients']:7d} {r['rate']:10.2f} {r['p50']:7.1f} {r['p99']:7.1f} "
+                      f"{r['max']:7.1f} {r['full']:10d}/{n:<5} {100 * r['server_cpu']:9.0f}% "
+                      f"{100 * r['client_cpu']:9.0f}%", flush=True)
+        finally:
+            proc.terminate()
+            proc.wait(timeout=30)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=8.0)
+    parser.add_argument("--levels", default="10,100,250,500,1000")
+    args = parser.parse_args()
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    resource.setrlimit(resource.RLIMIT_NOFILE, (min(hard, 8192), hard))
+    asyncio.run(main_async([int(x) for x in args.levels.split(",")], args.seconds))
+
+
+if __name__ == "__main__":
+    main()
