@@ -23,9 +23,9 @@ import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from urllib.parse import urlsplit
 
 from aiohttp import WSCloseCode, WSMsgType, web
-from yarl import URL
 
 from server import protocol
 from server.protocol import MessageType, ProtocolError
@@ -119,11 +119,11 @@ class LightHub:
         if origin.rstrip("/") in self.allowed_origins:
             return True
         try:
-            url = URL(origin)
+            authority = urlsplit(origin).netloc
         except ValueError:
             return False
         # Same origin: the page was served by this server under the same host and port.
-        return url.host is not None and url.raw_authority == request.host
+        return bool(authority) and authority.lower() == request.host.lower()
 
     async def handle(self, request: web.Request) -> web.StreamResponse:
         """The ``GET /ws/light`` handler."""

@@ -152,7 +152,9 @@ class CloudySky(Sky):
         tau = self.clouds.opacity(dirs, self.sky_time_s)[:, None]
         sun_dir = self.clear._sun_dir
         near_sun = np.clip(dirs @ sun_dir, 0.0, 1.0) ** 16
-        grey = 1.6 * float(np.mean(self.clear.zenith_radiance)) * (1.0 + 6.0 * near_sun)
+        # A thicker deck (more cover) lets less light through: overcast days are dimmer.
+        thickness = 1.2 - 0.8 * self.clouds.cover
+        grey = thickness * 1.6 * float(np.mean(self.clear.zenith_radiance)) * (1.0 + 6.0 * near_sun)
         cloud = grey[:, None] * np.array([1.0, 1.0, 1.02])
         out = ((1.0 - tau) * clear + tau * cloud) * self.daylight
         out[dirs[:, 1] < 0.0] = 0.0
