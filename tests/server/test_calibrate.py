@@ -156,3 +156,27 @@ def test_north_from_a_rendered_sun_within_half_a_degree(yaw_deg):
     obs = report["observations"][0]
     assert abs((az[0] - obs["true_azimuth_deg"] + 180) % 360 - 180) < 0.5
     assert report["elevation_error_deg"] < 0.5
+
+
+def test_calibrate_north_command_updates_a_calibration(tmp_path, build_dir, capsys):
+    from daylit.cli import main
+
+    lens = FisheyeCamera.equidistant(480, 480, site_from_camera=yaw_rotation(-37.0)
+                                     @ ZENITH_NORTH_UP)
+    sim = SimulatedSky.for_site(34.4686, 135.8194, 100.0, "Asia/Tokyo", camera=lens,
+                                cloud_cover=0.0, start="2026-06-21T09:00")
+    frame = sim.render_at(sim.clock.start_s)
+    sky = tmp_path / "sky.png"
+    cv2.imwrite(str(sky), cv2.cvtColor(frame.image, cv2.COLOR_RGB2BGR))
+    calibration = tmp_path / "sky-camera.json"
+    calibration.write_text(json.dumps(FisheyeCamera.equidistant(480, 480).to_json()))
+    code = main(["calibrate", "north", str(sky), "--time", "2026-06-21T09:00",
+                 "--build", str(build_dir), "--calibration", str(calibration)])
+    assert code == 0, capsys.readouterr().err
+    data = json.loads(calibration.read_text())
+    assert abs(data["north"]["yaw_applied_deg"] + 37.0) < 0.5
+    assert np.allclose(data["site_from_camera"], lens.site_from_camera, atol=0.01)
+    assert "turned the camera by" in capsys.readouterr().out
+    assert main(["calibrate", "north", str(sky), "--time", "not a time", "--build",
+                 str(build_dir), "-o", str(tmp_path / "x.json")]) == 1
+    assert "not an ISO date-time" in capsys.readouterr().err
