@@ -70,6 +70,11 @@ def setup_logging(level: str) -> None:
         stream=sys.stderr,
     )
     logging.getLogger("aiohttp.access").setLevel(logging.WARNING)
+    if level != "debug":
+        # OpenCV repeats every failed camera open on stderr; our own log lines say it once.
+        import cv2
+
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
 
 
 def _lan_address() -> str | None:
