@@ -1,0 +1,308 @@
+"""The occlusion pipeline for a fixed site camera: frame in, mask of people in front out.
+
+This is the one class the light server calls. Per frame::
+
+    frame --check--> coarse copy --gain--> reference illumination --difference--> regions
+          --graph cut (segment.py, shadows inside)--> people --foot line (depth.py)-->
+          depth per person --vs virtual depth--> occlusion mask (+ slow background update)
+
+Usage::
+
+    proc = OcclusionProcessor.from_build(build_dir, view_id="kiosk")
+    for frame in camera:                      # (H, W, 3) uint8 BGR, or encoded image bytes
+        result = proc.process(frame, capture_time_s=t)
+        if result.ok and not result.learning:
+            send(server.occlusion.codec.encode_mask(result.mask))
+
+Frames that cannot be used (None, empty, wrong size or type, bytes that do not decode) are
+skipped with one log line on the ``daylit.occlusion`` logger and ``result.ok`` False; nothing
+raises out of :meth:`OcclusionProcessor.process`, and the next good frame continues as if the
+bad one had not come. The first ``learn_frames`` good frames are taken as the empty site
+(``result.learning``); :meth:`OcclusionProcessor.learn_background` may be called instead.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from server.occlusion.background import BackgroundModel, shrink
+from server.occlusion.colour import Transfer, apply_table
+from server.occlusion.depth import Person, PerspectiveCamera, find_people, occlusion_mask
+from server.occlusion.segment import Segmenter, regions_of_interest
+from server.occlusion.settings import OcclusionSettings
+
+log = logging.getLogger("daylit.occlusion")
+
+
+@dataclass
+class OcclusionResult:
+    """What one frame gave.
+
+    Attributes
+    ----------
+    frame_index : count of frames offered to :meth:`OcclusionProcessor.process`, from 0
+    capture_time_s : as passed in (Unix seconds), or None
+    ok : False when the frame was skipped (``skipped_reason`` says why); then every array is None
+    learning : the frame went into the background model; ``mask`` is all zero
+    mask : (H, W) uint8, 255 where a person stands in front of the virtual objects: the
+        client must not draw virtual pixels there (the paper's stencil). This is what is sent.
+    person_mask : (H, W) uint8, 255 on every person (in front or behind)
+    shadow_mask : (H, W) uint8, 255 on cast shadows taken out of the foreground
+    foreground_mask : (H, W) uint8, 255 on people and their shadows (before shadow removal)
+    people : one :class:`~server.occlusion.depth.Person` per region, with depth
+    gain_bgr : (3,) daylight gain of this frame over the background model (linear light)
+    timings_ms : wall time of each stage and ``total``, milliseconds
+    """
+
+    frame_index: int
+    capture_time_s: float | None = None
+    ok: bool = True
+    skipped_reason: str | None = None
+    learning: bool = False
+    mask: np.ndarray | None = None
+    person_mask: np.ndarray | None = None
+    shadow_mask: np.ndarray | None = None
+    foreground_mask: np.ndarray | None = None
+    people: list[Person] = field(default_factory=list)
+    gain_bgr: np.ndarray | None = None
+    regions: list[tuple[int, int, int, int]] = field(default_factory=list)
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+
+class FrameError(ValueError):
+    """A frame that cannot be processed; ``str()`` is the reason logged."""
+
+
+class OcclusionProcessor:
+    """Occlusion masks for one fixed, calibrated site camera.
+
+    Parameters
+    ----------
+    camera : the site camera (``K``, ``world_from_camera``, ``width``, ``height``); anything with
+        ``width``, ``height`` and ``foot_depth_m(u_px, v_px) -> depth`` (e.g.
+        :class:`~server.occlusion.depth.EquidistantPanorama`) will do.
+    virtual_depth_m : (H, W) float32 depth of the virtual surfaces along the optical axis,
+        metres, +inf where none (the view's baked ``depth`` image); None: no virtual objects
+        known, every person counts as in front.
+    settings : :class:`~server.occlusion.settings.OcclusionSettings`
+    """
+
+    def __init__(
+        self,
+        camera: PerspectiveCamera,
+        virtual_depth_m: np.ndarray | None = None,
+        settings: OcclusionSettings | None = None,
+    ):
+        self.camera = camera
+        self.width, self.height = int(camera.width), int(camera.height)
+        self.settings = settings or OcclusionSettings()
+        if virtual_depth_m is not None:
+            virtual_depth_m = np.asarray(virtual_depth_m, dtype=np.float32)
+            if virtual_depth_m.shape != (self.height, self.width):
+                raise ValueError(
+                    f"virtual depth is {virtual_depth_m.shape[1]}x{virtual_depth_m.shape[0]}, "
+                    f"the camera {self.width}x{self.height}"
+                )
+            virtual_depth_m = np.where(np.isnan(virtual_depth_m), np.inf, virtual_depth_m)
+        self.virtual_depth_m = virtual_depth_m
+        self.transfer = Transfer(self.settings.response)
+        self.background = BackgroundModel(self.width, self.height, self.settings, self.transfer)
+        self.segmenter = Segmenter(self.settings, self.background, self.transfer)
+        self.frame_index = 0
+        self._learning: list[np.ndarray] = []
+        self._previous_exclude: np.ndarray | None = None  # coarse people + shadows, last frame
+        self._last_log: dict[str, tuple[float, int]] = {}
+
+    # -------------------------------------------------------------------------- construction
+
+    @classmethod
+    def from_build(
+        cls, build_dir: Path | str, view_id: str | None = None,
+        settings: OcclusionSettings | None = None,
+    ) -> OcclusionProcessor:
+        """From a baked build: the view's calibrated camera and its virtual depth image."""
+        from daylit.manifest import load
+
+        manifest = load(build_dir)
+        views = manifest["views"]
+        if not views:
+            raise ValueError(f"{build_dir}: the build has no fixed view (kiosk camera)")
+        view = next((v for v in views if v["id"] == view_id), None) if view_id else views[0]
+        if view is None:
+            raise ValueError(f"{build_dir}: no view {view_id!r}")
+        depth = read_depth_exr(Path(build_dir) / view["depth"]) if view.get("depth") else None
+        return cls(PerspectiveCamera.from_view(view), depth, settings)
+
+    @property
+    def ready(self) -> bool:
+        """True once the background of the empty site has been learned."""
+        return self.background.ready
+
+    def learn_background(self, frames: Iterable[np.ndarray]) -> int:
+        """Learn the empty site from frames (H, W, 3) uint8 BGR; bad frames are left out.
+
+        Returns the number of frames used. Resets the label history.
+        """
+        good = []
+        for frame in frames:
+            try:
+                good.append(self._check(frame))
+            except FrameError as exc:
+                self._log_skip(str(exc))
+        if not good:
+            raise ValueError("no usable frame to learn the background from")
+        n = self.background.learn(good)
+        self.segmenter.reset()
+        self._previous_exclude = None
+        self._learning = []
+        return n
+
+    # ---------------------------------------------------------------------------- per frame
+
+    def process(self, frame, capture_time_s: float | None = None) -> OcclusionResult:
+        """Process one site-camera frame; never raises.
+
+        ``frame``: (H, W, 3) uint8 BGR array, or the bytes of an encoded image (JPEG, PNG).
+        """
+        index = self.frame_index
+        self.frame_index += 1
+        t0 = time.perf_counter()
+        try:
+            image = self._check(frame)
+        except FrameError as exc:
+            self._log_skip(f"frame {index} skipped: {exc}")
+            return OcclusionResult(index, capture_time_s, ok=False, skipped_reason=str(exc))
+        try:
+            if not self.background.ready:
+                return self._learn_step(image, index, capture_time_s)
+            result = self._segment(image, index, capture_time_s)
+        except Exception as exc:  # the streaming path must go on; keep the traceback in the log
+            log.exception("frame %d skipped: occlusion pipeline failed", index)
+            self.segmenter.reset()
+            return OcclusionResult(index, capture_time_s, ok=False,
+                                   skipped_reason=f"pipeline error: {exc!r}")
+        result.timings_ms["total"] = 1e3 * (time.perf_counter() - t0)
+        return result
+
+    def _check(self, frame) -> np.ndarray:
+        if frame is None:
+            raise FrameError("no frame (None)")
+        if isinstance(frame, bytes | bytearray | memoryview):
+            if len(frame) == 0:
+                raise FrameError("empty image bytes")
+            data = np.frombuffer(frame, dtype=np.uint8)
+            try:
+                image = cv2.imdecode(data, cv2.IMREAD_COLOR)
+            except cv2.error:
+                image = None
+            if image is None:
+                raise FrameError(f"{len(frame)} bytes that do not decode as an image")
+            frame = image
+        if not isinstance(frame, np.ndarray):
+            raise FrameError(f"unsupported frame type {type(frame).__name__}")
+        if frame.size == 0:
+            raise FrameError(f"empty frame {frame.shape}")
+        if frame.dtype != np.uint8:
+            raise FrameError(f"frame dtype {frame.dtype}, expected uint8")
+        if frame.shape != (self.height, self.width, 3):
+            shape = "x".join(str(s) for s in frame.shape)
+            raise FrameError(f"frame is {shape}, expected {self.height}x{self.width}x3 (HxWx3)")
+        return np.ascontiguousarray(frame)
+
+    def _log_skip(self, message: str) -> None:
+        """Log a skipped frame; the same reason at most once a second (with a count)."""
+        key = message.split(":", 1)[-1]
+        now = time.monotonic()
+        last, count = self._last_log.get(key, (-1e9, 0))
+        if now - last >= 1.0:
+            suffix = f" ({count} more like it since the last report)" if count else ""
+            log.warning("%s%s", message, suffix)
+            self._last_log[key] = (now, 0)
+        else:
+            self._last_log[key] = (last, count + 1)
+
+    def _learn_step(self, image: np.ndarray, index: int, t: float | None) -> OcclusionResult:
+        self._learning.append(image)
+        if len(self._learning) >= self.settings.learn_frames:
+            self.background.learn(self._learning)
+            self._learning = []
+            log.info("background learned from %d frames", self.settings.learn_frames)
+        zero = np.zeros((self.height, self.width), dtype=np.uint8)
+        return OcclusionResult(index, t, learning=True, mask=zero, person_mask=zero,
+                               shadow_mask=zero, foreground_mask=zero)
+
+    def _segment(self, image: np.ndarray, index: int, t: float | None) -> OcclusionResult:
+        s = self.settings
+        bg = self.background
+        timings = {}
+        tick = time.perf_counter()
+
+        def lap(name: str) -> None:
+            nonlocal tick
+            now = time.perf_counter()
+            timings[name] = 1e3 * (now - tick)
+            tick = now
+
+        # 1. Daylight: gain from the coarse frame, then the frame in reference illumination.
+        coarse = shrink(image, s.detect_scale)
+        gain = bg.estimate_gain(coarse, self._previous_exclude)
+        table = self.transfer.gain_table(gain)
+        corrected = apply_table(image, table)
+        coarse_corrected = apply_table(coarse, table)
+        lap("gain")
+        # 2. Regions of interest: coarse background difference plus last frame's people.
+        if s.full_frame:
+            boxes = [(0, self.height, 0, self.width)]
+        else:
+            diff = cv2.absdiff(coarse_corrected.astype(np.float32), bg.coarse_mean)
+            candidates = diff.mean(axis=2) > s.detect_threshold
+            if self._previous_exclude is not None:
+                candidates |= self._previous_exclude
+            candidates = cv2.dilate(candidates.view(np.uint8), np.ones((3, 3), np.uint8))
+            boxes = regions_of_interest(candidates, s.detect_scale, s.roi_pad_px,
+                                        s.min_region_px, (self.height, self.width))
+        lap("regions")
+        # 3. Graph cut of Eq. 6 inside the regions, shadows joining the background.
+        person, shadow, foreground = self.segmenter.segment(corrected, boxes)
+        lap("segment")
+        timings.update({f"segment.{k}": v for k, v in self.segmenter.timings_ms.items()})
+        # 4. People, their depth from the foot line, and the mask of those in front.
+        labels, people = find_people(person, s.min_person_px, s.foot_min_px, boxes, self.camera,
+                                     s.person_height_m, s.person_half_width_m)
+        person = labels > 0
+        for p in people:
+            u, v = p.foot_px
+            p.depth_m = self.camera.foot_depth_m(u, v)
+            if isinstance(self.camera, PerspectiveCamera) and np.isfinite(p.depth_m):
+                point = self.camera.ground_hit(u, v)[0][0]
+                p.foot_world_m = (float(point[0]), float(point[1]), float(point[2]))
+        mask = occlusion_mask(labels, people, self.virtual_depth_m)
+        lap("depth")
+        # 5. Memory: label history, person colours, slow background update, gain exclusion.
+        self.segmenter.remember(person, corrected)
+        busy = person | shadow
+        near = cv2.dilate(busy.view(np.uint8), np.ones((2 * s.bg_protect_px + 1,) * 2, np.uint8))
+        bg.update(corrected, near == 0)
+        self._previous_exclude = shrink(near * np.uint8(255), s.detect_scale) > 0
+        lap("update")
+        u8 = np.uint8(255)
+        return OcclusionResult(
+            index, t, mask=mask, person_mask=person.view(np.uint8) * u8,
+            shadow_mask=shadow.view(np.uint8) * u8, foreground_mask=foreground.view(np.uint8) * u8,
+            people=people, gain_bgr=gain.copy(), regions=boxes, timings_ms=timings,
+        )
+
+
+def read_depth_exr(path: Path | str) -> np.ndarray:
+    """A view's virtual depth image (OpenEXR, channel ``Z``): (H, W) float32 metres."""
+    import OpenEXR
+
+    with OpenEXR.File(str(path), separate_channels=True) as f:
+        return np.asarray(f.channels()["Z"].pixels, dtype=np.float32)

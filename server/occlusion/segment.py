@@ -1,0 +1,317 @@
+"""People versus everything else, by a graph cut of Kakuta's energy (Eq. 6-7).
+
+For the labels ``X^t`` of frame ``I^t`` (1: person, 0: background or shadow)::
+
+    E^t = alpha V^T(X^t, X^{t-1}, X^{t-2}) + beta V^S(X^t, I^t) + U^C(X^t, I^t)     (Eq. 6)
+
+- ``U^C``, colour: ``-ln p(I_n | person)`` from a Gaussian mixture of people's colours (paper:
+  K = 5) mixed with a uniform density, refitted every few frames to the pixels labelled person;
+  ``-ln p(I_n | background)`` from the mixture ``lambda p_global(I_n) + (1 - lambda)
+  N(I_n; mu_n, Sigma_n)`` of a global background mixture (K = 15) and the pixel's own Gaussian
+  (the combined model of Sun et al., which the paper follows; ``lambda = bg_global_weight``,
+  0 by default: for a fixed camera the global term mostly hides people dressed in colours found
+  elsewhere on the site, see docs/occlusion.md). Mixture densities are table look-ups on
+  5-bit-per-channel colour.
+- Shadow (shadow.py): a pixel that looks like its background in shadow (the F-value test and
+  the frame's shadow signature) costs ``shadow_cost`` plus a penalty that grows with its
+  distance from a perfect shadow as background, so cast shadows join the background inside the
+  same cut, where the spatial prior smooths the per-pixel test, instead of being carved out of
+  the person mask afterwards.
+- ``V^T``, temporal: ``-ln P(x_n^t | x_n^{t-1}, x_n^{t-2})``, a second-order Markov chain per
+  pixel with four probabilities (settings ``temporal_prior``).
+- ``V^S``, spatial: for each 4-neighbour pair with different labels,
+  ``exp(-|I_m - I_n|^2 / (2 <|I_m - I_n|^2>))`` (contrast-sensitive, Boykov-Jolly / GrabCut).
+
+Eq. 7 takes the previous labels as fixed, so the energy is submodular in ``X^t`` and one s-t
+min cut (PyMaxflow, Boykov-Kolmogorov) gives the exact minimum. The cut runs at full
+resolution, but only inside regions of interest: boxes around the coarse background difference
+and last frame's people, and inside those only for the pixels within ``band_px`` of a pixel
+that may be a person (its colour, or last frame's label). Everything else is background; the
+frame-wide cut gives the same labels there (those pixels match their background Gaussian by
+many nats) at many times the cost (benchmarks/bench_occlusion.py measures both).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import cv2
+import maxflow
+import numpy as np
+
+from server.occlusion.background import BackgroundModel
+from server.occlusion.colour import Transfer, colour_index
+from server.occlusion.mixture import ColourMixture
+from server.occlusion.settings import OcclusionSettings, log_prior_table
+from server.occlusion.shadow import ShadowSignature, shadow_features
+
+Box = tuple[int, int, int, int]  # y0, y1, x0, x1 (end exclusive), full resolution
+
+
+def regions_of_interest(
+    candidates: np.ndarray,
+    scale: int,
+    pad_px: int,
+    min_px: int,
+    shape: tuple[int, int],
+) -> list[Box]:
+    """Boxes around candidate regions: (h, w) bool at detection scale -> full-resolution boxes.
+
+    Regions smaller than ``min_px`` full-resolution pixels are dropped; boxes are padded by
+    ``pad_px`` and overlapping boxes merged, so they are disjoint.
+    """
+    height, width = shape
+    mask = candidates.astype(np.uint8)
+    count, _, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    boxes = []
+    for label in range(1, count):
+        x, y, w, h, area = (int(v) for v in stats[label])
+        if area * scale * scale < min_px:
+            continue
+        boxes.append([
+            max(0, y * scale - pad_px), min(height, (y + h) * scale + pad_px),
+            max(0, x * scale - pad_px), min(width, (x + w) * scale + pad_px),
+        ])
+    merged = True
+    while merged and len(boxes) > 1:
+        merged = False
+        for i in range(len(boxes)):
+            for j in range(i + 1, len(boxes)):
+                a, b = boxes[i], boxes[j]
+                if a[0] < b[1] and b[0] < a[1] and a[2] < b[3] and b[2] < a[3]:
+                    boxes[i] = [min(a[0], b[0]), max(a[1], b[1]), min(a[2], b[2]), max(a[3], b[3])]
+                    del boxes[j]
+                    merged = True
+                    break
+            if merged:
+                break
+    return [tuple(b) for b in boxes]
+
+
+def graph_cut(
+    cost_person: np.ndarray,
+    cost_background: np.ndarray,
+    w_right: np.ndarray,
+    w_down: np.ndarray,
+    free: np.ndarray | None = None,
+) -> np.ndarray:
+    """Exact minimum of a binary grid energy by one s-t min cut (PyMaxflow, Boykov-Kolmogorov).
+
+    ``cost_*`` (h, w) unary costs of each label; ``w_right``/``w_down`` (h, w) costs of a label
+    change to the right / lower neighbour (last column / row ignored). ``free`` (h, w) bool:
+    only these pixels get graph nodes, all others are background (their edges to free pixels
+    become unary costs); None: all. Returns (h, w) bool, True where the person label is chosen.
+    """
+    h, w = cost_person.shape
+    if free is None:
+        free = np.ones((h, w), dtype=bool)
+    cost_person = cost_person.copy()
+    # Edges from a free pixel to a fixed background neighbour: cut if the pixel is a person.
+    cr = w_right[:, :-1]
+    cost_person[:, :-1] += np.where(free[:, :-1] & ~free[:, 1:], cr, 0.0)
+    cost_person[:, 1:] += np.where(free[:, 1:] & ~free[:, :-1], cr, 0.0)
+    cd = w_down[:-1]
+    cost_person[:-1] += np.where(free[:-1] & ~free[1:], cd, 0.0)
+    cost_person[1:] += np.where(free[1:] & ~free[:-1], cd, 0.0)
+    n = int(np.count_nonzero(free))
+    out = np.zeros((h, w), dtype=bool)
+    if n == 0:
+        return out
+    index = np.full((h, w), -1, dtype=np.int32)
+    index[free] = np.arange(n, dtype=np.int32)
+    pairs_r = free[:, :-1] & free[:, 1:]
+    pairs_d = free[:-1] & free[1:]
+    i = np.concatenate([index[:, :-1][pairs_r], index[:-1][pairs_d]])
+    j = np.concatenate([index[:, 1:][pairs_r], index[1:][pairs_d]])
+    cap = np.concatenate([cr[pairs_r], cd[pairs_d]]).astype(np.float64)
+    g = maxflow.GraphFloat(n, len(i))
+    nodes = g.add_nodes(n)
+    g.add_edges(i, j, cap, cap)
+    a, b = cost_person[free], cost_background[free]
+    low = np.minimum(a, b)
+    # A node in the sink segment pays its source capacity: sink = person.
+    g.add_grid_tedges(nodes, a - low, b - low)
+    g.maxflow()
+    out[free] = g.get_grid_segments(nodes)
+    return out
+
+
+_SUM3 = np.ones((1, 3), dtype=np.float32)  # cv2.transform: sum of the three channels
+
+
+def squared_distance(a: np.ndarray, b: np.ndarray, inv_var: np.ndarray | None = None) -> np.ndarray:
+    """``sum_c (a_c - b_c)^2 [/ var_c]`` of two (h, w, 3) images -> (h, w) float32 (OpenCV)."""
+    d = cv2.subtract(a, b, dtype=cv2.CV_32F)
+    sq = cv2.multiply(d, d)
+    if inv_var is not None:
+        sq = cv2.multiply(sq, inv_var)
+    return cv2.transform(sq, _SUM3)
+
+
+def contrast_weights(
+    codes: np.ndarray, weight: float, mean_contrast: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """``V^S`` edge costs of an (h, w, 3) colour patch: (w_right, w_down), (h, w) float32 each.
+
+    ``weight * exp(-|I_m - I_n|^2 / (2 mean_contrast))`` for the edge from each pixel to its
+    right / lower neighbour (0 in the last column / row).
+    """
+    h, w = codes.shape[:2]
+    k = -1.0 / (2.0 * mean_contrast)
+    w_right = np.zeros((h, w), dtype=np.float32)
+    w_down = np.zeros((h, w), dtype=np.float32)
+    if w > 1:
+        e = squared_distance(codes[:, 1:], codes[:, :-1]).reshape(h, w - 1)
+        w_right[:, :-1] = cv2.exp(e * np.float32(k)).reshape(h, w - 1) * np.float32(weight)
+    if h > 1:
+        e = squared_distance(codes[1:], codes[:-1]).reshape(h - 1, w)
+        w_down[:-1] = cv2.exp(e * np.float32(k)).reshape(h - 1, w) * np.float32(weight)
+    return w_right, w_down
+
+
+class Segmenter:
+    """The labelling of one camera's frames, with its memory (previous labels, person colours).
+
+    Attributes
+    ----------
+    history : (H, W) uint8, ``2 x^{t-1} + x^{t-2}`` per pixel (index into the temporal prior)
+    person_mixture : the people's colour mixture; ``person_table`` its log-density table
+    """
+
+    def __init__(self, settings: OcclusionSettings, background: BackgroundModel,
+                 transfer: Transfer):
+        self.settings = settings
+        self.background = background
+        self.transfer = transfer
+        h, w = background.height, background.width
+        self.history = np.zeros((h, w), dtype=np.uint8)
+        cost_fg, cost_bg = log_prior_table(settings.temporal_prior)
+        self.temporal_fg = (settings.temporal_weight * np.asarray(cost_fg)).astype(np.float32)
+        self.temporal_bg = (settings.temporal_weight * np.asarray(cost_bg)).astype(np.float32)
+        self.person_mixture = ColourMixture(settings.fg_components, max_iter=5)
+        self.person_table = self.person_mixture.table(settings.lut_bits)
+        self._frames_since_refit = 0
+        self._table_pending = False
+        lam = settings.bg_global_weight
+        self._log_global_w = math.log(lam) if lam > 0 else None
+        self._log_pixel_w = math.log1p(-lam)
+        self.signature = ShadowSignature(settings)
+        self.timings_ms: dict[str, float] = {}
+
+    def reset(self) -> None:
+        self.history[:] = 0
+
+    def colour_terms(self, corrected: np.ndarray, box: Box) -> dict:
+        """The colour costs ``U^C`` of one region and its shadow features (before the cut).
+
+        Returns arrays over the box (h, w): ``cost_fg``, ``cost_bg`` (nats), ``different``
+        (the person model explains the pixel better than its background, i.e. the
+        foreground before shadow removal, as the paper's Fig. 16 b) and, for the ``different``
+        pixels only, the shadow features of :func:`~server.occlusion.shadow.shadow_features`.
+        """
+        s = self.settings
+        bg = self.background
+        y0, y1, x0, x1 = box
+        codes = corrected[y0:y1, x0:x1]
+        h, w = codes.shape[:2]
+        d2 = squared_distance(codes, bg.mean[y0:y1, x0:x1], bg.inv_var[y0:y1, x0:x1])
+        d2 = d2.reshape(h, w)
+        log_pixel = -0.5 * d2 - bg.log_norm[y0:y1, x0:x1]
+        idx = colour_index(codes.reshape(-1, 3), s.lut_bits).reshape(h, w)
+        if self._log_global_w is not None:
+            log_bg = np.logaddexp(self._log_global_w + bg.global_table[idx],
+                                  self._log_pixel_w + log_pixel)
+        else:
+            log_bg = log_pixel
+        cost_bg = -log_bg
+        cost_fg = -self.person_table[idx]
+        different = cost_bg > cost_fg
+        sub = codes[different]
+        bg_sub = bg.mean_u8[y0:y1, x0:x1][different]
+        tr = self.transfer
+        features = shadow_features(
+            tr.to_linear(sub), tr.to_linear(bg_sub), s,
+            tr.log_table[sub, 0, (0, 1, 2)], tr.log_table[bg_sub, 0, (0, 1, 2)],
+        )
+        return {"box": box, "codes": codes, "cost_fg": cost_fg, "cost_bg": cost_bg,
+                "different": different, "features": features}
+
+    def cut(self, terms: dict) -> tuple[np.ndarray, np.ndarray]:
+        """Graph cut of one region's energy; returns ``(person, removed)``, (h, w) bool:
+        ``removed`` is the foreground the cut gave to the background (shadows, specks)."""
+        s = self.settings
+        y0, y1, x0, x1 = terms["box"]
+        cost_fg, cost_bg, different = terms["cost_fg"], terms["cost_bg"], terms["different"]
+        # Shadow is one more way to be background: the cheaper explanation counts.
+        cost_bg[different] = np.minimum(cost_bg[different], self.signature.cost(terms["features"]))
+        hist = self.history[y0:y1, x0:x1]
+        cost_fg += self.temporal_fg[hist]
+        cost_bg += self.temporal_bg[hist]
+        # Nodes only near pixels that may be people (now or last frame); the rest of the region
+        # is background whatever its neighbours do (it matches its background Gaussian).
+        if s.full_frame:
+            free = None  # the unoptimised baseline: every pixel is a node
+        else:
+            maybe = (different | (hist >= 2)).view(np.uint8)
+            k = 2 * s.band_px + 1
+            free = cv2.dilate(maybe, np.ones((k, k), np.uint8)).view(bool)
+        w_right, w_down = contrast_weights(terms["codes"], s.spatial_weight,
+                                           self.background.mean_contrast)
+        person = graph_cut(cost_fg, cost_bg, w_right, w_down, free)
+        return person, different & ~person
+
+    def segment(self, corrected: np.ndarray, boxes: list[Box]) -> tuple[np.ndarray, np.ndarray,
+                                                                      np.ndarray]:
+        """Label a frame (H, W, 3) uint8 in the reference illumination, inside ``boxes``.
+
+        Returns full-frame ``(person, shadow, foreground)`` (H, W) bool: people, cast shadows
+        removed from the foreground, and the foreground before shadow removal. The frame's
+        shadow signature is re-estimated from all regions before any is cut.
+        """
+        t0 = time.perf_counter()
+        terms = [self.colour_terms(corrected, box) for box in boxes]
+        if terms:
+            merged = tuple(np.concatenate([t["features"][k] for t in terms]) for k in range(4))
+            self.signature.update(merged)
+        t1 = time.perf_counter()
+        shape = corrected.shape[:2]
+        person = np.zeros(shape, dtype=bool)
+        shadow = np.zeros(shape, dtype=bool)
+        foreground = np.zeros(shape, dtype=bool)
+        for t in terms:
+            y0, y1, x0, x1 = t["box"]
+            p, sh = self.cut(t)
+            person[y0:y1, x0:x1] = p
+            shadow[y0:y1, x0:x1] = sh
+            foreground[y0:y1, x0:x1] = p | sh
+        self.timings_ms = {"terms": 1e3 * (t1 - t0), "cut": 1e3 * (time.perf_counter() - t1)}
+        return person, shadow, foreground
+
+    def remember(self, person: np.ndarray, corrected: np.ndarray) -> None:
+        """Shift the label history and, every ``fg_refit_every`` frames, refit person colours.
+
+        The refit is spread over two frames (EM on one, the look-up table on the next) so no
+        frame pays for both.
+        """
+        # history = 2 x^t + x^{t-1}: the new (t-1) bit is this frame, the old (t-1) becomes t-2.
+        np.right_shift(self.history, 1, out=self.history)
+        self.history |= person.view(np.uint8) << 1
+        self._frames_since_refit += 1
+        if self._table_pending:
+            self.person_table = self.person_mixture.table(
+                self.settings.lut_bits, self.settings.fg_uniform_weight
+            )
+            self._table_pending = False
+            return
+        if self._frames_since_refit < self.settings.fg_refit_every and self.person_mixture.fitted:
+            return
+        n = int(np.count_nonzero(person))
+        if n < 200:
+            return
+        self._frames_since_refit = 0
+        rng = np.random.default_rng(n)
+        ys, xs = np.nonzero(person)
+        pick = rng.choice(n, size=min(n, self.settings.fg_samples), replace=False)
+        samples = corrected[ys[pick], xs[pick]]
+        self._table_pending = self.person_mixture.fit(samples, warm=True)

@@ -1,0 +1,181 @@
+"""Cast shadows by the F-value, an illumination-invariant chromaticity (Kakuta Eq. 8-12).
+
+With chromaticities ``i_r = R / B`` and ``i_g = G / B`` of linear light (Eq. 8), and a daylight
+illuminant that follows Planck's law under Wien's approximation (Eq. 11,
+``e_r = w e_g^A``), the quantity::
+
+    F = i_r / (w * i_g^A) = s_r / s_g^A                                    (Eq. 12)
+
+depends on the surface alone: the ground has the same F in sunlight and in shadow. (The paper
+writes ``F = i_r / i_g^A``, which is ``w s_r / s_g^A``; ``w`` is a constant and cancels from the
+comparison below, so both read the same.) A pixel that differs from the background is a shadow
+when
+
+1. ``|ln F - ln F_background| < t_F`` (the paper's condition 1, on the log so that ``t_F`` is a
+   relative tolerance whatever the surface's colour),
+2. its luminance is below the background's, within ``shadow_ratio`` (condition 2, with a lower
+   bound: a shadow darkens by the share of direct sun in the light, not to black), and
+3. its ``ln(G/B)`` is at least ``shadow_min_blue_shift`` below the background's: shadowed
+   ground is lit by the sky alone, a higher colour temperature than sun plus sky;
+4. (:class:`ShadowSignature`) its blue shift and darkening are close to those all of the
+   frame's shadows share. The shift is along the Planckian direction that F deliberately
+   ignores; it separates a shadow from a dark neutral garment over warm paving, which passes
+   conditions 1 and 2.
+
+``shadow_min_blue_shift = 0`` and ``shadow_signature = False`` give the paper's test alone.
+
+Inputs are linear BGR (the order OpenCV frames come in).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from server.occlusion.settings import OcclusionSettings
+
+# Luminance weights (Rec. 709) in BGR order.
+_LUMA_BGR = np.array([0.0722, 0.7152, 0.2126], dtype=np.float32)
+
+
+def log_f_value(linear_bgr: np.ndarray, A: float, w: float = 1.0) -> np.ndarray:
+    """``ln F = ln(R/B) - A ln(G/B) - ln w`` of (..., 3) linear BGR values (Eq. 8, 12)."""
+    lb = np.log(linear_bgr[..., 0])
+    lg = np.log(linear_bgr[..., 1])
+    lr = np.log(linear_bgr[..., 2])
+    return (lr - lb) - A * (lg - lb) - np.log(w)
+
+
+def luminance(linear_bgr: np.ndarray) -> np.ndarray:
+    """(..., 3) linear BGR -> (...) float32 relative luminance."""
+    return linear_bgr @ _LUMA_BGR
+
+
+def shadow_features(
+    frame_linear_bgr: np.ndarray, background_linear_bgr: np.ndarray, settings: OcclusionSettings,
+    frame_log_bgr: np.ndarray | None = None, background_log_bgr: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Log-chromaticity change of (N, 3) linear BGR pixels against their background (N, 3).
+
+    Returns ``(usable, f_change, blue, dark)``, (N,) each: ``usable`` (no channel below
+    ``dark_floor`` in either), ``f_change = ln F - ln F_background`` (``w`` cancels), ``blue =
+    ln(G/B)_background - ln(G/B)`` (positive when bluer), ``dark = ln(luminance ratio)``.
+    The logarithms of the inputs may be passed in (from tables) to save computing them.
+    """
+    floor = settings.dark_floor
+    usable = (frame_linear_bgr.min(axis=-1) > floor) & (background_linear_bgr.min(axis=-1) > floor)
+    lf = np.log(np.maximum(frame_linear_bgr, floor)) if frame_log_bgr is None else frame_log_bgr
+    lb = (np.log(np.maximum(background_linear_bgr, floor)) if background_log_bgr is None
+          else background_log_bgr)
+    d_gb = (lf[..., 1] - lf[..., 0]) - (lb[..., 1] - lb[..., 0])
+    d_rb = (lf[..., 2] - lf[..., 0]) - (lb[..., 2] - lb[..., 0])
+    with np.errstate(divide="ignore"):
+        dark = np.log(luminance(frame_linear_bgr) / np.maximum(luminance(background_linear_bgr),
+                                                               1e-9))
+    return usable, d_rb - settings.A * d_gb, -d_gb, dark
+
+
+def paper_test(features, settings: OcclusionSettings) -> np.ndarray:
+    """Kakuta's conditions 1 and 2 (with ``shadow_ratio`` bounds and the minimum blue shift)."""
+    usable, f_change, blue, dark = features
+    lo, hi = settings.shadow_ratio
+    ok = usable & (np.abs(f_change) < settings.t_f) & (dark > np.log(max(lo, 1e-6)))
+    ok &= dark < np.log(hi)
+    if settings.shadow_min_blue_shift > 0.0:
+        ok &= blue >= settings.shadow_min_blue_shift
+    return ok
+
+
+def expected_blue_shift(settings: OcclusionSettings) -> float:
+    """``ln(G/B)`` change from sunlit to shadowed ground for Planckian illuminants at
+    ``daylight_temperatures_k`` (sun plus sky, sky alone), under Wien's approximation."""
+    c2 = 1.4388e-2  # m K
+    _, lg, lb = (x * 1e-9 for x in settings.wavelengths_nm)
+    t_lit, t_sky = settings.daylight_temperatures_k
+    return float(c2 * (1.0 / t_lit - 1.0 / t_sky) * (1.0 / lb - 1.0 / lg))
+
+
+class ShadowSignature:
+    """The change of illuminant that every cast shadow of a frame shares, tracked over frames.
+
+    All of a frame's shadows trade the same sun-plus-sky illuminant for the same skylight, so
+    against their backgrounds they are darker by one factor and bluer by one shift along the
+    Planckian direction (the direction F ignores). The pixels that pass the paper's test are
+    histogrammed over (blue shift, log darkening); the peak nearest the last estimate (at first,
+    the shift :func:`expected_blue_shift` predicts) becomes the new estimate, smoothed over
+    frames. A pixel is then shadow when it passes the paper's test *and* lies within
+    ``shadow_shift_tolerance`` / ``shadow_dark_tolerance`` of the signature: a neutral grey coat
+    over warm paving passes the first but is far less blue than a real shadow.
+    """
+
+    def __init__(self, settings: OcclusionSettings):
+        self.settings = settings
+        self.blue = expected_blue_shift(settings)
+        self.dark: float | None = None  # unknown until the first shadows are seen
+        self.updates = 0
+
+    def update(self, features) -> None:
+        """Re-estimate from a frame's candidate pixels (the tuple of :func:`shadow_features`)."""
+        s = self.settings
+        _, _, blue, dark = features
+        ok = paper_test(features, s) & (np.abs(blue - self.blue) < s.shadow_search)
+        if np.count_nonzero(ok) < 30:
+            return
+        b, d = blue[ok], dark[ok]
+        step_b, step_d = s.shadow_shift_tolerance / 2, s.shadow_dark_tolerance / 2
+        lo_b, lo_d = self.blue - s.shadow_search, float(d.min())
+        nb = int(2 * s.shadow_search / step_b) + 1
+        nd = int((float(d.max()) - lo_d) / step_d) + 1
+        hist = np.zeros((nb + 2, nd + 2))
+        ib = np.clip(((b - lo_b) / step_b).astype(int), 0, nb - 1) + 1
+        id_ = np.clip(((d - lo_d) / step_d).astype(int), 0, nd - 1) + 1
+        np.add.at(hist, (ib, id_), 1.0)
+        smooth = sum(np.roll(np.roll(hist, i, 0), j, 1) for i in (-1, 0, 1) for j in (-1, 0, 1))
+        pb, pd = np.unravel_index(int(np.argmax(smooth)), smooth.shape)
+        cb, cd = lo_b + (pb - 0.5) * step_b, lo_d + (pd - 0.5) * step_d
+        near = np.abs(b - cb) < s.shadow_shift_tolerance
+        near &= np.abs(d - cd) < s.shadow_dark_tolerance
+        if np.count_nonzero(near) < 20:
+            return
+        nb_, nd_ = float(np.median(b[near])), float(np.median(d[near]))
+        rate = 1.0 if self.updates == 0 else s.shadow_signature_rate
+        self.blue += rate * (nb_ - self.blue)
+        self.dark = nd_ if self.dark is None else self.dark + rate * (nd_ - self.dark)
+        self.updates += 1
+
+    def cost(self, features) -> np.ndarray:
+        """(N,) float32 background cost, nats, of explaining each candidate as shadow.
+
+        ``shadow_cost + shadow_slope * m^2``, with ``m^2`` the squared deviations from a perfect
+        shadow in units of their tolerances: of ln F (``t_f``, the paper's condition 1) and,
+        with ``shadow_signature``, of the blue shift and the darkening from the frame's
+        signature. A soft cost rather than a yes/no test, so that a shadow pixel just outside a
+        tolerance is still cheaper as background than as a person. +inf where the hard
+        conditions fail (not darker within ``shadow_ratio``, not bluer by
+        ``shadow_min_blue_shift``, ``|ln F|`` change beyond ``2 t_f``, unusably dark).
+        """
+        s = self.settings
+        usable, f_change, blue, dark = features
+        lo, hi = s.shadow_ratio
+        gate = usable & (dark > np.log(max(lo, 1e-6))) & (dark < np.log(hi))
+        gate &= np.abs(f_change) < 2.0 * s.t_f
+        if s.shadow_min_blue_shift > 0.0:
+            gate &= blue >= s.shadow_min_blue_shift
+        m2 = (f_change / s.t_f) ** 2
+        if s.shadow_signature:
+            tol_b = s.shadow_shift_tolerance if self.updates else s.shadow_search
+            m2 += ((blue - self.blue) / tol_b) ** 2
+            if self.dark is not None:
+                m2 += ((dark - self.dark) / s.shadow_dark_tolerance) ** 2
+        cost = s.shadow_cost + s.shadow_slope * m2
+        return np.where(gate, cost, np.inf).astype(np.float32)
+
+    def test(self, features) -> np.ndarray:
+        """(N,) bool: within every tolerance (``m <= 1``): a shadow for certain."""
+        return self.cost(features) <= self.settings.shadow_cost + self.settings.shadow_slope
+
+
+def shadow_test(
+    frame_linear_bgr: np.ndarray, background_linear_bgr: np.ndarray, settings: OcclusionSettings
+) -> np.ndarray:
+    """The paper's per-pixel test alone: (N, 3), (N, 3) linear -> (N,) bool."""
+    return paper_test(shadow_features(frame_linear_bgr, background_linear_bgr, settings), settings)
