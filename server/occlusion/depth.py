@@ -37,6 +37,7 @@ class PerspectiveCamera:
         self.world_from_camera = np.asarray(world_from_camera, dtype=np.float64).reshape(4, 4)
         self.width, self.height = int(width), int(height)
         self.K_inv = np.linalg.inv(self.K)
+        self.camera_from_world = np.linalg.inv(self.world_from_camera)
         self.R = self.world_from_camera[:3, :3]
         self.origin_m = self.world_from_camera[:3, 3].copy()
 
@@ -70,7 +71,8 @@ class PerspectiveCamera:
     def project(self, points_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """World points (N, 3) -> continuous pixel coordinates (N, 2) and depth_m (N,)."""
         p = np.asarray(points_m, dtype=np.float64).reshape(-1, 3)
-        cam = (p - self.origin_m) @ self.R  # R^T (p - t), row-wise
+        M = self.camera_from_world  # the exact inverse, even of a slightly rounded rotation
+        cam = p @ M[:3, :3].T + M[:3, 3]
         z = cam[:, 2]
         uvw = cam @ self.K.T
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -80,28 +82,6 @@ class PerspectiveCamera:
     def foot_depth_m(self, u_px: float, v_px: float) -> float:
         """Depth along the optical axis of the ground point seen at ``(u, v)``; NaN if none."""
         return float(self.ground_hit(u_px, v_px)[1][0])
-
-    def person_extent_px(
-        self, u_px: float, v_px: float, height_m: float, half_width_m: float
-    ) -> tuple[float, float, float] | None:
-        """Image extent of an upright person whose feet are at the ground point seen at (u, v).
-
-        Returns ``(v_top, u_left, u_right)``: the row of a point ``height_m`` above the feet,
-        and the columns of points ``half_width_m`` to either side (across the line of sight);
-        None when (u, v) does not see the ground.
-        """
-        point, depth = self.ground_hit(u_px, v_px)
-        if not np.isfinite(depth[0]):
-            return None
-        p = point[0]
-        side = np.cross([0.0, 1.0, 0.0], p - self.origin_m)
-        norm = np.linalg.norm(side)
-        side = side / norm if norm > 0 else np.array([1.0, 0.0, 0.0])
-        pts = np.array([p + [0.0, height_m, 0.0], p - half_width_m * side, p + half_width_m * side])
-        uv, z = self.project(pts)
-        if np.any(z <= 0):
-            return None
-        return float(uv[0, 1]), float(uv[:, 0].min()), float(uv[:, 0].max())
 
 
 class EquidistantPanorama:
@@ -166,52 +146,9 @@ def _foot(sub: np.ndarray, foot_min_px: int) -> tuple[int, float]:
     return bottom, float(cols.mean()) + 0.5
 
 
-def depth_layers(
-    sub: np.ndarray, x0: int, y0: int, camera, foot_min_px: int, min_px: int,
-    height_m: float, half_width_m: float, max_layers: int = 8,
-) -> list[tuple[np.ndarray, tuple[float, float]]]:
-    """Split one connected region (h, w) bool at image offset (x0, y0) into people by depth.
-
-    People who overlap in the image form one region, whose lowest foot line is the nearest
-    person's. That person cannot reach above ``height_m`` nor further than ``half_width_m`` to
-    the side of their feet, so pixels beyond (``camera.person_extent_px``) belong to someone
-    farther: the lowest of them has the next foot line, and so on. Pieces too small to be a
-    person (``min_px``) stay with the nearest layer. Returns ``[(mask (h, w), (u, v)), ...]``
-    nearest first, ``(u, v)`` the image point of each foot line.
-    """
-    remaining = sub.copy()
-    layers: list[tuple[np.ndarray, tuple[float, float]]] = []
-    h, w = sub.shape
-    while remaining.any() and len(layers) < max_layers:
-        bottom, u = _foot(remaining, foot_min_px)
-        foot = (x0 + u, y0 + bottom + 1.0)
-        extent = None
-        if hasattr(camera, "person_extent_px"):
-            extent = camera.person_extent_px(foot[0], foot[1], height_m, half_width_m)
-        if extent is None:
-            claim = remaining
-        else:
-            v_top, u_left, u_right = extent
-            rows = slice(max(0, int(np.floor(v_top)) - y0), h)
-            cols = slice(max(0, int(np.floor(u_left)) - x0), max(0, int(np.ceil(u_right)) - x0))
-            claim = np.zeros_like(remaining)
-            claim[rows, cols] = remaining[rows, cols]
-            if not claim.any():  # a degenerate extent: take what is left
-                claim = remaining
-        if layers and np.count_nonzero(claim) < min_px:
-            layers[0][0][claim] = True  # a fragment: with the nearest person
-        else:
-            layers.append((claim, foot))
-        remaining = remaining & ~claim
-    if remaining.any():
-        layers[0][0][remaining] = True
-    return layers
-
-
 def find_people(
     person_mask: np.ndarray, min_px: int, foot_min_px: int = 2,
-    boxes: list[tuple[int, int, int, int]] | None = None, camera=None,
-    height_m: float = 2.3, half_width_m: float = 0.7,
+    boxes: list[tuple[int, int, int, int]] | None = None,
 ) -> tuple[np.ndarray, list[Person]]:
     """Person regions and their foot lines.
 
@@ -219,8 +156,8 @@ def find_people(
     regions smaller than ``min_px`` are dropped (zero in ``labels``). The foot line is the
     lowest row holding at least ``foot_min_px`` pixels of the region (a stray pixel below the
     feet does not move it); its ``u`` is the mean column of the region's pixels in that row and
-    the two rows above. With a ``camera`` that has ``person_extent_px``, regions of several
-    people standing at different depths are split (:func:`depth_layers`). ``boxes``
+    the two rows above. People who overlap in the image form one region, which gets the foot
+    line, hence the depth, of the nearest of them (as in the paper). ``boxes``
     ((y0, y1, x0, x1), disjoint): look only inside them (all person pixels must be inside),
     which is faster than labelling the whole frame.
     """
@@ -238,16 +175,11 @@ def find_people(
                 continue
             x0, y0 = bx0 + x, by0 + y
             sub = sub_labels[y : y + h, x : x + w] == label
-            view = labels[y0 : y0 + h, x0 : x0 + w]
-            for part, foot in depth_layers(sub, x0, y0, camera, foot_min_px, min_px,
-                                           height_m, half_width_m):
-                view[part] = next_label
-                ys, xs = np.nonzero(part)
-                bbox = (x0 + int(xs.min()), y0 + int(ys.min()), x0 + int(xs.max()) + 1,
-                        y0 + int(ys.max()) + 1)
-                people.append(Person(next_label, bbox, int(len(ys)), foot,
-                                     at_bottom_edge=bbox[3] >= height))
-                next_label += 1
+            labels[y0 : y0 + h, x0 : x0 + w][sub] = next_label
+            bottom, u = _foot(sub, foot_min_px)
+            people.append(Person(next_label, (x0, y0, x0 + w, y0 + h), area,
+                                 (x0 + u, y0 + bottom + 1.0), at_bottom_edge=y0 + h >= height))
+            next_label += 1
     return labels, people
 
 

@@ -274,8 +274,7 @@ class OcclusionProcessor:
         lap("segment")
         timings.update({f"segment.{k}": v for k, v in self.segmenter.timings_ms.items()})
         # 4. People, their depth from the foot line, and the mask of those in front.
-        labels, people = find_people(person, s.min_person_px, s.foot_min_px, boxes, self.camera,
-                                     s.person_height_m, s.person_half_width_m)
+        labels, people = find_people(person, s.min_person_px, s.foot_min_px, boxes)
         person = labels > 0
         for p in people:
             u, v = p.foot_px
