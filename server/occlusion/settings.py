@@ -116,9 +116,6 @@ class OcclusionSettings:
     -------------------------------------------
     min_person_px : connected person regions smaller than this are dropped.
     foot_min_px : the foot line is the lowest row with at least this many pixels of the region.
-    person_height_m, person_half_width_m : the most a person standing on a foot line reaches
-        up and to either side (raised arms, a bag); pixels of a region beyond belong to someone
-        farther away, who gets their own foot line and depth.
     """
 
     response: object = "srgb"
@@ -136,7 +133,7 @@ class OcclusionSettings:
     detect_scale: int = 4
     detect_threshold: float = 7.0
     roi_pad_px: int = 8
-    min_region_px: int = 48
+    min_region_px: int = 32
 
     fg_components: int = 5
     fg_uniform_weight: float = 0.3
@@ -161,13 +158,11 @@ class OcclusionSettings:
     shadow_dark_tolerance: float = 0.3
     shadow_signature_rate: float = 0.3
     shadow_cost: float = 6.0
-    shadow_slope: float = 2.0
+    shadow_slope: float = 4.0
     dark_floor: float = 0.004
 
-    min_person_px: int = 60
+    min_person_px: int = 25
     foot_min_px: int = 2
-    person_height_m: float = 2.3
-    person_half_width_m: float = 0.7
 
     def __post_init__(self) -> None:
         checks = [

@@ -100,11 +100,12 @@ class ShadowSignature:
     All of a frame's shadows trade the same sun-plus-sky illuminant for the same skylight, so
     against their backgrounds they are darker by one factor and bluer by one shift along the
     Planckian direction (the direction F ignores). The pixels that pass the paper's test are
-    histogrammed over (blue shift, log darkening); the peak nearest the last estimate (at first,
-    the shift :func:`expected_blue_shift` predicts) becomes the new estimate, smoothed over
-    frames. A pixel is then shadow when it passes the paper's test *and* lies within
-    ``shadow_shift_tolerance`` / ``shadow_dark_tolerance`` of the signature: a neutral grey coat
-    over warm paving passes the first but is far less blue than a real shadow.
+    histogrammed over (blue shift, log darkening); the peak that is large and near the last
+    estimate (at first, the shift :func:`expected_blue_shift` predicts) becomes the new
+    estimate, smoothed over frames. A pixel is then shadow when it passes the paper's test *and*
+    lies within ``shadow_shift_tolerance`` / ``shadow_dark_tolerance`` of the signature (as a
+    soft cost, :meth:`cost`): a neutral grey coat over warm paving passes the first but is far
+    less blue than a real shadow.
     """
 
     def __init__(self, settings: OcclusionSettings):
@@ -130,7 +131,11 @@ class ShadowSignature:
         id_ = np.clip(((d - lo_d) / step_d).astype(int), 0, nd - 1) + 1
         np.add.at(hist, (ib, id_), 1.0)
         smooth = sum(np.roll(np.roll(hist, i, 0), j, 1) for i in (-1, 0, 1) for j in (-1, 0, 1))
-        pb, pd = np.unravel_index(int(np.argmax(smooth)), smooth.shape)
+        # The peak most consistent with the last estimate, not merely the largest: a dark grey
+        # coat can outnumber its owner's shadow in one frame.
+        centres = lo_b + (np.arange(nb + 2) - 0.5) * step_b
+        prior = np.exp(-0.5 * ((centres - self.blue) / (0.5 * s.shadow_search)) ** 2)
+        pb, pd = np.unravel_index(int(np.argmax(smooth * prior[:, None])), smooth.shape)
         cb, cd = lo_b + (pb - 0.5) * step_b, lo_d + (pd - 0.5) * step_d
         near = np.abs(b - cb) < s.shadow_shift_tolerance
         near &= np.abs(d - cd) < s.shadow_dark_tolerance

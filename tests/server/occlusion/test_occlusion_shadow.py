@@ -1,0 +1,129 @@
+"""The F-value (Kakuta Eq. 8-12) against exact Wien spectra, and the shadow tests built on it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from server.occlusion.mixture import LOG_UNIFORM
+from server.occlusion.settings import OcclusionSettings, camera_constants
+from server.occlusion.shadow import (
+    ShadowSignature,
+    expected_blue_shift,
+    log_f_value,
+    paper_test,
+    shadow_features,
+    shadow_test,
+)
+from server.occlusion.synthetic import wien_rgb
+
+WAVELENGTHS = (610.0, 540.0, 465.0)
+
+
+def wien_unnormalised(t_k, wavelengths_nm=WAVELENGTHS):
+    lam = np.asarray(wavelengths_nm) * 1e-9
+    return lam**-5.0 * np.exp(-1.4388e-2 / (lam * t_k))
+
+
+@pytest.mark.parametrize("wavelengths", [WAVELENGTHS, (650.0, 550.0, 450.0), (600.0, 530.0,
+                                                                             470.0)])
+def test_eq11_holds_for_planckian_light_at_every_temperature(wavelengths):
+    A, w = camera_constants(wavelengths)
+    for t in (2500.0, 4000.0, 5600.0, 8000.0, 15000.0, 30000.0):
+        r, g, b = wien_unnormalised(t, wavelengths)
+        e_r, e_g = r / b, g / b  # Eq. 8 chromaticities of the illuminant
+        assert e_r == pytest.approx(w * e_g**A, rel=1e-12)
+
+
+def test_camera_constants_for_the_default_wavelengths():
+    exponent, _ = camera_constants(WAVELENGTHS)
+    assert 1.5 < exponent < 2.0  # red is farther from blue than green is, in 1/lambda
+    settings = OcclusionSettings()
+    assert abs(settings.A - exponent) < 1e-12
+    given = OcclusionSettings(f_constants=(1.7, 0.9))
+    assert (given.A, given.w) == (1.7, 0.9)
+    with pytest.raises(ValueError, match="R > G > B"):
+        camera_constants((450.0, 540.0, 610.0))
+
+
+def test_f_is_the_same_for_a_surface_under_any_planckian_light():
+    """Eq. 12: F depends on the surface only; it is s_r / s_g^A once w is divided out."""
+    s = OcclusionSettings()
+    reflectance_rgb = np.array([[0.36, 0.33, 0.28], [0.1, 0.6, 0.2], [0.7, 0.2, 0.5]])
+    for refl in reflectance_rgb:
+        values = []
+        for t in (4000.0, 5600.0, 11000.0, 20000.0):
+            light = wien_rgb(t, WAVELENGTHS) * 3.7  # any intensity
+            values.append(log_f_value((refl * light)[::-1], s.A, s.w))  # BGR order
+        s_r, s_g = refl[0] / refl[2], refl[1] / refl[2]
+        assert np.allclose(values, np.log(s_r / s_g**s.A), atol=1e-12)
+
+
+def sunlit_and_shadowed(refl_rgb, t_lit=5600.0, t_sky=11000.0, fraction=0.35):
+    lit = refl_rgb * wien_rgb(t_lit)
+    shade = refl_rgb * fraction * wien_rgb(t_sky)
+    return lit[..., ::-1].astype(np.float32), shade[..., ::-1].astype(np.float32)
+
+
+def test_the_papers_test_finds_shadows_and_rejects_brighter_or_other_colours():
+    s = OcclusionSettings()
+    paving = np.array([[0.36, 0.33, 0.28], [0.13, 0.22, 0.07], [0.5, 0.45, 0.4]])
+    lit, shade = sunlit_and_shadowed(paving)
+    assert shadow_test(shade, lit, s).all()  # the ground in shadow
+    assert not shadow_test(lit * 1.3, lit, s).any()  # brighter: not a shadow
+    red_coat = np.array([[0.6, 0.1, 0.1]]) * wien_rgb(5600.0)
+    assert not shadow_test(red_coat[:, ::-1], lit[:1], s).any()  # another colour
+
+
+def test_a_grey_coat_passes_the_papers_test_but_not_the_shadow_signature():
+    """The F-value ignores the illuminant's colour temperature by design, so a dark neutral coat
+    over warm paving passes conditions 1 and 2; the shift every real shadow shares does not."""
+    s = OcclusionSettings()
+    rng = np.random.default_rng(0)
+    paving = np.array([0.36, 0.33, 0.28]) * rng.uniform(0.8, 1.2, (400, 1))
+    lit, shade = sunlit_and_shadowed(paving)
+    coat = (np.array([0.12, 0.12, 0.12]) * wien_rgb(5600.0))[::-1]
+    coat = np.broadcast_to(coat, lit.shape).astype(np.float32)
+    paper_only = s.with_(shadow_signature=False, shadow_min_blue_shift=0.0)
+    assert shadow_test(coat, lit, paper_only).all()  # the paper's test is fooled
+    signature = ShadowSignature(s)
+    shadows = shadow_features(shade, lit, s)
+    coats = shadow_features(coat, lit, s)
+    # One frame with more coat than shadow pixels: the signature still finds the shadows,
+    # starting from the shift that Wien's law predicts for the default temperatures.
+    both = tuple(np.concatenate([a, b, b]) for a, b in zip(shadows, coats, strict=True))
+    signature.update(both)
+    assert signature.updates == 1
+    assert signature.blue == pytest.approx(expected_blue_shift(s), abs=0.02)
+    assert signature.test(shadows).mean() > 0.95
+    assert not signature.test(coats).any()
+    # As a cost: shadows are cheap background; the coat costs more as shadow than as a person
+    # of a colour never seen before (the uniform part of the person model).
+    assert signature.cost(shadows).max() < s.shadow_cost + s.shadow_slope
+    unseen_person = -(np.log(s.fg_uniform_weight) + LOG_UNIFORM)
+    assert signature.cost(coats).min() > unseen_person
+
+
+def test_the_expected_blue_shift_is_wiens():
+    s = OcclusionSettings()
+    lit, sky = wien_rgb(5600.0), wien_rgb(11000.0)
+    measured = np.log(lit[1] / lit[2]) - np.log(sky[1] / sky[2])
+    assert expected_blue_shift(s) == pytest.approx(measured, rel=1e-9)
+
+
+def test_the_signature_follows_a_change_of_daylight():
+    s = OcclusionSettings()
+    signature = ShadowSignature(s)
+    paving = np.array([0.36, 0.33, 0.28]) * np.linspace(0.8, 1.2, 300)[:, None]
+    for t_sky in (11000.0, 13000.0, 15000.0, 15000.0, 15000.0, 15000.0, 15000.0):
+        lit, shade = sunlit_and_shadowed(paving, t_sky=t_sky)
+        signature.update(shadow_features(shade, lit, s))
+    lit, shade = sunlit_and_shadowed(paving, t_sky=15000.0)
+    assert signature.blue == pytest.approx(shadow_features(shade, lit, s)[2].mean(), abs=0.03)
+    assert signature.test(shadow_features(shade, lit, s)).all()
+
+
+def test_dark_pixels_are_never_shadow():
+    s = OcclusionSettings()
+    lit, shade = sunlit_and_shadowed(np.array([[0.01, 0.008, 0.002]]))
+    assert not paper_test(shadow_features(shade, lit, s), s).any()
