@@ -46,6 +46,12 @@ class PerspectiveCamera:
         """From a manifest ``views`` entry (``K``, ``world_from_camera``, ``width``, ``height``)."""
         return cls(view["K"], view["world_from_camera"], view["width"], view["height"])
 
+    def scaled(self, width: int, height: int) -> PerspectiveCamera:
+        """The same camera delivering ``width`` x ``height`` frames (same field of view)."""
+        sx, sy = width / self.width, height / self.height
+        K = np.diag([sx, sy, 1.0]) @ self.K  # continuous pixel coordinates scale from 0
+        return PerspectiveCamera(K, self.world_from_camera, width, height)
+
     def ray_directions(self, u_px, v_px) -> np.ndarray:
         """World directions (N, 3) through image points, scaled so camera-frame z is 1.
 

@@ -8,11 +8,11 @@ This is the one class the light server calls. Per frame::
 
 Usage::
 
-    proc = OcclusionProcessor.from_build(build_dir, view_id="kiosk")
+    proc = OcclusionProcessor.from_build(build_dir, view_id="kiosk", frame_size=(1024, 576))
     for frame in camera:                      # (H, W, 3) uint8 BGR, or encoded image bytes
-        result = proc.process(frame, capture_time_s=t)
+        result = proc.process(frame, capture_time_s=t)      # ~10-20 ms: run it off the loop
         if result.ok and not result.learning:
-            send(server.occlusion.codec.encode_mask(result.mask))
+            send(encode_message(result.mask, seq, t, result.people_in_front))
 
 Frames that cannot be used (None, empty, wrong size or type, bytes that do not decode) are
 skipped with one log line on the ``daylit.occlusion`` logger and ``result.ok`` False; nothing
@@ -58,6 +58,7 @@ class OcclusionResult:
     foreground_mask : (H, W) uint8, 255 on people and their shadows (before shadow removal)
     people : one :class:`~server.occlusion.depth.Person` per region, with depth
     gain_bgr : (3,) daylight gain of this frame over the background model (linear light)
+    regions : the regions of interest the graph cut ran in, (y0, y1, x0, x1) pixels
     timings_ms : wall time of each stage and ``total``, milliseconds
     """
 
@@ -74,6 +75,11 @@ class OcclusionResult:
     gain_bgr: np.ndarray | None = None
     regions: list[tuple[int, int, int, int]] = field(default_factory=list)
     timings_ms: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def people_in_front(self) -> int:
+        """How many people have pixels in ``mask`` (the codec's informational count)."""
+        return sum(1 for p in self.people if p.in_front_px > 0)
 
 
 class FrameError(ValueError):
@@ -125,9 +131,15 @@ class OcclusionProcessor:
     @classmethod
     def from_build(
         cls, build_dir: Path | str, view_id: str | None = None,
-        settings: OcclusionSettings | None = None,
+        settings: OcclusionSettings | None = None, frame_size: tuple[int, int] | None = None,
     ) -> OcclusionProcessor:
-        """From a baked build: the view's calibrated camera and its virtual depth image."""
+        """From a baked build: the view's calibrated camera and its virtual depth image.
+
+        ``view_id``: the manifest view (default: the first). ``frame_size`` ``(width,
+        height)``: the size of the frames that will be processed when the live camera does not
+        deliver the view's baked size (same field of view); the intrinsics are scaled and the
+        virtual depth image resampled (nearest) to it.
+        """
         from daylit.manifest import load
 
         manifest = load(build_dir)
@@ -138,7 +150,12 @@ class OcclusionProcessor:
         if view is None:
             raise ValueError(f"{build_dir}: no view {view_id!r}")
         depth = read_depth_exr(Path(build_dir) / view["depth"]) if view.get("depth") else None
-        return cls(PerspectiveCamera.from_view(view), depth, settings)
+        camera = PerspectiveCamera.from_view(view)
+        if frame_size is not None and tuple(frame_size) != (camera.width, camera.height):
+            camera = camera.scaled(*frame_size)
+            if depth is not None:
+                depth = cv2.resize(depth, tuple(frame_size), interpolation=cv2.INTER_NEAREST)
+        return cls(camera, depth, settings)
 
     @property
     def ready(self) -> bool:

@@ -174,3 +174,20 @@ def test_from_build_uses_the_kiosk_view_of_a_baked_site(demo_draft_build):
     assert ideal[near_px].all() and not ideal[far_px].any()
     assert (result.mask[near_px] > 0).mean() > 0.9  # the near one hides it
     assert (result.mask[far_px] > 0).mean() < 0.05  # the building hides the far one
+
+
+@pytest.mark.slow
+def test_from_build_at_another_frame_size(demo_draft_build):
+    """A live camera delivering twice the baked view's size: same rays, depth resampled."""
+    view = OcclusionProcessor.from_build(demo_draft_build, "kiosk")
+    big = OcclusionProcessor.from_build(demo_draft_build, "kiosk", frame_size=(640, 360))
+    assert (big.camera.width, big.camera.height) == (640, 360)
+    assert big.virtual_depth_m.shape == (360, 640)
+    # A ground point projects to the same place, relatively, in both.
+    point = view.camera.ground_hit(200.5, 150.5)[0]
+    uv_small, _ = view.camera.project(point)
+    uv_big, _ = big.camera.project(point)
+    assert np.allclose(uv_big, 2.0 * uv_small)
+    assert big.camera.foot_depth_m(401.0, 301.0) == pytest.approx(
+        view.camera.foot_depth_m(200.5, 150.5))
+    assert np.array_equal(big.virtual_depth_m[1::2, 1::2], view.virtual_depth_m)
