@@ -1,0 +1,150 @@
+"""Occlusion by visitors (issue 6): milliseconds per site-camera frame, and accuracy.
+
+For 640x480 and 1024x512 frames of the standard synthetic sequence
+(server/occlusion/synthetic.py ``default_site``: 12 s at 10 frames/s, four people at 7-26 m
+with cast shadows, one standing still for 6 s, daylight dimming and warming), on one core:
+
+- *ours*: :class:`server.occlusion.OcclusionProcessor` with its default settings (graph cut in
+  regions of interest and a band around possible person pixels, table look-ups);
+- *full-frame cut*: the same energy and code with ``full_frame=True``, one graph node per pixel
+  (the plain method, as in the paper), over the first 30 frames after learning;
+- *MOG2*: OpenCV's ``createBackgroundSubtractorMOG2`` (with its own shadow detection), a
+  well-known fast background subtractor, for speed and accuracy reference.
+
+The three run interleaved frame by frame, so machine load hits them alike; each time is the
+wall time of one ``process``/``apply`` call. Accuracy is against the exact ground truth over
+every frame after learning: person IoU, share of cast-shadow pixels removed and of person
+pixels kept, foot-line depth error of people whose feet are in view (ours only), and
+in-front/behind decisions against the virtual building's depth image. The paper (Kakuta et
+al. Sec. 3.3) reports 897.4 ms/frame at 1024x512 on a Core2Duo E6850.
+
+Run: ``.venv/bin/python benchmarks/bench_occlusion.py`` (about two minutes).
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ[_var] = "1"
+
+import statistics  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+from server.occlusion import OcclusionProcessor, OcclusionSettings  # noqa: E402
+from server.occlusion.synthetic import VIRTUAL_BOX, box_depth_image, default_site  # noqa: E402
+from tests.server.occlusion.conftest import feet_visible, isolated, match_people  # noqa: E402
+
+cv2.setNumThreads(1)
+SIZES = [(640, 480), (1024, 512)]
+FULL_FRAME_FRAMES = 30
+PAPER_MS = 897.4
+
+
+class Tally:
+    """Accuracy of one method against the ground truth."""
+
+    def __init__(self):
+        self.inter = self.union = self.truth = 0
+        self.shadow = self.shadow_removed = 0
+        self.depth_err: list[float] = []
+        self.decisions = self.decisions_right = 0
+        self.ms: list[float] = []
+
+    def add(self, person: np.ndarray, truth) -> None:
+        gt = truth.person
+        self.inter += np.count_nonzero(person & gt)
+        self.union += np.count_nonzero(person | gt)
+        self.truth += np.count_nonzero(gt)
+        self.shadow += np.count_nonzero(truth.shadow)
+        self.shadow_removed += np.count_nonzero(truth.shadow & ~person)
+
+    def row(self) -> str:
+        iou = self.inter / max(self.union, 1)
+        kept = self.inter / max(self.truth, 1)
+        removed = self.shadow_removed / max(self.shadow, 1)
+        depth = f"{100 * max(self.depth_err):.1f} %" if self.depth_err else "-"
+        dec = (f"{self.decisions_right}/{self.decisions}" if self.decisions else "-")
+        return f"{iou:.3f} | {removed:.3f} | {kept:.3f} | {depth} | {dec}"
+
+
+def timed(fn, *args):
+    t0 = time.perf_counter()
+    out = fn(*args)
+    return out, 1e3 * (time.perf_counter() - t0)
+
+
+def run(width: int, height: int) -> None:
+    site = default_site(width, height)
+    virtual = box_depth_image(site.camera, *VIRTUAL_BOX)
+    ours = OcclusionProcessor(site.camera, virtual)
+    full = OcclusionProcessor(site.camera, virtual, OcclusionSettings(full_frame=True))
+    mog2 = cv2.createBackgroundSubtractorMOG2(history=200, varThreshold=16, detectShadows=True)
+    tallies = {"ours": Tally(), "full": Tally(), "mog2": Tally()}
+    stages: dict[str, list[float]] = {}
+    learn = ours.settings.learn_frames
+    for i in range(site.frame_count):
+        truth = site.frame(i)
+        frame = truth.image
+        r, ms = timed(ours.process, frame)
+        if i < learn + FULL_FRAME_FRAMES:
+            rf, ms_full = timed(full.process, frame)
+        fg, ms_mog = timed(mog2.apply, frame)
+        if r.learning:
+            continue
+        tallies["ours"].ms.append(ms)
+        tallies["mog2"].ms.append(ms_mog)
+        for k, v in r.timings_ms.items():
+            stages.setdefault(k, []).append(v)
+        tallies["ours"].add(r.person_mask > 0, truth)
+        tallies["mog2"].add(fg == 255, truth)  # MOG2 marks shadows 127
+        if i < learn + FULL_FRAME_FRAMES:
+            tallies["full"].ms.append(ms_full)
+            tallies["full"].add(rf.person_mask > 0, truth)
+        for p, tp in match_people(r, truth, width, height):
+            tallies["ours"].depth_err.append(abs(p.depth_m / tp.depth_m - 1.0))
+        ideal = truth.in_front(virtual)
+        for tp in truth.people:
+            over = (truth.person_index == tp.index) & np.isfinite(virtual)
+            if np.count_nonzero(over) < 30 or not (feet_visible(truth, tp) and isolated(truth,
+                                                                                         tp)):
+                continue
+            in_front = np.count_nonzero(ideal & over) > np.count_nonzero(over) // 2
+            shown = np.count_nonzero((r.mask > 0) & over) / np.count_nonzero(over)
+            tallies["ours"].decisions += 1
+            tallies["ours"].decisions_right += (shown >= 0.9) if in_front else (shown <= 0.02)
+
+    med = {k: statistics.median(t.ms) for k, t in tallies.items()}
+    p95 = {k: float(np.percentile(t.ms, 95)) for k, t in tallies.items()}
+    print(f"\n{width}x{height}: {len(tallies['ours'].ms)} frames after learning "
+          f"({len(tallies['full'].ms)} for the full-frame cut); load average "
+          f"{os.getloadavg()[0]:.2f} on {os.cpu_count()} cores\n")
+    print("| method | median ms | p95 ms | full-frame cut / method | person IoU | shadow "
+          "removed | person kept | depth max error | in front / behind right |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    names = {"ours": "ours (regions + band)", "full": "full-frame cut (same energy)",
+             "mog2": "OpenCV MOG2"}
+    for k in ("ours", "full", "mog2"):
+        print(f"| {names[k]} | {med[k]:.1f} | {p95[k]:.1f} | {med['full'] / med[k]:.1f}x | "
+              f"{tallies[k].row()} |")
+    print(f"\npaper (Core2Duo E6850, 1024x512): {PAPER_MS} ms; ours is "
+          f"{PAPER_MS / med['ours']:.0f}x fewer ms per frame than the paper's (other hardware)")
+    print("stages of ours, median ms: " + ", ".join(
+        f"{k} {statistics.median(v):.2f}" for k, v in stages.items() if k != "total"))
+
+
+def main() -> None:
+    print("Occlusion pipeline, one core (cv2.setNumThreads(1), BLAS/OpenMP threads 1)")
+    for width, height in SIZES:
+        run(width, height)
+
+
+if __name__ == "__main__":
+    main()
