@@ -93,7 +93,11 @@ class BackgroundModel:
         floor = self.settings.bg_sigma_floor**2
         if n >= 3:
             mad = np.median(np.abs(stack.astype(np.float32) - mean[None]), axis=0)
-            var = np.maximum((1.4826 * mad) ** 2, floor).astype(np.float32)
+            var = (1.4826 * mad) ** 2
+            # A few frames' MAD is a rough estimate per pixel (+-40 % in sigma for 10 frames):
+            # no pixel is taken to be quieter than the camera's typical noise per channel.
+            typical = np.median(var.reshape(-1, 3), axis=0)
+            var = np.maximum(var, np.maximum(typical, floor)[None, None, :]).astype(np.float32)
         else:
             var = np.full_like(mean, floor)
         self.mean, self.var = mean, var
@@ -152,8 +156,8 @@ class BackgroundModel:
         ok = np.ones(len(frame), dtype=bool)
         for c in range(3):  # neither dark (noise) nor clipped
             ok &= (frame[:, c] > 8) & (frame[:, c] < 250) & (bg[:, c] > 0.01)
-        if exclude is not None:
-            ok &= ~exclude[::step, ::step].ravel()
+        if exclude is not None and np.count_nonzero(ok & ~exclude[::step, ::step].ravel()) >= 50:
+            ok &= ~exclude[::step, ::step].ravel()  # else the median copes with the outliers
         if np.count_nonzero(ok) < 50:
             return self.gain_bgr
         ratio = self.transfer.to_linear(frame[ok]) / bg[ok]

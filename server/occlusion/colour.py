@@ -28,6 +28,8 @@ class Transfer:
         # For cv2.LUT: (256, 1, 3) tables of the linear value and of its logarithm.
         self.decode_table = self.decode_bgr.reshape(256, 1, 3).copy()
         self.log_table = np.log(np.maximum(self.decode_table, 1e-6)).astype(np.float32)
+        # d ln(linear) / d code at each code: turns noise in codes into noise in ln.
+        self.log_slope = np.abs(np.gradient(self.log_table[:, 0, :], axis=0)).astype(np.float32)
 
     def to_linear(self, codes_bgr: np.ndarray) -> np.ndarray:
         """(..., 3) uint8 codes -> (..., 3) float32 linear values."""

@@ -230,21 +230,27 @@ class Segmenter:
         sub = codes[different]
         bg_sub = bg.mean_u8[y0:y1, x0:x1][different]
         tr = self.transfer
+        # Sensor noise of each channel's ln value: the background's spread (codes) times the
+        # slope of ln(linear) at the frame's code.
+        noise = np.sqrt(bg.var[y0:y1, x0:x1][different]) * tr.log_slope[sub, (0, 1, 2)]
         features = shadow_features(
             tr.to_linear(sub), tr.to_linear(bg_sub), s,
-            tr.log_table[sub, 0, (0, 1, 2)], tr.log_table[bg_sub, 0, (0, 1, 2)],
+            tr.log_table[sub, 0, (0, 1, 2)], tr.log_table[bg_sub, 0, (0, 1, 2)], noise,
         )
         return {"box": box, "codes": codes, "cost_fg": cost_fg, "cost_bg": cost_bg,
                 "different": different, "features": features}
 
     def cut(self, terms: dict) -> tuple[np.ndarray, np.ndarray]:
-        """Graph cut of one region's energy; returns ``(person, removed)``, (h, w) bool:
-        ``removed`` is the foreground the cut gave to the background (shadows, specks)."""
+        """Graph cut of one region's energy; returns ``(person, shadow)``, (h, w) bool:
+        ``shadow`` is the foreground the cut gave to the background as cast shadow."""
         s = self.settings
         y0, y1, x0, x1 = terms["box"]
         cost_fg, cost_bg, different = terms["cost_fg"], terms["cost_bg"], terms["different"]
         # Shadow is one more way to be background: the cheaper explanation counts.
-        cost_bg[different] = np.minimum(cost_bg[different], self.signature.cost(terms["features"]))
+        as_shadow = self.signature.cost(terms["features"])
+        shadow = np.zeros(different.shape, dtype=bool)
+        shadow[different] = as_shadow < cost_fg[different]
+        cost_bg[different] = np.minimum(cost_bg[different], as_shadow)
         hist = self.history[y0:y1, x0:x1]
         cost_fg += self.temporal_fg[hist]
         cost_bg += self.temporal_bg[hist]
@@ -259,7 +265,7 @@ class Segmenter:
         w_right, w_down = contrast_weights(terms["codes"], s.spatial_weight,
                                            self.background.mean_contrast)
         person = graph_cut(cost_fg, cost_bg, w_right, w_down, free)
-        return person, different & ~person
+        return person, shadow & ~person
 
     def segment(self, corrected: np.ndarray, boxes: list[Box]) -> tuple[np.ndarray, np.ndarray,
                                                                       np.ndarray]:
@@ -272,7 +278,7 @@ class Segmenter:
         t0 = time.perf_counter()
         terms = [self.colour_terms(corrected, box) for box in boxes]
         if terms:
-            merged = tuple(np.concatenate([t["features"][k] for t in terms]) for k in range(4))
+            merged = tuple(np.concatenate([t["features"][k] for t in terms]) for k in range(7))
             self.signature.update(merged)
         t1 = time.perf_counter()
         shape = corrected.shape[:2]

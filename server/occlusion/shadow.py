@@ -29,6 +29,8 @@ Inputs are linear BGR (the order OpenCV frames come in).
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from server.occlusion.settings import OcclusionSettings
@@ -50,16 +52,34 @@ def luminance(linear_bgr: np.ndarray) -> np.ndarray:
     return linear_bgr @ _LUMA_BGR
 
 
+class ShadowFeatures(NamedTuple):
+    """How a candidate pixel differs from its background, (N,) arrays each.
+
+    ``usable``: no channel below ``dark_floor`` in either; ``f_change = ln F - ln
+    F_background`` (``w`` cancels); ``blue = ln(G/B)_background - ln(G/B)`` (positive when
+    bluer); ``dark``: log luminance ratio. ``*_noise``: standard deviation of each that the
+    camera's noise alone gives (0 when unknown), added in quadrature to the tolerances.
+    """
+
+    usable: np.ndarray
+    f_change: np.ndarray
+    blue: np.ndarray
+    dark: np.ndarray
+    f_noise: np.ndarray | float = 0.0
+    blue_noise: np.ndarray | float = 0.0
+    dark_noise: np.ndarray | float = 0.0
+
+
 def shadow_features(
     frame_linear_bgr: np.ndarray, background_linear_bgr: np.ndarray, settings: OcclusionSettings,
     frame_log_bgr: np.ndarray | None = None, background_log_bgr: np.ndarray | None = None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Log-chromaticity change of (N, 3) linear BGR pixels against their background (N, 3).
+    log_noise_bgr: np.ndarray | None = None,
+) -> ShadowFeatures:
+    """:class:`ShadowFeatures` of (N, 3) linear BGR pixels against their background (N, 3).
 
-    Returns ``(usable, f_change, blue, dark)``, (N,) each: ``usable`` (no channel below
-    ``dark_floor`` in either), ``f_change = ln F - ln F_background`` (``w`` cancels), ``blue =
-    ln(G/B)_background - ln(G/B)`` (positive when bluer), ``dark = ln(luminance ratio)``.
-    The logarithms of the inputs may be passed in (from tables) to save computing them.
+    The logarithms of the inputs may be passed in (from tables) to save computing them;
+    ``log_noise_bgr`` (N, 3) is the standard deviation of each channel's ``ln`` value from
+    sensor noise (see :meth:`server.occlusion.colour.Transfer.log_slope`).
     """
     floor = settings.dark_floor
     usable = (frame_linear_bgr.min(axis=-1) > floor) & (background_linear_bgr.min(axis=-1) > floor)
@@ -71,17 +91,28 @@ def shadow_features(
     with np.errstate(divide="ignore"):
         dark = np.log(luminance(frame_linear_bgr) / np.maximum(luminance(background_linear_bgr),
                                                                1e-9))
-    return usable, d_rb - settings.A * d_gb, -d_gb, dark
+    A = settings.A
+    if log_noise_bgr is None:
+        return ShadowFeatures(usable, d_rb - A * d_gb, -d_gb, dark)
+    v = np.square(log_noise_bgr)  # ln F = ln R - A ln G + (A - 1) ln B
+    f_noise = np.sqrt(v[..., 2] + A * A * v[..., 1] + (A - 1.0) ** 2 * v[..., 0])
+    blue_noise = np.sqrt(v[..., 1] + v[..., 0])
+    return ShadowFeatures(usable, d_rb - A * d_gb, -d_gb, dark, f_noise, blue_noise,
+                          log_noise_bgr[..., 1])
+
+
+def _tolerance(tol: float, noise) -> np.ndarray | float:
+    return np.sqrt(tol * tol + np.square(noise))
 
 
 def paper_test(features, settings: OcclusionSettings) -> np.ndarray:
     """Kakuta's conditions 1 and 2 (with ``shadow_ratio`` bounds and the minimum blue shift)."""
-    usable, f_change, blue, dark = features
+    f = ShadowFeatures(*features)
     lo, hi = settings.shadow_ratio
-    ok = usable & (np.abs(f_change) < settings.t_f) & (dark > np.log(max(lo, 1e-6)))
-    ok &= dark < np.log(hi)
+    ok = f.usable & (np.abs(f.f_change) < _tolerance(settings.t_f, f.f_noise))
+    ok &= (f.dark > np.log(max(lo, 1e-6))) & (f.dark < np.log(hi))
     if settings.shadow_min_blue_shift > 0.0:
-        ok &= blue >= settings.shadow_min_blue_shift
+        ok &= f.blue >= settings.shadow_min_blue_shift
     return ok
 
 
@@ -117,7 +148,7 @@ class ShadowSignature:
     def update(self, features) -> None:
         """Re-estimate from a frame's candidate pixels (the tuple of :func:`shadow_features`)."""
         s = self.settings
-        _, _, blue, dark = features
+        blue, dark = features[2], features[3]
         ok = paper_test(features, s) & (np.abs(blue - self.blue) < s.shadow_search)
         if np.count_nonzero(ok) < 30:
             return
@@ -153,24 +184,27 @@ class ShadowSignature:
         ``shadow_cost + shadow_slope * m^2``, with ``m^2`` the squared deviations from a perfect
         shadow in units of their tolerances: of ln F (``t_f``, the paper's condition 1) and,
         with ``shadow_signature``, of the blue shift and the darkening from the frame's
-        signature. A soft cost rather than a yes/no test, so that a shadow pixel just outside a
-        tolerance is still cheaper as background than as a person. +inf where the hard
+        signature; each tolerance is widened by the noise of its feature (in quadrature). A
+        soft cost rather than a yes/no test, so that a shadow pixel just outside a tolerance is
+        still cheaper as background than as a person. +inf where the hard
         conditions fail (not darker within ``shadow_ratio``, not bluer by
         ``shadow_min_blue_shift``, ``|ln F|`` change beyond ``2 t_f``, unusably dark).
         """
         s = self.settings
-        usable, f_change, blue, dark = features
+        f = ShadowFeatures(*features)
         lo, hi = s.shadow_ratio
-        gate = usable & (dark > np.log(max(lo, 1e-6))) & (dark < np.log(hi))
-        gate &= np.abs(f_change) < 2.0 * s.t_f
+        gate = f.usable & (f.dark > np.log(max(lo, 1e-6))) & (f.dark < np.log(hi))
+        tol_f = _tolerance(s.t_f, f.f_noise)
+        gate &= np.abs(f.f_change) < 2.0 * tol_f
         if s.shadow_min_blue_shift > 0.0:
-            gate &= blue >= s.shadow_min_blue_shift
-        m2 = (f_change / s.t_f) ** 2
+            gate &= f.blue >= s.shadow_min_blue_shift
+        m2 = (f.f_change / tol_f) ** 2
         if s.shadow_signature:
             tol_b = s.shadow_shift_tolerance if self.updates else s.shadow_search
-            m2 += ((blue - self.blue) / tol_b) ** 2
+            m2 += ((f.blue - self.blue) / _tolerance(tol_b, f.blue_noise)) ** 2
             if self.dark is not None:
-                m2 += ((dark - self.dark) / s.shadow_dark_tolerance) ** 2
+                tol_d = _tolerance(s.shadow_dark_tolerance, f.dark_noise)
+                m2 += ((f.dark - self.dark) / tol_d) ** 2
         cost = s.shadow_cost + s.shadow_slope * m2
         return np.where(gate, cost, np.inf).astype(np.float32)
 
