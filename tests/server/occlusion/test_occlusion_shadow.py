@@ -91,7 +91,7 @@ def test_a_grey_coat_passes_the_papers_test_but_not_the_shadow_signature():
     coats = shadow_features(coat, lit, s)
     # One frame with more coat than shadow pixels: the signature still finds the shadows,
     # starting from the shift that Wien's law predicts for the default temperatures.
-    both = tuple(np.concatenate([a, b, b]) for a, b in zip(shadows, coats, strict=True))
+    both = tuple(np.concatenate([a, b, b]) for a, b in zip(shadows[:4], coats[:4], strict=True))
     signature.update(both)
     assert signature.updates == 1
     assert signature.blue == pytest.approx(expected_blue_shift(s), abs=0.02)
