@@ -8,6 +8,8 @@ refit at the bin centres, 32768 entries at 5 bits per channel, instead of K Gaus
 
 from __future__ import annotations
 
+import functools
+
 import cv2
 import numpy as np
 
@@ -15,6 +17,11 @@ from server.occlusion.colour import bin_centres
 
 # Log of the uniform density over the code cube (codes 0-255 per channel).
 LOG_UNIFORM = -3.0 * np.log(256.0)
+
+
+@functools.cache
+def _centres(bits: int) -> np.ndarray:
+    return bin_centres(bits).astype(np.float32)
 
 
 class ColourMixture:
@@ -80,13 +87,14 @@ class ColourMixture:
         return True
 
     def _component_logs(self, x: np.ndarray) -> np.ndarray:
-        """(K, N) ``ln(w_k N(x; mu_k, Sigma_k))`` of (N, 3) points."""
-        logs = np.empty((len(self.means), len(x)))
+        """(K, N) ``ln(w_k N(x; mu_k, Sigma_k))`` of (N, 3) points (dtype of ``x``)."""
+        logs = np.empty((len(self.means), len(x)), dtype=x.dtype)
         for k, (mu, cov, w) in enumerate(zip(self.means, self.covs, self.weights, strict=True)):
             L_inv = np.linalg.inv(np.linalg.cholesky(cov))
-            z = (x - mu) @ L_inv.T  # (N, 3) whitened
+            z = (x - mu.astype(x.dtype)) @ L_inv.T.astype(x.dtype)  # (N, 3) whitened
             logdet = -2.0 * np.log(np.diag(L_inv)).sum()
-            logs[k] = np.log(w) - 0.5 * (z * z).sum(1) - 0.5 * logdet - 1.5 * np.log(2 * np.pi)
+            const = np.log(w) - 0.5 * logdet - 1.5 * np.log(2 * np.pi)
+            logs[k] = const - 0.5 * (z[:, 0] * z[:, 0] + z[:, 1] * z[:, 1] + z[:, 2] * z[:, 2])
         return logs
 
     def log_density(self, x_bgr: np.ndarray) -> np.ndarray:
@@ -104,7 +112,9 @@ class ColourMixture:
         n = 1 << (3 * bits)
         if not self.fitted:
             return np.full(n, LOG_UNIFORM, dtype=np.float32)
-        logp = self.log_density(bin_centres(bits))
+        logs = self._component_logs(_centres(bits))
+        top = logs.max(0)
+        logp = top + np.log(np.exp(logs - top).sum(0))
         if uniform_weight > 0.0:
             logp = np.logaddexp(np.log1p(-uniform_weight) + logp, np.log(uniform_weight)
                                 + LOG_UNIFORM) if uniform_weight < 1.0 else np.full(n, LOG_UNIFORM)

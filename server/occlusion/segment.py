@@ -44,7 +44,7 @@ from server.occlusion.background import BackgroundModel
 from server.occlusion.colour import Transfer, colour_index
 from server.occlusion.mixture import ColourMixture
 from server.occlusion.settings import OcclusionSettings, log_prior_table
-from server.occlusion.shadow import ShadowSignature, shadow_features
+from server.occlusion.shadow import ShadowSignature, luminance, shadow_features
 
 Box = tuple[int, int, int, int]  # y0, y1, x0, x1 (end exclusive), full resolution
 
@@ -207,8 +207,9 @@ class Segmenter:
 
         Returns arrays over the box (h, w): ``cost_fg``, ``cost_bg`` (nats), ``different``
         (the person model explains the pixel better than its background, i.e. the
-        foreground before shadow removal, as the paper's Fig. 16 b) and, for the ``different``
-        pixels only, the shadow features of :func:`~server.occlusion.shadow.shadow_features`.
+        foreground before shadow removal, as the paper's Fig. 16 b), ``candidates`` (those of
+        them darker than their background within ``shadow_ratio``) and, for the candidates
+        only, the shadow features of :func:`~server.occlusion.shadow.shadow_features`.
         """
         s = self.settings
         bg = self.background
@@ -227,18 +228,31 @@ class Segmenter:
         cost_bg = -log_bg
         cost_fg = -self.person_table[idx]
         different = cost_bg > cost_fg
-        sub = codes[different]
-        bg_sub = bg.mean_u8[y0:y1, x0:x1][different]
+        # Shadow candidates: the pixels that differ and are darker than their background within
+        # shadow_ratio (a cheap luminance test first; the chromaticity only for those).
         tr = self.transfer
+        # Gathers by flat index into the whole-frame arrays (faster than masking box views).
+        ys, xs = np.nonzero(different)
+        flat = (ys + y0) * bg.width + (xs + x0)
+        sub = corrected.reshape(-1, 3)[flat]
+        lin = tr.to_linear(sub)
+        lin_bg = bg.linear.reshape(-1, 3)[flat]
+        ratio = luminance(lin) / np.maximum(luminance(lin_bg), 1e-9)
+        lo, hi = s.shadow_ratio
+        dark = (ratio > lo) & (ratio < hi)
+        candidates = np.zeros((h, w), dtype=bool)
+        candidates[ys[dark], xs[dark]] = True
+        flat, sub, lin, lin_bg = flat[dark], sub[dark], lin[dark], lin_bg[dark]
+        bg_sub = bg.mean_u8.reshape(-1, 3)[flat]
         # Sensor noise of each channel's ln value: the background's spread (codes) times the
         # slope of ln(linear) at the frame's code.
-        noise = np.sqrt(bg.var[y0:y1, x0:x1][different]) * tr.log_slope[sub, (0, 1, 2)]
+        noise = np.sqrt(bg.var.reshape(-1, 3)[flat]) * tr.log_slope[sub, (0, 1, 2)]
         features = shadow_features(
-            tr.to_linear(sub), tr.to_linear(bg_sub), s,
-            tr.log_table[sub, 0, (0, 1, 2)], tr.log_table[bg_sub, 0, (0, 1, 2)], noise,
+            lin, lin_bg, s, tr.log_table[sub, 0, (0, 1, 2)], tr.log_table[bg_sub, 0, (0, 1, 2)],
+            noise,
         )
         return {"box": box, "codes": codes, "cost_fg": cost_fg, "cost_bg": cost_bg,
-                "different": different, "features": features}
+                "different": different, "candidates": candidates, "features": features}
 
     def cut(self, terms: dict) -> tuple[np.ndarray, np.ndarray]:
         """Graph cut of one region's energy; returns ``(person, shadow)``, (h, w) bool:
@@ -247,10 +261,11 @@ class Segmenter:
         y0, y1, x0, x1 = terms["box"]
         cost_fg, cost_bg, different = terms["cost_fg"], terms["cost_bg"], terms["different"]
         # Shadow is one more way to be background: the cheaper explanation counts.
+        cand = terms["candidates"]
         as_shadow = self.signature.cost(terms["features"])
         shadow = np.zeros(different.shape, dtype=bool)
-        shadow[different] = as_shadow < cost_fg[different]
-        cost_bg[different] = np.minimum(cost_bg[different], as_shadow)
+        shadow[cand] = as_shadow < cost_fg[cand]
+        cost_bg[cand] = np.minimum(cost_bg[cand], as_shadow)
         hist = self.history[y0:y1, x0:x1]
         cost_fg += self.temporal_fg[hist]
         cost_bg += self.temporal_bg[hist]

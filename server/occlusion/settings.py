@@ -138,7 +138,7 @@ class OcclusionSettings:
     fg_components: int = 5
     fg_uniform_weight: float = 0.3
     fg_refit_every: int = 10
-    fg_samples: int = 600
+    fg_samples: int = 300
     temporal_weight: float = 1.0
     temporal_prior: tuple[float, float, float, float] = (0.1, 0.3, 0.7, 0.9)
     spatial_weight: float = 6.0
