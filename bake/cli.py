@@ -69,6 +69,12 @@ def add_subcommands(subparsers) -> None:
     group.add_argument(
         "--light-vector", type=Path, metavar="FILE", help="JSON list of n [r, g, b] patch radiances"
     )
+    probe.add_argument(
+        "--compact",
+        action="store_true",
+        help="answer from the compact GPU textures (as the web client sums them) "
+        "instead of the EXR masters",
+    )
     probe.add_argument("--json", action="store_true", help="print JSON")
     probe.set_defaults(run=run_probe)
 
@@ -116,7 +122,9 @@ def run_probe(args) -> int:
         sky = args.sky
         if args.light_vector:
             sky = json.loads(args.light_vector.read_text())
-        result = build.irradiance(point, normal, sky)
+        result = build.irradiance(
+            point, normal, sky, source="compact" if args.compact else "master"
+        )
     except (ValueError, ProbeError, ManifestError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT

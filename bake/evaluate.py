@@ -9,6 +9,10 @@ bilinearly at that texel and takes the weighted sum with the sky's light vector:
 
 For shadowing planes it returns the irradiance with (``I``) and without (``d``) the virtual
 objects; for a lightmap surface only ``I`` exists.
+
+Every answer can come from the EXR masters (``source="master"``) or from the compact GPU
+textures (``source="compact"``: low-rank base and selected lights' images, decoded with the
+browser's Basis transcoder, exactly as the client sums them), so the two can be compared.
 """
 
 from __future__ import annotations
@@ -71,19 +75,55 @@ class Build:
         self.dome_vertices = manifest_io.dome_vertices(self.manifest)
         self.atlases = {a["id"]: a for a in self.manifest["atlases"]}
         self._stacks: dict = {}
+        self._compact: dict = {}
         self._surfaces = None
+        self.solid_angles = np.array(
+            [light["solid_angle_sr"] for light in self.manifest["dome"]["lights"]]
+        )
 
     @property
     def light_count(self) -> int:
         return self.manifest["dome"]["count"]
 
+    def _entry(self, atlas: str) -> dict:
+        return self.atlases.get(atlas) or {v["id"]: v for v in self.manifest["views"]}[atlas]
+
     def stack(self, atlas: str, name: str) -> np.ndarray:
         """The master stack (H, W, n, 3) of an atlas (or view) ``atlas``."""
         key = (atlas, name)
         if key not in self._stacks:
-            entry = self.atlases.get(atlas) or {v["id"]: v for v in self.manifest["views"]}[atlas]
-            self._stacks[key] = read_stack_exr(self.dir / entry["stacks"][name]["master"])
+            self._stacks[key] = read_stack_exr(
+                self.dir / self._entry(atlas)["stacks"][name]["master"]
+            )
         return self._stacks[key]
+
+    def compact(self, atlas: str, name: str):
+        """The compact reader of a stack (see ``bake.compress.CompactReader``)."""
+        from bake.compress import CompactReader
+
+        key = (atlas, name)
+        if key not in self._compact:
+            entry = self._entry(atlas)
+            if "compact" not in entry["stacks"][name]:
+                raise ProbeError(f"{self.dir}: stack {atlas}.{name} has no compact textures")
+            self._compact[key] = CompactReader(
+                self.dir, entry["stacks"][name]["compact"], (entry["height"], entry["width"])
+            )
+        return self._compact[key]
+
+    def composite(self, atlas: str, name: str, sky, source: str = "master") -> np.ndarray:
+        """``sum_i r_i B_i`` over a whole atlas or view, (H, W, 3), from masters or compact."""
+        r = self.light_vector(sky)
+        if source == "master":
+            return np.einsum("hwnc,nc->hwc", self.stack(atlas, name), r)
+        if source == "compact":
+            m = self.manifest["compression"]["selected_lights"]
+            composite = self.compact(atlas, name).composite(r, self.solid_angles, m)
+            if self.compact(atlas, name).entry.get("encodes") == "d - I":
+                # Shadowing atlases carry the virtual objects' effect: I = d - (d - I).
+                return self.composite(atlas, "d", r, source) - composite
+            return composite
+        raise ProbeError(f"unknown source {source!r}: use master or compact")
 
     def light_vector(self, sky) -> np.ndarray:
         """(n, 3) patch radiances of a named sky, a :class:`daylit.sky.Sky` or an array."""
@@ -170,21 +210,12 @@ class Build:
         return Sample("lightmap", name.split("/", 1)[1], "surface", x, y, distance)
 
     def basis_at(self, sample: Sample, stack: str) -> np.ndarray:
-        """Bilinearly interpolated basis values (n, 3) at a located sample."""
-        image = self.stack(sample.atlas, stack)
-        h, w = image.shape[:2]
-        x, y = sample.x - 0.5, sample.y - 0.5
-        x0, y0 = int(np.floor(x)), int(np.floor(y))
-        fx, fy = x - x0, y - y0
-        out = np.zeros(image.shape[2:], dtype=np.float64)
-        for dy, wy in ((0, 1.0 - fy), (1, fy)):
-            for dx, wx in ((0, 1.0 - fx), (1, fx)):
-                yy, xx = min(max(y0 + dy, 0), h - 1), min(max(x0 + dx, 0), w - 1)
-                out += wy * wx * image[yy, xx]
-        return out
+        """Bilinearly interpolated master basis values (n, 3) at a located sample."""
+        return _bilinear(self.stack(sample.atlas, stack), sample.x, sample.y)
 
-    def irradiance(self, point, normal, sky) -> dict:
-        """Irradiance (W/m^2, RGB) at a receiver point under a sky.
+    def irradiance(self, point, normal, sky, source: str = "master") -> dict:
+        """Irradiance (W/m^2, RGB) at a receiver point under a sky, from ``source``
+        (``"master"``: the EXR masters; ``"compact"``: the GPU textures as the client uses them).
 
         Returns ``{"with": (3,), "without": (3,) or None, "sample": Sample}``: with the
         virtual objects present (``I``) and without them (``d``: real proxies only on ground
@@ -193,6 +224,31 @@ class Build:
         sample = self.locate(point, normal)
         r = self.light_vector(sky)
         stacks = self.atlases[sample.atlas]["stacks"]
-        with_ = np.einsum("nc,nc->c", self.basis_at(sample, "I"), r)
-        without = np.einsum("nc,nc->c", self.basis_at(sample, "d"), r) if "d" in stacks else None
-        return {"with": with_, "without": without, "sample": sample}
+        names = ["I", "d"] if "d" in stacks else ["I"]
+        if source == "master":
+            values = [np.einsum("nc,nc->c", self.basis_at(sample, s), r) for s in names]
+        else:
+            values = [
+                _bilinear(self.composite(sample.atlas, s, r, source), sample.x, sample.y)
+                for s in names
+            ]
+        return {
+            "with": values[0],
+            "without": values[1] if len(values) > 1 else None,
+            "sample": sample,
+        }
+
+
+def _bilinear(image: np.ndarray, x: float, y: float) -> np.ndarray:
+    """``image`` (H, W, ...) at texel coordinates (x, y), texel centres at integer + 0.5,
+    clamped at the border like GL's CLAMP_TO_EDGE with LINEAR filtering."""
+    h, w = image.shape[:2]
+    x, y = x - 0.5, y - 0.5
+    x0, y0 = int(np.floor(x)), int(np.floor(y))
+    fx, fy = x - x0, y - y0
+    out = np.zeros(image.shape[2:], dtype=np.float64)
+    for dy, wy in ((0, 1.0 - fy), (1, fy)):
+        for dx, wx in ((0, 1.0 - fx), (1, fx)):
+            yy, xx = min(max(y0 + dy, 0), h - 1), min(max(x0 + dx, 0), w - 1)
+            out += wy * wx * image[yy, xx]
+    return out

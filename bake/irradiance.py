@@ -384,9 +384,11 @@ class Estimator:
 
     # ---------------------------------------------------------------------------------------
     def basis(self, points, normals, configs, rng) -> dict:
-        """Direct plus one bounce, ``{config: (T, n, 3) float32}``.
+        """Direct light and the traced bounce, kept apart so the noisy bounce can be
+        smoothed before the two are added: ``{config: (T, n, 3), "bounce:" + config:
+        (T, n, 3)}`` float32 (the bounce key only for traced configurations).
 
-        For ``"none"`` the bounce is the open ground's, in closed form:
+        For ``"none"`` the bounce is the open ground's, in closed form and included:
         ``albedo_ground * E_up_i * (1 - n_y) / 2`` (a uniformly lit lower hemisphere).
         """
         direct = self.direct(points, normals, configs, rng)
@@ -401,6 +403,6 @@ class Estimator:
                     * self.scenes.ground_albedo[None, None, :]
                 ).astype(np.float32)
             elif self.bounce_rays > 0:
-                E = E + self.bounce(points, normals, config, rng)
+                out["bounce:" + config] = self.bounce(points, normals, config, rng)
             out[config] = E
         return out

@@ -34,7 +34,9 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from bake import compress
 from bake import receivers as rx
+from bake.denoise import smooth_within_labels, surface_labels
 from bake.dome import Dome
 from bake.gltf import write_site_glb
 from bake.irradiance import BounceCache, Estimator, SceneSet, cache_points
@@ -46,7 +48,8 @@ from daylit import manifest as manifest_io
 from daylit.stackio import CHANNEL_PATTERN, write_stack_exr
 
 # Bump when the meaning of saved chunks changes, so stale partial bakes are not reused.
-CHUNK_FORMAT = 1
+CHUNK_FORMAT = 2
+BOUNCE_SIGMA_TEXELS = 1.5  # smoothing of the indirect bounce within a surface (texels, pixels)
 RAYS_PER_CHUNK = 3_000_000
 STAGE_CODES = {"cache": 1, "atlas": 2, "view": 3}
 
@@ -125,12 +128,20 @@ def _run_chunk(task):
 
 
 def bake(
-    scene_dir, out_dir, lights=None, quality=None, workers=None, progress=True, log=None
+    scene_dir,
+    out_dir,
+    lights=None,
+    quality=None,
+    workers=None,
+    progress=True,
+    log=None,
+    budget=None,
 ) -> BakeResult:
     """Bake a site. Raises ``SceneError`` (bad input, nothing written) or ``BakeError``."""
     log = log or (lambda msg: print(msg, file=sys.stderr))
     started = time.perf_counter()
-    site = load_site(scene_dir, lights=lights, quality=quality)
+    site = load_site(scene_dir, lights=lights, quality=quality, budget=budget)
+    compressor = _Compressor(site, log)
     out_dir = Path(out_dir)
     _check_output(out_dir)
     settings = site.settings
@@ -281,8 +292,9 @@ def bake(
         bar.close()
     trace_s = time.perf_counter() - t0
 
-    # Assemble --------------------------------------------------------------------------------
+    # Assemble and compress --------------------------------------------------------------------
     t0 = time.perf_counter()
+    compressor.start(site, dome)
     staging = partial / "build"
     if staging.exists():
         shutil.rmtree(staging)
@@ -302,16 +314,25 @@ def bake(
         if a.d_reference:
             entry["d_reference"] = a.d_reference
         coverage = a.coverage()
+        labels = a.label_image()
+        images = {}
         for stack, config in a.stacks.items():
-            values = _lookup_result(results, f"{a.id}.{stack}", config)
-            image = _dilate(a.to_image(values), coverage, rings=3)
+            direct, bounce = _lookup_result(results, f"{a.id}.{stack}", config)
+            image = a.to_image(direct)
+            if bounce is not None:
+                image += smooth_within_labels(a.to_image(bounce), labels, BOUNCE_SIGMA_TEXELS)
+            images[stack] = _dilate(image, coverage, rings=3)
             rel = f"exr/{a.id}.{stack}.exr"
-            write_stack_exr(staging / rel, image)
+            write_stack_exr(staging / rel, images[stack])
             entry["stacks"][stack] = {
                 "master": rel,
                 "quantity": "irradiance",
                 "channels": CHANNEL_PATTERN,
             }
+        # Shadowing atlases show I / d: their two stacks are compressed together for it.
+        compact = compressor.run(images, a.id, staging)
+        for stack, stack_entry in compact.items():
+            entry["stacks"][stack]["compact"] = stack_entry
         manifest_atlases.append(entry)
 
     manifest_views = []
@@ -331,16 +352,17 @@ def bake(
         }
         for stack, config in (("O", "all"), ("S", "real")):
             hits = view_hits[view.name][stack]
-            E = _lookup_result(results, f"{view.name}.{stack}", config)
-            image = radiance_image(
-                view, hits, E, scenes_up(dome), site.ground.albedo, dome.centroids
-            )
+            E, bounce = _lookup_result(results, f"{view.name}.{stack}", config)
+            if bounce is not None:
+                E = E + view_smoothed(view, hits, bounce, geometry)
+            image = radiance_image(view, hits, E, scenes_up(dome), site.ground.albedo)
             rel = f"views/{view.name}.{stack}.exr"
             write_stack_exr(staging / rel, image)
             entry["stacks"][stack] = {
                 "master": rel,
                 "quantity": "radiance",
                 "channels": CHANNEL_PATTERN,
+                "compact": compressor.run({stack: image}, view.name, staging)[stack],
             }
         mask_rel = f"views/{view.name}.mask.png"
         _write_png(staging / mask_rel, mask_image(view, view_hits[view.name]["O"]))
@@ -376,6 +398,7 @@ def bake(
         "atlases": manifest_atlases,
         "views": manifest_views,
         "files": [],
+        "compression": compressor.manifest_entry(),
         "bake": {
             "tool": f"daylit {__version__}",
             "quality": settings.quality,
@@ -391,7 +414,9 @@ def bake(
         },
     }
     write_manifest(staging, manifest)
-    stage_s["assemble"] = time.perf_counter() - t0
+    stage_s["assemble"] = time.perf_counter() - t0 - compressor.seconds
+    stage_s["compress"] = compressor.seconds
+    compressor.print_report(manifest, staging)
 
     _swap_into_place(staging, out_dir)
     shutil.rmtree(partial, ignore_errors=True)
@@ -402,6 +427,20 @@ def bake(
         f"{size / 1e6:.1f} MB in {out_dir}"
     )
     return BakeResult(out_dir, manifest, duration, rays, rays / max(trace_s, 1e-9), stage_s)
+
+
+def view_smoothed(view, hits, bounce: np.ndarray, geometry: Geometry) -> np.ndarray:
+    """The bounce at a view's hit points (P, n, 3), smoothed in image space within the flat
+    surface each pixel sees."""
+    h, w = view.height, view.width
+    image = np.zeros((h * w,) + bounce.shape[1:], dtype=np.float32)
+    image[hits.surface] = bounce
+    labels = np.full(h * w, -1, dtype=np.int64)
+    labels[hits.surface] = surface_labels(geometry.part[hits.faces], hits.normals)
+    smoothed = smooth_within_labels(
+        image.reshape((h, w) + bounce.shape[1:]), labels.reshape(h, w), BOUNCE_SIGMA_TEXELS
+    )
+    return smoothed.reshape((h * w,) + bounce.shape[1:])[hits.surface]
 
 
 def scenes_up(dome: Dome) -> np.ndarray:
@@ -419,6 +458,141 @@ def write_manifest(build_dir: Path, manifest: dict) -> None:
     tmp = build_dir / "manifest.json.tmp"
     tmp.write_text(json.dumps(manifest, indent=1) + "\n", encoding="utf-8")
     os.replace(tmp, build_dir / "manifest.json")
+
+
+class _Compressor:
+    """Runs ``bake.compress`` on each stack as it is assembled and keeps the report."""
+
+    def __init__(self, site: Site, log):
+        c = site.settings.compression
+        self.settings = compress.Settings(
+            budget=c["budget"],
+            max_rank=c["max_rank"],
+            encoding=c["encoding"],
+            selected_lights=c["selected_lights"],
+        )
+        self.log = log
+        self.rows: list[dict] = []
+        self.seconds = 0.0
+        compress.basisu_binary()  # fail before baking, not after, when the encoder is missing
+
+    def start(self, site: Site, dome: Dome) -> None:
+        scene = {
+            "timezone": site.timezone,
+            "latitude_deg": site.latitude_deg,
+            "longitude_deg": site.longitude_deg,
+            "elevation_m": site.elevation_m,
+        }
+        self.solid_angles = dome.solid_angles_sr
+        self.skies, self.S, self.S_inv = compress.prepare(
+            scene, dome.vertices, self.solid_angles, self.settings.selected_lights
+        )
+
+    def run(self, images: dict, prefix: str, staging: Path) -> dict:
+        """Compress the stacks ``images`` ({name: (H, W, n, 3)}) of one atlas or view;
+        ``I`` and ``d`` together (shadow ratio). Returns {name: compact manifest entry}."""
+        t0 = time.perf_counter()
+        names = sorted(images)
+        try:
+            if names == ["I", "d"]:
+                results = compress.compress_ratio_pair(
+                    images["I"],
+                    images["d"],
+                    (f"{prefix}.I", f"{prefix}.d"),
+                    staging,
+                    self.skies,
+                    self.S,
+                    self.S_inv,
+                    self.solid_angles,
+                    self.settings,
+                )
+            else:
+                results = [
+                    compress.compress_stack(
+                        images[name],
+                        f"{prefix}.{name}",
+                        staging,
+                        self.skies,
+                        self.S,
+                        self.S_inv,
+                        self.solid_angles,
+                        self.settings,
+                    )
+                    for name in names
+                ]
+        except compress.CompressionError as exc:
+            raise BakeError(str(exc)) from None
+        self.seconds += time.perf_counter() - t0
+        out = {}
+        for name, result in zip(names, results, strict=True):
+            n = images[name].shape[2]
+            self.rows.append(
+                {
+                    "stack": f"{prefix}.{name}",
+                    "k": result.entry["k"],
+                    "error": result.entry["error"]["max"],
+                    "base_bytes": result.base_bytes,
+                    "light_bytes": result.light_bytes,
+                    "light_bytes_per_light": round(result.light_bytes / n),
+                    "encode_s": round(result.encode_s, 2),
+                }
+            )
+            out[name] = result.entry
+        return out
+
+    def manifest_entry(self) -> dict:
+        return {
+            "budget": self.settings.budget,
+            "encoding": self.settings.encoding,
+            "selected_lights": self.settings.selected_lights,
+            "selection": "top selected_lights lights by max(r_i.R, r_i.G, r_i.B) * "
+            "solid_angle_sr_i, ties to the lower index, zero scores never",
+            "test_skies": [s.name for s in self.skies],
+            "report": self.rows,
+        }
+
+    def print_report(self, manifest: dict, staging: Path) -> None:
+        budget = self.settings.budget
+        self.log(
+            f"compact assets ({self.settings.encoding}, budget {budget:.2%} RMS of the "
+            f"mean, {self.settings.selected_lights} selected lights):"
+        )
+        self.log(f"  {'stack':<16}{'k':>4}{'error':>9}{'base':>10}{'lights':>12}{'per light':>11}")
+        for row in self.rows:
+            flag = "" if row["error"] <= budget else "  over budget"
+            self.log(
+                f"  {row['stack']:<16}{row['k']:>4}{row['error']:>9.2%}"
+                f"{row['base_bytes'] / 1e6:>8.2f}MB{row['light_bytes'] / 1e6:>10.2f}MB"
+                f"{row['light_bytes_per_light'] / 1e3:>9.1f}kB{flag}"
+            )
+        session = session_download_bytes(manifest, staging)
+        self.log(
+            f"  a visitor's phone downloads about {session['phone'] / 1e6:.1f} MB, the kiosk "
+            f"{session['kiosk'] / 1e6:.1f} MB (GLB, manifest, bases, V, "
+            f"{self.settings.selected_lights} light images per stack)"
+        )
+
+
+def session_download_bytes(manifest: dict, build_dir: Path) -> dict:
+    """Bytes a client fetches to show the site: the GLB, the manifest, every base texture and
+    V of the stacks it uses and ``selected_lights`` light images per stack (average size).
+    Phones use the atlases; the kiosk also the views."""
+    sizes = {f["path"]: f["bytes"] for f in manifest["files"]}
+    common = sizes[manifest["model"]["path"]] + (build_dir / "manifest.json").stat().st_size
+    m = manifest["compression"]["selected_lights"]
+
+    def stack_bytes(stack):
+        compact = stack["compact"]
+        per_light = [
+            row["light_bytes_per_light"]
+            for row in manifest["compression"]["report"]
+            if compact["ktx2"].endswith(f"{row['stack']}.base.ktx2")
+        ]
+        return sizes[compact["ktx2"]] + sizes[compact["v"]["path"]] + m * sum(per_light)
+
+    atlases = sum(stack_bytes(s) for a in manifest["atlases"] for s in a["stacks"].values())
+    views = sum(stack_bytes(s) for v in manifest["views"] for s in v["stacks"].values())
+    return {"phone": common + atlases, "kiosk": common + atlases + views}
 
 
 # --------------------------------------------------------------------------------------------
@@ -474,10 +648,10 @@ def _merge_shared(sets: list[PointSet]) -> list[PointSet]:
     return merged
 
 
-def _lookup_result(results: dict, name: str, config: str) -> np.ndarray:
-    if name in results:
-        return results[name][config]
-    return results[name.split(".")[0] + ".shared"][config]
+def _lookup_result(results: dict, name: str, config: str):
+    """(direct, bounce or None) of one stack: its configuration's arrays, (P, n, 3) each."""
+    found = results[name] if name in results else results[name.split(".")[0] + ".shared"]
+    return found[config], found.get("bounce:" + config)
 
 
 def _chunk_path(partial: Path, s: PointSet, index: int) -> Path:
@@ -521,12 +695,13 @@ def _run_sets(sets, partial, seed, init, workers, bar) -> int:
 
 
 def _load_set(s: PointSet, partial: Path) -> dict:
-    parts: dict = {c: [] for c in s.configs}
+    """Every array the set's chunks hold (configurations and their bounces), concatenated."""
+    parts: dict = {}
     for index in range(len(s.chunks)):
         with np.load(_chunk_path(partial, s, index)) as data:
-            for c in s.configs:
-                parts[c].append(data[c])
-    return {c: (np.concatenate(v) if v else np.zeros((0,))) for c, v in parts.items()}
+            for key in data.files:
+                parts.setdefault(key, []).append(data[key])
+    return {key: np.concatenate(v) for key, v in parts.items()}
 
 
 def _dilate(image: np.ndarray, coverage: np.ndarray, rings: int) -> np.ndarray:

@@ -29,30 +29,40 @@ class Geometry:
     faces : (F, 3) int
     albedo : (F, 3) float, linear diffuse reflectance
     virtual : (F,) bool, whether the face belongs to a virtual (reconstructed) object
+    part : (F,) int, index of the part each face came from
     """
 
     vertices: np.ndarray
     faces: np.ndarray
     albedo: np.ndarray
     virtual: np.ndarray
+    part: np.ndarray
 
     @classmethod
     def from_parts(cls, parts, virtual_flags) -> Geometry:
-        vertices, faces, albedo, virtual = [], [], [], []
+        vertices, faces, albedo, virtual, part_ids = [], [], [], [], []
         offset = 0
-        for part, is_virtual in zip(parts, virtual_flags, strict=True):
+        for index, (part, is_virtual) in enumerate(zip(parts, virtual_flags, strict=True)):
             vertices.append(np.asarray(part.mesh.vertices, dtype=np.float64))
             faces.append(np.asarray(part.mesh.faces, dtype=np.int64) + offset)
             albedo.append(np.asarray(part.albedo, dtype=np.float64))
             virtual.append(np.full(len(part.mesh.faces), is_virtual))
+            part_ids.append(np.full(len(part.mesh.faces), index))
             offset += len(part.mesh.vertices)
         if not faces:
-            return cls(np.zeros((0, 3)), np.zeros((0, 3), int), np.zeros((0, 3)), np.zeros(0, bool))
+            return cls(
+                np.zeros((0, 3)),
+                np.zeros((0, 3), int),
+                np.zeros((0, 3)),
+                np.zeros(0, bool),
+                np.zeros(0, int),
+            )
         return cls(
             np.concatenate(vertices),
             np.concatenate(faces),
             np.concatenate(albedo),
             np.concatenate(virtual),
+            np.concatenate(part_ids),
         )
 
     @property
@@ -69,7 +79,9 @@ class Geometry:
         return 0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1)
 
     def subset(self, mask: np.ndarray) -> Geometry:
-        return Geometry(self.vertices, self.faces[mask], self.albedo[mask], self.virtual[mask])
+        return Geometry(
+            self.vertices, self.faces[mask], self.albedo[mask], self.virtual[mask], self.part[mask]
+        )
 
 
 class RayScene:

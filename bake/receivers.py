@@ -17,7 +17,8 @@ Three atlases per site:
 Texel convention: texel ``(x, y)`` is column ``x``, row ``y`` from the top of the atlas image;
 its centre has texture coordinate ``((x + 0.5) / W, (y + 0.5) / H)`` as in glTF (origin top
 left). Plane receivers carry a one-texel border computed like any other texel, so bilinear
-filtering never reads a neighbour's texels.
+filtering never reads a neighbour's texels, and cover whole 4x4 blocks (xatlas aligns lightmap
+charts the same way), so no block of the compressed textures spans two receivers.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ import numpy as np
 import trimesh
 import xatlas
 
+from bake.denoise import surface_labels
 from daylit.spherical import normalize
 
 PAD_TEXELS = 1
@@ -87,6 +89,7 @@ class Atlas:
     width, height : texels
     texels : (N, 2) int, (x, y) of every texel that gets a value
     points, normals : (N, 3) world-frame sample point and surface normal of each texel
+    labels : (N,) int, the flat surface each texel lies on (the bounce is smoothed within one)
     """
 
     id: str
@@ -100,6 +103,7 @@ class Atlas:
     texels: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
     points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     normals: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    labels: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
     @property
     def count(self) -> int:
@@ -109,6 +113,12 @@ class Atlas:
         """Scatter per-texel ``values`` (N, ...) into an image (H, W, ...), zeros elsewhere."""
         image = np.zeros((self.height, self.width) + values.shape[1:], dtype=values.dtype)
         image[self.texels[:, 1], self.texels[:, 0]] = values
+        return image
+
+    def label_image(self) -> np.ndarray:
+        """(H, W) int: each texel's surface label, -1 where there is no texel."""
+        image = np.full((self.height, self.width), -1, dtype=np.int64)
+        image[self.texels[:, 1], self.texels[:, 0]] = self.labels
         return image
 
     def coverage(self) -> np.ndarray:
@@ -150,7 +160,12 @@ def plane_receiver(name, kind, obj, triangles, normal, texel_m, offset_m=0.0) ->
     u, v = points @ axis_u, points @ axis_v
     w = int(np.ceil((u.max() - u.min()) / texel_m - 1e-9)) + 2 * PAD_TEXELS
     h = int(np.ceil((v.max() - v.min()) / texel_m - 1e-9)) + 2 * PAD_TEXELS
-    w, h = max(w, 2 * PAD_TEXELS + 1), max(h, 2 * PAD_TEXELS + 1)
+    # Whole 4x4 blocks: with every rectangle block-aligned in the atlas, no compressed block
+    # mixes two receivers (measured: shadow ratios off by up to 0.1 at such seams otherwise).
+    w, h = (
+        _round_up(max(w, 2 * PAD_TEXELS + 1), BLOCK),
+        _round_up(max(h, 2 * PAD_TEXELS + 1), BLOCK),
+    )
     origin = u.min() * axis_u + v.min() * axis_v + (points[0] @ normal) * normal
     origin = origin - PAD_TEXELS * texel_m * (axis_u + axis_v)
     texel_uv = np.stack(
@@ -448,17 +463,19 @@ def _round_up(value: int, multiple: int) -> int:
 def plane_atlas(atlas_id, receivers, texel_m, stacks, d_reference, max_size) -> Atlas:
     """Pack plane receivers into an atlas and list every texel with its world point."""
     width, height = pack(receivers, max_size)
-    texels, points, normals = [], [], []
-    for r in receivers:
+    texels, points, normals, labels = [], [], [], []
+    for index, r in enumerate(receivers):
         local, world = plane_texel_points(r)
         texels.append(local + np.array(r.rect[:2]))
         points.append(world)
         normals.append(np.tile(r.plane["normal"], (len(world), 1)))
+        labels.append(np.full(len(world), index))
     atlas = Atlas(atlas_id, "shadowing", stacks, texel_m, receivers, d_reference, width, height)
     if receivers:
         atlas.texels = np.concatenate(texels)
         atlas.points = np.concatenate(points)
         atlas.normals = np.concatenate(normals)
+        atlas.labels = np.concatenate(labels)
     return atlas
 
 
@@ -488,7 +505,7 @@ def lightmap_atlas(parts, texel_m: float, max_size: int) -> Atlas:
         texel_m *= 1.25
     width, height = _round_up(atlas.width, BLOCK), _round_up(atlas.height, BLOCK)
     owner = np.full((height, width), -1, dtype=np.int32)  # global triangle id per texel
-    receivers, all_tris, all_uv, all_normals = [], [], [], []
+    receivers, all_tris, all_uv, all_normals, all_parts = [], [], [], [], []
     base = 0
     for i, part in enumerate(parts):
         vmap, faces, uv = atlas.get_mesh(i)
@@ -506,6 +523,7 @@ def lightmap_atlas(parts, texel_m: float, max_size: int) -> Atlas:
         all_tris.append(vertices[faces])
         all_uv.append(tri_uv)
         all_normals.append(face_normals)
+        all_parts.append(np.full(len(faces), i))
         x0, y0 = np.floor(texel_uv.min(axis=0)).astype(int)
         x1, y1 = np.ceil(texel_uv.max(axis=0)).astype(int)
         receivers.append(
@@ -534,6 +552,7 @@ def lightmap_atlas(parts, texel_m: float, max_size: int) -> Atlas:
     result.texels = np.stack([xs, ys], axis=1)
     result.points = points
     result.normals = face_normals[tri]
+    result.labels = surface_labels(np.concatenate(all_parts)[tri], result.normals)
     return result
 
 

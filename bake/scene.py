@@ -77,7 +77,7 @@ FORMAT_KEYS = {
         "max_atlas_size",
     },
     "lightmap": {"texel_m"},
-    "compression": {"budget", "max_rank", "encoding"},
+    "compression": {"budget", "max_rank", "encoding", "selected_lights"},
     "virtual": {"name", "model", "parts", "albedo", "translation_m", "yaw_deg", "scale"},
     "real": {"name", "albedo", "receiver", "box_m", "model", "translation_m", "yaw_deg", "scale"},
     "view": {"name", "width", "height", "position_m", "look_at_m", "fov_y_deg", "intrinsics"},
@@ -321,10 +321,16 @@ def _kind(value: Any) -> str:
 # Loading
 
 
-def load_site(scene_dir: Path | str, lights: int | None = None, quality: str | None = None) -> Site:
+def load_site(
+    scene_dir: Path | str,
+    lights: int | None = None,
+    quality: str | None = None,
+    budget: float | None = None,
+) -> Site:
     """Read and check ``scene_dir/scene.toml`` and every model it names.
 
-    ``lights`` and ``quality`` override the file's ``dome.lights`` and ``quality.default``.
+    ``lights``, ``quality`` and ``budget`` override the file's ``dome.lights``,
+    ``quality.default`` and ``compression.budget``.
     Raises :class:`SceneError` on the first problem found.
     """
     scene_dir = Path(scene_dir)
@@ -363,6 +369,10 @@ def load_site(scene_dir: Path | str, lights: int | None = None, quality: str | N
     world_from_scene = _rotation_y(north_deg)
 
     settings = _load_settings(root, scene_file, lights, quality)
+    if budget is not None:
+        if not 1e-5 <= budget <= 0.5:
+            raise SceneError("--budget", "", f"must be within [1e-05, 0.5], got {budget}")
+        settings.compression["budget"] = budget
     sources = [scene_file]
 
     ground_t = root.table("ground", required=True)
@@ -482,6 +492,7 @@ def _load_settings(root: _Table, file: Path, lights: int | None, quality: str | 
         "budget": compression_t.number("budget", 0.01, lo=1e-5, hi=0.5),
         "max_rank": compression_t.number("max_rank", 64, lo=1, hi=512, integer=True),
         "encoding": compression_t.string("encoding", "uastc", choices=("uastc", "etc1s")),
+        "selected_lights": compression_t.number("selected_lights", 4, lo=0, hi=64, integer=True),
     }
 
     q = levels[chosen]

@@ -9,11 +9,15 @@ For every pixel of a view the baker needs, per light ``i`` (Sato Eq. 7-9):
 
 A pixel whose ray meets a surface becomes a receiver point (its radiance is
 ``albedo / pi * E_i`` at that point); one that looks below the horizon past all geometry sees the
-open ground beyond the site. One that sees the sky shows ``phi_i(w)``, a smooth partition of
-unity over the patch centroids (``sum_i phi_i = 1``), rather than the indicator of the patch it
-lies in: ``sum_i r_i phi_i`` is then a smooth sky through the measured patch radiances instead
-of a mosaic of triangles, a uniform sky stays exactly uniform, and ``O_i = S_i`` there, so
-Eq. 9's ratio is 1 on the sky. Camera coordinates follow OpenCV: +X right, +Y down, +Z forward.
+open ground beyond the site. Pixels that see the sky are left out of ``O`` and ``S`` (zero) and
+marked 128 in the mask: a client that has no live camera draws the sky itself from the light
+vector as ``sum_i r_i phi_i(w)``, with ``phi_i`` the smooth partition of unity over the patch
+centroids of :func:`sky_weights` (a smooth sky through the measured patch radiances rather than
+a mosaic of triangles; a uniform sky stays exactly uniform). Keeping the sky's unit radiances
+out of the stacks matters for compression: next to them the surfaces' radiances are hundreds of
+times smaller and would drown in 8-bit quantization.
+
+Camera coordinates follow OpenCV: +X right, +Y down, +Z forward.
 """
 
 from __future__ import annotations
@@ -33,6 +37,7 @@ class ViewHits:
     Attributes
     ----------
     surface : (P,) int, flat pixel indices that hit a surface
+    faces : (P,) int, the global face each of those sees
     points, normals, albedo : (P, 3) the hit point, the face normal facing the camera, albedo
     virtual : (P,) bool, whether the surface is virtual
     depth_m : (P,) distance along the optical axis
@@ -42,6 +47,7 @@ class ViewHits:
     """
 
     surface: np.ndarray
+    faces: np.ndarray
     points: np.ndarray
     normals: np.ndarray
     albedo: np.ndarray
@@ -81,6 +87,7 @@ def trace_view(view, scene: RayScene, face_ids: np.ndarray, geometry) -> ViewHit
     open_ground = np.flatnonzero(~hit & (dirs[:, 1] < 0.0))
     return ViewHits(
         surface=surface,
+        faces=global_face,
         points=points,
         normals=normals,
         albedo=geometry.albedo[global_face],
@@ -111,25 +118,27 @@ def radiance_image(
     E_surface: np.ndarray,
     up_irradiance: np.ndarray,
     ground_albedo: np.ndarray,
-    centroids: np.ndarray,
 ) -> np.ndarray:
-    """Assemble a view's basis radiance stack, (H, W, n, 3) float32.
+    """Assemble a view's basis radiance stack, (H, W, n, 3) float32; zero on the sky.
 
-    ``E_surface`` (P, n, 3) is the basis irradiance at ``hits.points``; ``centroids`` (n, 3)
-    the patch centroid directions.
+    ``E_surface`` (P, n, 3) is the basis irradiance at ``hits.points``.
     """
     n = E_surface.shape[1] if len(E_surface) else len(up_irradiance)
     image = np.zeros((view.height * view.width, n, 3), dtype=np.float32)
     image[hits.surface] = hits.albedo[:, None, :] / np.pi * E_surface
-    image[hits.sky] = sky_weights(hits.sky_dirs, centroids)[:, :, None]
     image[hits.open_ground] = (ground_albedo[None, :] / np.pi) * up_irradiance[:, None]
     return image.reshape(view.height, view.width, n, 3)
 
 
+MASK_REAL, MASK_SKY, MASK_VIRTUAL = 0, 128, 255
+
+
 def mask_image(view, hits: ViewHits) -> np.ndarray:
-    """(H, W) uint8: 255 where the pixel sees a virtual object first, else 0."""
-    mask = np.zeros(view.height * view.width, dtype=np.uint8)
-    mask[hits.surface[hits.virtual]] = 255
+    """(H, W) uint8: 255 where the pixel sees a virtual object first, 128 where it sees the sky
+    (above the horizon, past all geometry), 0 where it sees a real surface or the ground."""
+    mask = np.full(view.height * view.width, MASK_REAL, dtype=np.uint8)
+    mask[hits.sky] = MASK_SKY
+    mask[hits.surface[hits.virtual]] = MASK_VIRTUAL
     return mask.reshape(view.height, view.width)
 
 

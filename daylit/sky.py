@@ -24,12 +24,24 @@ from daylit.spherical import normalize, sample_triangles
 SUN_ANGULAR_RADIUS_DEG = 0.2666
 SUN_SOLID_ANGLE_SR = 2.0 * np.pi * (1.0 - np.cos(np.radians(SUN_ANGULAR_RADIUS_DEG)))
 
-# CIE general sky parameters (a, b, c, d, e) of the types daylit uses.
+# The 15 CIE standard general skies (ISO 15469:2004 / CIE S 011/E:2003): gradation (a, b)
+# and indicatrix (c, d, e) parameters. 1-5 overcast, 6-10 partly cloudy, 11-15 clear.
 CIE_SKY_TYPES = {
     1: (4.0, -0.70, 0.0, -1.0, 0.00),  # CIE standard overcast, steep gradation
-    5: (0.0, -1.00, 0.0, -1.0, 0.00),  # uniform-luminance sky (sky of uniform luminance)
-    7: (0.0, -1.00, 2.0, -1.5, 0.15),  # partly cloudy, brighter circumsolar
+    2: (4.0, -0.70, 2.0, -1.5, 0.15),  # overcast, steep gradation, slight brightening to sun
+    3: (1.1, -0.80, 0.0, -1.0, 0.00),  # overcast, moderate gradation, uniform in azimuth
+    4: (1.1, -0.80, 2.0, -1.5, 0.15),  # overcast, moderate gradation, slight brightening
+    5: (0.0, -1.00, 0.0, -1.0, 0.00),  # sky of uniform luminance
+    6: (0.0, -1.00, 2.0, -1.5, 0.15),  # partly cloudy, no gradation, slight brightening
+    7: (0.0, -1.00, 5.0, -2.5, 0.30),  # partly cloudy, brighter circumsolar region
+    8: (0.0, -1.00, 10.0, -3.0, 0.45),  # partly cloudy, distinct solar corona
+    9: (-1.0, -0.55, 2.0, -1.5, 0.15),  # partly cloudy, obscured sun
+    10: (-1.0, -0.55, 5.0, -2.5, 0.30),  # partly cloudy, brighter circumsolar region
+    11: (-1.0, -0.55, 10.0, -3.0, 0.45),  # white-blue sky, distinct solar corona
     12: (-1.0, -0.32, 10.0, -3.0, 0.45),  # CIE standard clear sky, low turbidity
+    13: (-1.0, -0.32, 16.0, -3.0, 0.30),  # CIE standard clear sky, polluted atmosphere
+    14: (-1.0, -0.15, 16.0, -3.0, 0.30),  # cloudless turbid sky, broad solar corona
+    15: (-1.0, -0.15, 24.0, -2.8, 0.15),  # white-blue turbid sky, broad solar corona
 }
 
 

