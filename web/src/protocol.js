@@ -14,7 +14,7 @@ export const HEADER_BYTES = 24;
 export const MessageType = Object.freeze({
   LIGHT: 1,
   SITE_CAMERA: 2,
-  OCCLUSION_MASK: 3, // reserved (issue 6)
+  OCCLUSION_MASK: 3, // people in front of virtual objects (docs/occlusion.md)
 });
 
 export const Flags = Object.freeze({
@@ -133,4 +133,71 @@ export function lightStreamUrl(location, streams = ['light']) {
   const scheme = location.protocol === 'https:' ? 'wss:' : 'ws:';
   const query = streams.length ? `?streams=${streams.join(',')}` : '';
   return `${scheme}//${location.host}/ws/light${query}`;
+}
+
+// ------------------------------------------------------------------------------------------
+// OCCLUSION_MASK payload (message type 3, docs/occlusion.md "Wire format"), little-endian:
+//   0 u8 codec version (1) | 1 u8 encoding (1 = raster run lengths) | 2 u16 width
+//   4 u16 height | 6 u16 people in front | 8.. unsigned LEB128 run lengths to the end.
+// Runs alternate clear / set starting with clear (0 when the first pixel is set), top row
+// first, left to right, and add up to width * height exactly.
+
+export const MASK_CODEC_VERSION = 1;
+export const MASK_ENCODING_RUNS = 1;
+const MASK_HEADER_BYTES = 8;
+const MAX_VARINT_BYTES = 5;
+
+/**
+ * Decode an OCCLUSION_MASK payload (msg.payload of a type-3 message).
+ * @param {Uint8Array} payload
+ * @returns {{width:number, height:number, people:number, mask:Uint8Array, setCount:number}}
+ *   mask holds width * height bytes, 255 where a person stands in front (rows from the top).
+ * @throws {ProtocolError} when the payload does not follow the layout.
+ */
+export function decodeOcclusionMask(payload) {
+  const bytes = payload instanceof Uint8Array ? payload : new Uint8Array(payload);
+  if (bytes.byteLength < MASK_HEADER_BYTES) {
+    throw new ProtocolError(`mask payload of ${bytes.byteLength} bytes is shorter than the 8-byte header`);
+  }
+  const view = new DataView(bytes.buffer, bytes.byteOffset, bytes.byteLength);
+  const version = view.getUint8(0);
+  const encoding = view.getUint8(1);
+  const width = view.getUint16(2, true);
+  const height = view.getUint16(4, true);
+  const people = view.getUint16(6, true);
+  if (version !== MASK_CODEC_VERSION) throw new ProtocolError(`unsupported mask codec version ${version}`);
+  if (encoding !== MASK_ENCODING_RUNS) throw new ProtocolError(`unknown mask encoding ${encoding}`);
+  if (width === 0 || height === 0) throw new ProtocolError(`empty mask size ${width}x${height}`);
+  const total = width * height;
+  const mask = new Uint8Array(total);
+  let pos = 0; // pixels written
+  let runIndex = 0;
+  let setCount = 0;
+  let i = MASK_HEADER_BYTES;
+  while (i < bytes.byteLength) {
+    // One LEB128 varint (at most 5 bytes, 7 bits a byte, least significant group first).
+    let value = 0;
+    let shift = 0;
+    let used = 0;
+    for (;;) {
+      if (i >= bytes.byteLength) throw new ProtocolError('truncated varint at the end of the runs');
+      if (used === MAX_VARINT_BYTES) throw new ProtocolError(`varint longer than ${MAX_VARINT_BYTES} bytes`);
+      const b = bytes[i++];
+      value += (b & 0x7f) * 2 ** shift; // not <<: 5 groups reach 35 bits
+      shift += 7;
+      used += 1;
+      if ((b & 0x80) === 0) break;
+    }
+    if (runIndex > 0 && value === 0) throw new ProtocolError('zero-length run after the first');
+    if (pos + value > total) throw new ProtocolError(`runs cover more than the ${total} pixels of the mask`);
+    if (runIndex % 2 === 1) {
+      mask.fill(255, pos, pos + value);
+      setCount += value;
+    }
+    pos += value;
+    runIndex += 1;
+  }
+  if (runIndex === 0) throw new ProtocolError('no runs');
+  if (pos !== total) throw new ProtocolError(`runs cover ${pos} pixels, the mask has ${total}`);
+  return { width, height, people, mask, setCount };
 }
