@@ -1,0 +1,308 @@
+// The daylit client: renderer, boot and recovery, the light stream feeding the relight pass,
+// the modes (kiosk, virtual visit, camera, AR), the HUD and window.daylit.
+import * as THREE from 'three';
+import { AssetError, Assets } from './assets.js';
+import { CameraView } from './camera-view.js';
+import { Hud } from './hud.js';
+import { Kiosk } from './kiosk.js';
+import { LightSmoother, openSkyIrradiance, skySH9 } from './lightmath.js';
+import { LightStream } from './lightstream.js';
+import { Relighter } from './relight.js';
+import { Site } from './site.js';
+import { makeStatus } from './status.js';
+import { VisitView } from './visit.js';
+import { arSupported, XRView } from './xr.js';
+
+const RELIGHT_MIN_INTERVAL_S = 0.1; // while the smoothed light glides, relight at most 10 Hz
+const RELIGHT_THRESHOLD = 1e-3;     // ... until it is within 0.1 % of the measured one
+const STALE_AFTER_MS = 16000;       // three missed keep-alives (the server sends every 5 s)
+const RETRY_BOOT_MS = 10000;
+const EXPOSURE_TAU_S = 1.5;
+const DISPLAY_KEY = 0.18;           // open ground is shown at this linear display level
+
+export class App {
+  constructor({ canvas, hudRoot, params }) {
+    this.canvas = canvas;
+    this.hudRoot = hudRoot;
+    this.params = params;
+    this.mode = params.get('mode') ?? 'visit';
+    if (!['kiosk', 'visit', 'camera', 'ar'].includes(this.mode)) this.mode = 'visit';
+    this.testing = params.has('test');
+    this.fixedExposure = params.has('exposure') ? Number(params.get('exposure')) : null;
+    this.smoothingS = Number(params.get('smoothing') ?? 0);
+    this.shadingOn = true;
+    this.error = null;
+    this.ready = false;
+    this.contextLost = false;
+    this.fps = 0;
+    this.frameMs = 0;
+    this.firstRelitMs = null;
+    this.smoother = new LightSmoother(this.smoothingS);
+    this.light = null; // the newest message
+    this.saturated = null;
+    this.exposure = 1;
+    this.status = makeStatus(this);
+  }
+
+  async start() {
+    this.hud = new Hud(this.hudRoot, this);
+    this._createRenderer();
+    this.stream = new LightStream({
+      siteCamera: this.mode === 'kiosk',
+      onLight: (m) => this._onLight(m),
+      onFrame: (f) => this.kiosk?.addFrame(f),
+      onMask: (m) => this.kiosk?.addMask(m),
+    });
+    this.stream.start();
+    await this._boot();
+  }
+
+  _createRenderer() {
+    const renderer = new THREE.WebGLRenderer({
+      canvas: this.canvas,
+      antialias: this.mode !== 'kiosk',
+      preserveDrawingBuffer: this.testing, // screenshots in tests
+      powerPreference: 'high-performance',
+    });
+    renderer.setPixelRatio(Math.min(devicePixelRatio, 2));
+    renderer.outputColorSpace = THREE.SRGBColorSpace;
+    renderer.toneMapping = THREE.NeutralToneMapping;
+    renderer.toneMappingExposure = 1;
+    this.renderer = renderer;
+    this.camera = new THREE.PerspectiveCamera(50, 1, 0.1, 2000);
+    this.scene = new THREE.Scene();
+    this._resize();
+    addEventListener('resize', () => this._resize());
+    this.canvas.addEventListener('webglcontextlost', (e) => {
+      e.preventDefault(); // ask for it back
+      this.contextLost = true;
+      this.ready = false;
+      this.hud?.setMessage('The graphics context was lost; restoring…', 'warn');
+    });
+    this.canvas.addEventListener('webglcontextrestored', () => {
+      this.contextLost = false;
+      // Every GPU resource is gone: build them again (the files come from the HTTP cache).
+      this._teardown();
+      this._boot();
+    });
+    this._lastFrameT = performance.now();
+    renderer.setAnimationLoop((t, frame) => this._frame(t, frame));
+  }
+
+  _resize() {
+    const w = innerWidth;
+    const h = innerHeight;
+    this.renderer.setSize(w, h, false);
+    this.camera.aspect = w / h;
+    this.camera.updateProjectionMatrix();
+  }
+
+  async _boot() {
+    this.hud.setMessage(this.mode === 'kiosk' ? null : 'Loading the reconstruction…');
+    try {
+      this.assets = new Assets(this.params.get('manifest') ?? '/build/manifest.json',
+        { exactTextures: this.params.get('textures') !== 'gpu' });
+      const manifest = await this.assets.loadManifest();
+      this.assets.initTextures(this.renderer);
+      const kiosk = this.mode === 'kiosk';
+      const view = manifest.views.find((v) => v.id === (this.params.get('view') ?? manifest.views[0]?.id));
+      if (kiosk && !view) throw new AssetError('the manifest', 'the build has no fixed view for a kiosk');
+      const stacks = kiosk ? Object.keys(view.stacks).map((s) => `${view.id}.${s}`)
+        : manifest.atlases.flatMap((a) => Object.keys(a.stacks).map((s) => `${a.id}.${s}`));
+      this.relighter = new Relighter(this.renderer, this.assets, { stacks, views: kiosk, dome: !kiosk });
+      const loads = [this.relighter.load()];
+      if (!kiosk) loads.push(this.assets.gltf(manifest.model.path));
+      const [, gltf] = await Promise.all(loads);
+      this.relighter.onApplied = (applied) => this._onApplied(applied);
+      if (kiosk) {
+        this.kiosk = new Kiosk(this.renderer, this.relighter, view);
+      } else {
+        this.site = new Site(gltf, manifest, this.relighter);
+        this.scene.add(this.site.root);
+        if (this.site.sky) this.scene.add(this.site.sky);
+        await this._enterMode(this.mode);
+      }
+      this.ready = true;
+      this.error = null;
+      this.hud.setMessage(null);
+      if (this.smoother.value) this._needRelight = true;
+      const ar = !kiosk && await arSupported();
+      this.hud.showModes({ ar, camera: !kiosk && !!navigator.mediaDevices?.getUserMedia, align: this.mode === 'camera' || this.mode === 'ar' });
+    } catch (err) {
+      this.error = err instanceof AssetError ? err.message : `Could not start: ${err.message}`;
+      this.hud.setMessage(`${this.error}. Retrying in ${RETRY_BOOT_MS / 1000} s.`, 'error');
+      this._teardown();
+      clearTimeout(this._bootTimer);
+      this._bootTimer = setTimeout(() => this._boot(), RETRY_BOOT_MS);
+    }
+  }
+
+  _teardown() {
+    this.ready = false;
+    this.view?.dispose?.();
+    this.view = null;
+    if (this.site) {
+      this.scene.remove(this.site.root);
+      if (this.site.sky) this.scene.remove(this.site.sky);
+    }
+    this.site = null;
+    this.kiosk?.dispose();
+    this.kiosk = null;
+    this.relighter?.dispose();
+    this.relighter = null;
+    this.assets?.dispose();
+  }
+
+  async _enterMode(mode) {
+    this.view?.dispose?.();
+    this.view = null;
+    if (mode === 'ar') {
+      try {
+        this.view = await XRView.open(this.renderer, this.scene, this.site.root, this.hudRoot, () => this.switchMode('visit'));
+        this.site.setMode('overlay', this.site.shadingMode);
+        this.mode = 'ar';
+        return;
+      } catch (err) {
+        this.hud.setMessage(`AR is not available here (${err.message}); trying the camera.`, 'warn');
+        mode = 'camera';
+      }
+    }
+    if (mode === 'camera') {
+      try {
+        this.view = await CameraView.open(this.camera, this.canvas, this.assets.manifest, this.scene);
+        this.site.setMode('overlay', this.site.shadingMode);
+        this.mode = 'camera';
+        return;
+      } catch (err) {
+        this.hud.setMessage(`No camera (${err.message}): showing the virtual visit.`, 'warn');
+        setTimeout(() => this.hud.setMessage(null), 5000);
+      }
+    }
+    this.view = new VisitView(this.camera, this.canvas, this.site);
+    this.site.setMode('visit', this.site.shadingMode);
+    this.mode = 'visit';
+  }
+
+  async switchMode(mode) {
+    if (!this.site || mode === this.mode) return;
+    await this._enterMode(mode);
+    this.hud.showModes({ ar: await arSupported(), camera: !!navigator.mediaDevices?.getUserMedia, align: this.mode !== 'visit' });
+  }
+
+  setShading(on) {
+    this.shadingOn = on;
+    this.site?.setShading(on);
+  }
+
+  setShadingMode(mode) {
+    this.site?.setMode(this.site.view, mode === 'hull' ? 'hull' : 'lightmap');
+  }
+
+  setSmoothing(tauS) {
+    this.smoothingS = Math.max(0, tauS);
+    this.smoother.tauS = this.smoothingS;
+  }
+
+  resetAlignment() {
+    this.view?.resetAlignment?.();
+  }
+
+  // ---------------------------------------------------------------------------- light
+
+  _onLight(m) {
+    this.light = m;
+    this.saturated = m.saturated;
+    this.smoother.push(m.rgb, performance.now() / 1000);
+    this._needRelight = true;
+  }
+
+  isStale() {
+    if (!this.light) return true;
+    if (this.stream?.state !== 'open' || this.light.stale) return true;
+    return performance.now() - this.stream.lastMessageMs > STALE_AFTER_MS;
+  }
+
+  lightAgeMs() {
+    if (!this.light) return null;
+    return Math.max(0, Math.round(this.stream.ageS(this.light.captureTime) * 1000));
+  }
+
+  _maybeRelight(tS) {
+    if (!this.ready || !this.smoother.value) return;
+    this.smoother.step(tS);
+    const gliding = this.smoother.remaining() > RELIGHT_THRESHOLD;
+    const due = this._needRelight || (gliding && tS - (this._lastRelightS ?? 0) > RELIGHT_MIN_INTERVAL_S);
+    if (!due) return;
+    this._needRelight = false;
+    this._lastRelightS = tS;
+    const r = Float64Array.from(this.smoother.value);
+    this.relighter.update(r, this.light?.sequence ?? 0).catch((err) => {
+      this.hud.setMessage(`${err.message}. Keeping the last light.`, 'warn');
+      this._needRelight = true; // try the images again with the next vector
+    });
+  }
+
+  _onApplied(applied) {
+    const r = applied.r;
+    const open = openSkyIrradiance(r, this.assets.manifest.dome.lights.map((l) => l.cosine_weighted_sr));
+    const mean = (open[0] + open[1] + open[2]) / 3;
+    this.site?.setLight({
+      L: skySH9(r, this.assets.manifest.dome.lights.map((l) => l.sh9)),
+      openIrradiance: open,
+      flatIrradiance: [mean, mean, mean].map((v) => v * 0.8), // shading off: even, a little dimmer
+    });
+    const albedo = this.assets.manifest.ground.albedo;
+    const ground = (0.2126 * albedo[0] * open[0] + 0.7152 * albedo[1] * open[1] + 0.0722 * albedo[2] * open[2]) / Math.PI;
+    this._targetExposure = ground > 0 ? DISPLAY_KEY / ground : 1;
+    if (this.kiosk) this.kiosk.onRelight();
+    if (applied.exact && this.firstRelitMs === null) this._firstRelitPending = true;
+  }
+
+  _updateExposure(dtS) {
+    if (this.fixedExposure !== null) {
+      this.exposure = this.fixedExposure;
+    } else if (this._targetExposure) {
+      const a = this._exposureSet ? 1 - Math.exp(-dtS / EXPOSURE_TAU_S) : 1;
+      this._exposureSet = true;
+      this.exposure += a * (this._targetExposure - this.exposure);
+    }
+    if (this.site) this.site.shared.exposure.value = this.exposure;
+  }
+
+  // ---------------------------------------------------------------------------- frames
+
+  _frame(tMs, xrFrame) {
+    const now = performance.now();
+    const dt = Math.max(1e-3, (now - this._lastFrameT) / 1000);
+    this._lastFrameT = now;
+    this.fps = this.fps ? this.fps + 0.1 * (1 / dt - this.fps) : 1 / dt;
+    if (this.contextLost) return;
+    const t0 = performance.now();
+    this._maybeRelight(now / 1000);
+    this._updateExposure(dt);
+    this.renderFrame(xrFrame);
+    this.frameMs = performance.now() - t0;
+    if (this._firstRelitPending) {
+      this._firstRelitPending = false;
+      this.firstRelitMs = performance.now();
+    }
+    this.hud.update();
+  }
+
+  /** One frame of the current mode (the benchmark calls it directly). */
+  renderFrame(xrFrame) {
+    const renderer = this.renderer;
+    if (!this.ready || !this.relighter?.applied) {
+      renderer.setClearColor(0x101418, 1);
+      renderer.clear();
+      return;
+    }
+    if (this.kiosk) {
+      this.kiosk.render({ exposure: this.exposure, strength: this.shadingOn ? 1 : 0 });
+      return;
+    }
+    this.view?.update(xrFrame);
+    renderer.setClearColor(0x000000, this.mode === 'ar' ? 0 : 1);
+    renderer.render(this.scene, this.camera);
+  }
+}

@@ -1,0 +1,141 @@
+// The build over HTTP: the manifest, then the files it lists, each requested as
+// /build/PATH?v=<first 16 hex of its sha256> so the server may let the browser cache it as
+// immutable (docs/server.md, HTTP). Counts the bytes it transfers (the HUD and the benchmark
+// show them) and turns every failure into an AssetError that names the file.
+import { KTX2Loader } from 'three/addons/loaders/KTX2Loader.js';
+import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
+
+export class AssetError extends Error {
+  constructor(path, reason) {
+    super(`Could not load ${path}: ${reason}`);
+    this.path = path;
+  }
+}
+
+const TRANSCODER_PATH = '/vendor/three/examples/jsm/libs/basis/';
+
+export class Assets {
+  /**
+   * @param {string} manifestUrl e.g. '/build/manifest.json' (the hello's `manifest`)
+   * @param {{exactTextures?: boolean}} options exactTextures (default true): transcode the
+   *   UASTC data to plain RGBA8 so the GPU reads exactly the texels the numpy reference reads
+   *   (docs/web.md, "Texture formats"); false lets KTX2Loader pick a compressed GPU format.
+   */
+  constructor(manifestUrl = '/build/manifest.json', options = {}) {
+    this.manifestUrl = manifestUrl;
+    this.base = new URL('.', new URL(manifestUrl, location.href)).href;
+    this.exactTextures = options.exactTextures ?? true;
+    this.manifest = null;
+    this.files = new Map(); // path -> {bytes, sha256}
+    this.bytesLoaded = 0;
+    this.requests = 0;
+    this.ktx2 = null;
+  }
+
+  async loadManifest() {
+    let response;
+    try {
+      response = await fetch(this.manifestUrl, { cache: 'no-cache' });
+    } catch (err) {
+      throw new AssetError('the build manifest', `network error (${err.message})`);
+    }
+    if (!response.ok) throw new AssetError(this.manifestUrl, `HTTP ${response.status}`);
+    const text = await response.text();
+    this.bytesLoaded += text.length;
+    this.requests += 1;
+    let manifest;
+    try {
+      manifest = JSON.parse(text);
+    } catch {
+      throw new AssetError(this.manifestUrl, 'not JSON');
+    }
+    if (manifest.format !== 'daylit-build' || manifest.version !== 1) {
+      throw new AssetError(this.manifestUrl, `not a daylit build of version 1 (${manifest.format} ${manifest.version})`);
+    }
+    this.manifest = manifest;
+    this.files = new Map(manifest.files.map((f) => [f.path, f]));
+    return manifest;
+  }
+
+  /** The URL of a build file, with its checksum query when the manifest lists one. */
+  url(path) {
+    const entry = this.files.get(path);
+    const u = new URL(path, this.base);
+    if (entry && entry.sha256) u.searchParams.set('v', entry.sha256.slice(0, 16));
+    return u.href;
+  }
+
+  async bytes(path) {
+    let response;
+    try {
+      response = await fetch(this.url(path));
+    } catch (err) {
+      throw new AssetError(path, `network error (${err.message})`);
+    }
+    if (!response.ok) throw new AssetError(path, `HTTP ${response.status}`);
+    const buffer = await response.arrayBuffer();
+    const entry = this.files.get(path);
+    if (entry && entry.bytes !== buffer.byteLength) {
+      throw new AssetError(path, `${buffer.byteLength} bytes, the manifest says ${entry.bytes}`);
+    }
+    this.bytesLoaded += buffer.byteLength;
+    this.requests += 1;
+    return buffer;
+  }
+
+  /** Set up the Basis transcoder for this renderer (once). */
+  initTextures(renderer) {
+    this.ktx2 = new KTX2Loader().setTranscoderPath(TRANSCODER_PATH).detectSupport(renderer);
+    if (this.exactTextures) {
+      // Basis data are numbers, not pictures: decode to RGBA8 exactly as the reference does
+      // (ETC2 or BC1/3 targets would add their own error to every basis value).
+      for (const key of Object.keys(this.ktx2.workerConfig)) {
+        if (key.endsWith('Supported')) this.ktx2.workerConfig[key] = false;
+      }
+    }
+  }
+
+  /** A KTX2 texture (2D, or a 2D array for several layers), linear, unfiltered reads. */
+  async texture(path) {
+    const buffer = await this.bytes(path);
+    const texture = await new Promise((resolve, reject) => {
+      this.ktx2.parse(buffer, resolve, (err) => reject(new AssetError(path, `KTX2 transcoding failed (${err?.message ?? err})`)));
+    });
+    texture.name = path;
+    return texture;
+  }
+
+  /** A float32 little-endian array (the V matrices). */
+  async float32(path) {
+    const buffer = await this.bytes(path);
+    if (buffer.byteLength % 4) throw new AssetError(path, 'not a float32 array');
+    return new Float32Array(buffer);
+  }
+
+  async gltf(path) {
+    const buffer = await this.bytes(path);
+    try {
+      return await new GLTFLoader().parseAsync(buffer, this.base);
+    } catch (err) {
+      throw new AssetError(path, `not a readable glTF (${err.message})`);
+    }
+  }
+
+  /** A PNG as raw pixels (no colour management, no premultiplication): {width, height, data}. */
+  async image(path) {
+    const buffer = await this.bytes(path);
+    let bitmap;
+    try {
+      bitmap = await createImageBitmap(new Blob([buffer]), {
+        colorSpaceConversion: 'none', premultiplyAlpha: 'none',
+      });
+    } catch (err) {
+      throw new AssetError(path, `not a readable image (${err.message})`);
+    }
+    return bitmap;
+  }
+
+  dispose() {
+    this.ktx2?.dispose();
+  }
+}

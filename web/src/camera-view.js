@@ -1,0 +1,137 @@
+// The phone or tablet camera without WebXR (iOS Safari): the rear camera through getUserMedia
+// as the background, the view turned by the device's orientation (deviceorientation, W3C
+// convention: alpha about z, beta about x, gamma about y). The visitor stands at a standpoint
+// on the site (the kiosk's view by default); drag with one finger to turn the model until it
+// sits on the real site (a heading offset), with two fingers to move the standpoint. The
+// alignment is kept in localStorage.
+import * as THREE from 'three';
+
+const STORAGE_KEY = 'daylit.alignment.camera';
+
+export class CameraView {
+  /** Resolves when the camera runs; rejects (no permission, no camera) so the caller falls back. */
+  static async open(camera, domElement, manifest, scene) {
+    if (!navigator.mediaDevices?.getUserMedia) throw new Error('this browser gives no camera access');
+    const stream = await navigator.mediaDevices.getUserMedia({
+      video: { facingMode: 'environment', width: { ideal: 1280 } }, audio: false,
+    });
+    const view = new CameraView(camera, domElement, manifest, scene, stream);
+    await view.video.play();
+    await view.requestOrientation();
+    return view;
+  }
+
+  constructor(camera, domElement, manifest, scene, stream) {
+    this.camera = camera;
+    this.dom = domElement;
+    this.scene = scene;
+    this.stream = stream;
+    this.video = document.createElement('video');
+    this.video.playsInline = true;
+    this.video.muted = true;
+    this.video.srcObject = stream;
+    this.texture = new THREE.VideoTexture(this.video);
+    this.texture.colorSpace = THREE.SRGBColorSpace;
+    this.previousBackground = scene.background;
+    scene.background = this.texture;
+    const view = manifest.views[0];
+    const start = view ? view.world_from_camera.map((row) => row[3]).slice(0, 3) : [0, 1.6, 20];
+    this.alignment = { headingDeg: 0, position: [start[0], 1.6, start[2]], ...load() };
+    this.orientation = null;
+    this._onOrientation = (e) => { this.orientation = e; };
+    this._onScreen = () => {};
+    this._touches = new Map();
+    this._onPointerDown = (e) => this._touches.set(e.pointerId, [e.clientX, e.clientY]);
+    this._onPointerUp = (e) => { this._touches.delete(e.pointerId); save(this.alignment); };
+    this._onPointerMove = (e) => this._drag(e);
+    domElement.addEventListener('pointerdown', this._onPointerDown);
+    domElement.addEventListener('pointerup', this._onPointerUp);
+    domElement.addEventListener('pointercancel', this._onPointerUp);
+    domElement.addEventListener('pointermove', this._onPointerMove);
+    camera.near = 0.1;
+    camera.far = 2000;
+    camera.fov = 60;
+    camera.updateProjectionMatrix();
+  }
+
+  async requestOrientation() {
+    // iOS asks for permission (inside the tap that opened the camera); others just send events.
+    const ask = globalThis.DeviceOrientationEvent?.requestPermission;
+    if (typeof ask === 'function') {
+      try {
+        await ask();
+      } catch {
+        // without it the view stays level; dragging still turns it
+      }
+    }
+    addEventListener('deviceorientation', this._onOrientation);
+  }
+
+  _drag(e) {
+    const last = this._touches.get(e.pointerId);
+    if (!last) return;
+    const dx = e.clientX - last[0];
+    const dy = e.clientY - last[1];
+    this._touches.set(e.pointerId, [e.clientX, e.clientY]);
+    if (this._touches.size === 1) {
+      this.alignment.headingDeg += dx * 0.15;
+    } else {
+      // two fingers: walk the standpoint in the view's ground plane, half a metre per 50 px
+      const yaw = this.camera.rotation.y;
+      const fwd = -dy / 100;
+      const side = dx / 100;
+      this.alignment.position[0] += side * Math.cos(yaw) + fwd * -Math.sin(yaw);
+      this.alignment.position[2] += -side * Math.sin(yaw) + fwd * -Math.cos(yaw);
+    }
+  }
+
+  update() {
+    const o = this.orientation;
+    const q = new THREE.Quaternion();
+    if (o && o.alpha !== null) {
+      // The standard device-orientation to camera quaternion (as three.js's former
+      // DeviceOrientationControls): ZXY Euler from alpha, beta, gamma, then the camera looks
+      // out of the back of the device, then the screen's own rotation.
+      const euler = new THREE.Euler(THREE.MathUtils.degToRad(o.beta), THREE.MathUtils.degToRad(o.alpha), -THREE.MathUtils.degToRad(o.gamma), 'YXZ');
+      q.setFromEuler(euler);
+      q.multiply(new THREE.Quaternion(-Math.sqrt(0.5), 0, 0, Math.sqrt(0.5)));
+      const screenDeg = screen.orientation?.angle ?? 0;
+      q.multiply(new THREE.Quaternion().setFromAxisAngle(new THREE.Vector3(0, 0, 1), -THREE.MathUtils.degToRad(screenDeg)));
+    }
+    const heading = new THREE.Quaternion().setFromAxisAngle(new THREE.Vector3(0, 1, 0), THREE.MathUtils.degToRad(this.alignment.headingDeg));
+    this.camera.quaternion.copy(heading.multiply(q));
+    this.camera.position.set(...this.alignment.position);
+  }
+
+  resetAlignment() {
+    localStorage.removeItem(STORAGE_KEY);
+    this.alignment.headingDeg = 0;
+  }
+
+  dispose() {
+    removeEventListener('deviceorientation', this._onOrientation);
+    this.dom.removeEventListener('pointerdown', this._onPointerDown);
+    this.dom.removeEventListener('pointerup', this._onPointerUp);
+    this.dom.removeEventListener('pointercancel', this._onPointerUp);
+    this.dom.removeEventListener('pointermove', this._onPointerMove);
+    for (const track of this.stream.getTracks()) track.stop();
+    this.scene.background = this.previousBackground;
+    this.texture.dispose();
+  }
+}
+
+function load() {
+  try {
+    return JSON.parse(localStorage.getItem(STORAGE_KEY) ?? '{}');
+  } catch {
+    return {};
+  }
+}
+
+function save(alignment) {
+  try {
+    localStorage.setItem(STORAGE_KEY, JSON.stringify(alignment));
+  } catch {
+    // private browsing: the alignment lasts for this visit only
+  }
+}

@@ -1,0 +1,82 @@
+// Hooks for the headless-browser tests and the benchmark (window.daylit.debug, only with
+// ?test in the URL): relight with a given vector, read render targets back, time frames.
+
+function toBase64(floats) {
+  const bytes = new Uint8Array(floats.buffer, floats.byteOffset, floats.byteLength);
+  let s = '';
+  for (let i = 0; i < bytes.length; i += 0x8000) s += String.fromCharCode.apply(null, bytes.subarray(i, i + 0x8000));
+  return btoa(s);
+}
+
+export function debugApi(app) {
+  return Object.freeze({
+    /** Relight with r (flat n x 3 array) and wait until it is drawn with every light image. */
+    async relight(r, sequence = 0) {
+      app.stream?.stop(); // the test's vector, not the server's
+      app.light = { rgb: Float32Array.from(r), sequence, captureTime: Date.now() / 1000, stale: false };
+      app.smoother.push(Float64Array.from(r), performance.now() / 1000);
+      app.smoother.value = Float64Array.from(r);
+      let applied = await app.relighter.update(Float64Array.from(r), sequence);
+      if (!applied.exact) applied = await app.relighter.update(Float64Array.from(r), sequence);
+      return { sequence: applied.sequence, exact: applied.exact, selected: applied.selected };
+    },
+    targets: () => Object.keys(app.relighter.targets),
+    /** A relight target as base64 float32 RGBA, rows from the top. */
+    read(key) {
+      const { width, height, data } = app.relighter.read(key);
+      return { width, height, data: toBase64(data) };
+    },
+    /** The kiosk's linear composite at the view's resolution. */
+    kioskComposite(options = {}) {
+      const { width, height, data } = app.kiosk.readComposite(options);
+      return { width, height, data: toBase64(data) };
+    },
+    kioskState: () => ({
+      hasFrame: app.kiosk.uniforms.hasFrame.value, hasOcclusion: app.kiosk.uniforms.hasOcclusion.value,
+      frameCaptureTime: app.kiosk.shown?.captureTime ?? null,
+      maskCaptureTime: app.kiosk.shownMask?.captureTime ?? null,
+      cameraScale: app.kiosk.cameraScale, framesShown: app.kiosk.framesShown,
+    }),
+    setCameraScale: (k) => app.kiosk.setCameraScale(k),
+    /** Force the kiosk to pick a frame now (tests step it without waiting for rAF). */
+    kioskTick: () => app.kiosk.render({ exposure: app.exposure, strength: 1 }),
+    setExposure: (e) => { app.fixedExposure = e; },
+    setCamera(position, target) {
+      app.view?.dispose?.();
+      app.view = null;
+      app.camera.position.set(...position);
+      app.camera.lookAt(...target);
+      app.camera.updateMatrixWorld();
+    },
+    /** Mean CPU+GPU milliseconds per frame over n frames drawn back to back (glFinish-like). */
+    timeFrames(n = 30) {
+      const gl = app.renderer.getContext();
+      const px = new Uint8Array(4);
+      app.renderFrame();
+      gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, px);
+      const t0 = performance.now();
+      for (let i = 0; i < n; i++) {
+        app.renderFrame();
+        gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, px);
+      }
+      return (performance.now() - t0) / n;
+    },
+    /** Mean milliseconds of one relight pass with the current vector, GPU finished. */
+    timeRelight(n = 5) {
+      const applied = app.relighter.applied;
+      app.relighter._render(applied);
+      app.relighter.finish();
+      const t0 = performance.now();
+      for (let i = 0; i < n; i++) {
+        app.relighter._render(applied);
+        app.relighter.finish();
+      }
+      return (performance.now() - t0) / n;
+    },
+    loseContext() {
+      const ext = app.renderer.getContext().getExtension('WEBGL_lose_context');
+      ext.loseContext();
+      setTimeout(() => ext.restoreContext(), 200);
+    },
+  });
+}

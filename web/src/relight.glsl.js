@@ -1,0 +1,133 @@
+// Shaders of the relight pass (Kakuta Fig. 6: the weighted sum of basis images on the GPU).
+// One fragment per texel of the atlas (or view): gl_FragCoord row y is image row y (top
+// first), exactly the texel texelFetch reads, so no filtering touches the basis values.
+
+export const relightVertex = /* glsl */ `
+in vec3 position;
+void main() { gl_Position = vec4(position.xy, 0.0, 1.0); }
+`;
+
+/**
+ * The fragment shader of one compact stack (docs/compact-assets.md):
+ * E(x) = g(x) (sum_j c[coef_j] (tex_j(x) scale_j + offset_j) + sum_i r_i sum_lv (light_i_lv(x) scale + offset))
+ * with the products and offsets folded into layerWeight, slotWeight and constant (lightmath.js).
+ */
+export function relightFragment({ layers, slots, gain, encodeRGBE }) {
+  const slotUniforms = Array.from({ length: slots }, (_, s) => `uniform sampler2D slot${s};`).join('\n');
+  const slotSum = Array.from({ length: slots },
+    (_, s) => `  e += texelFetch(slot${s}, p, 0).rgb * slotWeight[${s}];`).join('\n');
+  return /* glsl */ `
+precision highp float;
+precision highp int;
+precision highp sampler2DArray;
+uniform sampler2DArray baseTex;
+uniform vec3 layerWeight[${layers}];
+uniform vec3 constantTerm;
+${slots ? `uniform vec3 slotWeight[${slots}];\n${slotUniforms}` : ''}
+${gain ? 'uniform sampler2DArray gainTex;\nuniform vec3 gainScale[2];\nuniform vec3 gainOffset[2];' : ''}
+out vec4 outColor;
+${encodeRGBE ? RGBE_ENCODE : ''}
+void main() {
+  ivec2 p = ivec2(gl_FragCoord.xy);
+  vec3 e = constantTerm;
+  for (int j = 0; j < ${layers}; j++) e += texelFetch(baseTex, ivec3(p, j), 0).rgb * layerWeight[j];
+${slotSum}
+${gain ? `  vec3 g = texelFetch(gainTex, ivec3(p, 0), 0).rgb * gainScale[0] + gainOffset[0]
+         + texelFetch(gainTex, ivec3(p, 1), 0).rgb * gainScale[1] + gainOffset[1];
+  e *= g;` : ''}
+  outColor = ${encodeRGBE ? 'encodeRGBE(e)' : 'vec4(e, 1.0)'};
+}
+`;
+}
+
+// Fallback for GPUs that cannot render to half-float targets: a shared exponent in alpha
+// (RGBE, exponent bias 128) in an RGBA8 target. Negative values (noise of the compact data
+// near zero) are clamped to 0 there.
+export const RGBE_ENCODE = /* glsl */ `
+vec4 encodeRGBE(vec3 v) {
+  v = max(v, vec3(0.0));
+  float m = max(max(v.r, v.g), v.b);
+  if (m < 1e-30) return vec4(0.0);
+  float e = ceil(log2(m));
+  return vec4(v / exp2(e), (e + 128.0) / 255.0);
+}
+`;
+
+export const RGBE_DECODE = /* glsl */ `
+vec3 decodeTarget(vec4 t) { return t.a == 0.0 ? vec3(0.0) : t.rgb * exp2(t.a * 255.0 - 128.0); }
+`;
+
+export const FLOAT_DECODE = /* glsl */ `
+vec3 decodeTarget(vec4 t) { return t.rgb; }
+`;
+
+/**
+ * The sky seen by a fixed view's sky pixels (mask 128), sum_i r_i phi_i(w) with the smooth
+ * partition of unity of docs/manifest.md (bake.views.sky_weights): evaluated once per light
+ * update, not per frame. lightTex: n x 2 texels, row 0 r_i (RGB), row 1 centroid c_i.
+ */
+export function viewSkyFragment({ lights, encodeRGBE }) {
+  return /* glsl */ `
+precision highp float;
+uniform sampler2D lightTex;
+uniform sampler2D maskTex;
+uniform mat3 worldFromPixel; // R K^-1: pixel (x + 0.5, y + 0.5, 1) to a world direction
+uniform float invWidth2;    // 1 / w^2, w = 0.7 sqrt(2 pi / n)
+uniform vec2 size;
+out vec4 outColor;
+${encodeRGBE ? RGBE_ENCODE : ''}
+void main() {
+  vec2 px = floor(gl_FragCoord.xy) + 0.5;
+  float m = texture(maskTex, px / size).r;
+  vec3 sky = vec3(0.0);
+  if (abs(m - 128.0 / 255.0) < 0.1) {
+    vec3 w = normalize(worldFromPixel * vec3(px, 1.0));
+    // Subtract the largest logit first, as the reference does, so exp never underflows to 0/0.
+    float best = -1e30;
+    for (int i = 0; i < ${lights}; i++) {
+      vec3 c = texelFetch(lightTex, ivec2(i, 1), 0).rgb;
+      best = max(best, (dot(w, c) - 1.0) * invWidth2);
+    }
+    float total = 0.0;
+    for (int i = 0; i < ${lights}; i++) {
+      vec3 c = texelFetch(lightTex, ivec2(i, 1), 0).rgb;
+      float phi = exp((dot(w, c) - 1.0) * invWidth2 - best);
+      total += phi;
+      sky += phi * texelFetch(lightTex, ivec2(i, 0), 0).rgb;
+    }
+    sky /= total;
+  }
+  outColor = ${encodeRGBE ? 'encodeRGBE(sky)' : 'vec4(sky, 1.0)'};
+}
+`;
+}
+
+/** The sky dome of the virtual visit: an equirectangular image of the upper hemisphere. */
+export function domeSkyFragment({ lights, encodeRGBE }) {
+  return /* glsl */ `
+precision highp float;
+uniform sampler2D lightTex;
+uniform float invWidth2;
+uniform vec2 size;
+out vec4 outColor;
+${encodeRGBE ? RGBE_ENCODE : ''}
+void main() {
+  vec2 uv = gl_FragCoord.xy / size;
+  float azimuth = uv.x * 6.28318530718;          // clockwise from north (-Z) toward east (+X)
+  float elevation = uv.y * 1.57079632679;
+  vec3 w = vec3(sin(azimuth) * cos(elevation), sin(elevation), -cos(azimuth) * cos(elevation));
+  float best = -1e30;
+  for (int i = 0; i < ${lights}; i++) {
+    best = max(best, (dot(w, texelFetch(lightTex, ivec2(i, 1), 0).rgb) - 1.0) * invWidth2);
+  }
+  float total = 0.0;
+  vec3 sky = vec3(0.0);
+  for (int i = 0; i < ${lights}; i++) {
+    float phi = exp((dot(w, texelFetch(lightTex, ivec2(i, 1), 0).rgb) - 1.0) * invWidth2 - best);
+    total += phi;
+    sky += phi * texelFetch(lightTex, ivec2(i, 0), 0).rgb;
+  }
+  outColor = ${encodeRGBE ? 'encodeRGBE(sky / total)' : 'vec4(sky / total, 1.0)'};
+}
+`;
+}

@@ -1,0 +1,395 @@
+// The relight pass: on each new light vector, the weighted sums of every basis stack are
+// rendered once into cached render targets (Kakuta Fig. 6); frames in between only sample
+// those targets, so the cost of a frame does not depend on the number of lights.
+//
+// Per stack (docs/compact-assets.md): A(r) the selected lights, r' = r without them,
+// c = V^T r' (k x RGB, in JavaScript), then on the GPU
+//   E(x) = g(x) (sum_j c[coef_j] (tex_j(x) scale_j + offset_j) + sum_{i in A} r_i B~_i(x)).
+// For a shadowing atlas the `I` entry encodes Delta = d - I: its target holds X = sum r Delta
+// and the `d` target D = sum r d, so alpha = X / D and I = D - X (materials.js).
+//
+// Selected lights' own images are fetched on demand and kept in a small cache. When a newly
+// selected light's images have not arrived yet, the previous exact result stays on screen
+// (the relight of this vector waits for them); only before the very first picture does the
+// pass run at once with the missing lights left in r' (summed by the low-rank base, a coarse
+// stand-in), so something appears while they load.
+import * as THREE from 'three';
+import { baseCoefficients, selectLights, stackWeights } from './lightmath.js';
+import {
+  domeSkyFragment, relightFragment, relightVertex, viewSkyFragment,
+} from './relight.glsl.js';
+
+const LIGHT_CACHE_PER_STACK = 12; // a clear sky needs 4; the sun moves one patch in tens of minutes
+
+/** Render-target format: half float where the GPU can render to it, else RGBE in RGBA8. */
+export function targetFormat(renderer) {
+  const ext = renderer.extensions;
+  const halfFloat = ext.has('EXT_color_buffer_float') || ext.has('EXT_color_buffer_half_float');
+  return { type: halfFloat ? THREE.HalfFloatType : THREE.UnsignedByteType, rgbe: !halfFloat };
+}
+
+function makeTarget(width, height, format) {
+  const target = new THREE.WebGLRenderTarget(width, height, {
+    type: format.type,
+    format: THREE.RGBAFormat,
+    // RGBE cannot be interpolated; half floats can.
+    minFilter: format.rgbe ? THREE.NearestFilter : THREE.LinearFilter,
+    magFilter: format.rgbe ? THREE.NearestFilter : THREE.LinearFilter,
+    depthBuffer: false,
+    stencilBuffer: false,
+    generateMipmaps: false,
+  });
+  target.texture.colorSpace = THREE.NoColorSpace;
+  return target;
+}
+
+/** A full-screen triangle drawn with one material: the GPU's way to visit every texel. */
+class FullscreenPass {
+  constructor(material) {
+    const geometry = new THREE.BufferGeometry();
+    geometry.setAttribute('position', new THREE.Float32BufferAttribute([-1, -1, 0, 3, -1, 0, -1, 3, 0], 3));
+    this.mesh = new THREE.Mesh(geometry, material);
+    this.mesh.frustumCulled = false;
+    this.scene = new THREE.Scene();
+    this.scene.add(this.mesh);
+    this.camera = new THREE.Camera();
+  }
+
+  render(renderer, target) {
+    renderer.setRenderTarget(target);
+    renderer.render(this.scene, this.camera);
+    renderer.setRenderTarget(null);
+  }
+
+  dispose() {
+    this.mesh.geometry.dispose();
+    this.mesh.material.dispose();
+  }
+}
+
+export { FullscreenPass, makeTarget };
+
+/** One compact stack: its textures, V, light-image cache, target and shader. */
+class RelightStack {
+  constructor(assets, key, compact, width, height, format, selectedCount) {
+    this.assets = assets;
+    this.key = key; // e.g. 'ground.I'
+    this.compact = compact;
+    this.width = width;
+    this.height = height;
+    this.format = format;
+    this.levels = compact.lights.ktx2.length;
+    this.slots = selectedCount * this.levels;
+    this.k = compact.v.shape[1];
+    this.lights = new Map(); // light index -> [texture per level]
+    this.pending = new Map(); // light index -> Promise
+    this.target = makeTarget(width, height, format);
+    this.target.texture.name = key;
+    this.applied = null; // {sequence, exact}
+  }
+
+  async load() {
+    const loads = [this.assets.texture(this.compact.ktx2), this.assets.float32(this.compact.v.path)];
+    if (this.compact.gain) loads.push(this.assets.texture(this.compact.gain.ktx2));
+    const [base, V, gain] = await Promise.all(loads);
+    const [n, k] = this.compact.v.shape;
+    if (V.length !== n * k) throw new Error(`${this.compact.v.path}: ${V.length} values, expected ${n} x ${k}`);
+    this.base = base;
+    this.V = V;
+    this.gain = gain ?? null;
+    for (const t of [base, gain]) if (t) t.minFilter = t.magFilter = THREE.NearestFilter;
+    this.dummy = new THREE.DataTexture(new Uint8Array(4), 1, 1);
+    this.dummy.needsUpdate = true;
+    const uniforms = {
+      baseTex: { value: base },
+      layerWeight: { value: Array.from({ length: this.compact.layers.length }, () => new THREE.Vector3()) },
+      constantTerm: { value: new THREE.Vector3() },
+    };
+    if (this.slots) {
+      uniforms.slotWeight = { value: Array.from({ length: this.slots }, () => new THREE.Vector3()) };
+      for (let s = 0; s < this.slots; s++) uniforms[`slot${s}`] = { value: this.dummy };
+    }
+    if (this.gain) {
+      const layers = this.compact.gain.layers;
+      uniforms.gainTex = { value: this.gain };
+      uniforms.gainScale = { value: layers.map((l) => new THREE.Vector3(...l.scale)) };
+      uniforms.gainOffset = { value: layers.map((l) => new THREE.Vector3(...l.offset)) };
+    }
+    const material = new THREE.RawShaderMaterial({
+      glslVersion: THREE.GLSL3,
+      uniforms,
+      vertexShader: relightVertex,
+      fragmentShader: relightFragment({
+        layers: this.compact.layers.length, slots: this.slots, gain: !!this.gain,
+        encodeRGBE: this.format.rgbe,
+      }),
+      depthTest: false,
+      depthWrite: false,
+    });
+    this.pass = new FullscreenPass(material);
+  }
+
+  /** Start fetching the images of these lights (cached, at most once each). */
+  fetchLights(indices) {
+    for (const i of indices) {
+      if (this.lights.has(i) || this.pending.has(i)) continue;
+      const files = this.compact.lights.ktx2.map((pattern) => pattern.replace('{index:04d}', String(i).padStart(4, '0')));
+      const promise = Promise.all(files.map((f) => this.assets.texture(f))).then((textures) => {
+        for (const t of textures) t.minFilter = t.magFilter = THREE.NearestFilter;
+        this.lights.set(i, textures);
+        this.pending.delete(i);
+        return textures;
+      }, (err) => {
+        this.pending.delete(i);
+        throw err;
+      });
+      this.pending.set(i, promise);
+    }
+    return Promise.all(indices.map((i) => this.pending.get(i) ?? this.lights.get(i)));
+  }
+
+  /** Drop cached light images beyond the cache size, keeping the ones in use. */
+  trimCache(keep) {
+    if (this.lights.size <= LIGHT_CACHE_PER_STACK) return;
+    for (const [i, textures] of this.lights) {
+      if (this.lights.size <= LIGHT_CACHE_PER_STACK) break;
+      if (keep.includes(i)) continue;
+      for (const t of textures) t.dispose();
+      this.lights.delete(i);
+    }
+  }
+
+  /** Render the weighted sum for r with the selected lights that are loaded. */
+  render(renderer, r, selected) {
+    const loaded = selected.filter((i) => this.lights.has(i));
+    const c = baseCoefficients(this.V, this.k, r, loaded); // lights not loaded stay in r'
+    const w = stackWeights(this.compact, c, r, loaded);
+    const u = this.pass.mesh.material.uniforms;
+    u.layerWeight.value.forEach((v, j) => v.set(w.layerWeights[3 * j], w.layerWeights[3 * j + 1], w.layerWeights[3 * j + 2]));
+    u.constantTerm.value.set(...w.constant);
+    for (let s = 0; s < this.slots; s++) {
+      const light = loaded[Math.floor(s / this.levels)];
+      const level = s % this.levels;
+      u[`slot${s}`].value = light === undefined ? this.dummy : this.lights.get(light)[level];
+      const v = u.slotWeight.value[s];
+      if (light === undefined) v.set(0, 0, 0);
+      else v.set(w.slotWeights[3 * s], w.slotWeights[3 * s + 1], w.slotWeights[3 * s + 2]);
+    }
+    this.pass.render(renderer, this.target);
+    return loaded.length === selected.length;
+  }
+
+  dispose() {
+    this.target.dispose();
+    this.pass?.dispose();
+    for (const t of [this.base, this.gain, this.dummy]) t?.dispose();
+    for (const textures of this.lights.values()) for (const t of textures) t.dispose();
+  }
+}
+
+/**
+ * All relight targets of a build: `targets['ground.I']` etc. (I of a shadowing atlas holds
+ * Delta = d - I, see above), `targets['kiosk.sky']` for each view's sky pixels and
+ * `targets.dome` (an equirectangular image of the sky for the virtual visit).
+ */
+export class Relighter {
+  /**
+   * @param {THREE.WebGLRenderer} renderer
+   * @param {import('./assets.js').Assets} assets with its manifest loaded
+   * @param {{stacks?: string[], views?: boolean, dome?: boolean}} which stacks to relight
+   *   (default: every stack of every atlas and view)
+   */
+  constructor(renderer, assets, which = {}) {
+    this.renderer = renderer;
+    this.assets = assets;
+    this.manifest = assets.manifest;
+    this.format = targetFormat(renderer);
+    this.m = this.manifest.compression.selected_lights;
+    this.solidAngles = this.manifest.dome.lights.map((l) => l.solid_angle_sr);
+    this.n = this.manifest.dome.count;
+    this.stacks = new Map();
+    const wanted = which.stacks ?? null;
+    for (const entry of [...this.manifest.atlases, ...this.manifest.views]) {
+      for (const [name, stack] of Object.entries(entry.stacks)) {
+        const key = `${entry.id}.${name}`;
+        if (wanted && !wanted.includes(key)) continue;
+        this.stacks.set(key, new RelightStack(assets, key, stack.compact, entry.width, entry.height, this.format, this.m));
+      }
+    }
+    this.targets = {};
+    for (const [key, s] of this.stacks) this.targets[key] = s.target;
+    this.viewSky = new Map();
+    if (which.views ?? true) {
+      for (const view of this.manifest.views) {
+        if (wanted && !wanted.some((k) => k.startsWith(`${view.id}.`))) continue;
+        this.viewSky.set(view.id, { view, target: makeTarget(view.width, view.height, this.format) });
+        this.targets[`${view.id}.sky`] = this.viewSky.get(view.id).target;
+      }
+    }
+    this.wantDome = which.dome ?? true;
+    if (this.wantDome) this.targets.dome = makeTarget(256, 64, this.format);
+    this.lightTex = null;
+    this.latest = null; // {r, sequence}: the newest vector asked for
+    this.applied = null; // {sequence, exact, selected}
+    this.relights = 0;
+    this.lastRelightMs = 0;
+    this.waitingForLights = 0;
+    this.onApplied = null; // callback after a relight
+  }
+
+  async load() {
+    await Promise.all([...this.stacks.values()].map((s) => s.load()));
+    const n = this.n;
+    this.lightData = new Float32Array(4 * n * 2);
+    this.manifest.dome.lights.forEach((l, i) => this.lightData.set([...l.centroid, 1], 4 * (n + i)));
+    this.lightTex = new THREE.DataTexture(this.lightData, n, 2, THREE.RGBAFormat, THREE.FloatType);
+    this.lightTex.minFilter = this.lightTex.magFilter = THREE.NearestFilter;
+    const invWidth2 = 1 / (0.7 * Math.sqrt(2 * Math.PI / n)) ** 2;
+    for (const entry of this.viewSky.values()) {
+      const { view } = entry;
+      const maskBitmap = await this.assets.image(view.mask);
+      const mask = new THREE.Texture(maskBitmap);
+      mask.flipY = false;
+      mask.colorSpace = THREE.NoColorSpace;
+      mask.minFilter = mask.magFilter = THREE.NearestFilter;
+      mask.generateMipmaps = false;
+      mask.needsUpdate = true;
+      entry.mask = mask;
+      entry.pass = new FullscreenPass(new THREE.RawShaderMaterial({
+        glslVersion: THREE.GLSL3,
+        vertexShader: relightVertex,
+        fragmentShader: viewSkyFragment({ lights: n, encodeRGBE: this.format.rgbe }),
+        uniforms: {
+          lightTex: { value: this.lightTex },
+          maskTex: { value: mask },
+          worldFromPixel: { value: worldFromPixel(view) },
+          invWidth2: { value: invWidth2 },
+          size: { value: new THREE.Vector2(view.width, view.height) },
+        },
+        depthTest: false,
+        depthWrite: false,
+      }));
+    }
+    if (this.wantDome) {
+      this.domePass = new FullscreenPass(new THREE.RawShaderMaterial({
+        glslVersion: THREE.GLSL3,
+        vertexShader: relightVertex,
+        fragmentShader: domeSkyFragment({ lights: n, encodeRGBE: this.format.rgbe }),
+        uniforms: {
+          lightTex: { value: this.lightTex },
+          invWidth2: { value: invWidth2 },
+          size: { value: new THREE.Vector2(256, 64) },
+        },
+        depthTest: false,
+        depthWrite: false,
+      }));
+    }
+  }
+
+  /**
+   * Ask for a relight with the vector r (n x RGB). Returns a promise that settles when a
+   * relight with this vector (or a newer one) has been drawn exactly, or with missing lights
+   * summed by the base when nothing was drawn before.
+   */
+  update(r, sequence = 0) {
+    if (r.length !== 3 * this.n) throw new Error(`light vector of ${r.length / 3} lights, the build has ${this.n}`);
+    const selected = selectLights(r, this.solidAngles, this.m);
+    this.latest = { r: Float64Array.from(r), sequence, selected };
+    const stacks = [...this.stacks.values()];
+    const ready = stacks.every((s) => selected.every((i) => s.lights.has(i)));
+    if (ready || this.applied === null) this._render(this.latest);
+    if (ready) return Promise.resolve(this.applied);
+    this.waitingForLights += 1;
+    const want = this.latest;
+    return Promise.all(stacks.map((s) => s.fetchLights(selected))).then(() => {
+      // Newer vectors may have come meanwhile: draw the newest whose lights are all here.
+      const newest = this.latest;
+      const newestReady = stacks.every((s) => newest.selected.every((i) => s.lights.has(i)));
+      if (newestReady && (this.applied === null || !this.applied.exact || this.applied.sequence !== newest.sequence)) {
+        this._render(newest);
+      } else if (this.applied?.sequence !== want.sequence) {
+        this._render(want);
+      }
+      for (const s of stacks) s.trimCache(newest.selected);
+      return this.applied;
+    });
+  }
+
+  _render({ r, sequence, selected }) {
+    const t0 = performance.now();
+    const renderer = this.renderer;
+    const autoClear = renderer.autoClear;
+    renderer.autoClear = false;
+    let exact = true;
+    for (const s of this.stacks.values()) exact = s.render(renderer, r, selected) && exact;
+    if (this.lightTex) {
+      for (let i = 0; i < this.n; i++) this.lightData.set([r[3 * i], r[3 * i + 1], r[3 * i + 2], 1], 4 * i);
+      this.lightTex.needsUpdate = true;
+      for (const entry of this.viewSky.values()) entry.pass.render(renderer, entry.target);
+      if (this.domePass) this.domePass.render(renderer, this.targets.dome);
+    }
+    renderer.autoClear = autoClear;
+    this.relights += 1;
+    this.lastRelightMs = performance.now() - t0; // CPU side only; the GPU runs on
+    this.applied = { sequence, exact, selected, r };
+    this.onApplied?.(this.applied);
+  }
+
+  /** Read one target back as float RGBA rows from the top (tests and the benchmark). */
+  read(key) {
+    const target = this.targets[key];
+    const { width, height } = target;
+    const gl = this.renderer.getContext();
+    this.renderer.setRenderTarget(target);
+    let out;
+    if (this.format.rgbe) {
+      const bytes = new Uint8Array(4 * width * height);
+      gl.readPixels(0, 0, width, height, gl.RGBA, gl.UNSIGNED_BYTE, bytes);
+      out = new Float32Array(4 * width * height);
+      for (let p = 0; p < width * height; p++) {
+        const a = bytes[4 * p + 3];
+        const f = a === 0 ? 0 : 2 ** (a - 128) / 255;
+        for (let ch = 0; ch < 3; ch++) out[4 * p + ch] = bytes[4 * p + ch] * f;
+        out[4 * p + 3] = 1;
+      }
+    } else {
+      out = new Float32Array(4 * width * height);
+      gl.readPixels(0, 0, width, height, gl.RGBA, gl.FLOAT, out);
+    }
+    this.renderer.setRenderTarget(null);
+    return { width, height, data: out };
+  }
+
+  /** Wait for the GPU to finish the last relight (for timing only). */
+  finish() {
+    const gl = this.renderer.getContext();
+    const px = new Uint8Array(4);
+    // A 1-pixel read forces the queued passes to complete.
+    const target = [...this.stacks.values()][0]?.target;
+    if (!target) return;
+    this.renderer.setRenderTarget(target);
+    if (this.format.rgbe) gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, px);
+    else gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.FLOAT, new Float32Array(4));
+    this.renderer.setRenderTarget(null);
+  }
+
+  dispose() {
+    for (const s of this.stacks.values()) s.dispose();
+    for (const entry of this.viewSky.values()) {
+      entry.target.dispose();
+      entry.pass?.dispose();
+      entry.mask?.dispose();
+    }
+    this.targets.dome?.dispose();
+    this.domePass?.dispose();
+    this.lightTex?.dispose();
+  }
+}
+
+/** R K^-1 of a view (OpenCV camera: +X right, +Y down, +Z forward) as a THREE.Matrix3. */
+export function worldFromPixel(view) {
+  const K = new THREE.Matrix3().set(...view.K.flat());
+  const W = view.world_from_camera;
+  const R = new THREE.Matrix3().set(W[0][0], W[0][1], W[0][2], W[1][0], W[1][1], W[1][2], W[2][0], W[2][1], W[2][2]);
+  return R.multiply(K.invert());
+}

@@ -1,0 +1,203 @@
+// The site model (site.glb) with daylit's materials, node by node after extras.daylit.role:
+//   virtual          lightmapped (albedo / pi x E), or in hull-plane mode shaded from the
+//                    light vector's spherical harmonics and darkened by its hull planes
+//   real             depth-only occluders over a camera view; lightmapped in the virtual visit
+//   ground           the open ground, lit by the open sky (virtual visit only)
+//   shadowing-plane  ground/wall planes: alpha = 1 - ratio over the camera view (plus an
+//                    additive draw where ratio > 1); in the visit the synthesized real
+//                    surface albedo / pi x (D - X). Hull planes: only in hull-plane mode.
+import * as THREE from 'three';
+import {
+  lightmapFragment, openGroundFragment, plainVertex, receiverFragment, sh9Fragment,
+  shadowPlaneFragment, skyFragment, skyVertex, uvVertex,
+} from './materials.glsl.js';
+import { FLOAT_DECODE, RGBE_DECODE } from './relight.glsl.js';
+
+export class Site {
+  /**
+   * @param {object} gltf from GLTFLoader
+   * @param {object} manifest
+   * @param {import('./relight.js').Relighter} relighter
+   */
+  constructor(gltf, manifest, relighter) {
+    this.root = gltf.scene;
+    this.manifest = manifest;
+    this.relighter = relighter;
+    const decode = relighter.format.rgbe ? RGBE_DECODE : FLOAT_DECODE;
+    const t = relighter.targets;
+    // Shared uniforms: one update reaches every material.
+    this.shared = {
+      exposure: { value: 1 },
+      shading: { value: 1 },
+      strength: { value: 1 },
+      flatIrradiance: { value: new THREE.Vector3(1, 1, 1) },
+      openIrradiance: { value: new THREE.Vector3(1, 1, 1) },
+      L: { value: Array.from({ length: 9 }, () => new THREE.Vector3()) },
+    };
+    this.nodes = { virtual: [], real: [], ground: [], plane: [], hull: [], brighten: [] };
+    this.groundAlbedo = new THREE.Vector3(...manifest.ground.albedo);
+    const meshes = [];
+    this.root.traverse((o) => { if (o.isMesh) meshes.push(o); });
+    for (const mesh of meshes) {
+      const info = findDaylit(mesh);
+      if (!info) continue;
+      const albedo = mesh.material?.color ? new THREE.Vector3(mesh.material.color.r, mesh.material.color.g, mesh.material.color.b) : new THREE.Vector3(0.5, 0.5, 0.5);
+      mesh.userData.daylit = info;
+      mesh.userData.albedo = albedo;
+      if (info.role === 'virtual' || info.role === 'real') {
+        mesh.userData.lightmapMaterial = this._lightmap(albedo, decode, t[`${info.atlas}.I`]);
+        if (info.role === 'virtual') {
+          mesh.userData.sh9Material = this._sh9(albedo);
+          this.nodes.virtual.push(mesh);
+        } else {
+          mesh.userData.depthMaterial = new THREE.MeshBasicMaterial({ colorWrite: false });
+          this.nodes.real.push(mesh);
+        }
+      } else if (info.role === 'ground') {
+        mesh.userData.visitMaterial = new THREE.ShaderMaterial({
+          uniforms: { exposure: this.shared.exposure, albedo: { value: albedo }, openIrradiance: this.shared.openIrradiance },
+          vertexShader: plainVertex, fragmentShader: openGroundFragment,
+          polygonOffset: true, polygonOffsetFactor: 1, polygonOffsetUnits: 4,
+        });
+        this.nodes.ground.push(mesh);
+      } else if (info.role === 'shadowing-plane') {
+        const D = t[`${info.atlas}.d`]?.texture;
+        const X = t[`${info.atlas}.I`]?.texture;
+        if (!D || !X) continue;
+        mesh.userData.shadowMaterial = this._shadow(decode, D, X, 0);
+        const bright = new THREE.Mesh(mesh.geometry, this._shadow(decode, D, X, 1));
+        bright.renderOrder = 3;
+        mesh.add(bright);
+        mesh.userData.brightMesh = bright;
+        this.nodes.brighten.push(bright);
+        mesh.renderOrder = 2;
+        if (info.atlas === 'hull') {
+          this.nodes.hull.push(mesh);
+        } else {
+          mesh.userData.receiverMaterial = new THREE.ShaderMaterial({
+            uniforms: { exposure: this.shared.exposure, strength: this.shared.strength, albedo: { value: this._receiverAlbedo(info) }, dTex: { value: D }, deltaTex: { value: X } },
+            vertexShader: uvVertex, fragmentShader: receiverFragment(decode), side: THREE.DoubleSide,
+          });
+          this.nodes.plane.push(mesh);
+        }
+      }
+    }
+    this.sky = this._skyDome(decode, t.dome?.texture);
+    this.setMode('visit', 'lightmap');
+  }
+
+  _receiverAlbedo(info) {
+    if (!info.object) return this.groundAlbedo;
+    const real = this.nodes.real.find((m) => m.userData.daylit.object === info.object);
+    return real ? real.userData.albedo : this.groundAlbedo;
+  }
+
+  _lightmap(albedo, decode, target) {
+    return new THREE.ShaderMaterial({
+      uniforms: {
+        exposure: this.shared.exposure, shading: this.shared.shading,
+        flatIrradiance: this.shared.flatIrradiance, albedo: { value: albedo },
+        irradianceTex: { value: target.texture },
+      },
+      vertexShader: uvVertex, fragmentShader: lightmapFragment(decode),
+      side: THREE.DoubleSide,
+    });
+  }
+
+  _sh9(albedo) {
+    return new THREE.ShaderMaterial({
+      uniforms: {
+        exposure: this.shared.exposure, shading: this.shared.shading,
+        flatIrradiance: this.shared.flatIrradiance, albedo: { value: albedo }, L: this.shared.L,
+      },
+      vertexShader: plainVertex, fragmentShader: sh9Fragment, side: THREE.DoubleSide,
+    });
+  }
+
+  _shadow(decode, D, X, brighten) {
+    return new THREE.ShaderMaterial({
+      uniforms: { dTex: { value: D }, deltaTex: { value: X }, strength: this.shared.strength, brighten: { value: brighten } },
+      vertexShader: uvVertex, fragmentShader: shadowPlaneFragment(decode),
+      transparent: true, depthWrite: false, side: THREE.DoubleSide,
+      ...(brighten ? {
+        blending: THREE.CustomBlending, blendSrc: THREE.DstColorFactor, blendDst: THREE.OneFactor,
+        blendEquation: THREE.AddEquation,
+      } : {}),
+      polygonOffset: true, polygonOffsetFactor: -1, polygonOffsetUnits: -4,
+    });
+  }
+
+  _skyDome(decode, texture) {
+    if (!texture) return null;
+    const sky = new THREE.Mesh(new THREE.SphereGeometry(1, 48, 24), new THREE.ShaderMaterial({
+      uniforms: { exposure: this.shared.exposure, skyTex: { value: texture }, horizon: { value: new THREE.Vector3() } },
+      vertexShader: skyVertex, fragmentShader: skyFragment(decode), side: THREE.BackSide, depthWrite: false,
+    }));
+    sky.frustumCulled = false;
+    sky.renderOrder = -1;
+    return sky;
+  }
+
+  /**
+   * @param {'visit'|'overlay'} view  visit: the synthesized site; overlay: over a camera view
+   * @param {'lightmap'|'hull'} shading the virtual objects' shading (Kakuta's two options)
+   */
+  setMode(view, shading) {
+    this.view = view;
+    this.shadingMode = shading;
+    const visit = view === 'visit';
+    for (const m of this.nodes.virtual) {
+      m.material = shading === 'hull' ? m.userData.sh9Material : m.userData.lightmapMaterial;
+    }
+    for (const m of this.nodes.real) m.material = visit ? m.userData.lightmapMaterial : m.userData.depthMaterial;
+    for (const m of this.nodes.ground) {
+      m.visible = visit;
+      m.material = m.userData.visitMaterial;
+    }
+    for (const m of this.nodes.plane) {
+      const wall = m.userData.daylit.object !== undefined;
+      // In the visit the lightmap already carries the walls' shadows; the ground plane becomes
+      // the synthesized real surface.
+      m.visible = !(visit && wall);
+      m.material = visit ? m.userData.receiverMaterial : m.userData.shadowMaterial;
+      m.userData.brightMesh.visible = !visit;
+    }
+    for (const m of this.nodes.hull) {
+      m.visible = shading === 'hull';
+      m.material = m.userData.shadowMaterial;
+    }
+    if (this.sky) this.sky.visible = visit;
+  }
+
+  /** New light: the uniforms that come from r directly (SH9, open sky). */
+  setLight({ L, openIrradiance, flatIrradiance }) {
+    this.shared.L.value.forEach((v, j) => v.set(L[3 * j], L[3 * j + 1], L[3 * j + 2]));
+    this.shared.openIrradiance.value.set(...openIrradiance);
+    this.shared.flatIrradiance.value.set(...flatIrradiance);
+    if (this.sky) {
+      const h = openIrradiance.map((e) => e / Math.PI); // a uniform sky of the same irradiance
+      this.sky.material.uniforms.horizon.value.set(...h.map((v, c) => v * this.groundAlbedo.getComponent(c)));
+    }
+  }
+
+  /** The A/B switch of the Asuka-Kyo study: shading and shadows of the virtual objects. */
+  setShading(on) {
+    this.shared.shading.value = on ? 1 : 0;
+    this.shared.strength.value = on ? 1 : 0;
+  }
+
+  /** Centre and size of the virtual objects (for cameras). */
+  bounds() {
+    const box = new THREE.Box3();
+    for (const m of this.nodes.virtual) box.expandByObject(m);
+    return box;
+  }
+}
+
+function findDaylit(object) {
+  for (let o = object; o; o = o.parent) {
+    const d = o.userData?.daylit;
+    if (d) return d;
+  }
+  return null;
+}

@@ -1,0 +1,33 @@
+// window.daylit.status: a small read-only view of the client's state for tests and kiosk
+// monitoring. Every field is a getter over the live state; assignments are refused.
+
+export function makeStatus(source) {
+  const fields = {
+    connected: () => source.stream?.state === 'open',
+    connection: () => source.stream?.state ?? 'closed',
+    stale: () => source.isStale(),
+    lightSeq: () => source.relighter?.applied?.sequence ?? null,
+    lightAgeMs: () => source.lightAgeMs(),
+    lightsExact: () => source.relighter?.applied?.exact ?? false,
+    relights: () => source.relighter?.relights ?? 0,
+    fps: () => Math.round(source.fps * 10) / 10,
+    frameMs: () => Math.round(source.frameMs * 100) / 100,
+    mode: () => source.mode,
+    shading: () => source.shadingOn,
+    shadingMode: () => source.site?.shadingMode ?? null,
+    smoothingS: () => source.smoothingS,
+    error: () => source.error,
+    ready: () => source.ready,
+    bytesLoaded: () => source.assets?.bytesLoaded ?? 0,
+    firstRelitMs: () => source.firstRelitMs,
+    siteCameraFrames: () => source.kiosk?.framesShown ?? 0,
+    occlusionMasks: () => source.stream?.messages['occlusion-mask'] ?? 0,
+    contextLost: () => source.contextLost,
+    reconnects: () => source.stream?.reconnects ?? 0,
+  };
+  const status = {};
+  for (const [name, get] of Object.entries(fields)) {
+    Object.defineProperty(status, name, { get, enumerable: true });
+  }
+  return Object.freeze(status);
+}

@@ -1,0 +1,164 @@
+// WebXR immersive-ar (Android Chrome and other browsers that have it): the reconstruction over
+// the passthrough camera at 1:1 scale. A reticle follows the ground found by hit-testing; a
+// tap places the site's origin there; twisting two fingers turns it about the vertical; one
+// finger drags it along the ground. The last alignment (relative to the session's floor
+// origin, where the visitor started the session) is kept in localStorage and applied at the
+// next start, so a visitor who starts from the same marked spot finds it in place.
+import * as THREE from 'three';
+
+const STORAGE_KEY = 'daylit.alignment.xr';
+
+export async function arSupported() {
+  try {
+    return !!(navigator.xr && await navigator.xr.isSessionSupported('immersive-ar'));
+  } catch {
+    return false;
+  }
+}
+
+export class XRView {
+  /** Start a session (call from a tap). Rejects when the browser refuses. */
+  static async open(renderer, scene, siteRoot, overlay, onEnd) {
+    const session = await navigator.xr.requestSession('immersive-ar', {
+      requiredFeatures: ['local-floor'],
+      optionalFeatures: ['hit-test', 'dom-overlay', 'light-estimation'],
+      domOverlay: { root: overlay },
+    });
+    const view = new XRView(renderer, scene, siteRoot, overlay, session, onEnd);
+    await view.init();
+    return view;
+  }
+
+  constructor(renderer, scene, siteRoot, overlay, session, onEnd) {
+    this.renderer = renderer;
+    this.scene = scene;
+    this.siteRoot = siteRoot;
+    this.overlay = overlay;
+    this.session = session;
+    this.onEnd = onEnd;
+    this.alignment = load();
+    this.reticle = new THREE.Mesh(
+      new THREE.RingGeometry(0.15, 0.2, 32).rotateX(-Math.PI / 2),
+      new THREE.MeshBasicMaterial({ color: 0xffffff, transparent: true, opacity: 0.8 }),
+    );
+    this.reticle.matrixAutoUpdate = false;
+    this.reticle.visible = false;
+    scene.add(this.reticle);
+    this.previousBackground = scene.background;
+    scene.background = null; // the passthrough camera shows through
+    this._touches = new Map();
+  }
+
+  async init() {
+    this.renderer.xr.enabled = true;
+    this.renderer.xr.setReferenceSpaceType('local-floor');
+    await this.renderer.xr.setSession(this.session);
+    this.refSpace = this.renderer.xr.getReferenceSpace();
+    try {
+      const viewer = await this.session.requestReferenceSpace('viewer');
+      this.hitSource = await this.session.requestHitTestSource?.({ space: viewer });
+    } catch {
+      this.hitSource = null; // no hit test: place in front of the visitor instead
+    }
+    this.session.addEventListener('select', () => this._place());
+    this.session.addEventListener('end', () => this._ended());
+    this._down = (e) => this._touches.set(e.pointerId, [e.clientX, e.clientY]);
+    this._up = (e) => { this._touches.delete(e.pointerId); save(this.alignment); };
+    this._move = (e) => this._gesture(e);
+    this.overlay.addEventListener('pointerdown', this._down);
+    this.overlay.addEventListener('pointerup', this._up);
+    this.overlay.addEventListener('pointermove', this._move);
+    this._apply();
+  }
+
+  _place() {
+    const p = new THREE.Vector3();
+    if (this.reticle.visible) {
+      p.setFromMatrixPosition(this.reticle.matrix);
+    } else {
+      const cam = this.renderer.xr.getCamera();
+      p.set(0, 0, -3).applyMatrix4(cam.matrixWorld);
+      p.y = 0;
+    }
+    this.alignment.position = [p.x, p.y, p.z];
+    save(this.alignment);
+    this._apply();
+  }
+
+  _gesture(e) {
+    const last = this._touches.get(e.pointerId);
+    if (!last) return;
+    const points = [...this._touches.entries()];
+    this._touches.set(e.pointerId, [e.clientX, e.clientY]);
+    if (points.length === 2) {
+      const [a, b] = points.map(([id, xy]) => (id === e.pointerId ? last : xy));
+      const [a2, b2] = points.map(([id, xy]) => (id === e.pointerId ? [e.clientX, e.clientY] : xy));
+      const before = Math.atan2(b[1] - a[1], b[0] - a[0]);
+      const after = Math.atan2(b2[1] - a2[1], b2[0] - a2[0]);
+      this.alignment.yawDeg -= THREE.MathUtils.radToDeg(after - before);
+    } else if (points.length === 1) {
+      const cam = this.renderer.xr.getCamera();
+      const yaw = new THREE.Euler().setFromQuaternion(cam.quaternion, 'YXZ').y;
+      const dx = (e.clientX - last[0]) / 100;
+      const dz = (e.clientY - last[1]) / 100;
+      this.alignment.position[0] += dx * Math.cos(yaw) + dz * Math.sin(yaw);
+      this.alignment.position[2] += -dx * Math.sin(yaw) + dz * Math.cos(yaw);
+    }
+    this._apply();
+  }
+
+  _apply() {
+    this.siteRoot.position.set(...this.alignment.position);
+    this.siteRoot.rotation.set(0, THREE.MathUtils.degToRad(this.alignment.yawDeg), 0);
+  }
+
+  update(frame) {
+    if (!frame || !this.hitSource) return;
+    const hits = frame.getHitTestResults(this.hitSource);
+    if (hits.length) {
+      const pose = hits[0].getPose(this.refSpace);
+      this.reticle.visible = true;
+      this.reticle.matrix.fromArray(pose.transform.matrix);
+    } else {
+      this.reticle.visible = false;
+    }
+  }
+
+  resetAlignment() {
+    localStorage.removeItem(STORAGE_KEY);
+    this.alignment = load();
+    this._apply();
+  }
+
+  _ended() {
+    this.overlay.removeEventListener('pointerdown', this._down);
+    this.overlay.removeEventListener('pointerup', this._up);
+    this.overlay.removeEventListener('pointermove', this._move);
+    this.scene.remove(this.reticle);
+    this.scene.background = this.previousBackground;
+    this.siteRoot.position.set(0, 0, 0);
+    this.siteRoot.rotation.set(0, 0, 0);
+    this.renderer.xr.enabled = false;
+    this.onEnd?.();
+  }
+
+  dispose() {
+    if (this.session) this.session.end().catch(() => {});
+  }
+}
+
+function load() {
+  try {
+    return { position: [0, 0, -10], yawDeg: 0, ...JSON.parse(localStorage.getItem(STORAGE_KEY) ?? '{}') };
+  } catch {
+    return { position: [0, 0, -10], yawDeg: 0 };
+  }
+}
+
+function save(alignment) {
+  try {
+    localStorage.setItem(STORAGE_KEY, JSON.stringify(alignment));
+  } catch {
+    // private browsing: kept for this session only
+  }
+}
