@@ -21,6 +21,12 @@ export function debugApi(app) {
       return { sequence: applied.sequence, exact: applied.exact, selected: applied.selected };
     },
     targets: () => Object.keys(app.relighter.targets),
+    /** The applied light vector and one target read back in the same instant. */
+    snapshot(key) {
+      const applied = app.relighter.applied;
+      const { width, height, data } = app.relighter.read(key);
+      return { sequence: applied.sequence, r: Array.from(applied.r), width, height, data: toBase64(data) };
+    },
     /** A relight target as base64 float32 RGBA, rows from the top. */
     read(key) {
       const { width, height, data } = app.relighter.read(key);
