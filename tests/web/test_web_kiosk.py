@@ -11,6 +11,7 @@ exact to 8-bit precision). Measured worst: printed by the test.
 
 from __future__ import annotations
 
+import time
 import types
 
 import cv2
@@ -33,8 +34,9 @@ KIOSK_HELLO = {"streams": ["light", "site-camera"],
                "site_camera": {"source": "test", "size": [320, 180]}}
 
 
-def light_message(r, seq, t=1.0e9):
+def light_message(r, seq, t=None):
     r = np.asarray(r, dtype=np.float32)
+    t = time.time() if t is None else t
     return protocol.encode_light(r, np.zeros(len(r), bool), seq, t, 0)
 
 
