@@ -19,6 +19,7 @@ import shutil
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 import urllib.request
@@ -196,7 +197,8 @@ class DaylitServer:
     def start(self, timeout_s: float = 60.0) -> DaylitServer:
         cmd = [sys.executable, "-m", "daylit.cli", "serve", str(self.build_dir),
                "--host", "127.0.0.1", "--port", str(self.port), *self.args]
-        self.log = open(self.build_dir.parent / f"serve-{self.port}.log", "ab")  # noqa: SIM115
+        self.log_path = Path(tempfile.gettempdir()) / f"daylit-serve-{self.port}.log"
+        self.log = open(self.log_path, "ab")  # noqa: SIM115
         self.proc = subprocess.Popen(cmd, cwd=REPO, stdout=self.log, stderr=subprocess.STDOUT)
         t0 = time.monotonic()
         while True:
@@ -213,7 +215,7 @@ class DaylitServer:
             time.sleep(0.2)
 
     def log_text(self) -> str:
-        return (self.build_dir.parent / f"serve-{self.port}.log").read_text(errors="replace")
+        return self.log_path.read_text(errors="replace")
 
     def stop(self) -> None:
         if self.proc and self.proc.poll() is None:

@@ -1,3 +1,5 @@
+import * as THREE from 'three';
+
 // Hooks for the headless-browser tests and the benchmark (window.daylit.debug, only with
 // ?test in the URL): relight with a given vector, read render targets back, time frames.
 
@@ -78,6 +80,65 @@ export function debugApi(app) {
         app.relighter.finish();
       }
       return (performance.now() - t0) / n;
+    },
+    /** Milliseconds of one stack's relight pass (n times, GPU finished), with its k and size. */
+    timeRelightStack(key, n = 5) {
+      const stack = app.relighter.stacks.get(key);
+      const { r, selected } = app.relighter.applied;
+      const gl = app.renderer.getContext();
+      const px = new Float32Array(4);
+      const once = () => {
+        stack.render(app.renderer, r, selected);
+        app.renderer.setRenderTarget(stack.target);
+        gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.FLOAT, px);
+        app.renderer.setRenderTarget(null);
+      };
+      once();
+      const t0 = performance.now();
+      for (let i = 0; i < n; i++) once();
+      return { ms: (performance.now() - t0) / n, k: stack.k, layers: stack.compact.layers.length,
+        slots: stack.slots, texels: stack.width * stack.height };
+    },
+    stacks: () => [...app.relighter.stacks.keys()],
+    /**
+     * The benchmark's baseline: the same meshes drawn the ordinary three.js way
+     * (MeshStandardMaterial, a DirectionalLight with a 2048^2 shadow map, a HemisphereLight),
+     * no shadowing planes; false puts daylit's materials back.
+     */
+    useStandardMaterials(on) {
+      const site = app.site;
+      if (on && !app._standard) {
+        const saved = new Map();
+        site.root.traverse((o) => {
+          if (!o.isMesh) return;
+          saved.set(o, { material: o.material, visible: o.visible, cast: o.castShadow, receive: o.receiveShadow });
+          const role = o.userData.daylit?.role;
+          if (role === 'shadowing-plane' || !o.userData.daylit) { o.visible = false; return; }
+          const a = o.userData.albedo;
+          o.material = new THREE.MeshStandardMaterial({ color: new THREE.Color(a.x, a.y, a.z), roughness: 0.9, metalness: 0 });
+          o.visible = true;
+          o.castShadow = role !== 'ground';
+          o.receiveShadow = true;
+        });
+        const sun = new THREE.DirectionalLight(0xffffff, 3);
+        sun.position.set(-40, 30, 40);
+        sun.castShadow = true;
+        sun.shadow.mapSize.set(2048, 2048);
+        Object.assign(sun.shadow.camera, { left: -60, right: 60, top: 60, bottom: -60, near: 1, far: 200 });
+        const hemi = new THREE.HemisphereLight(0xbfd4ff, 0x6b6050, 1);
+        app.scene.add(sun, hemi);
+        app.renderer.shadowMap.enabled = true;
+        app.renderer.shadowMap.type = THREE.PCFSoftShadowMap;
+        app._standard = { saved, lights: [sun, hemi] };
+      } else if (!on && app._standard) {
+        for (const [o, s] of app._standard.saved) {
+          if (o.material !== s.material) o.material.dispose();
+          Object.assign(o, { material: s.material, visible: s.visible, castShadow: s.cast, receiveShadow: s.receive });
+        }
+        for (const l of app._standard.lights) { app.scene.remove(l); l.dispose?.(); }
+        app.renderer.shadowMap.enabled = false;
+        app._standard = null;
+      }
     },
     loseContext() {
       const ext = app.renderer.getContext().getExtension('WEBGL_lose_context');
