@@ -15,8 +15,9 @@ SERVE_EPILOG = """\
 sky sources:
   sim                   the built-in simulated sky over the site (default): true sun
                         position for the manifest's latitude, longitude and time zone,
-                        drifting clouds; set its clock with --set sim.start=... and
-                        --set sim.clock_speed=60 (one hour a minute)
+                        drifting clouds; its clock starts in daylight at the site
+                        and runs 20 times faster (--set sim.start=now --set
+                        sim.clock_speed=1: the real sky of the moment)
   replay:PATH           a folder of images (in name order) or a video file, looping
   camera:INDEX_OR_URL   a live camera: device index (camera:0), file, or stream URL
                         (camera:rtsp://...); reconnects on its own when it stops

@@ -82,10 +82,12 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "max_interval_s": Key(5.0, "float", "send at least this often anyway", 0.1),
     },
     "sim": {
-        "start": Key("now", "str", "simulated start: now, or an ISO date-time (local time "
-                     "at the site if it has no offset), e.g. 2026-06-21T07:00"),
-        "clock_speed": Key(1.0, "float", "simulated seconds per real second", 0.0, 100000.0,
-                           True),
+        "start": Key("auto", "str", "simulated start: auto (now if the sun is up at the site, "
+                     "else the next 10:00 there; after each sunset the next 10:00 again), now, "
+                     "or an ISO date-time (local time at the site if it has no offset), e.g. "
+                     "2026-06-21T07:00"),
+        "clock_speed": Key(20.0, "float", "simulated seconds per real second (20: an hour in "
+                           "3 minutes; 1: real time)", 0.0, 100000.0, True),
         "cloud_cover": Key(0.3, "float", "fraction of the sky covered by cloud", 0.0, 1.0),
         "size_px": Key(640, "int", "width and height of the simulated fisheye image", 64, 4096),
         "noise": Key(0.002, "float", "sensor noise, fraction of full scale", 0.0, 0.2),
@@ -268,6 +270,16 @@ def load_settings(
     sky = settings.sky
     if sky.reconnect_min_s > sky.reconnect_max_s:
         raise ConfigError(f"{label}: [sky] reconnect_min_s must not exceed reconnect_max_s")
+    start = settings.sim.start
+    if start not in ("auto", "now"):
+        import datetime as dt
+
+        try:
+            dt.datetime.fromisoformat(start)
+        except ValueError:
+            raise ConfigError(f"{origin.get('sim.start', label)}: [sim] start must be auto, now "
+                              f"or an ISO date-time such as 2026-06-21T10:00, got {start!r}"
+                              ) from None
     return settings
 
 

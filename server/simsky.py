@@ -9,11 +9,18 @@ little sensor noise, clipping at white, the sRGB response curve and 8-bit codes.
 measuring code meets the real problems (a clipped sun, quantisation, a response curve), while
 :meth:`SimulatedSky.sky_at` gives the exact sky, whose patch integrals are the truth the tests
 compare with (``daylit.sky.patch_mean_radiance``).
+
+The clock (``[sim] start``): ``auto``, the default, keeps the demo in daylight whenever it is
+run: it starts now if the sun is up at the site (at least ``DAYLIGHT_ELEVATION_DEG``), else at
+the next ``MORNING_HOUR`` o'clock local time there, and when the simulated sun sets it goes on
+at the next morning's ``MORNING_HOUR`` again. ``now`` and an ISO date-time follow the clock
+through the night.
 """
 
 from __future__ import annotations
 
 import datetime as dt
+import logging
 import math
 import time
 from dataclasses import dataclass, field
@@ -40,6 +47,13 @@ from server.measure import Frame, Photometry, inverse_response_table
 # about a hundredth of a daylight sky.
 MAX_EXPOSURE = 1.0
 
+# The "auto" clock: the sun counts as up from this elevation (the simulated sky is in full
+# daylight from 2 degrees), and a new day starts at this local hour.
+DAYLIGHT_ELEVATION_DEG = 5.0
+MORNING_HOUR = 10
+
+log = logging.getLogger("daylit.simsky")
+
 
 @dataclass
 class SimClock:
@@ -54,9 +68,82 @@ class SimClock:
         wall = time.time() if wall_s is None else wall_s
         return self.start_s + self.speed * (wall - self.wall_start_s)
 
+    def jump(self, sky_time_s: float, wall_s: float | None = None) -> None:
+        """Go on from ``sky_time_s`` at wall time ``wall_s`` (now), at the same speed."""
+        self.start_s = sky_time_s
+        self.wall_start_s = time.time() if wall_s is None else wall_s
+
+
+def _site_zone(timezone: str) -> ZoneInfo:
+    try:
+        return ZoneInfo(timezone)
+    except (ZoneInfoNotFoundError, ValueError):
+        raise ValueError(f"unknown time zone {timezone!r} in the manifest") from None
+
+
+def _elevations(latitude_deg: float, longitude_deg: float, elevation_m: float,
+                times_s: np.ndarray) -> np.ndarray:
+    """Apparent sun elevation (degrees) at the site at Unix times (vectorised SPA)."""
+    import pandas as pd
+
+    from daylit.sky import sun_positions
+
+    times = pd.DatetimeIndex(pd.to_datetime(np.asarray(times_s, dtype=np.float64), unit="s",
+                                            utc=True))
+    return sun_positions(latitude_deg, longitude_deg, elevation_m, times)[1]
+
+
+def next_morning(latitude_deg: float, longitude_deg: float, elevation_m: float,
+                 timezone: str, after_s: float) -> float:
+    """The first ``MORNING_HOUR`` o'clock local time at the site after ``after_s``.
+
+    Where the sun is below ``DAYLIGHT_ELEVATION_DEG`` then (a polar winter), the time of that
+    day's highest sun instead: the brightest the day gets.
+    """
+    zone = _site_zone(timezone)
+    local = dt.datetime.fromtimestamp(after_s, zone)
+    morning = dt.datetime.combine(local.date(), dt.time(MORNING_HOUR), zone)
+    if morning.timestamp() <= after_s:
+        morning = dt.datetime.combine(local.date() + dt.timedelta(days=1), dt.time(MORNING_HOUR),
+                                      zone)
+    start_s = morning.timestamp()
+    if _elevations(latitude_deg, longitude_deg, elevation_m, [start_s])[0] >= \
+            DAYLIGHT_ELEVATION_DEG:
+        return start_s
+    midnight_s = dt.datetime.combine(morning.date(), dt.time(0), zone).timestamp()
+    times = midnight_s + np.arange(0.0, 86400.0, 600.0)
+    return float(times[np.argmax(_elevations(latitude_deg, longitude_deg, elevation_m, times))])
+
+
+def daylight_start(latitude_deg: float, longitude_deg: float, elevation_m: float,
+                   timezone: str, now_s: float | None = None) -> float:
+    """``start = "auto"``: now if the sun is up at the site, else the next morning there."""
+    now_s = time.time() if now_s is None else now_s
+    if _elevations(latitude_deg, longitude_deg, elevation_m, [now_s])[0] >= \
+            DAYLIGHT_ELEVATION_DEG:
+        return now_s
+    return next_morning(latitude_deg, longitude_deg, elevation_m, timezone, now_s)
+
+
+def sunset_after(latitude_deg: float, longitude_deg: float, elevation_m: float,
+                 start_s: float, horizon_s: float = 2 * 86400.0, step_s: float = 300.0) -> float:
+    """When the sun, up at some time after ``start_s``, next goes below
+    ``DAYLIGHT_ELEVATION_DEG`` (to ``step_s``); +inf when it does not set within ``horizon_s``
+    (midnight sun) or never rises (polar night)."""
+    times = start_s + np.arange(0.0, horizon_s, step_s)
+    up = _elevations(latitude_deg, longitude_deg, elevation_m, times) >= DAYLIGHT_ELEVATION_DEG
+    if not up.any():
+        return math.inf
+    first_up = int(np.argmax(up))
+    down = np.flatnonzero(~up[first_up:])
+    return math.inf if down.size == 0 else float(times[first_up + down[0]])
+
 
 def parse_start(text: str | None, timezone: str) -> float:
-    """Unix time from ``"now"``/None or an ISO date-time; a naive time is local at the site."""
+    """Unix time from ``"now"``/None or an ISO date-time; a naive time is local at the site.
+
+    (``"auto"`` depends on the site's sun: :func:`daylight_start`.)
+    """
     if text is None or text == "now":
         return time.time()
     try:
@@ -66,10 +153,7 @@ def parse_start(text: str | None, timezone: str) -> float:
             f"sim start {text!r} is not an ISO date-time such as 2026-06-21T10:00"
         ) from None
     if when.tzinfo is None:
-        try:
-            when = when.replace(tzinfo=ZoneInfo(timezone))
-        except (ZoneInfoNotFoundError, ValueError):
-            raise ValueError(f"unknown time zone {timezone!r} in the manifest") from None
+        when = when.replace(tzinfo=_site_zone(timezone))
     return when.timestamp()
 
 
@@ -179,6 +263,9 @@ class SimulatedSky:
         configured the same way, as it would be after calibrating a real camera).
     noise : float
         Standard deviation of sensor noise, as a fraction of full scale.
+    keep_daylight : bool
+        The ``auto`` clock: when the simulated sun sets, go on at the next morning
+        (:meth:`now`).
     """
 
     latitude_deg: float
@@ -191,6 +278,8 @@ class SimulatedSky:
     photometry: Photometry = field(default_factory=Photometry)
     noise: float = 0.002
     seed: int = 0
+    keep_daylight: bool = False
+    _sunset_s: float | None = field(default=None, init=False, repr=False)
 
     @classmethod
     def for_site(
@@ -210,8 +299,11 @@ class SimulatedSky:
         if not 0.0 <= cloud_cover <= 1.0:
             raise ValueError(f"cloud cover must be between 0 and 1, got {cloud_cover}")
         camera = camera or FisheyeCamera.equidistant(size_px, size_px)
-        # A fixed default start keeps benchmarks and tests reproducible; "now" for live use.
-        start_s = parse_start(start or "2026-06-21T10:30", timezone)
+        # A fixed default start keeps benchmarks and tests reproducible; "auto" for live use.
+        if start == "auto":
+            start_s = daylight_start(latitude_deg, longitude_deg, elevation_m, timezone)
+        else:
+            start_s = parse_start(start or "2026-06-21T10:30", timezone)
         return cls(
             latitude_deg,
             longitude_deg,
@@ -222,7 +314,27 @@ class SimulatedSky:
             CloudLayer(cover=cloud_cover, seed=seed),
             noise=noise,
             seed=seed,
+            keep_daylight=start == "auto",
         )
+
+    def now(self, wall_s: float | None = None) -> float:
+        """The simulated time now; with ``keep_daylight``, past sunset it jumps to the next
+        morning (and logs it)."""
+        t = self.clock.now(wall_s)
+        if not self.keep_daylight:
+            return t
+        site = (self.latitude_deg, self.longitude_deg, self.elevation_m)
+        if self._sunset_s is None:
+            self._sunset_s = sunset_after(*site, t)
+        if t >= self._sunset_s:
+            morning = next_morning(*site, self.timezone, t)
+            self.clock.jump(morning, wall_s)
+            self._sunset_s = sunset_after(*site, morning)
+            local = dt.datetime.fromtimestamp(morning, ZoneInfo(self.timezone))
+            log.info("simulated sky: the sun has set at the site; going on at %s",
+                     local.isoformat(timespec="minutes"))
+            t = morning
+        return t
 
     @cached_property
     def _pixel_dirs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

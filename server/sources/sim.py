@@ -26,14 +26,18 @@ class SimSource(Source):
     async def run(self, deliver: Deliver) -> None:
         next_s = time.monotonic()
         while True:
-            sky_s = self.sim.clock.now()
-            # Rendering takes tens of milliseconds of numpy: keep it off the event loop.
-            frame = await asyncio.to_thread(self.sim.render_at, sky_s)
+            # Rendering takes tens of milliseconds of numpy (and the auto clock's sunset look-up
+            # a few more now and then): keep it off the event loop.
+            sky_s, frame = await asyncio.to_thread(self._render_now)
             frame.capture_time_s = time.time()  # when the "camera" hands the image over
             self._last_sky_time_s = sky_s
             deliver(frame)
             next_s = max(next_s + self.period_s, time.monotonic())
             await asyncio.sleep(next_s - time.monotonic())
+
+    def _render_now(self):
+        sky_s = self.sim.now()
+        return sky_s, self.sim.render_at(sky_s)
 
     def status(self) -> dict:
         if self._last_sky_time_s is None:
