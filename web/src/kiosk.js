@@ -122,6 +122,7 @@ export class Kiosk {
       this.shownMask = mask;
       if (mask) {
         const tex = new THREE.DataTexture(mask.mask, mask.width, mask.height, THREE.RedFormat);
+        tex.unpackAlignment = 1; // rows of any width, one byte a pixel
         tex.minFilter = tex.magFilter = THREE.NearestFilter;
         tex.needsUpdate = true;
         this.occlusionTex.dispose();
