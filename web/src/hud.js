@@ -97,8 +97,9 @@ export class Hud {
     };
     lights.forEach((light, i) => {
       const lum = Math.max(1e-9, luminance(r, i));
-      // Hue from the patch's own RGB, brightness (lum / max)^(1/2.2) so dim patches still show.
-      const level = Math.pow(lum / max, 1 / 2.2) * 255;
+      // Hue from the patch's own RGB, brightness (lum / max)^(1/4): the sun's patch can be a
+      // hundred times the sky's, and the sky's own gradient should still show.
+      const level = Math.pow(lum / max, 1 / 4) * 255;
       const rgb = [0, 1, 2].map((ch) => Math.min(255, Math.round((Math.max(0, r[3 * i + ch]) / lum) * level)));
       ctx.beginPath();
       light.vertices.map(project).forEach(([px, py], j) => (j ? ctx.lineTo(px, py) : ctx.moveTo(px, py)));

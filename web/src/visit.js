@@ -19,8 +19,10 @@ export class VisitView {
     this.controls.maxPolarAngle = Math.PI * 0.49; // stay above the ground
     this.controls.minDistance = radius * 0.3;
     this.controls.maxDistance = radius * 6;
-    // From the south-east, a little above eye height of a tall visitor on a hill.
-    camera.position.copy(centre).add(new THREE.Vector3(radius * 1.3, radius * 0.55, radius * 1.6));
+    // From the south-east, a little above eye height of a tall visitor on a hill; further
+    // away on a portrait screen so that the whole width of the site fits.
+    const fit = Math.max(1, 1.1 / Math.max(0.3, camera.aspect));
+    camera.position.copy(centre).add(new THREE.Vector3(radius * 1.3, radius * 0.55, radius * 1.6).multiplyScalar(fit));
     camera.near = 0.1;
     camera.far = radius * 40;
     camera.updateProjectionMatrix();
