@@ -1,0 +1,21 @@
+// Runs web/src/lightmath.js on the cases given as JSON on stdin and prints the results, for
+// tests/web/test_lightmath_js.py to compare with Python's reference.
+import { readFileSync } from 'node:fs';
+import {
+  baseCoefficients, irradianceSH9, LightSmoother, openSkyIrradiance, selectLights, skySH9,
+} from '../../web/src/lightmath.js';
+
+const input = JSON.parse(readFileSync(0, 'utf8'));
+const out = { select: [], coefficients: [], sh9: [], open: [], smoothing: [] };
+for (const c of input.select) out.select.push(selectLights(c.r.flat(), c.solid, c.m));
+for (const c of input.coefficients) {
+  out.coefficients.push(Array.from(baseCoefficients(Float32Array.from(c.V.flat()), c.k, c.r.flat(), c.selected)));
+}
+for (const c of input.sh9) out.sh9.push(irradianceSH9(skySH9(c.r.flat(), c.sh9), c.normal));
+for (const c of input.open) out.open.push(openSkyIrradiance(c.r.flat(), c.cosw));
+const s = new LightSmoother(2.0);
+s.push([0, 0, 0], 0);
+s.push([1, 1, 1], 0);
+s.step(2.0);
+out.smoothing.push(Array.from(s.value));
+process.stdout.write(JSON.stringify(out));

@@ -1,0 +1,59 @@
+"""web/src/lightmath.js (run by Node) against the Python reference: the light selection
+A(r) with its tie rule, c = V^T r', the spherical-harmonic shading of hull-plane mode, the
+open-sky irradiance and the client's smoothing."""
+
+import json
+import math
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bake.compress import select_lights
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.mark.skipif(shutil.which("node") is None, reason="node is not installed")
+def test_lightmath_matches_python(reference):
+    manifest = reference.manifest
+    lights = manifest["dome"]["lights"]
+    n = len(lights)
+    solid = [light["solid_angle_sr"] for light in lights]
+    rng = np.random.default_rng(11)
+    cases_select = [
+        {"r": reference.light_vector("clear:135,40").tolist(), "solid": solid, "m": 4},
+        {"r": np.ones((n, 3)).tolist(), "solid": [1.0] * n, "m": 4},  # all tied: lowest
+        {"r": np.where(rng.random((n, 1)) < 0.9, 0.0, rng.random((n, 3))).tolist(),
+         "solid": solid, "m": 4},  # mostly zero: zero-score lights never chosen
+    ]
+    V = rng.normal(size=(n, 5)).astype(np.float32)
+    r = rng.random((n, 3))
+    up = [0.0, 1.0, 0.0]
+    cases = {
+        "select": cases_select,
+        "coefficients": [{"V": V.tolist(), "k": 5, "r": r.tolist(), "selected": [1, 7]}],
+        "sh9": [{"r": np.ones((n, 3)).tolist(), "sh9": [light["sh9"] for light in lights],
+                 "normal": up}],
+        "open": [{"r": np.ones((n, 3)).tolist(),
+                  "cosw": [light["cosine_weighted_sr"] for light in lights]}],
+    }
+    result = subprocess.run(["node", str(ROOT / "tests" / "web" / "lightmath_cases.mjs")],
+                            input=json.dumps(cases), capture_output=True, text=True,
+                            timeout=60, check=True)
+    got = json.loads(result.stdout)
+    for case, chosen in zip(cases_select, got["select"], strict=True):
+        want = select_lights(np.array(case["r"]), np.array(case["solid"]), case["m"]).tolist()
+        assert chosen == want
+    assert got["select"][1] == [0, 1, 2, 3]
+    rest = r.copy()
+    rest[[1, 7]] = 0.0
+    assert np.allclose(np.array(got["coefficients"][0]).reshape(5, 3), V.T.astype(float) @ rest,
+                       rtol=1e-6, atol=1e-9)
+    # A uniform sky of unit radiance: pi on an upward surface, from the SH9 (exact for l <= 2
+    # over a hemisphere) and from the cosine-weighted solid angles.
+    assert np.allclose(got["sh9"][0], math.pi, rtol=5e-3)
+    assert np.allclose(got["open"][0], math.pi, rtol=1e-6)
+    assert np.allclose(got["smoothing"][0], 1.0 - math.exp(-1.0))
