@@ -70,6 +70,12 @@ class Dome:
         """(n,) solid angle of each light in sr; sums to 2 pi."""
         return solid_angle(self.vertices)
 
+    @property
+    def cosine_weighted_sr(self) -> np.ndarray:
+        """(n,) irradiance an open upward surface gets from each light at unit radiance,
+        ``integral of cos(zenith) over the patch``; sums to pi."""
+        return clipped_cosine_integral(self.vertices, np.array([[0.0, 1.0, 0.0]]))[0]
+
     @classmethod
     def build(cls, kind: str, frequency: int) -> Dome:
         if kind == "icosahedral":
@@ -109,7 +115,7 @@ class Dome:
         """
         omega = self.solid_angles_sr
         centroids = self.centroids
-        up = clipped_cosine_integral(self.vertices, np.array([[0.0, 1.0, 0.0]]))[0]
+        up = self.cosine_weighted_sr
         sh9 = patch_sh9(self.vertices)
         return {
             "kind": self.kind,

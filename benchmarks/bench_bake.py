@@ -1,0 +1,187 @@
+"""Baking benchmark (issues 2 and 3): bake time, ray throughput and compact-asset sizes.
+
+Bakes the demo site at the given light counts (final quality by default) and prints, for each:
+
+- bake time by stage (receivers, bounce cache, tracing, assembly, compression);
+- rays per second achieved by the baker against the *raw* rate of the same ray engine measured
+  in the same run on the same geometry with the same number of processes (random occlusion
+  rays from points of the site; the goal is at least half);
+- the compact assets: k, error and bytes per stack, what a phone and the kiosk download;
+- optionally (``--etc1s``) the same stacks encoded with ETC1S instead of UASTC.
+
+Usage::
+
+    .venv/bin/python benchmarks/bench_bake.py [--lights 160 400] [--quality final] [--etc1s]
+
+The machine is shared and noisy: read the ratio, not the seconds. Results go in
+docs/benchmarks.md by hand.
+"""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures as futures
+import json
+import os
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO))
+
+from bake import compress  # noqa: E402
+from bake.evaluate import Build  # noqa: E402
+from bake.pipeline import bake, session_download_bytes  # noqa: E402
+from bake.raytrace import Geometry, RayScene  # noqa: E402
+from bake.scene import load_site  # noqa: E402
+
+_GEOMETRY = {}
+
+
+def _geometry() -> Geometry:
+    site = load_site(REPO / "scenes" / "demo")
+    parts = site.virtual + [p.part for p in site.real] + [site.ground.part]
+    flags = [True] * len(site.virtual) + [False] * (len(site.real) + 1)
+    return Geometry.from_parts(parts, flags)
+
+
+def _raw_worker(seed: int, rays: int) -> tuple[int, float]:
+    geometry = _GEOMETRY.setdefault("g", _geometry())
+    scene = RayScene(geometry)
+    rng = np.random.default_rng(seed)
+    lo = geometry.vertices.min(axis=0)
+    hi = geometry.vertices.max(axis=0)
+    origins = rng.uniform([lo[0] / 3, 0.05, lo[2] / 3], [hi[0] / 3, 12.0, hi[2] / 3], (rays, 3))
+    dirs = rng.normal(size=(rays, 3))
+    dirs[:, 1] = np.abs(dirs[:, 1])
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    scene.occluded(origins[:1000], dirs[:1000])  # warm up
+    started = time.perf_counter()
+    for start in range(0, rays, 2_000_000):
+        scene.occluded(origins[start : start + 2_000_000], dirs[start : start + 2_000_000])
+    return rays, time.perf_counter() - started
+
+
+def raw_ray_rate(workers: int, rays_per_worker: int = 8_000_000) -> float:
+    """Occlusion rays per second of Embree alone on the demo, ``workers`` processes at once."""
+    with futures.ProcessPoolExecutor(max_workers=workers) as pool:
+        results = list(pool.map(_raw_worker, range(workers), [rays_per_worker] * workers))
+    return sum(r for r, _ in results) / max(t for _, t in results)
+
+
+def bench_lights(lights: int, quality: str, workers: int, keep: Path | None) -> dict:
+    out = (keep or Path(tempfile.mkdtemp(prefix="daylit-bench-"))) / f"demo-{lights}"
+    if out.exists():
+        shutil.rmtree(out)
+    partial = out.parent / f".{out.name}.partial"
+    if partial.exists():
+        shutil.rmtree(partial)
+    raw_before = raw_ray_rate(workers)
+    result = bake(REPO / "scenes" / "demo", out, lights=lights, quality=quality,
+                  workers=workers, progress=False, log=lambda m: None)
+    raw_after = raw_ray_rate(workers)
+    raw = 0.5 * (raw_before + raw_after)
+    manifest = result.manifest
+    sizes = session_download_bytes(manifest, out)
+    total = sum(f["bytes"] for f in manifest["files"])
+    compact = sum(f["bytes"] for f in manifest["files"]
+                  if f["path"].startswith(("ktx2/", "v/")) or f["path"] == "site.glb")
+    return {
+        "lights": manifest["dome"]["count"], "quality": quality, "workers": workers,
+        "duration_s": result.duration_s, "stage_s": result.stage_s,
+        "rays": result.rays, "rays_per_s": result.rays_per_s, "raw_rays_per_s": raw,
+        "raw_spread": abs(raw_before - raw_after) / raw,
+        "report": manifest["compression"]["report"],
+        "phone_bytes": sizes["phone"], "kiosk_bytes": sizes["kiosk"],
+        "compact_bytes_all": compact, "build_bytes": total, "out": str(out),
+    }
+
+
+def etc1s_comparison(build_dir: Path) -> list[dict]:
+    """Recompress every stack of a build with ETC1S and compare with its UASTC report."""
+    build = Build(build_dir)
+    m = build.manifest
+    skies, S, S_inv = compress.prepare(m["scene"], build.dome_vertices, build.solid_angles,
+                                       m["compression"]["selected_lights"])
+    settings = compress.Settings(encoding="etc1s", budget=m["compression"]["budget"],
+                                 selected_lights=m["compression"]["selected_lights"])
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        for entry in m["atlases"] + m["views"]:
+            stacks = {name: build.stack(entry["id"], name) for name in entry["stacks"]}
+            started = time.perf_counter()
+            if sorted(stacks) == ["I", "d"]:
+                results = compress.compress_ratio_pair(
+                    stacks["I"], stacks["d"], (f"{entry['id']}.I", f"{entry['id']}.d"), tmp,
+                    skies, S, S_inv, build.solid_angles, settings)
+                names = ["I", "d"]
+            else:
+                names = sorted(stacks)
+                results = [compress.compress_stack(stacks[n], f"{entry['id']}.{n}", tmp, skies,
+                                                   S, S_inv, build.solid_angles, settings)
+                           for n in names]
+            seconds = time.perf_counter() - started
+            for name, r in zip(names, results, strict=True):
+                rows.append({"stack": f"{entry['id']}.{name}", "k": r.entry["k"],
+                             "error": r.entry["error"]["max"], "base_bytes": r.base_bytes,
+                             "light_bytes": r.light_bytes, "seconds": seconds / len(names)})
+    return rows
+
+
+def print_result(r: dict) -> None:
+    s = r["stage_s"]
+    print(f"\n== demo, {r['lights']} lights, {r['quality']}, {r['workers']} workers")
+    print(f"bake {r['duration_s']:.0f} s: receivers {s.get('receivers', 0):.0f} s, "
+          f"cache {s.get('cache', 0):.0f} s, trace {s.get('trace', 0):.0f} s, "
+          f"assemble {s.get('assemble', 0):.0f} s, compress {s.get('compress', 0):.0f} s")
+    print(f"rays {r['rays'] / 1e6:.0f} M; baker {r['rays_per_s'] / 1e6:.2f} M rays/s; raw engine "
+          f"{r['raw_rays_per_s'] / 1e6:.2f} M rays/s (spread {r['raw_spread']:.0%}); ratio "
+          f"{r['rays_per_s'] / r['raw_rays_per_s']:.2f} (goal >= 0.5)")
+    print(f"{'stack':<14}{'k':>4}{'error':>8}{'base MB':>9}{'lights MB':>11}{'kB/light':>10}"
+          f"{'encode s':>10}")
+    for row in r["report"]:
+        print(f"{row['stack']:<14}{row['k']:>4}{row['error']:>8.2%}{row['base_bytes'] / 1e6:>9.2f}"
+              f"{row['light_bytes'] / 1e6:>11.1f}{row['light_bytes_per_light'] / 1e3:>10.1f}"
+              f"{row['encode_s']:>10.1f}")
+    print(f"a phone downloads {r['phone_bytes'] / 1e6:.1f} MB, the kiosk "
+          f"{r['kiosk_bytes'] / 1e6:.1f} MB; all compact files {r['compact_bytes_all'] / 1e6:.0f}"
+          f" MB; whole build with EXR masters {r['build_bytes'] / 1e6:.0f} MB")
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--lights", type=int, nargs="+", default=[160, 400])
+    parser.add_argument("--quality", choices=("draft", "final"), default="final")
+    parser.add_argument("--workers", type=int, default=os.cpu_count())
+    parser.add_argument("--etc1s", action="store_true", help="also recompress with ETC1S")
+    parser.add_argument("--keep", type=Path, help="keep the builds in this folder")
+    parser.add_argument("--json", type=Path, help="write the figures as JSON")
+    args = parser.parse_args()
+    results = []
+    for lights in args.lights:
+        r = bench_lights(lights, args.quality, args.workers, args.keep)
+        print_result(r)
+        if args.etc1s:
+            rows = etc1s_comparison(Path(r["out"]))
+            r["etc1s"] = rows
+            print("ETC1S instead of UASTC:")
+            for row in rows:
+                print(f"  {row['stack']:<14}{row['k']:>4}{row['error']:>8.2%}"
+                      f"{row['base_bytes'] / 1e6:>9.2f} MB base {row['light_bytes'] / 1e6:>8.1f}"
+                      f" MB lights {row['seconds']:>7.1f} s")
+        results.append(r)
+        if not args.keep:
+            shutil.rmtree(Path(r["out"]).parent, ignore_errors=True)
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=1, default=float))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
