@@ -7,7 +7,8 @@ fail, with a pause that doubles up to 30 s, so the server keeps going for days:
 
 - the sky source (sim, replay or camera) -> ``LightPipeline.deliver``;
 - measuring (newest frame -> vector -> hub), and the stale-light watchdog;
-- the site camera, when configured.
+- the site camera, when configured, with occlusion by visitors on its frames
+  (:mod:`server.occlusionfeed`: a worker process, started with the site camera).
 """
 
 from __future__ import annotations
@@ -29,7 +30,8 @@ from server import protocol
 from server.config import ConfigError, Settings, SourceSpec, load_settings
 from server.fisheye import FisheyeCamera, load_calibration
 from server.lightstream import LightHub
-from server.measure import Photometry, SkyMeter, TemporalFilter
+from server.measure import Photometry, SkyMeter, TemporalFilter, inverse_response_table
+from server.occlusionfeed import OcclusionConfig, OcclusionRunner
 from server.pipeline import LightPipeline
 from server.routes import add_static_routes
 from server.simsky import SimulatedSky
@@ -43,6 +45,8 @@ MANIFEST = web.AppKey("manifest", dict)
 HUB = web.AppKey("hub", LightHub)
 PIPELINE = web.AppKey("pipeline", LightPipeline)
 SITE_CAMERA = web.AppKey("site_camera", object)  # SiteCameraFeed or None
+OCCLUSION = web.AppKey("occlusion", object)  # OcclusionRunner or None
+OCCLUSION_OFF = web.AppKey("occlusion_off", str)  # why there is no occlusion ("" if there is)
 SUPERVISOR = web.AppKey("supervisor", object)
 
 
@@ -128,8 +132,6 @@ def make_photometry(settings: Settings) -> Photometry:
         saturation_level=sky.saturation_level,
     )
     try:
-        from server.measure import inverse_response_table
-
         inverse_response_table(photometry.response)
     except ValueError as exc:
         raise ConfigError(f"[sky] response: {exc}") from None
@@ -163,6 +165,36 @@ def make_meter(settings: Settings, manifest: dict, simulated: SimulatedSky | Non
     )
 
 
+def make_occlusion(settings: Settings, manifest: dict, build_dir: Path,
+                   has_site_camera: bool) -> tuple[OcclusionRunner | None, str]:
+    """The occlusion runner for the site camera, or None and the reason why there is none."""
+    occ = settings.occlusion
+    if not has_site_camera:
+        return None, "no site camera"
+    if not occ.enabled:
+        return None, "[occlusion] enabled = false"
+    views = manifest["views"]
+    if occ.view and not any(v["id"] == occ.view for v in views):
+        known = ", ".join(v["id"] for v in views) or "none"
+        raise ConfigError(f"[occlusion] view {occ.view!r} is not a view of the build "
+                          f"(views: {known})")
+    if not views:
+        log.warning("occlusion off: the build has no fixed view for the site camera (bake the "
+                    "scene with a [[view]])")
+        return None, "the build has no fixed view"
+    try:
+        inverse_response_table(occ.response)
+    except ValueError as exc:
+        raise ConfigError(f"[occlusion] response: {exc}") from None
+    view = next(v for v in views if v["id"] == occ.view) if occ.view else views[0]
+    config = OcclusionConfig(
+        build_dir=str(build_dir), view_id=view["id"],
+        view_size=(int(view["width"]), int(view["height"])), max_width=occ.max_width,
+        learn_frames=occ.learn_frames, response=occ.response,
+    )
+    return OcclusionRunner(config, occ.worker), ""
+
+
 def create_app(
     build_dir: Path | str,
     settings: Settings | None = None,
@@ -186,6 +218,8 @@ def create_app(
     if site_source is None and settings.site_camera.source is not None:
         site_source = make_site_source(settings.site_camera.source, settings)
 
+    occlusion, occlusion_off = make_occlusion(settings, manifest, build_dir,
+                                              site_source is not None)
     light_count = manifest["dome"]["count"]
     stream = settings.stream
     site_feed: SiteCameraFeed | None = None
@@ -194,6 +228,10 @@ def create_app(
         site = None
         if site_feed is not None:
             site = {"source": site_feed.source.name, "size": site_feed.size}
+        occ = None
+        if occlusion is not None:
+            occ = {"view": occlusion.config.view_id,
+                   "size": list(occlusion.size) if occlusion.size else None}
         return protocol.hello_message(
             scene_id=scene["id"],
             light_count=light_count,
@@ -206,6 +244,7 @@ def create_app(
             server_time_s=time.time(),
             extra={"server": f"daylit {__version__}", "asset_query": "v",
                    "views": [v["id"] for v in manifest["views"]]},
+            occlusion=occ,
         )
 
     srv = settings.server
@@ -216,10 +255,11 @@ def create_app(
         slow_client_timeout_s=srv.slow_client_timeout_s,
         client_max_messages_per_s=srv.client_max_messages_per_s,
         site_camera_available=site_source is not None,
+        occlusion_available=occlusion is not None,
     )
     if site_source is not None:
         site_feed = SiteCameraFeed(site_source, hub, settings.site_camera.jpeg_quality,
-                                   settings.site_camera.max_width)
+                                   settings.site_camera.max_width, occlusion)
     temporal = TemporalFilter(stream.smoothing_s, stream.change_threshold, stream.max_interval_s)
     pipeline = LightPipeline(meter, temporal, hub, sky_source, settings.sky.stale_after_s)
 
@@ -229,6 +269,8 @@ def create_app(
     app[HUB] = hub
     app[PIPELINE] = pipeline
     app[SITE_CAMERA] = site_feed
+    app[OCCLUSION] = occlusion
+    app[OCCLUSION_OFF] = occlusion_off
     app[SUPERVISOR] = Supervisor(settings.sky.reconnect_min_s, settings.sky.reconnect_max_s)
     app.cleanup_ctx.append(background_tasks)
     app.router.add_get("/ws/light", hub.handle, name="light")
@@ -248,11 +290,23 @@ async def background_tasks(app: web.Application):
     supervisor.start("stale watchdog", pipeline.watch_forever)
     feed = app[SITE_CAMERA]
     if feed is not None:
-        supervisor.start("site camera", lambda: feed.source.run(feed.deliver))
+        supervisor.start("site camera", feed.run_source)
         supervisor.start("site camera encoder", feed.run_forever)
     yield
     await supervisor.stop()
     await app[HUB].close_all()
+    if app[OCCLUSION] is not None:
+        await app[OCCLUSION].close()
+
+
+def relearn_occlusion(app: web.Application) -> bool:
+    """The operator's reset (SIGHUP): learn the empty site again. False if there is none."""
+    runner = app[OCCLUSION]
+    if runner is None:
+        log.info("no occlusion to re-learn (%s)", app[OCCLUSION_OFF])
+        return False
+    runner.relearn()
+    return True
 
 
 async def status(request: web.Request) -> web.Response:
@@ -271,12 +325,23 @@ async def status(request: web.Request) -> web.Response:
         "server_time_s": time.time(),
         "restarts": app[SUPERVISOR].restarts,
         "site_camera": feed.status() if feed is not None else None,
+        "occlusion": occlusion_status(app),
     }
     if pipeline.temporal.value is not None:
         body["mean_radiance"] = np.round(pipeline.temporal.value.mean(axis=0), 4).tolist()
     resp = web.json_response(body, headers={"Cache-Control": "no-store"})
     resp.enable_compression()
     return resp
+
+
+def occlusion_status(app: web.Application) -> dict | None:
+    """``occlusion`` of ``/api/status``: None without a site camera."""
+    runner = app[OCCLUSION]
+    if runner is not None:
+        return runner.status()
+    if app[SITE_CAMERA] is None:
+        return None
+    return {"state": "off", "reason": app[OCCLUSION_OFF]}
 
 
 async def sky_jpeg(request: web.Request) -> web.Response:

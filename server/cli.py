@@ -6,6 +6,7 @@ import argparse
 import asyncio
 import errno
 import logging
+import os
 import signal
 import socket
 import sys
@@ -143,7 +144,7 @@ def run_serve(args: argparse.Namespace) -> int:
 async def _serve(app, settings, log) -> int:
     from aiohttp import web
 
-    from server.app import MANIFEST, PIPELINE
+    from server.app import MANIFEST, OCCLUSION, PIPELINE, relearn_occlusion
 
     host, port = settings.server.host, settings.server.port
     runner = web.AppRunner(app, handle_signals=False, access_log=None)
@@ -167,6 +168,16 @@ async def _serve(app, settings, log) -> int:
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
+    if app[OCCLUSION] is not None:
+        view = app[OCCLUSION].config.view_id
+        print(f"daylit: occlusion by visitors on the site camera (view {view!r}); "
+              f"kill -HUP {os.getpid()} re-learns the empty site", flush=True)
+
+    def hangup() -> None:
+        log.info("SIGHUP")
+        relearn_occlusion(app)
+
+    loop.add_signal_handler(signal.SIGHUP, hangup)
     started = time.monotonic()
     try:
         await stop.wait()

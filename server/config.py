@@ -30,6 +30,7 @@ class Key:
     minimum: float | None = None
     maximum: float | None = None
     exclusive_minimum: bool = False
+    choices: tuple[str, ...] | None = None  # for "str": the only values allowed
 
 
 SCHEMA: dict[str, dict[str, Key]] = {
@@ -100,6 +101,22 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "jpeg_quality": Key(80, "int", "JPEG quality of streamed frames", 10, 100),
         "max_width": Key(1280, "int", "frames wider than this are scaled down", 64, 8192),
     },
+    "occlusion": {
+        "enabled": Key(True, "bool", "find visitors in front of the virtual buildings in the "
+                       "site camera's frames and stream their mask (needs a site camera and a "
+                       "fixed view in the build)"),
+        "view": Key("", "str", "the build's fixed view the site camera is calibrated to; "
+                    "empty: the first"),
+        "max_width": Key(1024, "int", "frames wider than this are scaled down for occlusion; "
+                         "masks have that size", 64, 8192),
+        "learn_frames": Key(10, "int", "frames of the empty site learned as the background at "
+                            "start and after a relearn (SIGHUP)", 1, 1000),
+        "response": Key("srgb", "str", "inverse response of the site camera: srgb | linear | "
+                        "gamma:G"),
+        "worker": Key("process", "str", "where frames are processed: process (a worker "
+                      "process; the light stream never waits for it) | thread",
+                      choices=("process", "thread")),
+    },
 }
 
 
@@ -146,6 +163,8 @@ def _check(where: str, key: Key, value: Any) -> Any:
     if kind == "str":
         if not isinstance(value, str):
             raise fail("a string")
+        if key.choices is not None and value not in key.choices:
+            raise fail(" | ".join(key.choices))
         return value
     if kind == "source":
         if not isinstance(value, str):
@@ -280,6 +299,10 @@ def load_settings(
             raise ConfigError(f"{origin.get('sim.start', label)}: [sim] start must be auto, now "
                               f"or an ISO date-time such as 2026-06-21T10:00, got {start!r}"
                               ) from None
+    response = settings.occlusion.response
+    if response not in ("srgb", "linear") and not response.startswith("gamma:"):
+        raise ConfigError(f"{origin.get('occlusion.response', label)}: [occlusion] response "
+                          f"must be srgb, linear or gamma:G, got {response!r}")
     return settings
 
 

@@ -5,6 +5,10 @@ task that wakes when something new is published and sends the newest message at 
 while a client's connection is slow, newer messages simply replace older ones, so nothing queues
 up and no client waits for another. Publishing is a plain function call that never waits.
 
+A site-camera frame and its occlusion mask are published together as one *frame bundle*: a
+client subscribed to both streams gets the SITE_CAMERA message and then, next on the wire, the
+OCCLUSION_MASK message of the same frame (same capture time), never a mask of another frame.
+
 Per connection (``GET /ws/light``):
 - the Origin must be the page's own or in ``allowed_origins`` (else HTTP 403);
 - beyond ``max_clients`` the connection is accepted and closed at once with 1013;
@@ -34,6 +38,8 @@ log = logging.getLogger("daylit.stream")
 
 LIGHT = "light"
 SITE_CAMERA = "site-camera"
+OCCLUSION = "occlusion"
+FRAME_STREAMS = (SITE_CAMERA, OCCLUSION)  # the parts of a frame bundle, in wire order
 
 
 @dataclass(eq=False)  # identity: each connection is its own client
@@ -46,6 +52,7 @@ class Client:
     transport: asyncio.BaseTransport | None = None
     wake: asyncio.Event = field(default_factory=asyncio.Event)
     sent: dict[str, int] = field(default_factory=dict)
+    sent_frame: int | None = None  # the last frame bundle sent
     connected_at_s: float = field(default_factory=time.time)
     tokens: float = 0.0
     token_time_s: float = field(default_factory=time.monotonic)
@@ -75,6 +82,7 @@ class LightHub:
         slow_client_timeout_s: float = 30.0,
         client_max_messages_per_s: float = 10.0,
         site_camera_available: bool = False,
+        occlusion_available: bool = False,
     ):
         self.hello = hello
         self.max_clients = max_clients
@@ -82,16 +90,23 @@ class LightHub:
         self.slow_client_timeout_s = slow_client_timeout_s
         self.client_rate = client_max_messages_per_s
         self.site_camera_available = site_camera_available
+        self.occlusion_available = occlusion_available and site_camera_available
         self.clients: set[Client] = set()
         self.latest: dict[str, tuple[int, bytes]] = {}
-        self.sequence: dict[str, int] = {LIGHT: 0, SITE_CAMERA: 0}
+        # The newest site-camera frame: (bundle number, {stream: message}), see publish_frame.
+        self.latest_frame: tuple[int, dict[str, bytes]] | None = None
+        self.frames_published = 0
+        self.sequence: dict[str, int] = {LIGHT: 0, SITE_CAMERA: 0, OCCLUSION: 0}
         self.refused = 0
         self.closed_for_protocol = 0
 
     # --------------------------------------------------------------------------- publishing
 
     def publish(self, stream: str, data: bytes, sequence: int) -> None:
-        """Make ``data`` the newest message of ``stream`` and wake its subscribers."""
+        """Make ``data`` the newest message of ``stream`` (``light``) and wake its subscribers.
+
+        Site-camera frames and masks go through :meth:`publish_frame` instead.
+        """
         self.latest[stream] = (sequence, data)
         for client in self.clients:
             if stream in client.streams:
@@ -105,9 +120,34 @@ class LightHub:
         return seq
 
     def publish_site_camera(self, jpeg: bytes, capture_time_s: float, flags: int = 0) -> int:
+        """Publish a site-camera frame without a mask; returns its sequence number."""
+        return self.publish_frame(jpeg, capture_time_s, flags)
+
+    def publish_frame(
+        self,
+        jpeg: bytes,
+        capture_time_s: float,
+        flags: int = 0,
+        mask_payload: bytes | None = None,
+        mask_flags: int = 0,
+    ) -> int:
+        """Publish one site-camera frame and, when given, its occlusion mask, as one bundle.
+
+        ``mask_payload`` is :func:`server.occlusion.codec.encode_mask`'s output; its message
+        carries the frame's capture time. Returns the SITE_CAMERA sequence number.
+        """
         seq = self.sequence[SITE_CAMERA] = (self.sequence[SITE_CAMERA] + 1) & 0xFFFFFFFF
-        data = protocol.encode_blob(MessageType.SITE_CAMERA, jpeg, seq, capture_time_s, flags)
-        self.publish(SITE_CAMERA, data, seq)
+        parts = {SITE_CAMERA: protocol.encode_blob(MessageType.SITE_CAMERA, jpeg, seq,
+                                                   capture_time_s, flags)}
+        if mask_payload is not None:
+            mseq = self.sequence[OCCLUSION] = (self.sequence[OCCLUSION] + 1) & 0xFFFFFFFF
+            parts[OCCLUSION] = protocol.encode_blob(MessageType.OCCLUSION_MASK, mask_payload,
+                                                    mseq, capture_time_s, mask_flags)
+        self.frames_published += 1
+        self.latest_frame = (self.frames_published, parts)
+        for client in self.clients:
+            if not client.streams.isdisjoint(parts):
+                client.wake.set()
         return seq
 
     # ----------------------------------------------------------------------------- clients
@@ -167,6 +207,8 @@ class LightHub:
     def _filter_streams(self, client: Client) -> None:
         if not self.site_camera_available:
             client.streams.discard(SITE_CAMERA)
+        if not self.occlusion_available:
+            client.streams.discard(OCCLUSION)
 
     async def _close(self, client: Client, code: int, reason: str) -> None:
         self.closed_for_protocol += 1
@@ -219,19 +261,28 @@ class LightHub:
             while not ws.closed:
                 await client.wake.wait()
                 client.wake.clear()
-                for stream in (LIGHT, SITE_CAMERA):
-                    if stream not in client.streams or stream not in self.latest:
-                        continue
-                    seq, data = self.latest[stream]
-                    last = client.sent.get(stream)
-                    if last == seq:
-                        continue
-                    if last is not None:
-                        client.skipped += max(0, ((seq - last) & 0xFFFFFFFF) - 1)
-                    # Blocks only while this client's connection is full (flow control).
-                    await asyncio.wait_for(ws.send_bytes(data), self.slow_client_timeout_s)
-                    client.sent[stream] = seq
-                    client.messages_sent += 1
+                if LIGHT in client.streams and LIGHT in self.latest:
+                    seq, data = self.latest[LIGHT]
+                    last = client.sent.get(LIGHT)
+                    if last != seq:
+                        if last is not None:
+                            client.skipped += max(0, ((seq - last) & 0xFFFFFFFF) - 1)
+                        # Blocks only while this client's connection is full (flow control).
+                        await asyncio.wait_for(ws.send_bytes(data), self.slow_client_timeout_s)
+                        client.sent[LIGHT] = seq
+                        client.messages_sent += 1
+                frame = self.latest_frame
+                if (frame is not None and frame[0] != client.sent_frame
+                        and not client.streams.isdisjoint(FRAME_STREAMS)):
+                    number, parts = frame  # held here: a newer bundle cannot split this one
+                    if client.sent_frame is not None:
+                        client.skipped += max(0, number - client.sent_frame - 1)
+                    for stream in FRAME_STREAMS:
+                        if stream in client.streams and stream in parts:
+                            await asyncio.wait_for(ws.send_bytes(parts[stream]),
+                                                   self.slow_client_timeout_s)
+                            client.messages_sent += 1
+                    client.sent_frame = number
         except TimeoutError:
             log.warning("dropping light stream of %s: nothing accepted for %.0f s",
                         client.remote, self.slow_client_timeout_s)
@@ -254,6 +305,7 @@ class LightHub:
         return {
             "clients": len(self.clients),
             "clients_site_camera": sum(SITE_CAMERA in c.streams for c in self.clients),
+            "clients_occlusion": sum(OCCLUSION in c.streams for c in self.clients),
             "clients_refused": self.refused,
             "clients_closed_for_protocol": self.closed_for_protocol,
         }

@@ -18,13 +18,16 @@ Server -> client
    bitmask, ``ceil(count / 8)`` bytes, bit ``i % 8`` (least significant first) of byte
    ``i // 8`` set when light ``i`` had clipped pixels.
    SITE_CAMERA (2): ``count`` bytes of one JPEG image of the kiosk's site camera.
-   OCCLUSION_MASK (3): reserved for issue 6; ``count`` payload bytes, layout to be defined.
+   OCCLUSION_MASK (3): ``count`` bytes: the mask of visitors standing in front of the virtual
+   objects in that site-camera frame (same capture time; payload layout in
+   :mod:`server.occlusion.codec`), sent right after the SITE_CAMERA message of its frame.
    Decoders skip types they do not know.
 
 Client -> server
 ----------------
 Text JSON only, at most :data:`MAX_CLIENT_MESSAGE_BYTES` bytes:
-``{"type": "subscribe", "streams": ["light", "site-camera"]}`` (the streams wanted from now on)
+``{"type": "subscribe", "streams": ["light", "site-camera", "occlusion"]}`` (the streams
+wanted from now on)
 and ``{"type": "ping", "id": ...}`` (answered by ``{"type": "pong", "id": ..., "server_time_s"}``).
 Anything else closes the connection with code 1008 (policy) or 1003 (binary data).
 """
@@ -44,13 +47,13 @@ MAGIC = b"DLYT"
 HEADER = struct.Struct("<4sBBHIId")
 HEADER_BYTES = HEADER.size  # 24
 MAX_CLIENT_MESSAGE_BYTES = 1024
-STREAMS = ("light", "site-camera")
+STREAMS = ("light", "site-camera", "occlusion")
 
 
 class MessageType(IntEnum):
     LIGHT = 1
     SITE_CAMERA = 2
-    OCCLUSION_MASK = 3  # reserved for issue 6
+    OCCLUSION_MASK = 3  # people in front of the virtual objects (server.occlusion.codec)
 
 
 class Flags(IntFlag):
@@ -59,6 +62,7 @@ class Flags(IntFlag):
     SATURATED = 2  # at least one light had clipped pixels (see the bitmask)
     SIMULATED = 4  # the built-in simulated sky, not a camera
     REPLAY = 8  # a recording being replayed
+    LEARNING = 16  # OCCLUSION_MASK: the empty site is being learned; the mask is all clear
 
 
 class ProtocolError(ValueError):
@@ -167,8 +171,18 @@ def hello_message(
     smoothing_s: float,
     server_time_s: float,
     extra: dict | None = None,
+    occlusion: dict | None = None,
 ) -> str:
-    """The first (text) message of every connection."""
+    """The first (text) message of every connection.
+
+    ``site_camera`` and ``occlusion`` describe those streams when the server has them (else
+    None); ``available_streams`` follows from them.
+    """
+    available = ["light"]
+    if site_camera:
+        available.append("site-camera")
+        if occlusion:
+            available.append("occlusion")
     hello = {
         "type": "hello",
         "protocol": PROTOCOL_VERSION,
@@ -179,8 +193,9 @@ def hello_message(
         "source": source,
         "simulated": simulated,
         "streams": streams,
-        "available_streams": ["light"] + (["site-camera"] if site_camera else []),
+        "available_streams": available,
         "site_camera": site_camera,
+        "occlusion": occlusion if site_camera else None,
         "smoothing_s": smoothing_s,
         "server_time_s": server_time_s,
         "binary": {
@@ -238,7 +253,8 @@ def parse_client_message(text: str) -> ClientMessage:
 
 
 def parse_streams(text: str | None) -> list[str]:
-    """Streams from a query parameter such as ``light,site-camera`` (default: light)."""
+    """Streams from a query parameter such as ``light,site-camera,occlusion`` (default:
+    light)."""
     if not text:
         return ["light"]
     streams = [s.strip() for s in text.split(",") if s.strip()]

@@ -108,3 +108,82 @@ class FakeCamera:
     def open(self, target):
         self.opened += 1
         return FakeCapture(self)
+
+
+class KioskSequence:
+    """Synthetic site-camera frames for a build's kiosk view, with exact ground truth.
+
+    Two people walk across the view: ``near`` in front of the virtual building (at 0.6 of its
+    depth), ``far`` behind it (1.2 of its depth); both enter after the first ``empty_frames``
+    frames of the empty site, which the occlusion pipeline learns as the background.
+    ``truths[i]`` is frame ``i``'s :class:`server.occlusion.synthetic.TruthFrame`; ``depth`` the
+    view's virtual depth image.
+    """
+
+    def __init__(self, build_dir: Path, view_id: str = "kiosk", frames: int = 30,
+                 empty_frames: int = 10, fps: float = 10.0):
+        from server.occlusion import OcclusionProcessor
+        from server.occlusion.synthetic import SyntheticSite, Walker
+
+        proc = OcclusionProcessor.from_build(build_dir, view_id)
+        cam = proc.camera
+        depth = proc.virtual_depth_m
+        rows, cols = np.nonzero(np.isfinite(depth))
+        u = int(np.median(cols))
+        building_m = float(depth[rows[cols == u].max(), u])  # the building's base, that column
+        forward = cam.R[:, 2]
+        ray = cam.ray_directions(u + 0.5, 0.5 * cam.height)[0]
+        heading = np.array([ray[0], 0.0, ray[2]]) / np.hypot(ray[0], ray[2])
+        side = np.array([heading[2], 0.0, -heading[0]])
+        enter_s = empty_frames / fps + 0.01
+
+        def walker(depth_m, start_side_m, speed_mps, **clothes):
+            along = depth_m / float(heading @ forward)
+            p = cam.origin_m * [1, 0, 1] + heading * along + side * start_side_m
+            v = side * speed_mps
+            return Walker((p[0], p[2]), (v[0], v[2]), enter_s=enter_s, **clothes)
+
+        self.near_depth_m, self.far_depth_m = 0.6 * building_m, 1.2 * building_m
+        walkers = [walker(self.near_depth_m, -1.5, 0.6),
+                   walker(self.far_depth_m, 1.5, -0.6, shirt=(0.1, 0.5, 0.2))]
+        self.site = SyntheticSite(cam, walkers, fps=fps, duration_s=frames / fps)
+        self.camera = cam
+        self.depth = depth
+        self.empty_frames = empty_frames
+        self.truths = [self.site.frame(i) for i in range(self.site.frame_count)]
+
+    @property
+    def images(self) -> list[np.ndarray]:
+        return [t.image for t in self.truths]
+
+    def write(self, folder: Path) -> Path:
+        """The frames as lossless PNG files ``frame_000.png`` ... in ``folder`` (a replay)."""
+        import cv2
+
+        folder.mkdir(parents=True, exist_ok=True)
+        for i, image in enumerate(self.images):
+            cv2.imwrite(str(folder / f"frame_{i:03d}.png"), image)
+        return folder
+
+    def index_of(self, jpeg: bytes) -> int:
+        """Which frame a streamed JPEG shows (the nearest in mean absolute difference)."""
+        import cv2
+
+        image = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR).astype(np.int16)
+        errors = [np.abs(image - frame).mean() for frame in self.images]
+        return int(np.argmin(errors))
+
+    def people_pixels(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """Frame ``i``'s pixels of the near and the far person where they overlap the virtual
+        building (the near one must hide it there, the far one must be hidden)."""
+        truth = self.truths[i]
+        over = np.isfinite(self.depth)
+        by_depth = sorted(truth.people, key=lambda p: p.depth_m)
+        near = far = np.zeros_like(over)
+        for person in by_depth:
+            pixels = (truth.person_index == person.index) & over
+            if abs(person.depth_m - self.near_depth_m) < abs(person.depth_m - self.far_depth_m):
+                near = pixels
+            else:
+                far = pixels
+        return near, far
