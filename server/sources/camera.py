@@ -66,16 +66,22 @@ class CameraSource(Source):
         stop = threading.Event()
         done = loop.create_future()
 
+        def from_thread(fn, *args) -> None:
+            try:
+                loop.call_soon_threadsafe(fn, *args)
+            except RuntimeError:  # the loop has closed (the server is stopping): drop it
+                stop.set()
+
         def hand_over(frame: Frame) -> None:
-            loop.call_soon_threadsafe(deliver, frame)
+            from_thread(deliver, frame)
 
         def finish() -> None:
             if not done.done():
                 done.set_result(None)
 
         thread = threading.Thread(
-            target=self._read_forever, args=(hand_over, stop, lambda: loop.call_soon_threadsafe(
-                finish)), name=f"daylit-{self.name}", daemon=True,
+            target=self._read_forever, args=(hand_over, stop, lambda: from_thread(finish)),
+            name=f"daylit-{self.name}", daemon=True,
         )
         thread.start()
         try:
