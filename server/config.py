@@ -72,8 +72,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "saturation_level": Key(0.98, "float", "fraction of full scale counted as clipped",
                                 0.5, 1.0),
         "supersample": Key(6, "int", "sub-pixel grid for pixels cut by patch edges", 1, 16),
-        "max_working_pixels": Key(1 << 18, "int", "frames are binned to at most this many "
-                                  "pixels after linearising", 4096),
+        "max_working_pixels": Key(1 << 17, "int", "frames are binned (2 x 2, once or more) to "
+                                  "at most this many pixels after linearising", 4096),
     },
     "stream": {
         "smoothing_s": Key(2.0, "float", "time constant of the exponential smoothing; 0: off",

@@ -1,9 +1,10 @@
 """Measuring the light vector ``r`` (n x RGB) from a fisheye sky frame (Sato Sec. 5, Kakuta 2.2.3).
 
 Per frame the work is small and fixed: linearise with the inverse response curve (one 16-bit
-table look-up per pixel), bin in linear values to the working resolution, and a few sparse
-products. Everything that depends only on the lens and the dome is precomputed once in
-:class:`PatchMatrix`.
+table look-up per pixel, ``cv2.LUT``), bin in linear values to the working resolution (2 x 2
+area means, once or more: OpenCV's SIMD path), both band by band over the image circle only,
+and a few sparse products over the binned pixels in memory order (CSC). Everything that depends
+only on the lens and the dome is precomputed once in :class:`PatchMatrix`.
 
 How pixels cut by a patch edge are shared
 -----------------------------------------
@@ -34,7 +35,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -44,10 +45,12 @@ from scipy.spatial import cKDTree
 from daylit.spherical import PatchLookup, centroid_direction
 from server.fisheye import FisheyeCamera
 
-# Frames are binned (after linearising) to at most this many pixels: a few hundred pixels per
-# light of a 400-light dome, plenty for a patch mean, and it keeps the per-frame cost near one
-# table look-up per full-resolution pixel. Setting: measure.max_working_pixels.
-DEFAULT_WORKING_PIXELS = 1 << 18
+# Frames are binned (after linearising, by a power of two) to at most this many pixels of the
+# image circle's bounding box: at 1 megapixel 320 x 240, a hundred or more pixels per light of
+# a 400-light dome, which keeps the per-frame cost near one table look-up per full-resolution
+# pixel. Twice as many pixels per side (4 times this) quarter the error at the patches' edges
+# for 1.5 times the time (docs/benchmarks.md). Setting: [sky] max_working_pixels.
+DEFAULT_WORKING_PIXELS = 1 << 17
 
 # Pixels are classified in chunks of this many, so a 4-megapixel lens needs little memory.
 _CHUNK_PIXELS = 1 << 18
@@ -149,7 +152,7 @@ class PatchMatrix:
         The part of the full-resolution frame that holds every used pixel (a multiple of
         ``binning``); flat pixel indices below count row-major in this part at working
         resolution (P pixels).
-    whole : (n, P) float32 CSR
+    whole : (n, P) float32 CSC
         ``w_p / g_p`` (solid angle over vignetting gain) for whole pixels.
     pair_pixel, pair_ref, pair_group : (m,) int
         For each cut pair: its pixel, the reference pixel for its patch, and the index of its
@@ -160,16 +163,25 @@ class PatchMatrix:
         The cut pixels.
     pairs_to_pixel : (g, m) float32 CSR
         Coverage of each pair, summed per cut pixel.
-    pairs_to_light : (n, m) float32 CSR
-        ``w_p / g_p`` from each pair to its patch.
+    pairs_to_light : (n, m) float32 CSC
+        ``c_pk w_p / g_p`` (coverage times solid angle over vignetting) from each pair to its
+        patch: ``pairs_to_light @ x[pair_pixel]`` is the plain coverage-weighted sum.
     norm : (n,) float64
         ``sum_p w_p c_pk``: the solid angle each light is measured over, sr.
-    by_pixel : (P, n) CSR
-        Coverage, used to name the lights that clipped pixels fall on.
+    whole_light : (P,) int32
+        The light of each whole pixel, -1 for cut and unused pixels (with ``pair_pixel`` and
+        ``pair_light``, names the lights that clipped pixels fall on).
+    pair_light : (m,) int32
+        The light of each cut pair.
     covered : (n,) bool
         Lights that have pixels; the others copy ``fill_from``.
     fill_from : (n,) int
         For every light, the covered light whose value it takes (itself when covered).
+    strips : ((r0, r1, c0, c1), ...)
+        Horizontal bands of the crop at full resolution (multiples of ``binning``), each cut
+        to the columns that hold used pixels: 8-bit frames are linearised and binned band by
+        band, which skips the corners outside the image circle and keeps each band's 16-bit
+        values in the cache between the look-up and the binning.
     """
 
     camera: FisheyeCamera
@@ -184,11 +196,13 @@ class PatchMatrix:
     pairs_to_pixel: sp.csr_matrix
     pairs_to_light: sp.csr_matrix
     norm: np.ndarray
-    by_pixel: sp.csr_matrix
+    whole_light: np.ndarray
+    pair_light: np.ndarray
     covered: np.ndarray
     fill_from: np.ndarray
     pixels_used: int
     build_s: float
+    strips: tuple[tuple[int, int, int, int], ...] = ()
 
     @property
     def count(self) -> int:
@@ -225,8 +239,8 @@ class PatchMatrix:
         t0 = time.perf_counter()
         tris = np.asarray(dome_vertices, dtype=np.float64)
         n = tris.shape[0]
-        binning = max(1, math.ceil(math.sqrt(camera.width * camera.height / max_working_pixels)))
-        cam = camera.scaled_to(camera.width // binning, camera.height // binning)
+        binning = _binning_for(camera, max_working_pixels)
+        cam = _binned(camera, binning)
         W, H = cam.width, cam.height
         lookup = PatchLookup(tris)
         edge_normals = lookup.edge_normals  # (n, 3, 3), pointing into each patch
@@ -315,21 +329,20 @@ class PatchMatrix:
         order = np.lexsort((cl, cp))  # pairs grouped by pixel
         cp, cl, cc = cp[order], cl[order], cc[order]
         cut_weight = weight.reshape(H, W)[y0:y1, x0:x1].ravel()
-        whole = sp.csr_matrix((cut_weight[wp], (wl, wp)), shape=(n, P), dtype=np.float32)
+        # Column-major: the products walk the frame's pixels (and pairs) in memory order and
+        # add into the small (n, 3) result, about 1.6 times faster than row-major here.
+        whole = sp.csc_matrix((cut_weight[wp], (wl, wp)), shape=(n, P), dtype=np.float32)
         m = cp.size
-        pairs_to_light = sp.csr_matrix(
-            (cut_weight[cp], (cl, np.arange(m))), shape=(n, m), dtype=np.float32
+        pairs_to_light = sp.csc_matrix(
+            (cut_weight[cp] * cc, (cl, np.arange(m))), shape=(n, m), dtype=np.float32
         )
         cut_pixel, pair_group = np.unique(cp, return_inverse=True)
         pairs_to_pixel = sp.csr_matrix(
             (cc, (pair_group, np.arange(m))), shape=(cut_pixel.size, m), dtype=np.float32
         )
         pair_ref = _reference_pixels(cp, cl, wp, wl, cw)
-        by_pixel = sp.csr_matrix(
-            (np.concatenate([np.ones(wp.size), cc]), (np.concatenate([wp, cp]),
-                                                      np.concatenate([wl, cl]))),
-            shape=(P, n), dtype=np.float32,
-        )
+        whole_light = np.full(P, -1, dtype=np.int32)
+        whole_light[wp] = wl
         covered = norm > 0
         if not covered.any():
             raise ValueError("no light of the dome is seen by this camera (check its calibration)")
@@ -338,7 +351,12 @@ class PatchMatrix:
         seen = np.flatnonzero(covered)
         nearest = seen[np.argmax(centroids @ centroids[seen].T, axis=1)]
         fill_from = np.where(covered, np.arange(n), nearest)
+        used_map = np.zeros(P, dtype=bool)
+        used_map[wp] = True
+        used_map[cp] = True
+        strips = _strips(used_map.reshape(y1 - y0, cw), binning)
         return cls(
+            strips=strips,
             camera=cam,
             binning=binning,
             crop=(x0 * binning, y0 * binning, x1 * binning, y1 * binning),
@@ -351,7 +369,8 @@ class PatchMatrix:
             pairs_to_pixel=pairs_to_pixel,
             pairs_to_light=pairs_to_light,
             norm=norm,
-            by_pixel=by_pixel,
+            whole_light=whole_light,
+            pair_light=cl.astype(np.int32),
             covered=covered,
             fill_from=fill_from,
             pixels_used=int(np.count_nonzero(omega_all)),
@@ -363,12 +382,14 @@ class PatchMatrix:
         x = linear.reshape(-1, 3)
         total = self.whole @ x
         if self.pair_pixel.size:
-            # Share each cut pixel in proportion to coverage x the value just inside each patch.
-            inside = np.take(x, self.pair_ref, axis=0) + np.float32(1e-7)
-            share = np.take(x, self.cut_pixel, axis=0) / (self.pairs_to_pixel @ inside)
-            part = inside * np.take(share, self.pair_group, axis=0)
-            part *= self.pair_cover[:, None]
-            total += self.pairs_to_light @ part
+            # Share each cut pixel in proportion to coverage x the value just inside each patch
+            # (the coverage is in both matrices' weights).
+            inside = np.take(x, self.pair_ref, axis=0)
+            inside += np.float32(1e-7)
+            share = np.take(x, self.cut_pixel, axis=0)
+            share /= self.pairs_to_pixel @ inside
+            inside *= np.take(share, self.pair_group, axis=0)
+            total += self.pairs_to_light @ inside
         out = np.zeros((self.count, 3))
         seen = self.covered
         out[seen] = total[seen] / self.norm[seen, None]
@@ -378,7 +399,66 @@ class PatchMatrix:
         """Indices of lights that any of the given working-image pixels cover."""
         if flat_pixels.size == 0:
             return np.zeros(0, dtype=np.int64)
-        return np.unique(self.by_pixel[np.unique(flat_pixels)].indices).astype(np.int64)
+        hit = np.zeros(self.count, dtype=bool)
+        lights = self.whole_light[flat_pixels]
+        hit[lights[lights >= 0]] = True
+        marked = np.zeros(self.whole_light.size, dtype=bool)
+        marked[flat_pixels] = True
+        hit[self.pair_light[marked[self.pair_pixel]]] = True
+        return np.flatnonzero(hit)
+
+
+def _strips(used: np.ndarray, b: int, full_rows: int = 64) -> tuple:
+    """Bands of about ``full_rows`` full-resolution rows over the working-size map of used
+    pixels ``used`` (h, w), each ``(r0, r1, c0, c1)`` in full-resolution pixels of the crop,
+    narrowed to the columns that hold used pixels; bands without any are left out."""
+    rows = max(1, full_rows // b)
+    out = []
+    for r in range(0, used.shape[0], rows):
+        cols = np.flatnonzero(used[r:r + rows].any(axis=0))
+        if cols.size:
+            r1 = min(used.shape[0], r + rows)
+            out.append((r * b, r1 * b, int(cols[0]) * b, (int(cols[-1]) + 1) * b))
+    return tuple(out)
+
+
+def _binned(camera: FisheyeCamera, b: int) -> FisheyeCamera:
+    """The lens as seen in frames binned ``b x b`` (pixel ``u'`` averages ``b u' ... b u' + b -
+    1``): exactly ``1 / b`` the scale, also when the frame's size is not a multiple of ``b``
+    (the rest of the rows and columns are left out)."""
+    K = camera.K.copy()
+    K[0, 0] /= b
+    K[0, 1] /= b
+    K[1, 1] /= b
+    K[0, 2] = (K[0, 2] + 0.5) / b - 0.5  # pixel centres: u' + 0.5 = (u + 0.5) / b
+    K[1, 2] = (K[1, 2] + 0.5) / b - 0.5
+    return replace(camera, width=camera.width // b, height=camera.height // b, K=K)
+
+
+def _binning_for(camera: FisheyeCamera, max_working_pixels: int) -> int:
+    """The binning factor: the smallest power of two ``b`` for which the part of the frame that
+    sees the sky (the bounding box of the image circle above the horizon), binned ``b x b``,
+    has at most ``max_working_pixels`` pixels.
+
+    Powers of two because OpenCV averages 2 x 2 blocks with SIMD code: two 2 x 2 steps take a
+    fifth of the time of one 4 x 4 or 3 x 3 step (docs/benchmarks.md).
+    """
+    step = max(1, min(camera.width, camera.height) // 256)
+    xs = np.arange(step / 2.0, camera.width, step)
+    ys = np.arange(step / 2.0, camera.height, step)
+    gx, gy = np.meshgrid(xs, ys)
+    d, ok = camera.unproject(np.stack([gx.ravel(), gy.ravel()], axis=-1))
+    sky = ok & (d[:, 1] >= 0.0)
+    if sky.any():
+        u, v = gx.ravel()[sky], gy.ravel()[sky]
+        width = min(camera.width, u.max() - u.min() + 2 * step)
+        height = min(camera.height, v.max() - v.min() + 2 * step)
+    else:
+        width, height = camera.width, camera.height
+    b = 1
+    while width * height / (b * b) > max_working_pixels:
+        b *= 2
+    return b
 
 
 def _reference_pixels(
@@ -471,7 +551,8 @@ class SkyMeter:
         self.max_working_pixels = max_working_pixels
         self.sky_mask = sky_mask
         self.matrix: PatchMatrix | None = None
-        self._luts: dict[int, np.ndarray] = {}
+        self._luts: dict[object, np.ndarray] = {}
+        self._binned_codes: np.ndarray | None = None
         self._factor = np.asarray(self.photometry.photometric_factor, dtype=np.float64)
 
     def camera_for(self, width: int, height: int) -> FisheyeCamera:
@@ -508,12 +589,46 @@ class SkyMeter:
             self._luts[levels] = inverse_response_table(self.photometry.response, levels)
         return self._luts[levels]
 
+    def _lut16(self) -> np.ndarray:
+        """8-bit code -> 16-bit linear value for ``cv2.LUT``: (1, 256) when every channel has
+        the same curve (a one-channel look-up over the interleaved image), else (1, 256, 3)."""
+        if "lut16" not in self._luts:
+            table = self._lut(256)
+            lut = np.round(table * 65535).astype(np.uint16)
+            if np.all(table == table[:, :1]):
+                self._luts["lut16"] = lut[:, 0].reshape(1, 256)
+            else:
+                self._luts["lut16"] = lut.reshape(1, 256, 3)
+        return self._luts["lut16"]
+
+    @staticmethod
+    def _clipped_pixels(crop: np.ndarray, rows: np.ndarray, threshold: float,
+                        b: int) -> np.ndarray:
+        """Flat working-size indices of the b x b blocks of ``crop`` with a channel at or above
+        ``threshold``; ``rows``: the crop's rows that hold such values (the sun: a few)."""
+        h, w = crop.shape[:2]
+        wb = w // b
+        rows = rows[rows < (h // b) * b]
+        if rows.size == 0:
+            return np.zeros(0, dtype=np.int64)
+        block_rows = np.unique(rows // b)
+        picked = (block_rows[:, None] * b + np.arange(b)).ravel()
+        band = crop[picked, : wb * b].reshape(block_rows.size, b, wb * b * 3)
+        peak = band[:, 0]
+        for k in range(1, b):  # the largest value of each block's rows...
+            peak = np.maximum(peak, band[:, k])
+        peak = peak.reshape(block_rows.size, wb, b * 3).max(axis=2)  # ...and of its columns
+        ys, xs = np.nonzero(peak >= threshold)
+        return block_rows[ys].astype(np.int64) * wb + xs
+
     def linearize(self, image: np.ndarray, m: PatchMatrix) -> tuple[np.ndarray, np.ndarray]:
         """The crop's linear image at working size (float32, unit: full scale = ``scale``),
         and the flat working-size indices of pixels with a clipped channel.
 
         8-bit frames go through a 16-bit table (``cv2.LUT``) and are binned in 16 bits: the
         cheapest exact path (a 16-bit linear value resolves even code 1 of an sRGB camera).
+        Clipped pixels are found from the maximum of each row (one pass over the codes), then
+        only in the few row blocks that hold one.
         """
         if image.ndim != 3 or image.shape[2] != 3:
             raise FrameError(f"expected an H x W x 3 image, got shape {image.shape}")
@@ -521,47 +636,55 @@ class SkyMeter:
         crop = image[y0:y1, x0:x1]
         h, w = crop.shape[:2]
         level = self.photometry.saturation_level
+        b = m.binning
         if image.dtype == np.uint8:
-            table = self._lut(256)
             threshold = math.ceil(level * 255)
-            if np.all(table == table[:, :1]):  # one curve for all channels: 1-channel look-up
-                lut = np.round(table[:, 0] * 65535).astype(np.uint16).reshape(1, 256)
-                codes = cv2.LUT(crop.reshape(h, w * 3), lut).reshape(h, w, 3)
-            else:
-                lut = np.round(table * 65535).astype(np.uint16).reshape(1, 256, 3)
-                codes = cv2.LUT(np.ascontiguousarray(crop), lut)
-            linear = codes
+            linear = self._linearize_codes(crop, m)  # already binned
+            b = 1
             scale = 65535.0
-            _, peak, _, _ = cv2.minMaxLoc(crop.reshape(h, w * 3))
         elif image.dtype == np.uint16:
             linear = self._lut(65536)[crop, np.arange(3)]
             threshold = math.ceil(level * 65535)
             scale = 1.0
-            peak = float(crop.max())
         elif image.dtype in (np.float32, np.float64):
             linear = crop.astype(np.float32)
             if not np.all(np.isfinite(linear)):
                 raise FrameError("frame has non-finite values")
             threshold = level
             scale = 1.0
-            peak = float(linear.max())
         else:
             raise FrameError(f"unsupported pixel type {image.dtype}")
-        b = m.binning
-        if b > 1:
-            linear = cv2.resize(linear, (w // b, h // b), interpolation=cv2.INTER_AREA)
-        linear = linear.astype(np.float32)
+        hot_rows = np.flatnonzero(crop.reshape(h, w * 3).max(axis=1) >= threshold)
+        while linear.shape[0] > h // b:  # 2 x 2 area means (b is a power of two): exact
+            linear = cv2.resize(linear, (linear.shape[1] // 2, linear.shape[0] // 2),
+                                interpolation=cv2.INTER_AREA)
         if scale != 1.0:
-            linear *= np.float32(1.0 / scale)
-        clipped = np.zeros(0, dtype=np.int64)
-        if peak >= threshold:
-            # Clipping is rare and local (the sun): find the rows first, then the pixels.
-            rows = np.flatnonzero(crop.reshape(h, w * 3).max(axis=1) >= threshold)
-            y, x3 = np.nonzero(crop[rows].reshape(rows.size, w * 3) >= threshold)
-            y, x = rows[y], x3 // 3
-            keep = (y < (h // b) * b) & (x < (w // b) * b)
-            clipped = np.unique((y[keep] // b) * (w // b) + x[keep] // b)
+            linear = np.multiply(linear, np.float32(1.0 / scale), dtype=np.float32)
+        else:
+            linear = linear.astype(np.float32, copy=False)
+        clipped = self._clipped_pixels(crop, hot_rows, threshold, m.binning)
         return linear, clipped
+
+    def _linearize_codes(self, crop: np.ndarray, m: PatchMatrix) -> np.ndarray:
+        """8-bit codes -> 16-bit linear values, binned to working size, band by band
+        (``m.strips``); pixels outside the bands are 0 (no light uses them)."""
+        lut = self._lut16()
+        b = m.binning
+        h, w = crop.shape[:2]
+        out = self._binned_codes
+        if out is None or out.shape != (h // b, w // b, 3):
+            out = self._binned_codes = np.zeros((h // b, w // b, 3), np.uint16)
+        rows = crop.reshape(h, w * 3)
+        for r0, r1, c0, c1 in m.strips:
+            if lut.ndim == 2:  # one curve for all channels: a 1-channel look-up
+                band = cv2.LUT(rows[r0:r1, 3 * c0:3 * c1], lut).reshape(r1 - r0, c1 - c0, 3)
+            else:
+                band = cv2.LUT(np.ascontiguousarray(crop[r0:r1, c0:c1]), lut)
+            while band.shape[0] > (r1 - r0) // b:  # 2 x 2 area means: exact
+                band = cv2.resize(band, (band.shape[1] // 2, band.shape[0] // 2),
+                                  interpolation=cv2.INTER_AREA)
+            out[r0 // b:r1 // b, c0 // b:c1 // b] = band
+        return out
 
     def measure(self, frame: Frame) -> Measurement:
         """Measure one frame. Raises :class:`FrameError` for frames that cannot be used."""
