@@ -159,6 +159,15 @@ async def _serve(app, settings, log) -> int:
     shown = "localhost" if host in ("0.0.0.0", "::", "") else host
     print(f"daylit: serving {scene['name']} ({scene['id']}, {app[MANIFEST]['dome']['count']} "
           f"lights), sky: {app[PIPELINE].source.name}", flush=True)
+    sim = getattr(app[PIPELINE].source, "sim", None)
+    if sim is not None:
+        import datetime as dt
+        from zoneinfo import ZoneInfo
+
+        start = dt.datetime.fromtimestamp(sim.clock.start_s, ZoneInfo(sim.timezone))
+        print(f"daylit: simulated sky from {start:%Y-%m-%d %H:%M} local time at the site, "
+              f"{sim.clock.speed:g} times real time"
+              + (" (always by day)" if sim.keep_daylight else ""), flush=True)
     print(f"daylit: open http://{shown}:{port}/", flush=True)
     lan = _lan_address() if host in ("0.0.0.0", "::", "") else None
     if lan:
