@@ -153,8 +153,8 @@ def main() -> None:
             new.prepare(width, height)
             old_frame = previous.Frame(image, frame.capture_time_s, bgr=False,
                                        exposure=frame.exposure)
-            old_ms, new_ms = interleaved([lambda: old.measure(old_frame),
-                                          lambda: new.measure(f)])
+            old_ms, new_ms = interleaved([lambda old=old, g=old_frame: old.measure(g),
+                                          lambda new=new, g=f: new.measure(g)])
             r = old.measure(old_frame)
             old_err = errors(r.radiance, r.saturated, truth)
             r = new.measure(f)
