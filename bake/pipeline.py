@@ -642,32 +642,54 @@ class _Compressor:
             )
         session = session_download_bytes(manifest, staging)
         self.log(
-            f"  a visitor's phone downloads about {session['phone'] / 1e6:.1f} MB, the kiosk "
-            f"{session['kiosk'] / 1e6:.1f} MB (GLB, manifest, bases, V, "
-            f"{self.settings.selected_lights} light images per stack)"
+            f"  a visitor's phone downloads about {session['phone'] / 1e6:.1f} MB "
+            f"({session['phone_hull'] / 1e6:.1f} MB with the hull planes of hull-plane mode), "
+            f"the kiosk {session['kiosk'] / 1e6:.1f} MB; all compact files "
+            f"{session['all'] / 1e6:.1f} MB"
         )
 
 
 def session_download_bytes(manifest: dict, build_dir: Path) -> dict:
-    """Bytes a client fetches to show the site: the GLB, the manifest, every base texture and
-    V of the stacks it uses and ``selected_lights`` light images per stack (average size).
-    Phones use the atlases; the kiosk also the views."""
+    """Bytes the web client fetches to show the site, as it fetches them (docs/web.md):
+    the manifest, and per stack it relights its base (and gain) textures, ``V`` and the images
+    of ``selected_lights`` lights (average size).
+
+    - ``phone``: the GLB, the ground/wall and lightmap atlases (the default shading);
+    - ``phone_hull``: plus the hull planes, fetched when hull-plane mode is chosen;
+    - ``kiosk``: the fixed views only (the kiosk draws no model);
+    - ``all``: every compact file (GLB, KTX2, V) and the manifest, i.e. the whole download
+      a server must offer."""
     sizes = {f["path"]: f["bytes"] for f in manifest["files"]}
-    common = sizes[manifest["model"]["path"]] + (build_dir / "manifest.json").stat().st_size
+    manifest_bytes = (build_dir / "manifest.json").stat().st_size
+    glb = sizes[manifest["model"]["path"]]
     m = manifest["compression"]["selected_lights"]
+    report = manifest["compression"]["report"]
+    per_light = {row["stack"]: row["light_bytes_per_light"] for row in report}
 
-    def stack_bytes(stack):
-        compact = stack["compact"]
-        per_light = [
-            row["light_bytes_per_light"]
-            for row in manifest["compression"]["report"]
-            if compact["ktx2"].endswith(f"{row['stack']}.base.ktx2")
-        ]
-        return sizes[compact["ktx2"]] + sizes[compact["v"]["path"]] + m * sum(per_light)
+    def owner_bytes(owners) -> float:
+        files, lights = set(), 0.0  # a pair's shared gain texture counts once
+        for owner in owners:
+            for name, stack in owner["stacks"].items():
+                compact = stack["compact"]
+                files |= {compact["ktx2"], compact["v"]["path"]}
+                if compact.get("gain"):
+                    files.add(compact["gain"]["ktx2"])
+                lights += m * per_light[f"{owner['id']}.{name}"]
+        return sum(sizes[f] for f in files) + lights
 
-    atlases = sum(stack_bytes(s) for a in manifest["atlases"] for s in a["stacks"].values())
-    views = sum(stack_bytes(s) for v in manifest["views"] for s in v["stacks"].values())
-    return {"phone": common + atlases, "kiosk": common + atlases + views}
+    hull = [a for a in manifest["atlases"] if a["id"] == "hull"]
+    default = [a for a in manifest["atlases"] if a["id"] != "hull"]
+    phone = manifest_bytes + glb + owner_bytes(default)
+    compact = sum(
+        f["bytes"] for f in manifest["files"]
+        if f["path"].startswith(("ktx2/", "v/")) or f["path"] == manifest["model"]["path"]
+    )
+    return {
+        "phone": round(phone),
+        "phone_hull": round(phone + owner_bytes(hull)),
+        "kiosk": round(manifest_bytes + owner_bytes(manifest["views"])),
+        "all": compact + manifest_bytes,
+    }
 
 
 # --------------------------------------------------------------------------------------------

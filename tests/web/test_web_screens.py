@@ -49,6 +49,7 @@ def test_screenshots_of_each_mode(new_page, web_build, sky, name, query, size, a
         page = new_page(*size).open(f"{server.url}/?{query}", ready)
         if action == "hull":
             page.page.select_option(".shadingmode", "hull")
+            page.wait("window.daylit.status.shadingMode === 'hull'")
         elif action == "off":
             page.page.uncheck(".shading")
         page.page.wait_for_timeout(1500)  # the orbit settles, the exposure adapts

@@ -31,6 +31,8 @@ export class App {
     this.fixedExposure = params.has('exposure') ? Number(params.get('exposure')) : null;
     this.smoothingS = Number(params.get('smoothing') ?? 0);
     this.shadingOn = true;
+    // Kakuta's two ways to shade the virtual objects; `?shading=hull` starts with hull planes.
+    this.shadingMode = params.get('shading') === 'hull' ? 'hull' : 'lightmap';
     this.error = null;
     this.ready = false;
     this.contextLost = false;
@@ -109,10 +111,16 @@ export class App {
       if (kiosk && !view) throw new AssetError('the manifest', 'the build has no fixed view for a kiosk');
       const stacks = kiosk ? Object.keys(view.stacks).map((s) => `${view.id}.${s}`)
         : manifest.atlases.flatMap((a) => Object.keys(a.stacks).map((s) => `${a.id}.${s}`));
-      this.relighter = new Relighter(this.renderer, this.assets, { stacks, views: kiosk, dome: !kiosk });
-      const loads = [this.relighter.load()];
-      if (!kiosk) loads.push(this.assets.gltf(manifest.model.path));
-      const [, gltf] = await Promise.all(loads);
+      // The hull planes serve only hull-plane mode: loaded when it is chosen, not before (they
+      // are the largest download of a phone).
+      this._hullStacks = stacks.filter((key) => key.startsWith('hull.'));
+      this.relighter = new Relighter(this.renderer, this.assets,
+        { stacks, deferred: this._hullStacks, views: kiosk, dome: !kiosk });
+      const [gltf] = await Promise.all([
+        kiosk ? null : this.assets.gltf(manifest.model.path),
+        this.relighter.load(),
+        this.shadingMode === 'hull' ? this.relighter.activate(this._hullStacks) : null,
+      ]);
       this.relighter.onApplied = (applied) => this._onApplied(applied);
       if (kiosk) {
         this.kiosk = new Kiosk(this.renderer, this.relighter, view);
@@ -159,7 +167,7 @@ export class App {
     if (mode === 'ar') {
       try {
         this.view = await XRView.open(this.renderer, this.scene, this.site.root, this.hudRoot, () => this.switchMode('visit'));
-        this.site.setMode('overlay', this.site.shadingMode);
+        this.site.setMode('overlay', this.shadingMode);
         this.mode = 'ar';
         return;
       } catch (err) {
@@ -170,7 +178,7 @@ export class App {
     if (mode === 'camera') {
       try {
         this.view = await CameraView.open(this.camera, this.canvas, this.assets.manifest, this.scene);
-        this.site.setMode('overlay', this.site.shadingMode);
+        this.site.setMode('overlay', this.shadingMode);
         this.mode = 'camera';
         return;
       } catch (err) {
@@ -179,7 +187,7 @@ export class App {
       }
     }
     this.view = new VisitView(this.camera, this.canvas, this.site);
-    this.site.setMode('visit', this.site.shadingMode);
+    this.site.setMode('visit', this.shadingMode);
     this.mode = 'visit';
   }
 
@@ -194,8 +202,23 @@ export class App {
     this.site?.setShading(on);
   }
 
-  setShadingMode(mode) {
-    this.site?.setMode(this.site.view, mode === 'hull' ? 'hull' : 'lightmap');
+  /** 'lightmap' or 'hull' (hull planes, whose textures are fetched the first time). */
+  async setShadingMode(mode) {
+    this.shadingMode = mode === 'hull' ? 'hull' : 'lightmap';
+    this.hud.setShadingMode(this.shadingMode);
+    if (this.shadingMode === 'hull' && this.relighter) {
+      this.hud.setMessage('Loading the hull planes…');
+      try {
+        await this.relighter.activate(this._hullStacks);
+        this.hud.setMessage(null);
+      } catch (err) {
+        this.hud.setMessage(`${err.message}. Staying with the lightmap.`, 'warn');
+        setTimeout(() => this.hud.setMessage(null), 5000);
+        this.shadingMode = 'lightmap';
+        this.hud.setShadingMode(this.shadingMode);
+      }
+    }
+    this.site?.setMode(this.site.view, this.shadingMode); // the newest choice, after any await
   }
 
   setSmoothing(tauS) {

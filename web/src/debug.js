@@ -99,7 +99,10 @@ export function debugApi(app) {
       return { ms: (performance.now() - t0) / n, k: stack.k, layers: stack.compact.layers.length,
         slots: stack.slots, texels: stack.width * stack.height };
     },
-    stacks: () => [...app.relighter.stacks.keys()],
+    /** The stacks being relit (deferred ones count once activated). */
+    stacks: () => app.relighter.active().map((s) => s.key),
+    /** Load and relight the deferred stacks (the hull planes) without changing the view. */
+    activateAll: () => app.relighter.activate().then(() => null),
     /**
      * The benchmark's baseline: the same meshes drawn the ordinary three.js way
      * (MeshStandardMaterial, a DirectionalLight with a 2048^2 shadow map, a HemisphereLight),

@@ -37,6 +37,7 @@ export class Hud {
     this.panel.hidden = this.kiosk;
     root.querySelectorAll('[data-mode]').forEach((b) => b.addEventListener('click', () => app.switchMode(b.dataset.mode)));
     root.querySelector('.shading').addEventListener('change', (e) => app.setShading(e.target.checked));
+    root.querySelector('.shadingmode').value = app.shadingMode;
     root.querySelector('.shadingmode').addEventListener('change', (e) => app.setShadingMode(e.target.value));
     const tau = root.querySelector('.tau');
     tau.value = String(app.smoothingS);
@@ -50,6 +51,10 @@ export class Hud {
       if (e.key === 'h' || e.key === 'H') this.panel.hidden = !this.panel.hidden;
     });
     this._lastDomeSeq = -1;
+  }
+
+  setShadingMode(mode) {
+    this.root.querySelector('.shadingmode').value = mode;
   }
 
   showModes({ ar, camera, align }) {

@@ -196,8 +196,10 @@ export class Relighter {
   /**
    * @param {THREE.WebGLRenderer} renderer
    * @param {import('./assets.js').Assets} assets with its manifest loaded
-   * @param {{stacks?: string[], views?: boolean, dome?: boolean}} which stacks to relight
-   *   (default: every stack of every atlas and view)
+   * @param {{stacks?: string[], deferred?: string[], views?: boolean, dome?: boolean}} which
+   *   stacks to relight (default: every stack of every atlas and view); `deferred` ones get
+   *   their target now but load nothing until `activate` asks for them (the hull planes,
+   *   needed only in hull-plane mode, are a phone's largest download)
    */
   constructor(renderer, assets, which = {}) {
     this.renderer = renderer;
@@ -209,6 +211,8 @@ export class Relighter {
     this.n = this.manifest.dome.count;
     this.stacks = new Map();
     const wanted = which.stacks ?? null;
+    this.deferred = new Set(which.deferred ?? []);
+    this.activating = new Map(); // key -> Promise of its load
     for (const entry of [...this.manifest.atlases, ...this.manifest.views]) {
       for (const [name, stack] of Object.entries(entry.stacks)) {
         const key = `${entry.id}.${name}`;
@@ -237,8 +241,13 @@ export class Relighter {
     this.onApplied = null; // callback after a relight
   }
 
+  /** The stacks that are loaded and relit (every one but the deferred not yet activated). */
+  active() {
+    return [...this.stacks.values()].filter((s) => s.pass);
+  }
+
   async load() {
-    await Promise.all([...this.stacks.values()].map((s) => s.load()));
+    await Promise.all([...this.stacks.values()].filter((s) => !this.deferred.has(s.key)).map((s) => s.load()));
     const n = this.n;
     this.lightData = new Float32Array(4 * n * 2);
     this.manifest.dome.lights.forEach((l, i) => this.lightData.set([...l.centroid, 1], 4 * (n + i)));
@@ -289,13 +298,14 @@ export class Relighter {
   /**
    * Ask for a relight with the vector r (n x RGB). Returns a promise that settles when a
    * relight with this vector (or a newer one) has been drawn exactly, or with missing lights
-   * summed by the base when nothing was drawn before.
+   * summed by the base when nothing was drawn before. `force`: draw again even if this
+   * vector is already drawn (stacks were added).
    */
-  update(r, sequence = 0) {
+  update(r, sequence = 0, force = false) {
     if (r.length !== 3 * this.n) throw new Error(`light vector of ${r.length / 3} lights, the build has ${this.n}`);
     const selected = selectLights(r, this.solidAngles, this.m);
     this.latest = { r: Float64Array.from(r), sequence, selected };
-    const stacks = [...this.stacks.values()];
+    const stacks = this.active();
     const ready = stacks.every((s) => selected.every((i) => s.lights.has(i)));
     if (ready || this.applied === null) this._render(this.latest);
     if (ready) return Promise.resolve(this.applied);
@@ -305,7 +315,7 @@ export class Relighter {
       // Newer vectors may have come meanwhile: draw the newest whose lights are all here.
       const newest = this.latest;
       const newestReady = stacks.every((s) => newest.selected.every((i) => s.lights.has(i)));
-      if (newestReady && (this.applied === null || !this.applied.exact || this.applied.sequence !== newest.sequence)) {
+      if (newestReady && (force || this.applied === null || !this.applied.exact || this.applied.sequence !== newest.sequence)) {
         this._render(newest);
       } else if (this.applied?.sequence !== want.sequence) {
         this._render(want);
@@ -321,7 +331,7 @@ export class Relighter {
     const autoClear = renderer.autoClear;
     renderer.autoClear = false;
     let exact = true;
-    for (const s of this.stacks.values()) exact = s.render(renderer, r, selected) && exact;
+    for (const s of this.active()) exact = s.render(renderer, r, selected) && exact;
     if (this.lightTex) {
       for (let i = 0; i < this.n; i++) this.lightData.set([r[3 * i], r[3 * i + 1], r[3 * i + 2], 1], 4 * i);
       this.lightTex.needsUpdate = true;
@@ -333,6 +343,24 @@ export class Relighter {
     this.lastRelightMs = performance.now() - t0; // CPU side only; the GPU runs on
     this.applied = { sequence, exact, selected, r };
     this.onApplied?.(this.applied);
+  }
+
+  /**
+   * Load deferred stacks (keys, or every deferred one) and relight them with the newest
+   * vector and its light images. Resolves when they are drawn; safe to call repeatedly.
+   */
+  activate(keys = [...this.deferred]) {
+    return Promise.all(keys.map((key) => {
+      const stack = this.stacks.get(key);
+      if (!stack) return Promise.reject(new Error(`no stack ${key} in this build`));
+      if (!this.activating.has(key)) {
+        this.activating.set(key, stack.load().catch((err) => {
+          this.activating.delete(key); // a later call tries again
+          throw err;
+        }));
+      }
+      return this.activating.get(key);
+    })).then(() => (this.latest ? this.update(this.latest.r, this.latest.sequence, true) : null));
   }
 
   /** Read one target back as float RGBA rows from the top (tests and the benchmark). */
