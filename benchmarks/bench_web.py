@@ -91,6 +91,9 @@ class Subject:
                                " && window.daylit.status.firstRelitMs !== null", timeout=180000)
         r = self.ref.light_vector(SKY).astype("float32").ravel().tolist()
         page.evaluate("(r) => window.daylit.debug.relight(r, 1)", r)  # and stop the stream
+        # The hull planes too (fetched on demand in hull-plane mode), so that every atlas stack
+        # is timed; the frames below stay in lightmap mode, where they are not drawn.
+        page.evaluate("window.daylit.debug.activateAll()")
         page.evaluate("window.daylit.debug.setCamera([55, 28, 70], [0, 2, 0])")
         self.ours, self.standard, self.relight = [], [], []
         self.stacks: dict[str, list[dict]] = {}
