@@ -698,6 +698,27 @@ def compress_stack(
     return compact
 
 
+def compress_stacks(images, prefix, out_dir, skies, S, S_inv, solid_angles, settings):
+    """Compress the stacks of one atlas or view, ``images`` {name: (H, W, n, 3)}: ``I`` and
+    ``d`` of a shadowing atlas together for their ratio (:func:`compress_ratio_pair`), any
+    other stack alone (:func:`compress_stack`), each named ``<prefix>.<name>``.
+
+    Returns ``[(name, CompactStack)]`` in sorted name order."""
+    names = sorted(images)
+    if names == ["I", "d"]:
+        results = compress_ratio_pair(
+            images["I"], images["d"], (f"{prefix}.I", f"{prefix}.d"), out_dir,
+            skies, S, S_inv, solid_angles, settings,
+        )
+    else:
+        results = [
+            compress_stack(images[name], f"{prefix}.{name}", out_dir, skies, S, S_inv,
+                           solid_angles, settings)
+            for name in names
+        ]
+    return list(zip(names, results, strict=True))
+
+
 def compress_ratio_pair(I, d, names, out_dir, skies, S, S_inv, solid_angles, settings):
     """Compress a shadowing atlas's ``I`` and ``d`` (H, W, n, 3) for their ratio.
 

@@ -563,40 +563,17 @@ class _Compressor:
         """Compress the stacks ``images`` ({name: (H, W, n, 3)}) of one atlas or view;
         ``I`` and ``d`` together (shadow ratio). Returns {name: compact manifest entry}."""
         t0 = time.perf_counter()
-        names = sorted(images)
         try:
-            if names == ["I", "d"]:
-                results = compress.compress_ratio_pair(
-                    images["I"],
-                    images["d"],
-                    (f"{prefix}.I", f"{prefix}.d"),
-                    staging,
-                    self.skies,
-                    self.S,
-                    self.S_inv,
-                    self.solid_angles,
-                    self.settings,
-                )
-            else:
-                results = [
-                    compress.compress_stack(
-                        images[name],
-                        f"{prefix}.{name}",
-                        staging,
-                        self.skies,
-                        self.S,
-                        self.S_inv,
-                        self.solid_angles,
-                        self.settings,
-                    )
-                    for name in names
-                ]
+            results = compress.compress_stacks(
+                images, prefix, staging, self.skies, self.S, self.S_inv, self.solid_angles,
+                self.settings,
+            )
         except compress.CompressionError as exc:
             raise BakeError(str(exc)) from None
         self.seconds += time.perf_counter() - t0
-        self.bar.update(len(names))
+        self.bar.update(len(results))
         out = {}
-        for name, result in zip(names, results, strict=True):
+        for name, result in results:
             n = images[name].shape[2]
             self.rows.append(
                 {

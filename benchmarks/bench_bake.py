@@ -115,21 +115,13 @@ def etc1s_comparison(build_dir: Path) -> list[dict]:
         for entry in m["atlases"] + m["views"]:
             stacks = {name: build.stack(entry["id"], name) for name in entry["stacks"]}
             started = time.perf_counter()
-            if sorted(stacks) == ["I", "d"]:
-                results = compress.compress_ratio_pair(
-                    stacks["I"], stacks["d"], (f"{entry['id']}.I", f"{entry['id']}.d"), tmp,
-                    skies, S, S_inv, build.solid_angles, settings)
-                names = ["I", "d"]
-            else:
-                names = sorted(stacks)
-                results = [compress.compress_stack(stacks[n], f"{entry['id']}.{n}", tmp, skies,
-                                                   S, S_inv, build.solid_angles, settings)
-                           for n in names]
+            results = compress.compress_stacks(stacks, entry["id"], tmp, skies, S, S_inv,
+                                               build.solid_angles, settings)
             seconds = time.perf_counter() - started
-            for name, r in zip(names, results, strict=True):
+            for name, r in results:
                 rows.append({"stack": f"{entry['id']}.{name}", "k": r.entry["k"],
                              "error": r.entry["error"]["max"], "base_bytes": r.base_bytes,
-                             "light_bytes": r.light_bytes, "seconds": seconds / len(names)})
+                             "light_bytes": r.light_bytes, "seconds": seconds / len(results)})
     return rows
 
 
