@@ -1,6 +1,6 @@
 // Decodes the mask payload of every tests/protocol_vectors/occlusion_rle_*.bin with
 // web/src/protocol.js and prints {name: {width, height, people, set_count, spans} | {error}}
-// for tests/web/test_occlusion_js.py to compare with NAME.mask.json.
+// for tests/web/test_protocol_js.py to compare with NAME.mask.json.
 import { readdirSync, readFileSync } from 'node:fs';
 import { join } from 'node:path';
 import { decodeMessage, decodeOcclusionMask, ProtocolError } from '../../web/src/protocol.js';
