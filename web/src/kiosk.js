@@ -43,14 +43,9 @@ export class Kiosk {
       encodeOutput: { value: 1 },
       viewport: { value: new THREE.Vector4(0, 0, 1, 1) },
     };
-    this.pass = new FullscreenPass(new THREE.RawShaderMaterial({
-      glslVersion: THREE.GLSL3,
-      uniforms: this.uniforms,
-      vertexShader: kioskVertex,
-      fragmentShader: kioskFragment(decode),
-      depthTest: false,
-      depthWrite: false,
-    }));
+    this.pass = new FullscreenPass({
+      uniforms: this.uniforms, vertexShader: kioskVertex, fragmentShader: kioskFragment(decode),
+    });
     this.frames = []; // {captureTime, bitmap, sequence, arrivedMs}
     this.masks = []; // {captureTime, width, height, mask, people}
     this.shown = null; // the frame on screen

@@ -43,9 +43,16 @@ function makeTarget(width, height, format) {
   return target;
 }
 
-/** A full-screen triangle drawn with one material: the GPU's way to visit every texel. */
+/**
+ * A full-screen triangle drawn with one GLSL 3 shader: the GPU's way to visit every texel.
+ * @param {{fragmentShader: string, uniforms: object, vertexShader?: string}} shaders
+ *   (the vertex shader defaults to the relight pass's)
+ */
 class FullscreenPass {
-  constructor(material) {
+  constructor({ fragmentShader, uniforms, vertexShader = relightVertex }) {
+    const material = new THREE.RawShaderMaterial({
+      glslVersion: THREE.GLSL3, uniforms, vertexShader, fragmentShader, depthTest: false, depthWrite: false,
+    });
     const geometry = new THREE.BufferGeometry();
     geometry.setAttribute('position', new THREE.Float32BufferAttribute([-1, -1, 0, 3, -1, 0, -1, 3, 0], 3));
     this.mesh = new THREE.Mesh(geometry, material);
@@ -115,18 +122,13 @@ class RelightStack {
       uniforms.gainScale = { value: layers.map((l) => new THREE.Vector3(...l.scale)) };
       uniforms.gainOffset = { value: layers.map((l) => new THREE.Vector3(...l.offset)) };
     }
-    const material = new THREE.RawShaderMaterial({
-      glslVersion: THREE.GLSL3,
+    this.pass = new FullscreenPass({
       uniforms,
-      vertexShader: relightVertex,
       fragmentShader: relightFragment({
         layers: this.compact.layers.length, slots: this.slots, gain: !!this.gain,
         encodeRGBE: this.format.rgbe,
       }),
-      depthTest: false,
-      depthWrite: false,
     });
-    this.pass = new FullscreenPass(material);
   }
 
   /** Start fetching the images of these lights (cached, at most once each). */
@@ -264,9 +266,7 @@ export class Relighter {
       mask.generateMipmaps = false;
       mask.needsUpdate = true;
       entry.mask = mask;
-      entry.pass = new FullscreenPass(new THREE.RawShaderMaterial({
-        glslVersion: THREE.GLSL3,
-        vertexShader: relightVertex,
+      entry.pass = new FullscreenPass({
         fragmentShader: viewSkyFragment({ lights: n, encodeRGBE: this.format.rgbe }),
         uniforms: {
           lightTex: { value: this.lightTex },
@@ -275,23 +275,17 @@ export class Relighter {
           invWidth2: { value: invWidth2 },
           size: { value: new THREE.Vector2(view.width, view.height) },
         },
-        depthTest: false,
-        depthWrite: false,
-      }));
+      });
     }
     if (this.wantDome) {
-      this.domePass = new FullscreenPass(new THREE.RawShaderMaterial({
-        glslVersion: THREE.GLSL3,
-        vertexShader: relightVertex,
+      this.domePass = new FullscreenPass({
         fragmentShader: domeSkyFragment({ lights: n, encodeRGBE: this.format.rgbe }),
         uniforms: {
           lightTex: { value: this.lightTex },
           invWidth2: { value: invWidth2 },
           size: { value: new THREE.Vector2(256, 64) },
         },
-        depthTest: false,
-        depthWrite: false,
-      }));
+      });
     }
   }
 
