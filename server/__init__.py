@@ -15,6 +15,7 @@ One concept per module:
 - ``sitecamera``: the kiosk's site camera as JPEG frames;
 - ``calibrate``: intrinsics from checkerboards, north from the sun;
 - ``config``: settings from TOML and flags;
+- ``throttledlog``: repeated warnings at most once per interval, with a count;
 - ``cli``: the command line.
 
 It learns the dome from the build's ``manifest.json`` and never imports the baker.

@@ -35,6 +35,8 @@ import time
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 
+from server.throttledlog import ThrottledWarnings
+
 log = logging.getLogger("daylit.occlusion")
 
 # Frames of another size than the pipeline's, in a row, before it is rebuilt for them.
@@ -85,7 +87,7 @@ class OcclusionEngine:
         self.input_size: tuple[int, int] | None = None  # of the camera's frames
         self._other_size: tuple[int, int] | None = None
         self._other_count = 0
-        self._last_log: dict[str, tuple[float, int]] = {}
+        self._skip_warnings = ThrottledWarnings(log, interval_s=10.0)
 
     def relearn(self) -> None:
         """Forget the background (and everything else): the next frames are learned anew."""
@@ -112,14 +114,7 @@ class OcclusionEngine:
                  input_size[1], size[0], size[1], self.config.learn_frames)
 
     def _skip(self, reason: str, t0: float) -> OcclusionOutput:
-        now = time.monotonic()
-        last, count = self._last_log.get(reason, (-1e9, 0))
-        if now - last >= 10.0:
-            more = f" ({count} more since the last report)" if count else ""
-            log.warning("occlusion: skipping a site camera frame: %s%s", reason, more)
-            self._last_log[reason] = (now, 0)
-        else:
-            self._last_log[reason] = (last, count + 1)
+        self._skip_warnings.warn(reason, f"occlusion: skipping a site camera frame: {reason}")
         return OcclusionOutput(False, reason, ms=1e3 * (time.perf_counter() - t0))
 
     def _check_size(self, input_size: tuple[int, int]) -> str | None:

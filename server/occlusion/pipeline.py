@@ -37,6 +37,7 @@ from server.occlusion.colour import Transfer, apply_table
 from server.occlusion.depth import Person, PerspectiveCamera, find_people, occlusion_mask
 from server.occlusion.segment import Segmenter, regions_of_interest
 from server.occlusion.settings import OcclusionSettings
+from server.throttledlog import ThrottledWarnings
 
 log = logging.getLogger("daylit.occlusion")
 
@@ -124,7 +125,7 @@ class OcclusionProcessor:
         self.frame_index = 0
         self._learning: list[np.ndarray] = []
         self._previous_exclude: np.ndarray | None = None  # coarse people + shadows, last frame
-        self._last_log: dict[str, tuple[float, int]] = {}
+        self._skip_warnings = ThrottledWarnings(log, interval_s=1.0)
 
     # -------------------------------------------------------------------------- construction
 
@@ -235,15 +236,7 @@ class OcclusionProcessor:
 
     def _log_skip(self, message: str) -> None:
         """Log a skipped frame; the same reason at most once a second (with a count)."""
-        key = message.split(":", 1)[-1]
-        now = time.monotonic()
-        last, count = self._last_log.get(key, (-1e9, 0))
-        if now - last >= 1.0:
-            suffix = f" ({count} more like it since the last report)" if count else ""
-            log.warning("%s%s", message, suffix)
-            self._last_log[key] = (now, 0)
-        else:
-            self._last_log[key] = (last, count + 1)
+        self._skip_warnings.warn(message.split(":", 1)[-1], message)
 
     def _learn_step(self, image: np.ndarray, index: int, t: float | None) -> OcclusionResult:
         self._learning.append(image)
