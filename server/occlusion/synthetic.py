@@ -158,6 +158,16 @@ class Walker:
         return parts
 
 
+def _pixel_box(uv: np.ndarray, margin_px: int, W: int, H: int):
+    """The pixels ``(x0, y0, x1, y1)`` (end exclusive) around projected points ``uv`` (m, 2),
+    widened by ``margin_px`` and clipped to a W x H frame; None when nothing is left."""
+    x0, y0 = np.floor(uv.min(0)).astype(int) - margin_px
+    x1, y1 = np.ceil(uv.max(0)).astype(int) + margin_px
+    x0, x1 = max(0, x0), min(W, x1)
+    y0, y1 = max(0, y0), min(H, y1)
+    return None if x1 <= x0 or y1 <= y0 else (x0, y0, x1, y1)
+
+
 def _inside_figure(parts, x: np.ndarray, y: np.ndarray):
     """Which points (x, y) lie in the figure: returns (hit bool, reflectance (N, 3), shade)."""
     hit = np.zeros(x.shape, dtype=bool)
@@ -432,15 +442,11 @@ class SyntheticSite:
                 top = base + np.array([0.0, hgt * 1.0, 0.0])
                 corners += [base, top - (top[1] / sun[1]) * sun]
             uv, z = cam.project(np.array(corners))
-            if np.any(z <= 0):
-                x0, y0, x1, y1 = 0, 0, W, H
-            else:
-                x0, y0 = np.floor(uv.min(0)).astype(int) - 2
-                x1, y1 = np.ceil(uv.max(0)).astype(int) + 2
-            x0, x1 = max(0, x0), min(W, x1)
-            y0, y1 = max(0, y0), min(H, y1)
-            if x1 <= x0 or y1 <= y0:
+            # A corner behind the camera: its projection says nothing, test the whole frame.
+            box = (0, 0, W, H) if np.any(z <= 0) else _pixel_box(uv, 2, W, H)
+            if box is None:
                 continue
+            x0, y0, x1, y1 = box
             g = ground[y0:y1, x0:x1]
             ok = np.isfinite(g[..., 0])
             g = np.nan_to_num(g)
@@ -454,14 +460,10 @@ class SyntheticSite:
             corners = [foot + sx * 0.6 * hgt * right + np.array([0, sy, 0])
                        for sx in (-1, 1) for sy in (0.0, hgt * 1.02)]
             uv, z = cam.project(np.array(corners))
-            if np.any(z <= 0):
+            box = None if np.any(z <= 0) else _pixel_box(uv, 1, W, H)
+            if box is None:
                 continue
-            x0, y0 = np.floor(uv.min(0)).astype(int) - 1
-            x1, y1 = np.ceil(uv.max(0)).astype(int) + 1
-            x0, x1 = max(0, x0), min(W, x1)
-            y0, y1 = max(0, y0), min(H, y1)
-            if x1 <= x0 or y1 <= y0:
-                continue
+            x0, y0, x1, y1 = box
             d = dirs[y0:y1, x0:x1]
             s = ((foot - o) @ n) / (d @ n)  # depth along the optical axis (d has z_cam = 1)
             p = o + s[..., None] * d
