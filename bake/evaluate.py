@@ -80,6 +80,10 @@ class Build:
         self.solid_angles = np.array(
             [light["solid_angle_sr"] for light in self.manifest["dome"]["lights"]]
         )
+        from bake.compress import Selection
+
+        # Which lights the compact data takes from their own images, as the client selects.
+        self.selection = Selection.from_manifest(self.manifest)
 
     @property
     def light_count(self) -> int:
@@ -117,8 +121,7 @@ class Build:
         if source == "master":
             return np.einsum("hwnc,nc->hwc", self.stack(atlas, name), r)
         if source == "compact":
-            m = self.manifest["compression"]["selected_lights"]
-            composite = self.compact(atlas, name).composite(r, self.solid_angles, m)
+            composite = self.compact(atlas, name).composite(r, self.selection)
             if self.compact(atlas, name).entry.get("encodes") == "d - I":
                 # Shadowing atlases carry the virtual objects' effect: I = d - (d - I).
                 return self.composite(atlas, "d", r, source) - composite

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import concurrent.futures as futures
 import datetime as dt
+import gzip
 import hashlib
 import json
 import os
@@ -521,6 +522,12 @@ def write_manifest(build_dir: Path, manifest: dict) -> None:
     os.replace(tmp, build_dir / "manifest.json")
 
 
+SELECTION_RULE = (
+    "top selected_lights of the selectable_lights (every light when absent) by "
+    "max(r_i.R, r_i.G, r_i.B) * solid_angle_sr_i, ties to the lower index, zero scores never"
+)
+
+
 class _Compressor:
     """Runs ``bake.compress`` on each stack as it is assembled and keeps the report."""
 
@@ -539,7 +546,22 @@ class _Compressor:
         compress.basisu_binary()  # fail before baking, not after, when the encoder is missing
 
     def start(self, site: Site, dome: Dome, stacks: int, progress: bool) -> None:
-        """Prepare the test skies and prior; show a progress bar over ``stacks`` stacks."""
+        """Prepare the test skies, prior and light selection; show a progress bar over
+        ``stacks`` stacks."""
+        scene = {
+            "timezone": site.timezone,
+            "latitude_deg": site.latitude_deg,
+            "longitude_deg": site.longitude_deg,
+            "elevation_m": site.elevation_m,
+        }
+        self.skies, self.S, self.S_inv, self.selection = compress.prepare(
+            scene, dome.vertices, dome.solid_angles_sr, self.settings.selected_lights
+        )
+        self.log(
+            f"  {len(self.selection.selectable)} of {dome.count} lights can be selected "
+            "(the sun's path and the brightest patches of the site's skies): only they get "
+            "their own images"
+        )
         self.bar = tqdm(
             total=stacks,
             unit="stack",
@@ -548,16 +570,6 @@ class _Compressor:
             file=sys.stderr,
             dynamic_ncols=True,
         )
-        scene = {
-            "timezone": site.timezone,
-            "latitude_deg": site.latitude_deg,
-            "longitude_deg": site.longitude_deg,
-            "elevation_m": site.elevation_m,
-        }
-        self.solid_angles = dome.solid_angles_sr
-        self.skies, self.S, self.S_inv = compress.prepare(
-            scene, dome.vertices, self.solid_angles, self.settings.selected_lights
-        )
 
     def run(self, images: dict, prefix: str, staging: Path) -> dict:
         """Compress the stacks ``images`` ({name: (H, W, n, 3)}) of one atlas or view;
@@ -565,7 +577,7 @@ class _Compressor:
         t0 = time.perf_counter()
         try:
             results = compress.compress_stacks(
-                images, prefix, staging, self.skies, self.S, self.S_inv, self.solid_angles,
+                images, prefix, staging, self.skies, self.S, self.S_inv, self.selection,
                 self.settings,
             )
         except compress.CompressionError as exc:
@@ -573,8 +585,8 @@ class _Compressor:
         self.seconds += time.perf_counter() - t0
         self.bar.update(len(results))
         out = {}
+        stored = max(len(self.selection.selectable), 1)
         for name, result in results:
-            n = images[name].shape[2]
             self.rows.append(
                 {
                     "stack": f"{prefix}.{name}",
@@ -582,7 +594,7 @@ class _Compressor:
                     "error": result.entry["error"]["max"],
                     "base_bytes": result.base_bytes,
                     "light_bytes": result.light_bytes,
-                    "light_bytes_per_light": round(result.light_bytes / n),
+                    "light_bytes_per_light": round(result.light_bytes / stored),
                     "encode_s": round(result.encode_s, 2),
                 }
             )
@@ -597,8 +609,8 @@ class _Compressor:
             "budget": self.settings.budget,
             "encoding": self.settings.encoding,
             "selected_lights": self.settings.selected_lights,
-            "selection": "top selected_lights lights by max(r_i.R, r_i.G, r_i.B) * "
-            "solid_angle_sr_i, ties to the lower index, zero scores never",
+            "selectable_lights": self.selection.selectable.tolist(),
+            "selection": SELECTION_RULE,
             "test_skies": [s.name for s in self.skies],
             "report": self.rows,
         }
@@ -635,9 +647,12 @@ def session_download_bytes(manifest: dict, build_dir: Path) -> dict:
     - ``phone_hull``: plus the hull planes, fetched when hull-plane mode is chosen;
     - ``kiosk``: the fixed views only (the kiosk draws no model);
     - ``all``: every compact file (GLB, KTX2, V) and the manifest, i.e. the whole download
-      a server must offer."""
+      a server must offer.
+
+    The manifest counts as sent: gzipped."""
     sizes = {f["path"]: f["bytes"] for f in manifest["files"]}
-    manifest_bytes = (build_dir / "manifest.json").stat().st_size
+    # The server sends JSON gzipped at level 6 (server/routes.py), the binaries as they are.
+    manifest_bytes = len(gzip.compress((build_dir / "manifest.json").read_bytes(), 6))
     glb = sizes[manifest["model"]["path"]]
     m = manifest["compression"]["selected_lights"]
     report = manifest["compression"]["report"]

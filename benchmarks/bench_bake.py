@@ -105,8 +105,10 @@ def etc1s_comparison(build_dir: Path) -> list[dict]:
     """Recompress every stack of a build with ETC1S and compare with its UASTC report."""
     build = Build(build_dir)
     m = build.manifest
-    skies, S, S_inv = compress.prepare(m["scene"], build.dome_vertices, build.solid_angles,
-                                       m["compression"]["selected_lights"])
+    skies, S, S_inv, selection = compress.prepare(
+        m["scene"], build.dome_vertices, build.solid_angles, m["compression"]["selected_lights"],
+        selectable=build.selection.selectable,
+    )
     settings = compress.Settings(encoding="etc1s", budget=m["compression"]["budget"],
                                  selected_lights=m["compression"]["selected_lights"])
     rows = []
@@ -116,7 +118,7 @@ def etc1s_comparison(build_dir: Path) -> list[dict]:
             stacks = {name: build.stack(entry["id"], name) for name in entry["stacks"]}
             started = time.perf_counter()
             results = compress.compress_stacks(stacks, entry["id"], tmp, skies, S, S_inv,
-                                               build.solid_angles, settings)
+                                               selection, settings)
             seconds = time.perf_counter() - started
             for name, r in results:
                 rows.append({"stack": f"{entry['id']}.{name}", "k": r.entry["k"],

@@ -82,11 +82,11 @@ def test_shuffled_v_breaks_the_composite(build):
     r = held_out_skies(build)["partly cloudy"]
     valid = _valid(build, "ground", "d")
     master = build.composite("ground", "d", r, "master")[valid]
-    good = reader.composite(r, build.solid_angles, 4)[valid]
+    good = reader.composite(r, build.selection)[valid]
     original = reader.V.copy()
     try:
         reader.V = original[np.random.default_rng(0).permutation(len(original))]
-        bad = reader.composite(r, build.solid_angles, 4)[valid]
+        bad = reader.composite(r, build.selection)[valid]
     finally:
         reader.V = original
 
@@ -101,8 +101,8 @@ def test_light_images_are_in_dome_order(build):
     """File L<i> of a stack decodes to the master's light i and to no other light."""
     reader = build.compact("lightmap", "I")  # no gain: its images are the master's as they are
     master = build.stack("lightmap", "I")
-    n = master.shape[2]
-    for i in (0, n // 3, n - 1):
+    lit = build.selection.selectable
+    for i in (lit[0], lit[len(lit) // 3], lit[-1]):
         decoded = reader.lights([i])[i]
         distance = np.abs(master - decoded[:, :, None, :]).mean(axis=(0, 1, 3))
         assert np.argmin(distance) == i
@@ -120,7 +120,8 @@ def test_ktx2_files_parse_with_an_independent_reader(build):
         compact = entry["stacks"][name]["compact"]
         files.append(build.dir / compact["ktx2"])
         expected.append((entry["width"], entry["height"], len(compact["layers"])))
-        files.append(build.dir / compact["lights"]["ktx2"][0].format(index=5))
+        lit = build.selection.selectable[len(build.selection.selectable) // 2]
+        files.append(build.dir / compact["lights"]["ktx2"][0].format(index=lit))
         expected.append((entry["width"], entry["height"], 0))
     result = subprocess.run(
         ["node", str(REPO / "tools" / "inspect_ktx2.mjs"), *map(str, files)],
@@ -145,8 +146,9 @@ def test_base_layers_decode_to_u_within_the_stated_error(build, tmp_path):
     Stated error, in units of each layer's range: 1/255 RMS, 3/255 for 99.9% of the texels,
     10/255 at the worst texel (a 4x4 block across a sharp edge)."""
     m = build.manifest
-    skies, S, S_inv = compress.prepare(
-        m["scene"], build.dome_vertices, build.solid_angles, m["compression"]["selected_lights"]
+    skies, S, S_inv, selection = compress.prepare(
+        m["scene"], build.dome_vertices, build.solid_angles, m["compression"]["selected_lights"],
+        selectable=build.selection.selectable,
     )
     image = build.stack("ground", "d")
     result = compress.compress_stack(
@@ -156,7 +158,7 @@ def test_base_layers_decode_to_u_within_the_stated_error(build, tmp_path):
         skies,
         S,
         S_inv,
-        build.solid_angles,
+        selection,
         compress.Settings(),
         refine_all=True,
     )
@@ -182,6 +184,62 @@ def test_probe_answers_from_compact_data_too(build):
         compact = build.irradiance(point, normal, sky, source="compact")
         assert np.allclose(compact["with"], master["with"], rtol=0.02)
         assert np.allclose(compact["without"], master["without"], rtol=0.02)
+
+
+def test_only_selectable_lights_have_images(build):
+    """Every stack has the two images of each selectable light and none of the others, whose
+    scale and offset are null; the set is a real subset of the dome."""
+    n = build.light_count
+    lit = build.manifest["compression"]["selectable_lights"]
+    assert lit == sorted(set(lit)) and 0 < len(lit) < n
+    listed = {f["path"] for f in build.manifest["files"]}
+    for atlas, name in every_stack(build):
+        lights = build._entry(atlas)["stacks"][name]["compact"]["lights"]
+        assert len(lights["scale"]) == len(lights["offset"]) == n
+        for i in range(n):
+            paths = [pattern.format(index=i) for pattern in lights["ktx2"]]
+            if i in lit:
+                assert all(p in listed and (build.dir / p).is_file() for p in paths)
+                assert lights["scale"][i] is not None and lights["offset"][i] is not None
+            else:
+                assert not any(p in listed or (build.dir / p).exists() for p in paths)
+                assert lights["scale"][i] is None and lights["offset"][i] is None
+
+
+def test_the_sun_patch_is_selected_under_a_clear_sky_all_year(build):
+    """Wherever the sun is at the site, at any time of year, its patch can be selected and is
+    selected under a clear sky (it holds most of the light)."""
+    import pandas as pd
+
+    from daylit.spherical import PatchLookup
+
+    site = build.manifest["scene"]
+    rng = np.random.default_rng(7)
+    start = pd.Timestamp("2025-01-01", tz=site["timezone"])
+    times = pd.DatetimeIndex(start + pd.to_timedelta(rng.uniform(0, 365, 4000), unit="D"))
+    az, el = skies.sun_positions(
+        site["latitude_deg"], site["longitude_deg"], site["elevation_m"], times
+    )
+    up = np.flatnonzero(el > 1.0)
+    assert len(up) > 1000
+    lookup = PatchLookup(build.dome_vertices)
+    sun_patch = lookup(skies.direction_from_azimuth_elevation(az[up], el[up]))
+    assert set(sun_patch.tolist()) <= set(build.selection.selectable.tolist())
+    for j in up[:40]:
+        r = build.light_vector(skies.clear_sky(az[j], el[j]))
+        patch = lookup(skies.direction_from_azimuth_elevation(az[j], el[j])[None])[0]
+        assert patch in build.selection(r)
+
+
+def test_selection_never_picks_a_light_that_cannot_be_selected():
+    r = np.ones((6, 3))
+    r[4] = [100, 1, 1]
+    r[2] = [1, 50, 1]
+    r[5] = [10, 10, 10]
+    selection = compress.Selection.of(np.ones(6), 2, selectable=[0, 1, 2, 3, 5])
+    assert list(selection(r)) == [2, 5]  # light 4 is brightest but has no images
+    assert list(selection.selectable) == [0, 1, 2, 3, 5]
+    assert list(compress.Selection.of(np.ones(6), 2)(r)) == [2, 4]
 
 
 def test_selection_picks_the_brightest_patches():

@@ -2,12 +2,15 @@
 // tests/web/test_lightmath_js.py to compare with Python's reference.
 import { readFileSync } from 'node:fs';
 import {
-  baseCoefficients, irradianceSH9, LightSmoother, openSkyIrradiance, selectLights, skySH9,
+  baseCoefficients, irradianceSH9, LightSmoother, openSkyIrradiance, selectionWeights, selectLights,
+  skySH9,
 } from '../../web/src/lightmath.js';
 
 const input = JSON.parse(readFileSync(0, 'utf8'));
 const out = { select: [], coefficients: [], sh9: [], open: [], smoothing: [] };
-for (const c of input.select) out.select.push(selectLights(c.r.flat(), c.solid, c.m));
+for (const c of input.select) {
+  out.select.push(selectLights(c.r.flat(), selectionWeights(c.solid, c.selectable), c.m));
+}
 for (const c of input.coefficients) {
   out.coefficients.push(Array.from(baseCoefficients(Float32Array.from(c.V.flat()), c.k, c.r.flat(), c.selected)));
 }

@@ -1,6 +1,6 @@
 """web/src/lightmath.js (run by Node) against the Python reference: the light selection
-A(r) with its tie rule, c = V^T r', the spherical-harmonic shading of hull-plane mode, the
-open-sky irradiance and the client's smoothing."""
+A(r) with its tie rule and the selectable lights, c = V^T r', the spherical-harmonic shading
+of hull-plane mode, the open-sky irradiance and the client's smoothing."""
 
 import json
 import math
@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bake.compress import select_lights
+from bake.compress import Selection
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -22,12 +22,16 @@ def test_lightmath_matches_python(reference):
     lights = manifest["dome"]["lights"]
     n = len(lights)
     solid = [light["solid_angle_sr"] for light in lights]
+    selectable = reference.selection.selectable.tolist()
     rng = np.random.default_rng(11)
     cases_select = [
         {"r": reference.light_vector("clear:135,40").tolist(), "solid": solid, "m": 4},
         {"r": np.ones((n, 3)).tolist(), "solid": [1.0] * n, "m": 4},  # all tied: lowest
         {"r": np.where(rng.random((n, 1)) < 0.9, 0.0, rng.random((n, 3))).tolist(),
          "solid": solid, "m": 4},  # mostly zero: zero-score lights never chosen
+        # The build's selectable lights, under a sky whose brightest patches cannot be selected.
+        {"r": np.where(np.isin(np.arange(n), selectable)[:, None], 1.0, 50.0).repeat(3, 1)
+         .tolist(), "solid": solid, "m": 4, "selectable": selectable},
     ]
     V = rng.normal(size=(n, 5)).astype(np.float32)
     r = rng.random((n, 3))
@@ -45,8 +49,9 @@ def test_lightmath_matches_python(reference):
                             timeout=60, check=True)
     got = json.loads(result.stdout)
     for case, chosen in zip(cases_select, got["select"], strict=True):
-        want = select_lights(np.array(case["r"]), np.array(case["solid"]), case["m"]).tolist()
-        assert chosen == want
+        selection = Selection.of(np.array(case["solid"]), case["m"], case.get("selectable"))
+        assert chosen == selection(np.array(case["r"])).tolist()
+    assert set(got["select"][3]) <= set(selectable) and len(got["select"][3]) == 4
     assert got["select"][1] == [0, 1, 2, 3]
     rest = r.copy()
     rest[[1, 7]] = 0.0

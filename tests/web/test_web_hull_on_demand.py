@@ -39,8 +39,7 @@ def test_hull_planes_load_only_in_hull_plane_mode(new_page, web_build, reference
         assert snap["sequence"] == 7
         applied = np.array(snap["r"]).reshape(-1, 3)
         np.testing.assert_allclose(applied, r, rtol=1e-3)  # the message's light, float32
-        m = reference.manifest["compression"]["selected_lights"]
-        want = reference.compact("hull", "d").composite(applied, reference.solid_angles, m)
+        want = reference.compact("hull", "d").composite(applied, reference.selection)
         check("hull.d after activation", decode_floats(snap)[..., :3], want)
         assert not page.errors, page.errors
 

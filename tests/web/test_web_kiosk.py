@@ -50,9 +50,8 @@ def composite(page):
 
 def view_inputs(ref, r):
     view = ref.manifest["views"][0]
-    m = ref.manifest["compression"]["selected_lights"]
-    O = ref.compact(view["id"], "O").composite(r, ref.solid_angles, m).astype(np.float64)
-    S = ref.compact(view["id"], "S").composite(r, ref.solid_angles, m).astype(np.float64)
+    O = ref.compact(view["id"], "O").composite(r, ref.selection).astype(np.float64)
+    S = ref.compact(view["id"], "S").composite(r, ref.selection).astype(np.float64)
     mask = cv2.imread(str(ref.dir / view["mask"]), cv2.IMREAD_GRAYSCALE)
     return view, O, S, mask
 

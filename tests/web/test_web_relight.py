@@ -18,7 +18,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bake.compress import select_lights
 from tests.web.harness import StubServer, decode_floats
 
 pytestmark = [pytest.mark.browser]
@@ -70,7 +69,6 @@ def check(name, gpu, want, master=None, magnitude=None):
 @pytest.mark.parametrize("mode", ["visit", "kiosk"])
 def test_relight_targets_equal_the_numpy_reference(new_page, web_build, reference, mode):
     ref = reference
-    m = ref.manifest["compression"]["selected_lights"]
     entries = ref.manifest["atlases"] if mode == "visit" else ref.manifest["views"]
     report = {}
     with StubServer(web_build) as server:
@@ -79,10 +77,10 @@ def test_relight_targets_equal_the_numpy_reference(new_page, web_build, referenc
         for seq, (sky, r) in enumerate(skies(ref).items(), start=1):
             applied = relight(page, r, seq)
             assert applied["exact"] and applied["sequence"] == seq
-            assert applied["selected"] == select_lights(r, ref.solid_angles, m).tolist()
+            assert applied["selected"] == ref.selection(r).tolist()
             for entry in entries:
                 aid = entry["id"]
-                compact = {name: ref.compact(aid, name).composite(r, ref.solid_angles, m)
+                compact = {name: ref.compact(aid, name).composite(r, ref.selection)
                            for name in entry["stacks"]}
                 for stack, spec in entry["stacks"].items():
                     gpu = read(page, f"{aid}.{stack}")

@@ -5,23 +5,40 @@
 // W/(m^2 sr) per light (the unit radiance the basis was baked with).
 
 /**
- * A(r): the m lights with the largest max(r_i.R, r_i.G, r_i.B) * solid_angle_sr_i, ties to the
- * lower index, lights scoring 0 never. Returned in increasing index order (bake.compress
- * .select_lights does the same).
+ * A(r): the m lights with the largest max(r_i.R, r_i.G, r_i.B) * weight_i, ties to the lower
+ * index, lights scoring 0 never. Returned in increasing index order (bake.compress
+ * .select_lights does the same). The weights are `selectionWeights(...)`.
  * @param {ArrayLike<number>} r n x 3
- * @param {ArrayLike<number>} solidAnglesSr n
+ * @param {ArrayLike<number>} weightsSr n
  * @param {number} m
  * @returns {number[]}
  */
-export function selectLights(r, solidAnglesSr, m) {
-  const n = solidAnglesSr.length;
+export function selectLights(r, weightsSr, m) {
+  const n = weightsSr.length;
   const scored = [];
   for (let i = 0; i < n; i++) {
-    const score = Math.max(r[3 * i], r[3 * i + 1], r[3 * i + 2]) * solidAnglesSr[i];
+    const score = Math.max(r[3 * i], r[3 * i + 1], r[3 * i + 2]) * weightsSr[i];
     if (score > 0) scored.push([score, i]);
   }
   scored.sort((a, b) => (b[0] - a[0]) || (a[1] - b[1]));
   return scored.slice(0, m).map((s) => s[1]).sort((a, b) => a - b);
+}
+
+/**
+ * Selection weights: each light's solid angle if it can be selected (only those lights have
+ * their own images), else 0 (bake.compress.Selection.weights_sr).
+ * @param {ArrayLike<number>} solidAnglesSr n
+ * @param {number[] | undefined} selectable manifest compression.selectable_lights (absent:
+ *   every light, as in builds made before it existed)
+ * @returns {Float64Array}
+ */
+export function selectionWeights(solidAnglesSr, selectable) {
+  const weights = Float64Array.from(solidAnglesSr);
+  if (selectable === undefined || selectable === null) return weights;
+  const keep = new Uint8Array(weights.length);
+  for (const i of selectable) keep[i] = 1;
+  for (let i = 0; i < weights.length; i++) if (!keep[i]) weights[i] = 0;
+  return weights;
 }
 
 /**

@@ -14,7 +14,7 @@
 // pass run at once with the missing lights left in r' (summed by the low-rank base, a coarse
 // stand-in), so something appears while they load.
 import * as THREE from 'three';
-import { baseCoefficients, selectLights, stackWeights } from './lightmath.js';
+import { baseCoefficients, selectionWeights, selectLights, stackWeights } from './lightmath.js';
 import {
   domeSkyFragment, relightFragment, relightVertex, viewSkyFragment,
 } from './relight.glsl.js';
@@ -209,7 +209,10 @@ export class Relighter {
     this.manifest = assets.manifest;
     this.format = targetFormat(renderer);
     this.m = this.manifest.compression.selected_lights;
-    this.solidAngles = this.manifest.dome.lights.map((l) => l.solid_angle_sr);
+    this.selectionWeights = selectionWeights(
+      this.manifest.dome.lights.map((l) => l.solid_angle_sr),
+      this.manifest.compression.selectable_lights,
+    );
     this.n = this.manifest.dome.count;
     this.stacks = new Map();
     const wanted = which.stacks ?? null;
@@ -297,7 +300,7 @@ export class Relighter {
    */
   update(r, sequence = 0, force = false) {
     if (r.length !== 3 * this.n) throw new Error(`light vector of ${r.length / 3} lights, the build has ${this.n}`);
-    const selected = selectLights(r, this.solidAngles, this.m);
+    const selected = selectLights(r, this.selectionWeights, this.m);
     this.latest = { r: Float64Array.from(r), sequence, selected };
     const stacks = this.active();
     const ready = stacks.every((s) => selected.every((i) => s.lights.has(i)));
