@@ -11,10 +11,12 @@ its few brightest patches is smooth and very low rank. So each stack is stored a
   covariance ``C`` of expected light vectors with their brightest patches removed: with
   ``S = C^(1/2)`` and ``Y`` the top eigenvectors of ``S G S`` (``G = B^T B``), ``U = B S Y`` and
   ``V = S^-1 Y``; it is the best rank-k fit for those skies (not for arbitrary columns).
-- ``A(r)`` are the ``m`` brightest lights of the current vector (Sato Sec. 7 selects lights the
-  same way): the ``m`` largest ``max_c(r_ic) * solid_angle_i``. Their own basis images ``B_i``
-  are stored one texture per light; a client downloads only the few it needs (the sun moves
-  one patch in tens of minutes). Keeping ``B_i`` itself rather than the residual
+- ``A(r)`` are the ``m`` brightest selectable lights of the current vector (Sato Sec. 7
+  selects lights the same way): the ``m`` largest ``max_c(r_ic) * solid_angle_i`` among the
+  lights this site's skies can select (:func:`selectable_lights`: the sun's yearly path and
+  its neighbours, about half the dome). Their own basis images ``B_i`` are stored one
+  texture per light; a client downloads only the few it needs (the sun moves one patch in
+  tens of minutes). Keeping ``B_i`` itself rather than the residual
   ``B_i - U V^T e_i`` matters: with residuals the sun's huge ``r_i`` multiplies a low-rank term
   and then cancels it, and the quantization noise of both survives (measured: 2.6-4% error
   against 0.5-0.8% this way).
@@ -618,7 +620,7 @@ def compress_stack(
       shared);
     - ``ktx2/<name>.base.ktx2``: a 2D array of the k base layers, then refinement layers;
     - ``ktx2/<name>.L<i>.ktx2`` and ``ktx2/<name>.L<i>r.ktx2``: light ``i``'s own
-      (normalized) image and its refinement;
+      (normalized) image and its refinement, for each selectable light ``i``;
     - ``v/<name>.V.bin``: V, n x k float32, little-endian, row-major.
 
     Refinement (two-stage quantization): a texture is encoded, decoded, and what the codec
