@@ -59,7 +59,12 @@ def test_interrupted_bake_resumes_and_matches(tmp_path):
         "1",
         "--no-progress",
     ]
-    process = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
+    # Ctrl-C's default action in the child even if this run ignores SIGINT (a background job
+    # of a non-interactive shell does, and the child would inherit it).
+    process = subprocess.Popen(
+        command, stderr=subprocess.PIPE, text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and not list((partial / "chunks").glob("atlas-*.npz")):
         time.sleep(0.05)
