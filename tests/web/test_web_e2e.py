@@ -90,6 +90,8 @@ def test_stopping_the_server_shows_stale_and_a_restart_recovers_without_reload(
         relights = page.status()["relights"]
         server.stop()
         page.wait("!window.daylit.status.connected && window.daylit.status.stale")
+        # The HUD redraws its line on its own clock, a moment after the status changes.
+        page.wait("/reconnecting|stale/.test(document.querySelector('.statusline').textContent)")
         line = page.page.inner_text(".statusline")
         assert "reconnecting" in line or "stale" in line, line
         assert page.status()["lightSeq"] is not None  # the last light is kept
