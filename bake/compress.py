@@ -151,14 +151,6 @@ class Selection:
             weights[~keep] = 0.0
         return cls(weights, m)
 
-    @classmethod
-    def from_manifest(cls, manifest: dict) -> Selection:
-        """As a build's manifest states it (older builds without ``selectable_lights``:
-        every light)."""
-        solid_angles = np.array([light["solid_angle_sr"] for light in manifest["dome"]["lights"]])
-        c = manifest["compression"]
-        return cls.of(solid_angles, c["selected_lights"], c.get("selectable_lights"))
-
 
 def selectable_lights(site, dome_vertices, solid_angles, m, skies) -> np.ndarray:
     """The lights a site's skies can select: every patch the sun passes through in a year
@@ -650,6 +642,10 @@ def compress_stack(
         out[valid] = values
         return out
 
+    def encode_array(pngs: list[Path], out: Path) -> None:
+        # Arrays (gain, base) hold coarse and refinement layers: one level for both.
+        encode(pngs, out, settings, array=True, level=settings.refine_level)
+
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         # Only selectable lights get images; light-major (len(lit), H, W, 3), so that each
@@ -659,24 +655,12 @@ def compress_stack(
         # Stage 1: coarse gain, base layers and light images.
         gain_image = np.repeat(full(spectrum.gain[:, None]), 3, axis=2)
         gain_q = _quantized_png(gain_image, tmp / "gain.png")
-        encode(
-            [gain_q.path],
-            tmp / "gain-coarse.ktx2",
-            settings,
-            array=True,
-            level=settings.refine_level,
-        )
+        encode_array([gain_q.path], tmp / "gain-coarse.ktx2")
         base = [full(f.U[:, :, layer]) for layer in range(f.k)]
         base_q = [_quantized_png(x, tmp / f"base{j:04d}.png") for j, x in enumerate(base)]
         # Arrays are encoded twice (coarse, then with refinements), at one level: UASTC is
         # deterministic, so the coarse layers come out the same both times.
-        encode(
-            [q.path for q in base_q],
-            tmp / "coarse.ktx2",
-            settings,
-            array=True,
-            level=settings.refine_level,
-        )
+        encode_array([q.path for q in base_q], tmp / "coarse.ktx2")
         coarse_dir = tmp / "coarse"
         coarse_dir.mkdir()
         light_q = [
@@ -702,24 +686,12 @@ def compress_stack(
             for j in refine
         ]
         base_file = out_dir / "ktx2" / f"{name}.base.ktx2"
-        encode(
-            [q.path for q in base_q + refine_q],
-            base_file,
-            settings,
-            array=True,
-            level=settings.refine_level,
-        )
+        encode_array([q.path for q in base_q + refine_q], base_file)
         gain_refine_q = _refinement_png(gain_image - coarse_gain, tmp / "gain-refine.png", None)
         written_gain = out_dir / "ktx2" / f"{name}.gain.ktx2"
         write_gain = normalized_gain and gain_file is None
         if write_gain:
-            encode(
-                [gain_q.path, gain_refine_q.path],
-                written_gain,
-                settings,
-                array=True,
-                level=settings.refine_level,
-            )
+            encode_array([gain_q.path, gain_refine_q.path], written_gain)
         refine_dir = tmp / "refine"
         refine_dir.mkdir()
         light_refine_q = [
