@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import asyncio
+import signal
+import socket
+import subprocess
 import threading
 from pathlib import Path
 
@@ -187,3 +190,28 @@ class KioskSequence:
             else:
                 far = pixels
         return near, far
+
+
+async def raw_websocket_that_never_reads(port: int, query: str = "") -> socket.socket:
+    """A WebSocket handshake to ``/ws/light?<query>`` over a socket with a tiny receive
+    buffer, never read again: a client the server must not wait for."""
+    path = f"/ws/light?{query}" if query else "/ws/light"
+    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    sock.connect(("127.0.0.1", port))
+    sock.sendall(
+        f"GET {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\n".encode()
+        + b"Connection: Upgrade\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n"
+        b"Sec-WebSocket-Version: 13\r\n\r\n"
+    )
+    return sock
+
+
+def interrupt_and_wait(proc: subprocess.Popen, timeout_s: float) -> None:
+    """Ctrl-C a ``daylit`` process and wait for it to exit (killed if it does not in time)."""
+    proc.send_signal(signal.SIGINT)
+    try:
+        proc.wait(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()

@@ -2,7 +2,6 @@
 
 import json
 import os
-import signal
 import socket
 import subprocess
 import sys
@@ -11,6 +10,7 @@ import urllib.request
 from pathlib import Path
 
 from daylit.cli import build_parser, main
+from tests.server.helpers import interrupt_and_wait
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -79,12 +79,7 @@ def test_serve_prints_the_url_and_serves_until_interrupted(build_dir):
             time.sleep(0.2)
         assert status["source"] == "sim" and status["sequence"] > 0
     finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        interrupt_and_wait(proc, 20)
     assert proc.returncode == 0
     err = proc.stderr.read()
     assert "first frame from sim" in err and "stopping after" in err

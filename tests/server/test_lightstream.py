@@ -2,7 +2,6 @@
 
 import asyncio
 import json
-import socket
 
 import aiohttp
 import numpy as np
@@ -11,7 +10,7 @@ from aiohttp import WSMsgType
 
 from server import protocol
 from server.app import HUB, create_app
-from tests.server.helpers import ManualSource, settings_for
+from tests.server.helpers import ManualSource, raw_websocket_that_never_reads, settings_for
 
 
 @pytest.fixture
@@ -84,19 +83,6 @@ async def test_two_clients_receive_the_same_sequence_numbers(make_client):
     assert seen_a == seen_b
     await a.close()
     await b.close()
-
-
-async def raw_websocket_that_never_reads(port: int) -> socket.socket:
-    """A WebSocket handshake over a socket with a tiny receive buffer; never read again."""
-    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
-    sock.connect(("127.0.0.1", port))
-    sock.sendall(
-        b"GET /ws/light HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\n"
-        b"Connection: Upgrade\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n"
-        b"Sec-WebSocket-Version: 13\r\n\r\n"
-    )
-    return sock
 
 
 async def test_a_client_that_never_reads_does_not_delay_another(make_client):

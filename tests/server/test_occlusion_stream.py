@@ -24,7 +24,13 @@ from server.config import ConfigError
 from server.measure import Frame
 from server.occlusion import decode_mask
 from server.protocol import Flags, MessageType
-from tests.server.helpers import KioskSequence, ManualSource, settings_for
+from tests.server.helpers import (
+    KioskSequence,
+    ManualSource,
+    interrupt_and_wait,
+    raw_websocket_that_never_reads,
+    settings_for,
+)
 
 EMPTY_FRAMES = 15  # the site is empty for 1.5 s; the first 10 frames are learned
 
@@ -206,27 +212,13 @@ async def test_bad_frames_are_skipped_and_the_stream_goes_on(
     await ws.close()
 
 
-async def raw_kiosk_that_never_reads(port: int):
-    import socket
-
-    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
-    sock.connect(("127.0.0.1", port))
-    sock.sendall(
-        b"GET /ws/light?streams=site-camera,occlusion HTTP/1.1\r\nHost: 127.0.0.1\r\n"
-        b"Upgrade: websocket\r\nConnection: Upgrade\r\n"
-        b"Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n"
-    )
-    return sock
-
-
 async def test_a_slow_kiosk_does_not_delay_another(aiohttp_client, demo_draft_build, tmp_path):
     """Frames with masks to a kiosk that never reads: the other kiosk gets every one in step."""
     app = create_app(demo_draft_build, settings_for(tmp_path, occlusion__worker="thread"),
                      sky_source=ManualSource(), site_source=ManualSource("site"))
     client = await aiohttp_client(app)
     hub = app[HUB]
-    stalled = await raw_kiosk_that_never_reads(client.port)
+    stalled = await raw_websocket_that_never_reads(client.port, "streams=site-camera,occlusion")
     await wait_for(lambda: len(hub.clients) == 1)
     reader = await client.ws_connect("/ws/light?streams=site-camera,occlusion")
     await reader.receive(timeout=30)
@@ -329,12 +321,7 @@ def test_serve_with_a_site_camera_relearns_on_sighup_and_stops_cleanly(demo_draf
         proc.send_signal(signal.SIGHUP)
         wait(lambda s: s["relearns"] == 1 and s["state"] == "ready", "re-learned")
     finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        interrupt_and_wait(proc, 30)
     err = proc.stderr.read()
     assert proc.returncode == 0, err
     assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
