@@ -118,8 +118,13 @@ class BounceCache:
         key = np.concatenate([self.points, FACE_SEPARATION * self.faces[:, None]], axis=1)
         self._tree = cKDTree(key)
         # Albedo times irradiance, flattened to (C, n * 3): what one bounce ray picks up.
+        # float32, as the gather matrix: the gather streams this whole array once per chunk,
+        # and float64 doubled its time (measured: 1.29 s -> 0.69 s for 12 chunks at 400
+        # lights; results differ by 1e-6 relative).
         self._picked_up = {
-            config: (E[:, :, None] * self.albedo[:, None, :]).reshape(len(self.points), -1)
+            config: (E[:, :, None] * self.albedo[:, None, :])
+            .reshape(len(self.points), -1)
+            .astype(np.float32)
             for config, E in self.E.items()
         }
 
@@ -371,7 +376,8 @@ class Estimator:
             weight *= facing[:, None] / K
             rows = np.repeat(owner[hit], index.shape[1])
             gather = scipy.sparse.csr_matrix(
-                (weight.ravel(), (rows, index.ravel())), shape=(T, len(self.cache.points))
+                (weight.ravel().astype(np.float32), (rows, index.ravel())),
+                shape=(T, len(self.cache.points)),
             )
             out += gather @ self.cache.picked_up(config)
         # Rays that leave the modelled geometry downward meet the open ground beyond it.
