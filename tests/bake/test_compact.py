@@ -250,3 +250,33 @@ def test_selection_picks_the_brightest_patches():
     r[5] = [300, 300, 300]  # bright but tiny: score 30
     assert list(compress.select_lights(r, omega, 2)) == [2, 4]
     assert list(compress.select_lights(np.zeros((6, 3)), omega, 2)) == []
+
+
+def test_separate_textures_are_encoded_side_by_side_each_into_its_own_file(tmp_path):
+    """``encode`` shares separate textures out between encoders (one per core); each output
+    must hold its own input: distinct gradients, decoded by the browser's transcoder."""
+    rng = np.random.default_rng(5)
+    ramp = np.linspace(0.0, 1.0, 48)
+    images, pngs = [], []
+    for j in range(5):
+        slope = rng.uniform(0.2, 1.0, 3)
+        image = np.clip(ramp[None, :, None] * slope + 0.15 * j + 0.1 * ramp[:, None, None], 0, 1)
+        image = np.round(image[:40] * 255.0).astype(np.uint8)
+        images.append(image)
+        pngs.append(tmp_path / f"layer{j}.png")
+        compress._write_png(pngs[-1], image)
+    out = tmp_path / "out"
+    out.mkdir()
+    compress.encode(pngs, out, compress.Settings(), array=False, level=1)
+    decoded = compress.decode([out / f"layer{j}.ktx2" for j in range(5)])
+    for image, d in zip(images, decoded, strict=True):
+        assert d.shape == (1, 40, 48, 4)
+        error = np.abs(d[0, :, :, :3].astype(int) - image.astype(int))
+        assert error.max() <= 4  # smooth data: UASTC is within a few levels
+
+
+def test_an_encoder_failure_says_what_failed(tmp_path):
+    bad = tmp_path / "not-a.png"
+    bad.write_bytes(b"this is not a PNG")
+    with pytest.raises(compress.CompressionError, match="basisu failed"):
+        compress.encode([bad], tmp_path, compress.Settings(), array=False)
