@@ -5,7 +5,10 @@ Stages (each split into chunks of points whose layout does not depend on the wor
 1. **cache** — direct basis irradiance at the bounce-cache points (configurations all, real);
 2. **receivers** — direct + one bounce at every texel of the hull, ground and lightmap atlases
    and at every pixel hit of the fixed views;
-3. **assemble** — stacks into EXR masters, masks, ``site.glb``, ``manifest.json``.
+3. **write** — stacks into EXR masters and compact textures (``bake.compress``), masks,
+   ``site.glb``, ``manifest.json``. Atlases and views are written two at a time in threads:
+   one's single-threaded parts (EXR writing, quantizing, checking) run while the other's
+   encoders use the cores.
 
 Chunks run in a process pool (one worker per core; Embree is single-threaded per call here)
 and are saved as they finish under ``.<out>.partial/``, keyed by a hash of every input, so an
@@ -29,6 +32,7 @@ import sys
 import time
 import zlib
 from dataclasses import dataclass, field
+from functools import partial as partial_fn
 from pathlib import Path
 
 import cv2
@@ -178,25 +182,31 @@ def bake(
     rays, trace_s = work.run(partial, workers, progress, stage_s, log)
 
     t0 = time.perf_counter()
-    compressor.start(site, dome, stacks=work.stack_count, progress=progress)
+    stack_names = [f"{a.id}.{stack}" for a in atlases.values() for stack in sorted(a.stacks)]
+    stack_names += [f"{view.name}.{stack}" for view in site.views for stack in ("O", "S")]
+    compressor.start(site, dome, stack_names, progress=progress)
     staging = partial / "build"
     if staging.exists():
         shutil.rmtree(staging)
     (staging / "exr").mkdir(parents=True)
-    results = {s.name: _load_set(s, partial) for s in work.point_sets}
-    manifest_atlases = [_write_atlas(a, results, staging, compressor) for a in atlases.values()]
     if site.views:
         (staging / "views").mkdir()
-    manifest_views = [
-        _write_view(view, view_hits[view.name], results, geometry, dome, site, staging, compressor)
+    results = {s.name: _load_set(s, partial) for s in work.point_sets}
+    units = [partial_fn(_write_atlas, a, results, staging, compressor) for a in atlases.values()]
+    units += [
+        partial_fn(
+            _write_view, view, view_hits[view.name], results, geometry, dome, site, staging,
+            compressor,
+        )
         for view in site.views
     ]
+    entries = _run_two_at_a_time(units)
+    manifest_atlases, manifest_views = entries[: len(atlases)], entries[len(atlases) :]
     lightmap_parts = site.virtual + [proxy.part for proxy in site.real]
     albedo_by_part = {p.name: p.albedo.mean(axis=0) for p in lightmap_parts}
     nodes = write_site_glb(staging / "site.glb", site, atlases, albedo_by_part)
     compressor.close()
-    stage_s["compress"] = compressor.seconds
-    stage_s["assemble"] = time.perf_counter() - t0 - compressor.seconds
+    stage_s["write"] = time.perf_counter() - t0
     duration = time.perf_counter() - started
     manifest = _manifest(
         site,
@@ -397,6 +407,19 @@ class _Work:
         return cache_file
 
 
+def _run_two_at_a_time(units: list) -> list:
+    """Run the write units (callables returning a manifest entry) in two threads; their
+    entries in the order given. The first failure cancels what has not started and is raised
+    once the running unit has stopped."""
+    with futures.ThreadPoolExecutor(max_workers=2, thread_name_prefix="write") as pool:
+        running = [pool.submit(unit) for unit in units]
+        try:
+            return [future.result() for future in running]
+        except BaseException:
+            pool.shutdown(wait=True, cancel_futures=True)
+            raise
+
+
 def _write_atlas(a, results: dict, staging: Path, compressor) -> dict:
     """Assemble an atlas's stacks (direct plus smoothed bounce, gutters filled), write their
     EXR masters and compact textures; returns the atlas's manifest entry."""
@@ -540,14 +563,15 @@ class _Compressor:
             selected_lights=c["selected_lights"],
         )
         self.log = log
-        self.rows: list[dict] = []
-        self.seconds = 0.0
+        self.rows: dict[str, dict] = {}  # stack name -> report row (written from two threads)
+        self.stack_names: list[str] = []
         self.bar = None
         compress.basisu_binary()  # fail before baking, not after, when the encoder is missing
 
-    def start(self, site: Site, dome: Dome, stacks: int, progress: bool) -> None:
-        """Prepare the test skies, prior and light selection; show a progress bar over
-        ``stacks`` stacks."""
+    def start(self, site: Site, dome: Dome, stack_names: list[str], progress: bool) -> None:
+        """Prepare the test skies, prior and light selection; show a progress bar over the
+        stacks ``stack_names`` (``<atlas or view>.<stack>``, the report's order)."""
+        self.stack_names = list(stack_names)
         scene = {
             "timezone": site.timezone,
             "latitude_deg": site.latitude_deg,
@@ -563,7 +587,7 @@ class _Compressor:
             "their own images"
         )
         self.bar = tqdm(
-            total=stacks,
+            total=len(self.stack_names),
             unit="stack",
             disable=not progress,
             desc="writing",
@@ -573,8 +597,8 @@ class _Compressor:
 
     def run(self, images: dict, prefix: str, staging: Path) -> dict:
         """Compress the stacks ``images`` ({name: (H, W, n, 3)}) of one atlas or view;
-        ``I`` and ``d`` together (shadow ratio). Returns {name: compact manifest entry}."""
-        t0 = time.perf_counter()
+        ``I`` and ``d`` together (shadow ratio). Returns {name: compact manifest entry}.
+        Safe to call from several threads at once (each with its own stacks)."""
         try:
             results = compress.compress_stacks(
                 images, prefix, staging, self.skies, self.S, self.S_inv, self.selection,
@@ -582,22 +606,20 @@ class _Compressor:
             )
         except compress.CompressionError as exc:
             raise BakeError(str(exc)) from None
-        self.seconds += time.perf_counter() - t0
-        self.bar.update(len(results))
+        self.bar.update(len(results))  # tqdm locks its own updates
         out = {}
         stored = max(len(self.selection.selectable), 1)
         for name, result in results:
-            self.rows.append(
-                {
-                    "stack": f"{prefix}.{name}",
-                    "k": result.entry["k"],
-                    "error": result.entry["error"]["max"],
-                    "base_bytes": result.base_bytes,
-                    "light_bytes": result.light_bytes,
-                    "light_bytes_per_light": round(result.light_bytes / stored),
-                    "encode_s": round(result.encode_s, 2),
-                }
-            )
+            # One key per stack: dict assignment is atomic under the GIL.
+            self.rows[f"{prefix}.{name}"] = {
+                "stack": f"{prefix}.{name}",
+                "k": result.entry["k"],
+                "error": result.entry["error"]["max"],
+                "base_bytes": result.base_bytes,
+                "light_bytes": result.light_bytes,
+                "light_bytes_per_light": round(result.light_bytes / stored),
+                "encode_s": round(result.encode_s, 2),
+            }
             out[name] = result.entry
         return out
 
@@ -612,8 +634,12 @@ class _Compressor:
             "selectable_lights": self.selection.selectable.tolist(),
             "selection": SELECTION_RULE,
             "test_skies": [s.name for s in self.skies],
-            "report": self.rows,
+            "report": self.report(),
         }
+
+    def report(self) -> list[dict]:
+        """The report rows in the order of the stacks given to :meth:`start`."""
+        return [self.rows[name] for name in self.stack_names if name in self.rows]
 
     def print_report(self, manifest: dict, staging: Path) -> None:
         budget = self.settings.budget
@@ -622,7 +648,7 @@ class _Compressor:
             f"mean, {self.settings.selected_lights} selected lights):"
         )
         self.log(f"  {'stack':<16}{'k':>4}{'error':>9}{'base':>10}{'lights':>12}{'per light':>11}")
-        for row in self.rows:
+        for row in self.report():
             flag = "" if row["error"] <= budget else "  over budget"
             self.log(
                 f"  {row['stack']:<16}{row['k']:>4}{row['error']:>9.2%}"

@@ -132,7 +132,8 @@ def print_result(r: dict) -> None:
     print(f"\n== demo, {r['lights']} lights, {r['quality']}, {r['workers']} workers")
     print(f"bake {r['duration_s']:.0f} s: receivers {s.get('receivers', 0):.0f} s, "
           f"cache {s.get('cache', 0):.0f} s, trace {s.get('trace', 0):.0f} s, "
-          f"assemble {s.get('assemble', 0):.0f} s, compress {s.get('compress', 0):.0f} s")
+          f"write {s.get('write', 0):.0f} s (EXR masters and compact textures, two atlases "
+          f"or views at a time; per-stack encode times below)")
     print(f"rays {r['rays'] / 1e6:.0f} M; baker {r['rays_per_s'] / 1e6:.2f} M rays/s; raw engine "
           f"{r['raw_rays_per_s'] / 1e6:.2f} M rays/s (spread {r['raw_spread']:.0%}); ratio "
           f"{r['rays_per_s'] / r['raw_rays_per_s']:.2f} (goal >= 0.5)")
