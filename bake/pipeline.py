@@ -191,7 +191,9 @@ def bake(
     (staging / "exr").mkdir(parents=True)
     if site.views:
         (staging / "views").mkdir()
-    results = {s.name: _load_set(s, partial) for s in work.point_sets}
+    # Each unit loads its own traced arrays when it starts and lets go of them when done:
+    # loading every set first held them all at once (16 GB at 400 lights).
+    results = _TracedResults(work.point_sets, partial)
     units = [partial_fn(_write_atlas, a, results, staging, compressor) for a in atlases.values()]
     units += [
         partial_fn(
@@ -420,7 +422,7 @@ def _run_two_at_a_time(units: list) -> list:
             raise
 
 
-def _write_atlas(a, results: dict, staging: Path, compressor) -> dict:
+def _write_atlas(a, traced: _TracedResults, staging: Path, compressor) -> dict:
     """Assemble an atlas's stacks (direct plus smoothed bounce, gutters filled), write their
     EXR masters and compact textures; returns the atlas's manifest entry."""
     entry = {
@@ -436,13 +438,11 @@ def _write_atlas(a, results: dict, staging: Path, compressor) -> dict:
         entry["d_reference"] = a.d_reference
     coverage = a.coverage()
     labels = a.label_image()
+    results = traced.load(a.id)
     images = {}
     for stack, config in a.stacks.items():
         direct, bounce = _lookup_result(results, f"{a.id}.{stack}", config)
-        image = a.to_image(direct)
-        if bounce is not None:
-            image += smooth_within_labels(a.to_image(bounce), labels, BOUNCE_SIGMA_TEXELS)
-        images[stack] = _dilate(image, coverage, rings=3)
+        images[stack] = _atlas_image(a, direct, bounce, coverage, labels)
         rel = f"exr/{a.id}.{stack}.exr"
         write_stack_exr(staging / rel, images[stack])
         entry["stacks"][stack] = {
@@ -450,14 +450,23 @@ def _write_atlas(a, results: dict, staging: Path, compressor) -> dict:
             "quantity": "irradiance",
             "channels": CHANNEL_PATTERN,
         }
+    del results, direct, bounce  # the images hold what compression needs
     # Shadowing atlases show I / d: their two stacks are compressed together for it.
     for stack, compact in compressor.run(images, a.id, staging).items():
         entry["stacks"][stack]["compact"] = compact
     return entry
 
 
+def _atlas_image(a, direct, bounce, coverage, labels) -> np.ndarray:
+    """An atlas stack (H, W, n, 3): direct plus smoothed bounce, gutters filled."""
+    image = a.to_image(direct)
+    if bounce is not None:
+        image += smooth_within_labels(a.to_image(bounce), labels, BOUNCE_SIGMA_TEXELS)
+    return _dilate(image, coverage, rings=3)
+
+
 def _write_view(
-    view, hits: dict, results: dict, geometry, dome, site, staging: Path, compressor
+    view, hits: dict, traced: _TracedResults, geometry, dome, site, staging: Path, compressor
 ) -> dict:
     """Assemble a view's O and S (direct plus smoothed bounce), mask and virtual depth, write
     them and the compact textures; returns the view's manifest entry."""
@@ -471,6 +480,7 @@ def _write_view(
         "stacks": {},
     }
     up = dome.cosine_weighted_sr
+    results = traced.load(view.name)
     for stack, config in (("O", "all"), ("S", "real")):
         E, bounce = _lookup_result(results, f"{view.name}.{stack}", config)
         if bounce is not None:
@@ -761,6 +771,21 @@ def _merge_shared(sets: list[PointSet]) -> list[PointSet]:
         else:
             merged.append(PointSet(s.stage, s.name, s.points, s.normals, s.configs, s.bounce))
     return merged
+
+
+class _TracedResults:
+    """The traced arrays of the point sets, read from their chunk files on demand."""
+
+    def __init__(self, sets: list[PointSet], partial: Path):
+        self.sets, self.partial = sets, partial
+
+    def load(self, owner: str) -> dict:
+        """{set name: arrays} of every set of an atlas or view ``owner`` (``<owner>.*``)."""
+        return {
+            s.name: _load_set(s, self.partial)
+            for s in self.sets
+            if s.name.split(".")[0] == owner
+        }
 
 
 def _lookup_result(results: dict, name: str, config: str):
