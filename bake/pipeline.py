@@ -192,17 +192,24 @@ def bake(
     if site.views:
         (staging / "views").mkdir()
     # Each unit loads its own traced arrays when it starts and lets go of them when done:
-    # loading every set first held them all at once (16 GB at 400 lights).
-    results = _TracedResults(work.point_sets, partial)
-    units = [partial_fn(_write_atlas, a, results, staging, compressor) for a in atlases.values()]
+    # loading every set first held them all at once (15.8 GB at 400 lights).
+    traced = _TracedResults(work.point_sets, partial)
+    units = [partial_fn(_write_atlas, a, traced, staging, compressor) for a in atlases.values()]
     units += [
         partial_fn(
-            _write_view, view, view_hits[view.name], results, geometry, dome, site, staging,
+            _write_view, view, view_hits[view.name], traced, geometry, dome, site, staging,
             compressor,
         )
         for view in site.views
     ]
-    entries = _run_two_at_a_time(units)
+    try:
+        entries = _run_two_at_a_time(units)
+    except KeyboardInterrupt:
+        log(
+            f"interrupted while writing: every traced chunk is kept in {partial}; run the same "
+            "command again to resume"
+        )
+        raise
     manifest_atlases, manifest_views = entries[: len(atlases)], entries[len(atlases) :]
     lightmap_parts = site.virtual + [proxy.part for proxy in site.real]
     albedo_by_part = {p.name: p.albedo.mean(axis=0) for p in lightmap_parts}
@@ -336,7 +343,6 @@ class _Work:
                         (config,),
                     )
                 )
-        self.stack_count = len(sets)
         # Stacks that share points and differ only in configuration are traced together.
         self.point_sets = _merge_shared(sets)
         chunk = max(64, RAYS_PER_CHUNK // max(1, dome.count * samples))
@@ -411,13 +417,16 @@ class _Work:
 
 def _run_two_at_a_time(units: list) -> list:
     """Run the write units (callables returning a manifest entry) in two threads; their
-    entries in the order given. The first failure cancels what has not started and is raised
-    once the running unit has stopped."""
+    entries in the order given. On a failure or Ctrl-C no other unit starts, the running one
+    stops at its next encoder call (:func:`bake.compress.stop_encoding`), and the error is
+    raised once it has stopped: nothing writes into the staging folder afterwards."""
+    compress.allow_encoding()
     with futures.ThreadPoolExecutor(max_workers=2, thread_name_prefix="write") as pool:
         running = [pool.submit(unit) for unit in units]
         try:
             return [future.result() for future in running]
         except BaseException:
+            compress.stop_encoding()
             pool.shutdown(wait=True, cancel_futures=True)
             raise
 

@@ -82,3 +82,32 @@ def test_interrupted_bake_resumes_and_matches(tmp_path):
     reference, resumed = _stacks(tmp_path / "reference"), _stacks(out)
     for name in reference:
         assert np.array_equal(reference[name], resumed[name]), name
+
+
+def test_ctrl_c_while_writing_stops_the_bake_and_the_next_run_finishes_it(tmp_path):
+    """Interrupted in the write stage (atlases and views two at a time in threads, with
+    their encoders), the bake exits 130 leaving no output, and the next run re-uses every
+    traced chunk."""
+    scene = _scene(tmp_path)
+    out, partial = tmp_path / "out", tmp_path / ".out.partial"
+    command = [sys.executable, "-m", "daylit.cli", "bake", str(scene), "-o", str(out),
+               "--no-progress"]
+    process = subprocess.Popen(
+        command, stderr=subprocess.PIPE, text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    deadline = time.monotonic() + 240
+    while time.monotonic() < deadline and not list((partial / "build" / "exr").glob("*.exr")):
+        time.sleep(0.05)
+    assert process.poll() is None, "the bake ended before its write stage could be interrupted"
+    process.send_signal(signal.SIGINT)
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 130, err
+    assert "interrupted while writing" in err and "run the same command again" in err
+    assert not out.exists()
+    chunks = len(list((partial / "chunks").glob("*.npz")))
+
+    result = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    assert f"resuming: {chunks} chunks already baked" in result.stderr
+    assert (out / "manifest.json").is_file() and not partial.exists()

@@ -5,8 +5,10 @@ from __future__ import annotations
 import threading
 import time
 
+import numpy as np
 import pytest
 
+from bake import compress
 from bake.pipeline import BakeError, _run_two_at_a_time
 
 
@@ -27,17 +29,42 @@ def test_entries_come_back_in_the_order_given_whatever_finishes_first():
     assert len({thread for _, thread in started}) == 2
 
 
-def test_a_failure_is_raised_after_the_running_unit_has_stopped():
-    finished = threading.Event()
+def _tiny_png(path):
+    compress._write_png(path, np.full((8, 8, 3), 128, np.uint8))
+    return path
+
+
+def test_a_failure_stops_the_other_units_encoders_and_is_raised_once_they_stopped(tmp_path):
+    png = _tiny_png(tmp_path / "layer.png")
+    other_started, finished = threading.Event(), threading.Event()
+    refused = []
 
     def fails():
+        assert other_started.wait(5.0)  # fail while the other unit is at work
         raise BakeError("basisu failed (1): bad PNG")
 
-    def slow():
-        time.sleep(0.3)
+    def encodes_until_stopped():
+        other_started.set()
+        deadline = time.monotonic() + 10.0
+        while time.monotonic() < deadline:
+            out = tmp_path / f"out{len(refused)}"
+            out.mkdir(exist_ok=True)
+            try:
+                compress.encode([png], out, compress.Settings(), array=False)
+            except compress.CompressionError as exc:
+                refused.append(str(exc))
+                break
         finished.set()
-        return "slow"
+        return "other"
 
     with pytest.raises(BakeError, match="basisu failed"):
-        _run_two_at_a_time([fails, slow, lambda: "later"])
+        _run_two_at_a_time([fails, encodes_until_stopped])
     assert finished.is_set()  # nothing still writes into the staging folder after the error
+    assert refused and refused[0].startswith("stopped")
+
+    # The next write stage encodes again.
+    def encodes():
+        compress.encode([png], tmp_path, compress.Settings(), array=False)
+        return (tmp_path / "layer.ktx2").is_file()
+
+    assert _run_two_at_a_time([encodes]) == [True]
