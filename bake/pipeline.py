@@ -182,9 +182,7 @@ def bake(
     rays, trace_s = work.run(partial, workers, progress, stage_s, log)
 
     t0 = time.perf_counter()
-    stack_names = [f"{a.id}.{stack}" for a in atlases.values() for stack in sorted(a.stacks)]
-    stack_names += [f"{view.name}.{stack}" for view in site.views for stack in ("O", "S")]
-    compressor.start(site, dome, stack_names, progress=progress)
+    compressor.start(site, dome, work.stack_names, progress=progress)
     staging = partial / "build"
     if staging.exists():
         shutil.rmtree(staging)
@@ -343,6 +341,7 @@ class _Work:
                         (config,),
                     )
                 )
+        self.stack_names = [s.name for s in sets]  # <atlas or view>.<stack>
         # Stacks that share points and differ only in configuration are traced together.
         self.point_sets = _merge_shared(sets)
         chunk = max(64, RAYS_PER_CHUNK // max(1, dome.count * samples))
