@@ -42,35 +42,39 @@ def test_same_seed_same_result_with_one_or_two_workers(tmp_path):
         assert np.array_equal(one[name], two[name]), name
 
 
-def test_interrupted_bake_resumes_and_matches(tmp_path):
-    scene = _scene(tmp_path)
-    bake(scene, tmp_path / "reference", workers=2, **QUIET)
-    out = tmp_path / "out"
-    partial = tmp_path / ".out.partial"
-    command = [
-        sys.executable,
-        "-m",
-        "daylit.cli",
-        "bake",
-        str(scene),
-        "-o",
-        str(out),
-        "--workers",
-        "1",
-        "--no-progress",
-    ]
+def _bake_command(scene: Path, out: Path, *options: str) -> list[str]:
+    return [sys.executable, "-m", "daylit.cli", "bake", str(scene), "-o", str(out),
+            "--no-progress", *options]
+
+
+def _ctrl_c_when(command: list[str], ready, wait_s: float):
+    """Run ``command``, press Ctrl-C once ``ready()`` (or after ``wait_s``), and let it end.
+    Returns (exit status, stderr, whether it was still running when interrupted)."""
     # Ctrl-C's default action in the child even if this run ignores SIGINT (a background job
     # of a non-interactive shell does, and the child would inherit it).
     process = subprocess.Popen(
         command, stderr=subprocess.PIPE, text=True,
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline and not list((partial / "chunks").glob("atlas-*.npz")):
+    deadline = time.monotonic() + wait_s
+    while time.monotonic() < deadline and not ready():
         time.sleep(0.05)
+    running = process.poll() is None
     process.send_signal(signal.SIGINT)
     _, err = process.communicate(timeout=120)
-    assert process.returncode == 130, err
+    return process.returncode, err, running
+
+
+def test_interrupted_bake_resumes_and_matches(tmp_path):
+    scene = _scene(tmp_path)
+    bake(scene, tmp_path / "reference", workers=2, **QUIET)
+    out = tmp_path / "out"
+    partial = tmp_path / ".out.partial"
+    command = _bake_command(scene, out, "--workers", "1")
+    status, err, _ = _ctrl_c_when(
+        command, lambda: list((partial / "chunks").glob("atlas-*.npz")), wait_s=120
+    )
+    assert status == 130, err
     assert not out.exists()  # nothing half-written where the build goes
     done = len(list((partial / "chunks").glob("*.npz")))
     assert done >= 2
@@ -90,19 +94,12 @@ def test_ctrl_c_while_writing_stops_the_bake_and_the_next_run_finishes_it(tmp_pa
     traced chunk."""
     scene = _scene(tmp_path)
     out, partial = tmp_path / "out", tmp_path / ".out.partial"
-    command = [sys.executable, "-m", "daylit.cli", "bake", str(scene), "-o", str(out),
-               "--no-progress"]
-    process = subprocess.Popen(
-        command, stderr=subprocess.PIPE, text=True,
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    command = _bake_command(scene, out)
+    status, err, running = _ctrl_c_when(
+        command, lambda: list((partial / "build" / "exr").glob("*.exr")), wait_s=240
     )
-    deadline = time.monotonic() + 240
-    while time.monotonic() < deadline and not list((partial / "build" / "exr").glob("*.exr")):
-        time.sleep(0.05)
-    assert process.poll() is None, "the bake ended before its write stage could be interrupted"
-    process.send_signal(signal.SIGINT)
-    _, err = process.communicate(timeout=120)
-    assert process.returncode == 130, err
+    assert running, "the bake ended before its write stage could be interrupted"
+    assert status == 130, err
     assert "interrupted while writing" in err and "run the same command again" in err
     assert not out.exists()
     chunks = len(list((partial / "chunks").glob("*.npz")))
