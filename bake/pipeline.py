@@ -25,6 +25,7 @@ import datetime as dt
 import gzip
 import hashlib
 import json
+import multiprocessing
 import os
 import shutil
 import signal
@@ -97,6 +98,13 @@ class BakeResult:
 
 
 _WORKER: dict = {}
+
+# Workers start from a clean server process, not forked from this one: this process has run
+# Embree (TBB's thread pool), and a fork taken while a TBB thread holds its lock deadlocks the
+# child (seen once in the test suite: a worker stuck in tbb::market::adjust_demand, the bake
+# waiting for it forever). The server imports this module once, so workers start fast.
+_WORKER_CONTEXT = multiprocessing.get_context("forkserver")
+_WORKER_CONTEXT.set_forkserver_preload([__name__])
 
 
 def _init_worker(geometry, dome_vertices, ground_albedo, samples, bounce_rays, cache_file):
@@ -821,7 +829,7 @@ def _run_sets(sets, partial, seed, init, workers, bar) -> int:
         return 0
     rays = 0
     with futures.ProcessPoolExecutor(
-        max_workers=workers, initializer=_init_worker, initargs=init
+        max_workers=workers, mp_context=_WORKER_CONTEXT, initializer=_init_worker, initargs=init
     ) as pool:
         pending = {
             pool.submit(_run_chunk, task): (s, index, count) for s, index, count, task in todo
