@@ -320,11 +320,18 @@ class Spectrum:
             self._projected = self.project(S, min(self.Y.shape[1], max(k, 2 * have)))
         return self._projected
 
-    def truth(self, sky: TestSky) -> np.ndarray:
-        """Exact normalized composite under a test sky, cached by sky name."""
-        if sky.name not in self._truths:
-            self._truths[sky.name] = self.apply(sky.r)
-        return self._truths[sky.name]
+    def truths(self, skies: list[TestSky]) -> list[np.ndarray]:
+        """Exact normalized composites ``M r`` (T, 3) under the test skies, cached by sky
+        name; the missing ones come from one BLAS product (:func:`sky_composites`)."""
+        missing = [sky for sky in skies if sky.name not in self._truths]
+        if missing:
+            values = sky_composites(self.M, np.stack([sky.r for sky in missing]))
+            self._truths.update(zip((sky.name for sky in missing), values, strict=True))
+        return [self._truths[sky.name] for sky in skies]
+
+    def absolute_truths(self, skies: list[TestSky]) -> list[np.ndarray]:
+        """Exact composites of the absolute values ``g M r`` (T, 3) under the test skies."""
+        return [truth * self.gain[:, None] for truth in self.truths(skies)]
 
     @classmethod
     def of(cls, M: np.ndarray, gain: np.ndarray, S: np.ndarray) -> Spectrum:
@@ -352,10 +359,6 @@ class Spectrum:
         rows = np.ascontiguousarray(self.M.transpose(0, 2, 1)).reshape(T * 3, n)
         return (rows @ SY).reshape(T, 3, k)
 
-    def apply(self, r: np.ndarray) -> np.ndarray:
-        """Exact normalized composite ``M r``: (T, 3)."""
-        return np.einsum("tnc,nc->tc", self.M, r.astype(np.float32))
-
     def composite(
         self, P: np.ndarray, k: int, S_inv, r: np.ndarray, chosen: np.ndarray
     ) -> np.ndarray:
@@ -366,6 +369,24 @@ class Spectrum:
         c = (self.Y[:, :k].T @ (S_inv @ rest)).astype(np.float32)  # (k, 3)
         out = np.einsum("tck,kc->tc", P[:, :, :k], c)
         return out + np.einsum("tnc,nc->tc", self.M[:, chosen], r[chosen].astype(np.float32))
+
+
+def sky_composites(M: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """``sum_i M[t, i, c] r[s, i, c]``: the composites (K, T, 3) float32 of a stack's texels
+    ``M`` (T, n, 3) under K light vectors ``r`` (K, n, 3).
+
+    One BLAS product of the texels as (T, 3n) rows with a block matrix (3n, 3K) that keeps the
+    channels apart. A third of its products are with zeros, yet it is far faster than an
+    einsum per sky, which walks the whole stack each time (measured at 400 lights: 62 s of
+    the write stage for 20 skies, against about 3 s)."""
+    T, n, _ = M.shape
+    K = len(r)
+    blocks = np.zeros((n, 3, 3, K), dtype=np.float32)  # [light, channel in, channel out, sky]
+    for c in range(3):
+        blocks[:, c, c, :] = r[:, :, c].T
+    rows = np.ascontiguousarray(M, dtype=np.float32).reshape(T, 3 * n)
+    out = rows @ blocks.reshape(3 * n, 3 * K)  # (T, 3K)
+    return np.ascontiguousarray(out.reshape(T, 3, K).transpose(2, 0, 1))
 
 
 def rms_rank(spec: Spectrum, S, S_inv, skies, selection, settings) -> tuple[int, dict]:
@@ -403,10 +424,11 @@ def ratio_error(
     two spectra share one gain, which cancels in the ratio."""
     worst = 0.0
     P_delta, P_d = spec_delta.projections(S, k), spec_d.projections(S, k)
-    for sky in skies:
+    for sky, d_true, delta_true in zip(
+        skies, spec_d.truths(skies), spec_delta.truths(skies), strict=True
+    ):
         chosen = selection(sky.r)
-        d_true = spec_d.truth(sky)
-        I_true = d_true - spec_delta.truth(sky)
+        I_true = d_true - delta_true
         d_k = spec_d.composite(P_d, k, S_inv, sky.r, chosen)
         I_k = d_k - spec_delta.composite(P_delta, k, S_inv, sky.r, chosen)
         d_absolute = d_true * spec_d.gain[:, None]
@@ -792,7 +814,7 @@ def compress_stack(
         reader.lights(_selected_by_any(skies, selection))
         _record_errors(
             entry,
-            M * spectrum.gain[:, None, None],
+            spectrum.absolute_truths(skies),
             lambda r: reader.composite(r, selection)[valid],
             skies,
         )
@@ -870,18 +892,22 @@ def compress_ratio_pair(I, d, names, out_dir, skies, S, S_inv, selection, settin
     }
     for reader in readers.values():
         reader.lights(_selected_by_any(skies, selection))
-    for stack, master, rebuild in (
-        (d_stack, d, lambda r: readers["d"].composite(r, selection)),
+    # The masters' composites: d's, and I's as d's minus delta's (the spectra keep them from
+    # choosing the rank; one gain for both).
+    d_true = spec_d.absolute_truths(skies)
+    I_true = [d - delta for d, delta in zip(d_true, spec_delta.absolute_truths(skies), strict=True)]
+    for stack, references, rebuild in (
+        (d_stack, d_true, lambda r: readers["d"].composite(r, selection)),
         (
             delta_stack,
-            I,
+            I_true,
             lambda r: (
                 readers["d"].composite(r, selection)
                 - readers["delta"].composite(r, selection)
             ),
         ),
     ):
-        _record_errors(stack.entry, master[valid], lambda r, f=rebuild: f(r)[valid], skies)
+        _record_errors(stack.entry, references, lambda r, f=rebuild: f(r)[valid], skies)
     return delta_stack, d_stack
 
 
@@ -890,12 +916,11 @@ def _selected_by_any(skies, selection: Selection) -> list[int]:
     return sorted({int(i) for sky in skies for i in selection(sky.r)})
 
 
-def _record_errors(entry: dict, master: np.ndarray, composite, skies) -> None:
-    """RMS error over the mean of ``composite(r)`` (T, 3) against ``master`` (T, n, 3) on
-    every test sky, into ``entry["error"]``."""
+def _record_errors(entry: dict, references: list[np.ndarray], composite, skies) -> None:
+    """RMS error over the mean of ``composite(r)`` (T, 3) against the master's composite
+    ``references`` (one (T, 3) per sky) on every test sky, into ``entry["error"]``."""
     errors = {}
-    for sky in skies:
-        reference = np.einsum("tnc,nc->tc", master, sky.r)
+    for sky, reference in zip(skies, references, strict=True):
         approx = composite(sky.r)
         errors[sky.name] = float(
             np.sqrt(((approx - reference) ** 2).mean()) / max(reference.mean(), 1e-30)

@@ -252,6 +252,25 @@ def test_selection_picks_the_brightest_patches():
     assert list(compress.select_lights(np.zeros((6, 3)), omega, 2)) == []
 
 
+def test_sky_composites_sum_each_channel_over_the_lights():
+    """The one-product composites against the definition, term by term in float64: channels
+    must not mix, and sky s must get its own vector."""
+    rng = np.random.default_rng(11)
+    M = rng.random((37, 9, 3), dtype=np.float32)
+    r = rng.random((4, 9, 3))
+    r[2] = 0.0
+    r[3, :, 1] = 0.0  # one channel dark: its composite must be zero whatever the others do
+    expected = np.zeros((4, 37, 3))
+    for s in range(4):
+        for t in range(37):
+            for c in range(3):
+                expected[s, t, c] = sum(float(M[t, i, c]) * r[s, i, c] for i in range(9))
+    out = compress.sky_composites(M, r)
+    assert out.shape == (4, 37, 3) and out.dtype == np.float32
+    np.testing.assert_allclose(out, expected, rtol=1e-5)
+    assert np.all(out[2] == 0.0) and np.all(out[3, :, 1] == 0.0)
+
+
 def test_separate_textures_are_encoded_side_by_side_each_into_its_own_file(tmp_path):
     """``encode`` shares separate textures out between encoders (one per core); each output
     must hold its own input: distinct gradients, decoded by the browser's transcoder."""
