@@ -339,15 +339,21 @@ class Spectrum:
         G = np.zeros((3, n, n))
         G_normalized = np.zeros((n, n))
         colsum = np.zeros((3, n))
+        # With unit gain (the RMS-judged stacks) the normalized Gram matrix is the sum of the
+        # absolute ones: half the products.
+        unit_gain = bool(np.all(gain == 1.0))
         for start in range(0, T, GRAM_ROWS):
             # float32 products per block (BLAS sgemm), accumulated in float64 across blocks.
             block = np.ascontiguousarray(M[start : start + GRAM_ROWS].transpose(2, 0, 1))
             g = gain[start : start + GRAM_ROWS].astype(np.float32)
             for c in range(3):
-                G_normalized += block[c].T @ block[c]
-                absolute = block[c] * g[:, None]
+                absolute = block[c] if unit_gain else block[c] * g[:, None]
                 G[c] += absolute.T @ absolute
                 colsum[c] += absolute.sum(axis=0, dtype=np.float64)
+                if not unit_gain:
+                    G_normalized += block[c].T @ block[c]
+        if unit_gain:
+            G_normalized = G.sum(axis=0)
         eigenvalues, Y = np.linalg.eigh(S @ G_normalized @ S)
         return cls(M, gain, G, colsum, Y[:, np.argsort(eigenvalues)[::-1]])
 

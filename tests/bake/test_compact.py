@@ -271,6 +271,18 @@ def test_sky_composites_sum_each_channel_over_the_lights():
     assert np.all(out[2] == 0.0) and np.all(out[3, :, 1] == 0.0)
 
 
+def test_unit_gain_spectrum_matches_the_general_gram_matrices():
+    """With unit gain the normalized Gram matrix is taken as the sum of the per-channel ones;
+    a gain of 1.0 + 1e-7 (not unit, the general path) must give the same eigenvectors."""
+    rng = np.random.default_rng(12)
+    M = rng.random((300, 8, 3), dtype=np.float32)
+    S = np.diag(rng.uniform(0.5, 2.0, 8))
+    unit = compress.Spectrum.of(M, np.ones(300, np.float32), S)
+    general = compress.Spectrum.of(M, np.full(300, 1.0 + 1e-7, np.float32), S)
+    np.testing.assert_allclose(unit.G, general.G, rtol=1e-5)
+    np.testing.assert_allclose(np.abs(unit.Y), np.abs(general.Y), atol=1e-4)
+
+
 def test_separate_textures_are_encoded_side_by_side_each_into_its_own_file(tmp_path):
     """``encode`` shares separate textures out between encoders (one per core); each output
     must hold its own input: distinct gradients, decoded by the browser's transcoder."""
