@@ -2,9 +2,12 @@
 
 A stack is an array of shape ``(H, W, n, 3)`` float32: for every texel (or pixel) and every
 light ``i`` the RGB irradiance (or radiance) at unit radiance of patch ``i``. The master file
-stores light ``i`` as channels ``L{i:04d}.R``, ``.G``, ``.B`` (float32, lossless ZIPS: as small
-as ZIP and three times faster to read, as each scanline is its own block), so
+stores light ``i`` as channels ``L{i:04d}.R``, ``.G``, ``.B`` (float32, lossless PIZ), so
 light ``i`` is channel group ``i`` (the one index rule) and the file opens in any EXR viewer.
+
+PIZ rather than ZIPS: measured on the demo's 400-light masters, it writes 1.7x faster
+(lightmap.I: 7.6 s against 13.1 s) and is 11 % smaller (726 against 815 MB), reads as fast,
+and every OpenEXR reader has it (ZSTD, smaller still, needs OpenEXR 3.4 or later).
 """
 
 from __future__ import annotations
@@ -32,7 +35,7 @@ def write_stack_exr(path: Path | str, stack: np.ndarray, attributes: dict | None
         for i in range(stack.shape[2])
         for k, c in enumerate("RGB")
     }
-    header = {"compression": OpenEXR.ZIPS_COMPRESSION, "type": OpenEXR.scanlineimage}
+    header = {"compression": OpenEXR.PIZ_COMPRESSION, "type": OpenEXR.scanlineimage}
     for key, value in (attributes or {}).items():
         header[key] = value
     path = Path(path)
