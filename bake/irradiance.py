@@ -47,7 +47,11 @@ GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
 CONFIGS = ("all", "real", "none")
 FACE_SEPARATION = 1e6  # keeps k-d tree neighbours on the same face
 POOL_FACTOR = 64  # directions per patch in the pool, per sample drawn
-CACHE_NEIGHBOURS = 4  # cache points interpolated per bounce hit
+# Cache points per bounce hit. One, the nearest: 4 inverse-distance weighted ones cost a
+# quarter of the tracing time (the 4-NN query and 4x the gather's entries; measured 4.4 s
+# against 3.5 s on 10 chunks at 400 lights) for bounce totals within 0.4 %; each texel
+# averages its 96 rays' hits and the bounce is smoothed afterwards anyway.
+CACHE_NEIGHBOURS = 1
 
 
 def lattice(count: int) -> np.ndarray:
@@ -132,7 +136,8 @@ class BounceCache:
         """The ``k`` nearest cache points on the same face and their interpolation weights.
 
         Returns index (m, k) and weight (m, k), rows summing to 1: inverse distance, limited
-        to points of the hit face (a face has at least one; missing neighbours get weight 0).
+        to points of the hit face (missing neighbours get weight 0, a face without any cache
+        point a row of zeros).
         """
         key = np.concatenate([points, FACE_SEPARATION * faces[:, None]], axis=1)
         k = min(k, len(self.points))
@@ -141,7 +146,9 @@ class BounceCache:
         index = index.reshape(len(points), k)
         same_face = self.faces[index] == faces[:, None]
         weight = np.where(same_face, 1.0 / np.maximum(distance, 1e-3), 0.0)
-        weight /= weight.sum(axis=1, keepdims=True)
+        total = weight.sum(axis=1, keepdims=True)
+        # A face without cache points of its own (a sliver of ground) reflects nothing.
+        np.divide(weight, total, out=weight, where=total > 0.0)
         return index, weight
 
     def picked_up(self, config: str) -> np.ndarray:
@@ -374,9 +381,15 @@ class Estimator:
             index, weight = self.cache.nearest(hit_points, global_face)
             # Back faces (inside closed objects) reflect nothing.
             weight *= facing[:, None] / K
-            rows = np.repeat(owner[hit], index.shape[1])
+            # Rows are already in order (rays are grouped by point): build the CSR matrix
+            # directly, without the sort a (row, column) construction does.
+            per_row = np.bincount(owner[hit], minlength=T) * index.shape[1]
             gather = scipy.sparse.csr_matrix(
-                (weight.ravel().astype(np.float32), (rows, index.ravel())),
+                (
+                    weight.ravel().astype(np.float32),
+                    index.ravel(),
+                    np.concatenate([[0], np.cumsum(per_row)]),
+                ),
                 shape=(T, len(self.cache.points)),
             )
             out += gather @ self.cache.picked_up(config)
