@@ -544,13 +544,18 @@ def encode(
     into its own 2D KTX2 inside the folder ``out`` (named after it). ``level`` overrides the
     UASTC level of ``settings``.
 
-    Separate textures are split between one single-threaded encoder per core: basisu's own
-    threads share out the blocks of one image and idle between images (measured on 40
-    light images: 27-43 % less time, the same bytes)."""
+    Every encoder runs single-threaded. Separate textures are split between one encoder per
+    core: basisu's own threads share out the blocks of one image and idle between images
+    (measured on 40 light images: 27-43 % less time, the same bytes). Arrays get one
+    encoder each: the bake writes two atlases or views at a time, which keeps the cores busy,
+    and basisu's thread pool can deadlock as it shuts down (seen in the test suite: the main
+    thread joining a worker that missed its wake-up, the bake waiting 15 minutes on a process
+    using no CPU)."""
     args = [
         str(basisu_binary()),
         "-ktx2",
         "-linear",
+        "-no_multithreading",
         "-ktx2_zstandard_level",
         str(settings.zstd_level),
     ]
@@ -564,7 +569,7 @@ def encode(
         _run_encoders([args + layers + [str(p) for p in pngs]])
         return
     processes = max(1, min(os.cpu_count() or 1, len(pngs)))
-    single = args + ["-no_multithreading", "-individual", "-output_path", str(out)]
+    single = args + ["-individual", "-output_path", str(out)]
     _run_encoders([single + [str(p) for p in pngs[i::processes]] for i in range(processes)])
 
 
