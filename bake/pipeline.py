@@ -251,10 +251,12 @@ def bake(
     shutil.rmtree(partial, ignore_errors=True)
     size = sum(e["bytes"] for e in manifest["files"])
     rate = rays / max(trace_s, 1e-9)
-    log(
-        f"done in {duration:.1f} s: {rays / 1e6:.1f} M rays at {rate / 1e6:.2f} M rays/s; "
-        f"{size / 1e6:.1f} MB in {out_dir}"
+    traced = (
+        f"{rays / 1e6:.1f} M rays at {rate / 1e6:.2f} M rays/s"
+        if rays
+        else "every chunk re-used from the earlier run"
     )
+    log(f"done in {duration:.1f} s: {traced}; {size / 1e6:.1f} MB in {out_dir}")
     return BakeResult(out_dir, manifest, duration, rays, rate, stage_s)
 
 

@@ -107,4 +107,5 @@ def test_ctrl_c_while_writing_stops_the_bake_and_the_next_run_finishes_it(tmp_pa
     result = subprocess.run(command, capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr
     assert f"resuming: {chunks} chunks already baked" in result.stderr
+    assert "every chunk re-used from the earlier run" in result.stderr  # not "0.0 M rays"
     assert (out / "manifest.json").is_file() and not partial.exists()
