@@ -544,18 +544,14 @@ def encode(
     into its own 2D KTX2 inside the folder ``out`` (named after it). ``level`` overrides the
     UASTC level of ``settings``.
 
-    Every encoder runs single-threaded. Separate textures are split between one encoder per
-    core: basisu's own threads share out the blocks of one image and idle between images
-    (measured on 40 light images: 27-43 % less time, the same bytes). Arrays get one
-    encoder each: the bake writes two atlases or views at a time, which keeps the cores busy,
-    and basisu's thread pool can deadlock as it shuts down (seen in the test suite: the main
-    thread joining a worker that missed its wake-up, the bake waiting 15 minutes on a process
-    using no CPU)."""
+    Separate textures are split between one single-threaded encoder per core: basisu's own
+    threads share out the blocks of one image and idle between images (measured on 40
+    light images: 27-43 % less time, the same bytes). An array gets one encoder with its
+    threads; :func:`_run_encoders` restarts one that hangs."""
     args = [
         str(basisu_binary()),
         "-ktx2",
         "-linear",
-        "-no_multithreading",
         "-ktx2_zstandard_level",
         str(settings.zstd_level),
     ]
@@ -569,7 +565,7 @@ def encode(
         _run_encoders([args + layers + [str(p) for p in pngs]])
         return
     processes = max(1, min(os.cpu_count() or 1, len(pngs)))
-    single = args + ["-individual", "-output_path", str(out)]
+    single = args + ["-no_multithreading", "-individual", "-output_path", str(out)]
     _run_encoders([single + [str(p) for p in pngs[i::processes]] for i in range(processes)])
 
 
@@ -593,20 +589,74 @@ def _check_not_stopped() -> None:
         raise CompressionError("stopped: the bake was interrupted or another stack failed")
 
 
+# basisu 1.16's thread pool can hang as it shuts down: its destructor sets the kill flag and
+# wakes the workers without holding their mutex, so a worker can miss the wake-up and the
+# main thread waits forever to join it (seen in the test suite: a bake waiting 15 minutes
+# on an encoder using no CPU; gdb: std::thread::join against std::condition_variable::wait).
+# An encoder whose CPU time stands still this long is stuck, killed and started again.
+# Single-threaded encoders cannot hang this way, but an array encoded on one thread took
+# 15 % longer to bake at 400 lights.
+ENCODER_STALL_S = 30.0
+ENCODER_ATTEMPTS = 3
+_POLL_S = 2.0
+
+
 def _run_encoders(commands: list[list[str]]) -> None:
-    """Run encoder commands side by side; raise :class:`CompressionError` if any failed."""
+    """Run encoder commands side by side, restarting any that hangs; raise
+    :class:`CompressionError` if any failed or kept hanging."""
     _check_not_stopped()
-    running = [
-        subprocess.Popen(c, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        for c in commands
-    ]
+    running = [(c, _start_encoder(c)) for c in commands]
     failures = []
-    for process in running:
-        stdout, stderr = process.communicate()
+    for command, process in running:
+        for attempt in range(ENCODER_ATTEMPTS):
+            if attempt:
+                _check_not_stopped()
+                process = _start_encoder(command)
+            output = _wait_while_busy(process)
+            if output is not None:
+                break
+        else:
+            failures.append(
+                f"basisu hung {ENCODER_ATTEMPTS} times (no CPU used for {ENCODER_STALL_S:.0f} "
+                f"s): {' '.join(command[:12])}"
+            )
+            continue
         if process.returncode != 0:
+            stdout, stderr = output
             failures.append(f"basisu failed ({process.returncode}): {(stderr or stdout)[-500:]}")
     if failures:
         raise CompressionError(failures[0])
+
+
+def _start_encoder(command: list[str]) -> subprocess.Popen:
+    return subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _wait_while_busy(process: subprocess.Popen) -> tuple[str, str] | None:
+    """Wait for ``process`` to end: its (stdout, stderr), or None if it used no CPU for
+    ``ENCODER_STALL_S`` (it is killed)."""
+    cpu, since = _cpu_ticks(process.pid), time.monotonic()
+    while True:
+        try:
+            return process.communicate(timeout=_POLL_S)
+        except subprocess.TimeoutExpired:
+            now, latest = time.monotonic(), _cpu_ticks(process.pid)
+            if latest is None or latest != cpu:  # busy (or nothing to measure by)
+                cpu, since = latest, now
+            elif now - since > ENCODER_STALL_S:
+                process.kill()
+                process.communicate()
+                return None
+
+
+def _cpu_ticks(pid: int) -> int | None:
+    """User plus system CPU time of a process in clock ticks (Linux /proc), None elsewhere."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    fields = stat[stat.rindex(")") + 2 :].split()  # after "pid (name) "; fields[0] is state
+    return int(fields[11]) + int(fields[12])
 
 
 def decode(files: list[Path]) -> list[np.ndarray]:

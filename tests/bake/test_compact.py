@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import json
 import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -311,3 +313,39 @@ def test_an_encoder_failure_says_what_failed(tmp_path):
     bad.write_bytes(b"this is not a PNG")
     with pytest.raises(compress.CompressionError, match="basisu failed"):
         compress.encode([bad], tmp_path, compress.Settings(), array=False)
+
+
+@pytest.fixture
+def quick_stall(monkeypatch):
+    """An encoder counts as hung after 1 s without CPU (30 s in a bake)."""
+    monkeypatch.setattr(compress, "ENCODER_STALL_S", 1.0)
+    monkeypatch.setattr(compress, "_POLL_S", 0.2)
+
+
+def test_a_hung_encoder_is_restarted(tmp_path, quick_stall):
+    """basisu's thread pool can hang at exit using no CPU: the first run here sleeps (no CPU,
+    like that hang), the second finishes; the call succeeds."""
+    marker = tmp_path / "started-once"
+    script = f"if [ -e {marker} ]; then exit 0; fi; touch {marker}; exec sleep 60"
+    started = time.monotonic()
+    compress._run_encoders([["sh", "-c", script]])
+    assert marker.exists() and time.monotonic() - started < 30
+
+
+def test_an_encoder_that_keeps_hanging_is_an_error(quick_stall):
+    with pytest.raises(compress.CompressionError, match="basisu hung 3 times"):
+        compress._run_encoders([["sleep", "60"]])
+
+
+def test_a_busy_encoder_is_left_to_finish(tmp_path, quick_stall):
+    """Three seconds of CPU work, three times the stall time: CPU time moves, so it runs to
+    the end and its output is there."""
+    out = tmp_path / "done.txt"
+    busy = (
+        "import time, pathlib; t = time.process_time()\n"
+        "while time.process_time() - t < 3.0: pass\n"
+        f"pathlib.Path({str(out)!r}).write_text('ok')"
+    )
+    compress._run_encoders([[sys.executable, "-c", busy]])
+    assert out.read_text() == "ok"
+
