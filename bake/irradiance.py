@@ -47,8 +47,8 @@ GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
 CONFIGS = ("all", "real", "none")
 FACE_SEPARATION = 1e6  # keeps k-d tree neighbours on the same face
 POOL_FACTOR = 64  # directions per patch in the pool, per sample drawn
-# Cache points per bounce hit. One, the nearest: 4 inverse-distance weighted ones cost a
-# quarter of the tracing time (the 4-NN query and 4x the gather's entries; measured 4.4 s
+# Cache points per bounce hit. One, the nearest: with 4 inverse-distance weighted ones the
+# tracing took a quarter longer (the 4-NN query and 4x the gather's entries; measured 4.4 s
 # against 3.5 s on 10 chunks at 400 lights) for bounce totals within 0.4 %; each texel
 # averages its 96 rays' hits and the bounce is smoothed afterwards anyway.
 CACHE_NEIGHBOURS = 1

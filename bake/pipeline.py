@@ -128,7 +128,7 @@ def _run_chunk(task):
     """Compute one chunk in a worker and save it to ``path`` (``{config: array}``, written
     under a temporary name, then renamed); returns the rays cast.
 
-    The worker saves, not the baking process: sending the arrays back (3-9 GB at 400
+    The worker saves, not the baking process: sending the arrays back (about 7 GB at 400
     lights) made the baking process unpickle and write them all on its own while the
     workers took both cores."""
     points, normals, configs, bounce, seed_words, path = task

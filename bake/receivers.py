@@ -492,8 +492,8 @@ def lightmap_atlas(parts, texel_m: float, max_size: int) -> Atlas:
     they do.
     """
     # Unwrapped faces per part: all but those resting on the ground (15 % of the demo's
-    # texels were the undersides of its podium, walls and proxies, traced and shipped for
-    # nothing).
+    # texels were the undersides of its podium, walls and proxies, traced, factored and
+    # encoded for nothing).
     kept = []  # (F,) bool per part; xatlas returns the faces it is given in their order
     for part in parts:
         resting = faces_resting_on_ground(part.mesh)
