@@ -12,6 +12,7 @@ and every OpenEXR reader has it (ZSTD, smaller still, needs OpenEXR 3.4 or later
 
 from __future__ import annotations
 
+import errno
 import os
 from pathlib import Path
 
@@ -40,8 +41,15 @@ def write_stack_exr(path: Path | str, stack: np.ndarray, attributes: dict | None
         header[key] = value
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp")
-    with OpenEXR.File(header, channels) as f:
-        f.write(str(tmp))
+    try:
+        with OpenEXR.File(header, channels) as f:
+            f.write(str(tmp))
+    except RuntimeError as exc:
+        tmp.unlink(missing_ok=True)
+        # OpenEXR reports a full disk as a RuntimeError; callers handle it as the OSError it is.
+        if "No space left on device" in str(exc):
+            raise OSError(errno.ENOSPC, f"no space left on device writing {path}") from exc
+        raise
     os.replace(tmp, path)
 
 

@@ -27,6 +27,35 @@ def test_exr_stack_reads_back_exactly(tmp_path):
     assert np.array_equal(back.view(np.uint32), stack.view(np.uint32))  # bit for bit
 
 
+def test_a_full_disk_while_writing_an_exr_leaves_nothing_and_says_so(tmp_path, monkeypatch):
+    """OpenEXR reports a full disk as a RuntimeError after writing part of the file: the
+    partial file goes, and callers get the OSError (ENOSPC) they can handle."""
+    import errno
+
+    from daylit import stackio
+
+    class FullDisk:
+        def __init__(self, header, channels):
+            pass
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return False
+
+        def write(self, path):
+            Path(path).write_bytes(b"half an EXR")
+            raise RuntimeError(f'Failed to write pixel data to image file "{path}". '
+                               "No space left on device.")
+
+    monkeypatch.setattr(stackio.OpenEXR, "File", FullDisk)
+    with pytest.raises(OSError) as caught:
+        write_stack_exr(tmp_path / "s.exr", np.zeros((4, 4, 2, 3), np.float32))
+    assert caught.value.errno == errno.ENOSPC
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_manifest_validates_and_lists_every_file(demo_draft_build):
     manifest = manifest_io.load(demo_draft_build, check_files=True)
     listed = {f["path"] for f in manifest["files"]}

@@ -109,3 +109,36 @@ def test_ctrl_c_while_writing_stops_the_bake_and_the_next_run_finishes_it(tmp_pa
     assert f"resuming: {chunks} chunks already baked" in result.stderr
     assert "every chunk re-used from the earlier run" in result.stderr  # not "0.0 M rays"
     assert (out / "manifest.json").is_file() and not partial.exists()
+
+
+def test_a_full_disk_ends_the_bake_with_what_to_do_and_keeps_the_chunks(tmp_path, monkeypatch):
+    """Out of space while writing the masters: a BakeError that says to free space and run
+    again, no output, every traced chunk kept; the next run re-uses them all."""
+    import errno
+
+    import pytest
+
+    from bake import pipeline
+
+    scene = _scene(tmp_path)
+    out, partial = tmp_path / "out", tmp_path / ".out.partial"
+
+    def full_disk(path, stack, attributes=None):
+        raise OSError(errno.ENOSPC, f"no space left on device writing {path}")
+
+    monkeypatch.setattr(pipeline, "write_stack_exr", full_disk)
+    with pytest.raises(pipeline.BakeError, match="no space left") as caught:
+        bake(scene, out, **QUIET)
+    assert "free space" in str(caught.value) and "run the same command again" in str(caught.value)
+    assert str(partial) in str(caught.value)
+    assert not out.exists()
+    chunks = len(list((partial / "chunks").glob("*.npz")))
+    assert chunks >= 2
+
+    monkeypatch.undo()
+    messages = []
+    bake(scene, out, progress=False, log=messages.append)
+    assert any(f"resuming: {chunks} chunks already baked" in m for m in messages)
+    assert any("every chunk re-used from the earlier run" in m for m in messages)
+    assert (out / "manifest.json").is_file() and not partial.exists()
+
