@@ -53,7 +53,7 @@ from bake.scene import Site, load_site
 from bake.views import mask_image, radiance_image, trace_view, virtual_depth_image
 from daylit import __version__
 from daylit import manifest as manifest_io
-from daylit.stackio import CHANNEL_PATTERN, write_stack_exr
+from daylit.stackio import CHANNEL_PATTERN, write_exr, write_stack_exr
 
 # Bump when the meaning of saved chunks changes, so stale partial bakes are not reused.
 CHUNK_FORMAT = 2
@@ -263,12 +263,12 @@ def bake(
     shutil.rmtree(partial, ignore_errors=True)
     size = sum(e["bytes"] for e in manifest["files"])
     rate = rays / max(trace_s, 1e-9)
-    traced = (
+    tracing = (
         f"{rays / 1e6:.1f} M rays at {rate / 1e6:.2f} M rays/s"
         if rays
         else "every chunk re-used from the earlier run"
     )
-    log(f"done in {duration:.1f} s: {traced}; {size / 1e6:.1f} MB in {out_dir}")
+    log(f"done in {duration:.1f} s: {tracing}; {size / 1e6:.1f} MB in {out_dir}")
     return BakeResult(out_dir, manifest, duration, rays, rate, stage_s)
 
 
@@ -916,8 +916,7 @@ def _write_depth(path: Path, depth: np.ndarray) -> None:
     import OpenEXR
 
     header = {"compression": OpenEXR.ZIPS_COMPRESSION, "type": OpenEXR.scanlineimage}
-    with OpenEXR.File(header, {"Z": np.ascontiguousarray(depth, dtype=np.float32)}) as f:
-        f.write(str(path))
+    write_exr(path, header, {"Z": np.ascontiguousarray(depth, dtype=np.float32)})
 
 
 def _swap_into_place(staging: Path, out_dir: Path) -> None:

@@ -37,8 +37,13 @@ def write_stack_exr(path: Path | str, stack: np.ndarray, attributes: dict | None
         for k, c in enumerate("RGB")
     }
     header = {"compression": OpenEXR.PIZ_COMPRESSION, "type": OpenEXR.scanlineimage}
-    for key, value in (attributes or {}).items():
-        header[key] = value
+    header.update(attributes or {})
+    write_exr(path, header, channels)
+
+
+def write_exr(path: Path | str, header: dict, channels: dict) -> None:
+    """Write an OpenEXR file to a temporary name, then rename it into place. A full disk is
+    an ``OSError`` (ENOSPC) and leaves no partial file."""
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp")
     try:
