@@ -435,14 +435,17 @@ def ratio_error(
     two spectra share one gain, which cancels in the ratio."""
     worst = 0.0
     P_delta, P_d = spec_delta.projections(S, k), spec_d.projections(S, k)
-    for sky, d_true, delta_true in zip(
-        skies, spec_d.truths(skies), spec_delta.truths(skies), strict=True
+    for sky, d_true, delta_true, d_absolute in zip(
+        skies,
+        spec_d.truths(skies),
+        spec_delta.truths(skies),
+        spec_d.absolute_truths(skies),
+        strict=True,
     ):
         chosen = selection(sky.r)
         I_true = d_true - delta_true
         d_k = spec_d.composite(P_d, k, S_inv, sky.r, chosen)
         I_k = d_k - spec_delta.composite(P_delta, k, S_inv, sky.r, chosen)
-        d_absolute = d_true * spec_d.gain[:, None]
         lit = d_absolute > RATIO_FLOOR * d_absolute.mean()
         if lit.any():
             error = np.abs(I_k / np.maximum(d_k, 1e-12) - I_true / np.maximum(d_true, 1e-12))

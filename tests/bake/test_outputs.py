@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import json
 import subprocess
 from pathlib import Path
@@ -12,6 +13,7 @@ import trimesh
 
 from bake.gltf import read_site_glb
 from daylit import manifest as manifest_io
+from daylit import stackio
 from daylit.stackio import read_stack_exr, write_stack_exr
 
 REPO = Path(__file__).resolve().parents[2]
@@ -30,10 +32,6 @@ def test_exr_stack_reads_back_exactly(tmp_path):
 def test_a_full_disk_while_writing_an_exr_leaves_nothing_and_says_so(tmp_path, monkeypatch):
     """OpenEXR reports a full disk as a RuntimeError after writing part of the file: the
     partial file goes, and callers get the OSError (ENOSPC) they can handle."""
-    import errno
-
-    from daylit import stackio
-
     class FullDisk:
         def __init__(self, header, channels):
             pass

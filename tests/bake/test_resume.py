@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import signal
 import subprocess
 import sys
@@ -9,7 +10,9 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 
+from bake import pipeline
 from bake.pipeline import bake
 from daylit.stackio import read_stack_exr
 from tests.sites import make_site
@@ -114,12 +117,6 @@ def test_ctrl_c_while_writing_stops_the_bake_and_the_next_run_finishes_it(tmp_pa
 def test_a_full_disk_ends_the_bake_with_what_to_do_and_keeps_the_chunks(tmp_path, monkeypatch):
     """Out of space while writing the masters: a BakeError that says to free space and run
     again, no output, every traced chunk kept; the next run re-uses them all."""
-    import errno
-
-    import pytest
-
-    from bake import pipeline
-
     scene = _scene(tmp_path)
     out, partial = tmp_path / "out", tmp_path / ".out.partial"
 
