@@ -122,6 +122,8 @@ def _init_worker(geometry, dome_vertices, ground_albedo, samples, bounce_rays, c
                 data["faces"],
                 data["albedo"],
                 {"all": data["E_all"], "real": data["E_real"]},
+                geometry,
+                float(data["cell_m"]),
             )
     _WORKER["estimator"] = Estimator(dome_vertices, scenes, samples, bounce_rays, cache)
 
@@ -446,6 +448,7 @@ class _Work:
             albedo=self.geometry.albedo[faces],
             E_all=E["all"],
             E_real=E["real"],
+            cell_m=0.5 * self.site.settings.cache_spacing_m,
         )
         os.replace(tmp, cache_file)
         return cache_file
