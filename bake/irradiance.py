@@ -433,30 +433,31 @@ class Estimator:
         if np.any(down):
             per_point = np.bincount(owner[down], minlength=T) / K  # (T,)
             ground = self.up_irradiance[:, None] * self.scenes.ground_albedo[None, :]  # (n, 3)
-            out += per_point[:, None] * ground.reshape(1, -1)
-        return out.reshape(T, self.n, 3).astype(np.float32)
+            out += (per_point[:, None] * ground.reshape(1, -1)).astype(np.float32)
+        return out.reshape(T, self.n, 3)
 
     # ---------------------------------------------------------------------------------------
     def basis(self, points, normals, configs, rng) -> dict:
         """Direct light and the traced bounce, kept apart so the noisy bounce can be
-        smoothed before the two are added: ``{config: (T, n, 3), "bounce:" + config:
-        (T, n, 3)}`` float32 (the bounce key only for traced configurations).
+        smoothed before the two are added: ``{config: (T, n), "bounce:" + config:
+        (T, n, 3)}`` float32 for traced configurations. Their direct light is grey (the same
+        for R, G and B), so it is kept as one value per light: a third of the RGB bytes.
 
-        For ``"none"`` the bounce is the open ground's, in closed form and included:
+        ``"none"`` is ``(T, n, 3)``, its bounce (the open ground's, in closed form) included:
         ``albedo_ground * E_up_i * (1 - n_y) / 2`` (a uniformly lit lower hemisphere).
         """
         direct = self.direct(points, normals, configs, rng)
         out = {}
         for config in configs:
-            E = np.repeat(direct[config][:, :, None], 3, axis=2)
             if config == "none":
                 lower = 0.5 * (1.0 - np.asarray(normals)[:, 1])  # (T,)
-                E = E + (
+                out[config] = direct[config][:, :, None] + (
                     lower[:, None, None]
                     * self.up_irradiance[None, :, None]
                     * self.scenes.ground_albedo[None, None, :]
                 ).astype(np.float32)
-            elif self.bounce_rays > 0:
+                continue
+            out[config] = direct[config]
+            if self.bounce_rays > 0:
                 out["bounce:" + config] = self.bounce(points, normals, config, rng)
-            out[config] = E
         return out

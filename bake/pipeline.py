@@ -42,7 +42,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from bake import compress
+from bake import chunkio, compress
 from bake import receivers as rx
 from bake.denoise import smooth_within_labels, surface_labels
 from bake.dome import Dome
@@ -56,7 +56,7 @@ from daylit import manifest as manifest_io
 from daylit.stackio import CHANNEL_PATTERN, write_exr, write_stack_exr
 
 # Bump when the meaning of saved chunks changes, so stale partial bakes are not reused.
-CHUNK_FORMAT = 2
+CHUNK_FORMAT = 3  # 3: .chunk files of .npy records, traced direct light grey (P, n)
 BOUNCE_SIGMA_TEXELS = 1.5  # smoothing of the indirect bounce within a surface (texels, pixels)
 RAYS_PER_CHUNK = 3_000_000
 STAGE_CODES = {"cache": 1, "atlas": 2, "view": 3}
@@ -143,9 +143,7 @@ def _run_chunk(task):
         out = estimator.basis(points, normals, configs, rng)
     else:
         out = estimator.direct(points, normals, configs, rng)
-    tmp = path.with_suffix(".tmp.npz")
-    np.savez(tmp, **out)
-    os.replace(tmp, path)
+    chunkio.save_chunk(path, out)
     return estimator.rays_cast
 
 
@@ -425,7 +423,7 @@ class _Work:
             stage_s["trace"] = time.perf_counter() - t1
         except KeyboardInterrupt:
             bar.close()
-            done = len(list((partial / "chunks").glob("*.npz")))
+            done = len(list((partial / "chunks").glob("*" + chunkio.SUFFIX)))
             log(
                 f"interrupted: {done} finished chunks kept in {partial}; run the same command "
                 "again to resume"
@@ -507,10 +505,15 @@ def _write_atlas(a, traced: _TracedResults, staging: Path, compressor) -> dict:
 
 def _atlas_image(a, direct, bounce, coverage, labels) -> np.ndarray:
     """An atlas stack (H, W, n, 3): direct plus smoothed bounce, gutters filled."""
-    image = a.to_image(direct)
+    image = _rgb(a.to_image(direct))
     if bounce is not None:
         image += smooth_within_labels(a.to_image(bounce), labels, BOUNCE_SIGMA_TEXELS)
     return _dilate(image, coverage, rings=3)
+
+
+def _rgb(image: np.ndarray) -> np.ndarray:
+    """An atlas image (H, W, n, 3): grey direct light (H, W, n) repeated for R, G, B."""
+    return image if image.ndim == 4 else np.repeat(image[..., None], 3, axis=-1)
 
 
 def _write_view(
@@ -530,9 +533,10 @@ def _write_view(
     up = dome.cosine_weighted_sr
     results = traced.load(view.name)
     for stack, config in (("O", "all"), ("S", "real")):
-        E, bounce = _lookup_result(results, f"{view.name}.{stack}", config)
+        direct, bounce = _lookup_result(results, f"{view.name}.{stack}", config)
+        E = np.repeat(direct[:, :, None], 3, axis=2)
         if bounce is not None:
-            E = E + view_smoothed(view, hits[stack], bounce, geometry)
+            E += view_smoothed(view, hits[stack], bounce, geometry)
         image = radiance_image(view, hits[stack], E, up, site.ground.albedo)
         rel = f"views/{view.name}.{stack}.exr"
         write_stack_exr(staging / rel, image)
@@ -798,7 +802,7 @@ def _prepare_partial(partial: Path, key: str, log) -> None:
     key_file = partial / "key.txt"
     if partial.exists():
         if key_file.is_file() and key_file.read_text().strip() == key:
-            done = len(list((partial / "chunks").glob("*.npz")))
+            done = len(list((partial / "chunks").glob("*" + chunkio.SUFFIX)))
             if done:
                 log(f"  resuming: {done} chunks already baked in {partial}")
             return
@@ -837,13 +841,14 @@ class _TracedResults:
 
 
 def _lookup_result(results: dict, name: str, config: str):
-    """(direct, bounce or None) of one stack: its configuration's arrays, (P, n, 3) each."""
+    """(direct, bounce or None) of one stack: its configuration's arrays, direct (P, n) grey
+    or (P, n, 3), bounce (P, n, 3) (see :meth:`Estimator.basis`)."""
     found = results[name] if name in results else results[name.split(".")[0] + ".shared"]
     return found[config], found.get("bounce:" + config)
 
 
 def _chunk_path(partial: Path, s: PointSet, index: int) -> Path:
-    return partial / "chunks" / f"{s.stage}-{s.name}-{index:05d}.npz"
+    return partial / "chunks" / f"{s.stage}-{s.name}-{index:05d}{chunkio.SUFFIX}"
 
 
 def _run_sets(sets, partial, seed, init, workers, bar) -> int:
@@ -877,12 +882,7 @@ def _run_sets(sets, partial, seed, init, workers, bar) -> int:
 
 def _load_set(s: PointSet, partial: Path) -> dict:
     """Every array the set's chunks hold (configurations and their bounces), concatenated."""
-    parts: dict = {}
-    for index in range(len(s.chunks)):
-        with np.load(_chunk_path(partial, s, index)) as data:
-            for key in data.files:
-                parts.setdefault(key, []).append(data[key])
-    return {key: np.concatenate(v) for key, v in parts.items()}
+    return chunkio.load_chunks([_chunk_path(partial, s, i) for i in range(len(s.chunks))])
 
 
 def _dilate(image: np.ndarray, coverage: np.ndarray, rings: int) -> np.ndarray:

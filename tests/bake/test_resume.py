@@ -75,11 +75,11 @@ def test_interrupted_bake_resumes_and_matches(tmp_path):
     partial = tmp_path / ".out.partial"
     command = _bake_command(scene, out, "--workers", "1")
     status, err, _ = _ctrl_c_when(
-        command, lambda: list((partial / "chunks").glob("atlas-*.npz")), wait_s=120
+        command, lambda: list((partial / "chunks").glob("atlas-*.chunk")), wait_s=120
     )
     assert status == 130, err
     assert not out.exists()  # nothing half-written where the build goes
-    done = len(list((partial / "chunks").glob("*.npz")))
+    done = len(list((partial / "chunks").glob("*.chunk")))
     assert done >= 2
 
     result = subprocess.run(command, capture_output=True, text=True, timeout=300)
@@ -105,7 +105,7 @@ def test_ctrl_c_while_writing_stops_the_bake_and_the_next_run_finishes_it(tmp_pa
     assert status == 130, err
     assert "interrupted while writing" in err and "run the same command again" in err
     assert not out.exists()
-    chunks = len(list((partial / "chunks").glob("*.npz")))
+    chunks = len(list((partial / "chunks").glob("*.chunk")))
 
     result = subprocess.run(command, capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr
@@ -129,7 +129,7 @@ def test_a_full_disk_ends_the_bake_with_what_to_do_and_keeps_the_chunks(tmp_path
     assert "free space" in str(caught.value) and "run the same command again" in str(caught.value)
     assert str(partial) in str(caught.value)
     assert not out.exists()
-    chunks = len(list((partial / "chunks").glob("*.npz")))
+    chunks = len(list((partial / "chunks").glob("*.chunk")))
     assert chunks >= 2
 
     monkeypatch.undo()

@@ -1,15 +1,50 @@
-"""Parts of the tracing: the direct light's sample rays, the look-up of a bounce hit's cache
-point."""
+"""Parts of the tracing: chunk files, the direct light's sample rays, the look-up of a bounce
+hit's cache point."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from bake import chunkio
 from bake.dome import Dome
 from bake.irradiance import BounceCache, Estimator, SceneSet
 from bake.raytrace import Geometry
 from tests.sites import box
+
+
+def test_chunks_read_back_exactly_and_in_order(tmp_path):
+    rng = np.random.default_rng(3)
+    chunks = [
+        {"all": rng.random((rows, 5)).astype(np.float32),
+         "bounce:all": rng.random((rows, 5, 3)).astype(np.float32)}
+        for rows in (4, 7, 1)
+    ]
+    paths = []
+    for index, arrays in enumerate(chunks):
+        paths.append(tmp_path / f"c{index}{chunkio.SUFFIX}")
+        chunkio.save_chunk(paths[-1], arrays)
+    assert not list(tmp_path.glob("*.tmp"))
+    loaded = chunkio.load_chunks(paths)
+    assert sorted(loaded) == ["all", "bounce:all"]
+    for name in loaded:
+        expected = np.concatenate([c[name] for c in chunks])
+        assert loaded[name].dtype == expected.dtype
+        assert np.array_equal(loaded[name], expected)
+    # The order of the paths is the order of the rows.
+    reversed_rows = chunkio.load_chunks(paths[::-1])["all"]
+    assert np.array_equal(reversed_rows, np.concatenate([c["all"] for c in chunks[::-1]]))
+
+
+def test_a_truncated_or_mismatched_chunk_is_an_error(tmp_path):
+    a, b = tmp_path / f"a{chunkio.SUFFIX}", tmp_path / f"b{chunkio.SUFFIX}"
+    chunkio.save_chunk(a, {"all": np.ones((3, 4), np.float32)})
+    chunkio.save_chunk(b, {"all": np.ones((3, 5), np.float32)})
+    with pytest.raises(ValueError, match="does not match"):
+        chunkio.load_chunks([a, b])
+    a.write_bytes(a.read_bytes()[:-8])
+    with pytest.raises(ValueError, match="truncated"):
+        chunkio.load_chunks([a])
 
 
 def _cache_on(geometry, points, faces, cell_m):
