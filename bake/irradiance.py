@@ -62,17 +62,6 @@ def lattice(count: int) -> np.ndarray:
     return np.stack([(i + 0.5) / count, (i * GOLDEN) % 1.0], axis=-1)
 
 
-def tangent_frames(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit tangents orthogonal to each normal (Duff et al. 2017, branchless)."""
-    x, y, z = normals[:, 0], normals[:, 1], normals[:, 2]
-    sign = np.where(z >= 0.0, 1.0, -1.0)
-    a = -1.0 / (sign + z)
-    b = x * y * a
-    t1 = np.stack([1.0 + sign * x * x * a, sign * b, -sign * x], axis=-1)
-    t2 = np.stack([b, sign + y * y * a, -y], axis=-1)
-    return t1, t2
-
-
 @dataclass
 class SceneSet:
     """The ray scenes of each light configuration plus the one geometry they index into.
@@ -393,7 +382,7 @@ class Estimator:
         # Cosine-weighted directions around each normal: Malley's method on a shifted lattice.
         origins = self._buffer("bounce origins", (T * K, 3), np.float32)
         dirs = self._buffer("bounce dirs", (T * K, 3), np.float32)
-        loops.bounce_sample_rays(
+        loops.cosine_weighted_rays(
             np.ascontiguousarray(points, dtype=np.float64),
             np.ascontiguousarray(normals, dtype=np.float64),
             self._hemisphere_lattice,

@@ -281,28 +281,22 @@ def drop_buried(receivers: list[Receiver], scene, probes: int = 9, rays: int = 2
     at least 90% of them first hit a back face (no view can ever see it, and its texels would
     all be black).
     """
-    from bake.irradiance import lattice, tangent_frames
+    from bake import tracing_loops as loops
+    from bake.irradiance import lattice
     from bake.raytrace import RAY_OFFSET_M
 
     uv = lattice(rays)
-    r = np.sqrt(uv[:, 0])
-    local = np.stack(
-        [
-            r * np.cos(2 * np.pi * uv[:, 1]),
-            r * np.sin(2 * np.pi * uv[:, 1]),
-            np.sqrt(1.0 - uv[:, 0]),
-        ],
-        axis=1,
-    )
     kept = []
     for receiver in receivers:
         _, world = plane_texel_points(receiver)
         pick = np.linspace(0, len(world) - 1, min(probes, len(world))).astype(int)
-        normal = receiver.plane["normal"]
-        t1, t2 = tangent_frames(normal[None, :])
-        dirs = local[:, 0:1] * t1 + local[:, 1:2] * t2 + local[:, 2:3] * normal
-        origins = np.repeat(world[pick] + RAY_OFFSET_M * normal, len(dirs), axis=0)
-        all_dirs = np.tile(dirs, (len(pick), 1))
+        points = np.ascontiguousarray(world[pick], dtype=np.float64)
+        normals = np.repeat(np.asarray(receiver.plane["normal"], np.float64)[None, :], len(pick), 0)
+        origins = np.empty((len(pick) * rays, 3), dtype=np.float32)
+        all_dirs = np.empty_like(origins)
+        loops.cosine_weighted_rays(
+            points, normals, uv, np.zeros((len(pick), 2)), RAY_OFFSET_M, origins, all_dirs
+        )
         face, _ = scene.first_hit(origins, all_dirs)
         hit = face >= 0
         back = np.zeros(len(face), dtype=bool)

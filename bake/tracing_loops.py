@@ -90,8 +90,9 @@ def scatter_visible(blocked, weight, per_pair, pair_point, pair_patch, unocclude
 
 
 @_jit
-def bounce_sample_rays(points, normals, lattice, shift, offset_m, origins, dirs):
-    """Fill in cosine-weighted gather rays around each normal, ``len(lattice)`` per point.
+def cosine_weighted_rays(points, normals, lattice, shift, offset_m, origins, dirs):
+    """Fill in cosine-weighted rays around each normal, ``len(lattice)`` per point (the
+    bounce's gather rays; the probes that find hull planes buried in other objects).
 
     Malley's method on the lattice shifted per point (Cranley-Patterson rotation): a uniform
     point ``(u, v)`` of the unit disc's square, lifted to the hemisphere. Tangent frames after
