@@ -132,7 +132,7 @@ def _run_chunk(task):
     """Compute one chunk in a worker and save it to ``path`` (``{config: array}``, written
     under a temporary name, then renamed); returns the rays cast.
 
-    The worker saves, not the baking process: sending the arrays back (about 7 GB at 400
+    The worker saves, not the baking process: sending the arrays back (about 5 GB at 400
     lights) made the baking process unpickle and write them all on its own while the
     workers took both cores."""
     points, normals, configs, bounce, seed_words, path = task
@@ -274,7 +274,7 @@ def bake(
 
 @contextlib.contextmanager
 def _disk_full_is_a_bake_error(partial: Path):
-    """A full disk (a 400-light bake keeps about 7 GB of traced chunks and writes 2.4 GB)
+    """A full disk (a 400-light bake keeps about 5 GB of traced chunks and writes 2.4 GB)
     ends the bake with what to do, not a traceback; what was traced is kept."""
     try:
         yield

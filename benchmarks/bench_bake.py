@@ -94,6 +94,7 @@ def bench_lights(lights: int, quality: str, workers: int, keep: Path | None) -> 
         "duration_s": result.duration_s, "stage_s": result.stage_s,
         "rays": result.rays, "rays_per_s": result.rays_per_s, "raw_rays_per_s": raw,
         "raw_spread": abs(raw_before - raw_after) / raw,
+        "raw_before_after": [raw_before, raw_after],
         "report": manifest["compression"]["report"],
         "phone_bytes": sizes["phone"], "phone_hull_bytes": sizes["phone_hull"],
         "kiosk_bytes": sizes["kiosk"], "compact_bytes_all": sizes["all"],
@@ -135,7 +136,8 @@ def print_result(r: dict) -> None:
           f"write {s.get('write', 0):.0f} s (EXR masters and compact textures, two atlases "
           f"or views at a time; per-stack encode times below)")
     print(f"rays {r['rays'] / 1e6:.0f} M; baker {r['rays_per_s'] / 1e6:.2f} M rays/s; raw engine "
-          f"{r['raw_rays_per_s'] / 1e6:.2f} M rays/s (spread {r['raw_spread']:.0%}); ratio "
+          f"{r['raw_rays_per_s'] / 1e6:.2f} M rays/s (before {r['raw_before_after'][0] / 1e6:.1f}, "
+          f"after {r['raw_before_after'][1] / 1e6:.1f}: spread {r['raw_spread']:.0%}); ratio "
           f"{r['rays_per_s'] / r['raw_rays_per_s']:.2f} (goal >= 0.5)")
     print(f"{'stack':<14}{'k':>4}{'error':>8}{'base MB':>9}{'lights MB':>11}{'kB/light':>10}"
           f"{'encode s':>10}")
