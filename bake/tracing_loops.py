@@ -17,7 +17,8 @@ import numba
 import numpy as np
 
 # Compiled code is cached next to this file (``__pycache__``): workers of later bakes load it
-# instead of compiling again (about a second per function).
+# instead of compiling again (all four: 2.2 s to compile in a fresh checkout, 0.7 s to import
+# Numba and load them).
 _jit = numba.njit(cache=True, nogil=True, fastmath=False)
 
 
