@@ -488,7 +488,7 @@ def _write_atlas(a, traced: _TracedResults, staging: Path, compressor) -> dict:
     images = {}
     for stack, config in a.stacks.items():
         direct, bounce = _lookup_result(results, f"{a.id}.{stack}", config)
-        images[stack] = _atlas_image(a, direct, bounce, coverage, labels)
+        images[stack] = _atlas_image(a, config, direct, bounce, coverage, labels)
         rel = f"exr/{a.id}.{stack}.exr"
         write_stack_exr(staging / rel, images[stack])
         entry["stacks"][stack] = {
@@ -503,17 +503,18 @@ def _write_atlas(a, traced: _TracedResults, staging: Path, compressor) -> dict:
     return entry
 
 
-def _atlas_image(a, direct, bounce, coverage, labels) -> np.ndarray:
+def _atlas_image(a, config, direct, bounce, coverage, labels) -> np.ndarray:
     """An atlas stack (H, W, n, 3): direct plus smoothed bounce, gutters filled."""
-    image = _rgb(a.to_image(direct))
+    image = _rgb(a.to_image(direct), config)
     if bounce is not None:
         image += smooth_within_labels(a.to_image(bounce), labels, BOUNCE_SIGMA_TEXELS)
     return _dilate(image, coverage, rings=3)
 
 
-def _rgb(image: np.ndarray) -> np.ndarray:
-    """An atlas image (H, W, n, 3): grey direct light (H, W, n) repeated for R, G, B."""
-    return image if image.ndim == 4 else np.repeat(image[..., None], 3, axis=-1)
+def _rgb(direct: np.ndarray, config: str) -> np.ndarray:
+    """Direct light with RGB last, (..., n, 3): a traced configuration's is grey, (..., n),
+    and is repeated for R, G, B; ``"none"``'s already has RGB (:meth:`Estimator.basis`)."""
+    return direct if config == "none" else np.repeat(direct[..., None], 3, axis=-1)
 
 
 def _write_view(
@@ -534,7 +535,7 @@ def _write_view(
     results = traced.load(view.name)
     for stack, config in (("O", "all"), ("S", "real")):
         direct, bounce = _lookup_result(results, f"{view.name}.{stack}", config)
-        E = np.repeat(direct[:, :, None], 3, axis=2)
+        E = _rgb(direct, config)
         if bounce is not None:
             E += view_smoothed(view, hits[stack], bounce, geometry)
         image = radiance_image(view, hits[stack], E, up, site.ground.albedo)
