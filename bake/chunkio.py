@@ -37,6 +37,9 @@ def load_chunks(paths: list[Path]) -> dict:
     ``{name: (sum of rows, ...)}``. The files must hold the same names, shapes beyond axis 0
     and dtypes."""
     layouts = [_layout(path) for path in paths]
+    for path, layout in zip(paths[1:], layouts[1:], strict=True):
+        if layout.keys() != layouts[0].keys():
+            raise ValueError(f"{path} holds {sorted(layout)}, {paths[0]} {sorted(layouts[0])}")
     out = {}
     for name, (shape, dtype, _) in (layouts[0] if layouts else {}).items():
         rows = sum(layout[name][0][0] for layout in layouts)
@@ -45,7 +48,7 @@ def load_chunks(paths: list[Path]) -> dict:
     for path, layout in zip(paths, layouts, strict=True):
         with open(path, "rb") as f:
             for name, (shape, dtype, offset) in layout.items():
-                if name not in out or shape[1:] != out[name].shape[1:] or dtype != out[name].dtype:
+                if shape[1:] != out[name].shape[1:] or dtype != out[name].dtype:
                     raise ValueError(f"{path}: {name} {shape} {dtype} does not match the others")
                 target = out[name][row[name] : row[name] + shape[0]]
                 f.seek(offset)

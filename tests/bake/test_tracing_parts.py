@@ -42,9 +42,21 @@ def test_a_truncated_or_mismatched_chunk_is_an_error(tmp_path):
     chunkio.save_chunk(b, {"all": np.ones((3, 5), np.float32)})
     with pytest.raises(ValueError, match="does not match"):
         chunkio.load_chunks([a, b])
+    chunkio.save_chunk(b, {"all": np.ones((3, 4), np.float32), "real": np.ones((3, 4))})
+    with pytest.raises(ValueError, match="holds"):
+        chunkio.load_chunks([a, b])
     a.write_bytes(a.read_bytes()[:-8])
     with pytest.raises(ValueError, match="truncated"):
         chunkio.load_chunks([a])
+
+
+def _box_geometry(size, base_center, virtual=True):
+    mesh = box(size, base_center)
+    n = len(mesh.faces)
+    return Geometry(
+        np.asarray(mesh.vertices), np.asarray(mesh.faces), np.full((n, 3), 0.5),
+        np.full(n, virtual), np.zeros(n, int),
+    )
 
 
 def _cache_on(geometry, points, faces, cell_m):
@@ -59,11 +71,7 @@ def test_a_bounce_hit_reads_the_nearest_cache_point_of_its_own_face():
     """Against a brute-force search: the chosen point is on the hit's face and no more than
     a raster cell's diagonal farther than the nearest one; a face without cache points
     gives -1."""
-    mesh = box([4.0, 2.0, 3.0], [0.0, 1.0, 0.0])
-    geometry = Geometry(
-        np.asarray(mesh.vertices), np.asarray(mesh.faces), np.full((12, 3), 0.5),
-        np.ones(12, bool), np.zeros(12, int),
-    )
+    geometry = _box_geometry([4.0, 2.0, 3.0], [0.0, 1.0, 0.0])
     rng = np.random.default_rng(7)
     tri = geometry.vertices[geometry.faces]
 
@@ -91,15 +99,6 @@ def test_a_bounce_hit_reads_the_nearest_cache_point_of_its_own_face():
     best = np.where(same_face, distances, np.inf).min(axis=1)
     assert np.all(chosen <= best + np.sqrt(2.0) * cell_m + 1e-9)
     assert np.mean(np.isclose(chosen, best)) > 0.8  # mostly the very nearest
-
-
-def _box_geometry(size, base_center, virtual=True):
-    mesh = box(size, base_center)
-    n = len(mesh.faces)
-    return Geometry(
-        np.asarray(mesh.vertices), np.asarray(mesh.faces), np.full((n, 3), 0.5),
-        np.full(n, virtual), np.zeros(n, int),
-    )
 
 
 def test_direct_light_of_points_facing_up_and_down_under_an_open_sky():
