@@ -6,6 +6,7 @@ Exit status: 0 done; 2 bad input (the message names the file and key; nothing is
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from pathlib import Path
@@ -38,6 +39,14 @@ def add_subcommands(subparsers) -> None:
         choices=("draft", "final"),
         help="draft for quick looks and tests, final for the site "
         "(default: the scene's quality.default)",
+    )
+    bake.add_argument(
+        "--budget",
+        type=_budget,
+        metavar="E",
+        help="error budget of the compact textures: composite RMS error over the mean on the "
+        "test skies, as a fraction or a percentage (0.01 or 1%%; default: the scene's "
+        "compression.budget, else 1%%)",
     )
     bake.add_argument(
         "--workers", type=int, metavar="N", help="processes to use (default: one per core)"
@@ -91,6 +100,7 @@ def run_bake(args) -> int:
             quality=args.quality,
             workers=args.workers,
             progress=not args.no_progress,
+            budget=args.budget,
         )
     except SceneError as exc:
         print(f"error: {exc}", file=sys.stderr)
@@ -99,6 +109,19 @@ def run_bake(args) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     return 0
+
+
+def _budget(text: str) -> float:
+    """``--budget``: "0.01" or "1%" -> 0.01 (the range is checked with the scene's settings)."""
+    number = text.strip()
+    percent = number.endswith("%")
+    try:
+        value = float(number.rstrip("%"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected a fraction or a percentage such as 0.01 or 1%, got {text!r}"
+        ) from None
+    return value / 100.0 if percent else value
 
 
 def _vector(text: str, name: str):

@@ -371,7 +371,9 @@ def load_site(
     settings = _load_settings(root, scene_file, lights, quality)
     if budget is not None:
         if not 1e-5 <= budget <= 0.5:
-            raise SceneError("--budget", "", f"must be within [1e-05, 0.5], got {budget}")
+            raise SceneError(
+                "--budget", "", f"must be within [1e-05, 0.5] (0.001% to 50%), got {budget:g}"
+            )
         settings.compression["budget"] = budget
     sources = [scene_file]
 

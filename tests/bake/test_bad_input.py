@@ -155,5 +155,5 @@ def test_refuses_to_replace_a_folder_that_is_not_a_build(tmp_path):
 def test_help_describes_every_option():
     result = subprocess.run([*DAYLIT, "bake", "--help"], capture_output=True, text=True)
     assert result.returncode == 0
-    for option in ("--lights", "--quality", "--workers", "-o"):
+    for option in ("--lights", "--quality", "--budget", "--workers", "-o"):
         assert option in result.stdout

@@ -349,3 +349,48 @@ def test_a_busy_encoder_is_left_to_finish(tmp_path, quick_stall):
     compress._run_encoders([[sys.executable, "-c", busy]])
     assert out.read_text() == "ok"
 
+
+def _ranks(build_dir: Path) -> dict:
+    build = Build(build_dir)
+    return {
+        (atlas, name): build._entry(atlas)["stacks"][name]["compact"]["k"]
+        for atlas, name in every_stack(build)
+    }
+
+
+def test_budget_option_sets_the_error_budget(tmp_path):
+    """``daylit bake --budget 5%``: the manifest records 0.05, every stack keeps within it,
+    and a looser budget never needs a higher rank than the default 1 % (and here a lower one
+    for some stack), with the report saying so; a budget out of range is refused up front."""
+    from tests.sites import make_site
+
+    scene = make_site(tmp_path / "scene")
+
+    def daylit_bake(out: str, *options: str):
+        command = [sys.executable, "-m", "daylit.cli", "bake", str(scene), "--no-progress"]
+        return subprocess.run(
+            [*command, "-o", str(tmp_path / out), *options],
+            capture_output=True, text=True, timeout=600,
+        )
+
+    default = daylit_bake("default")
+    assert default.returncode == 0, default.stderr
+    loose = daylit_bake("loose", "--budget", "5%")
+    assert loose.returncode == 0, loose.stderr
+    assert "budget 5.00% RMS" in loose.stderr
+
+    manifest = json.loads((tmp_path / "loose" / "manifest.json").read_text())
+    assert manifest["compression"]["budget"] == pytest.approx(0.05)
+    k_default, k_loose = _ranks(tmp_path / "default"), _ranks(tmp_path / "loose")
+    assert k_default.keys() == k_loose.keys()
+    assert all(k_loose[s] <= k_default[s] for s in k_default), (k_loose, k_default)
+    assert any(k_loose[s] < k_default[s] for s in k_default), (k_loose, k_default)
+    loose_build = Build(tmp_path / "loose")
+    for atlas, name in every_stack(loose_build):
+        entry = loose_build._entry(atlas)["stacks"][name]["compact"]
+        assert entry["error"]["max"] <= 0.05, (atlas, name)
+
+    for bad, words in (("80%", "must be within"), ("lots", "expected a fraction")):
+        refused = daylit_bake("refused", "--budget", bad)
+        assert refused.returncode == 2 and words in refused.stderr, refused.stderr
+        assert not (tmp_path / "refused").exists()
