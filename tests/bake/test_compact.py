@@ -284,6 +284,32 @@ def test_sky_composites_sum_each_channel_over_the_lights():
     assert np.all(out[2] == 0.0) and np.all(out[3, :, 1] == 0.0)
 
 
+def _ratio_refinement(role: str, X: float) -> compress.RatioRefinement:
+    """One sky, one light (r' = 1), 4 texels with D = 1 and X as given, all checked."""
+    lit = np.ones((4, 3), bool)
+    return compress.RatioRefinement(
+        role, [np.ones((1, 3))], [lit], [np.ones(12)], [np.full(12, X)], [1.0], tolerance=0.002
+    )
+
+
+def test_ratio_refinement_leaves_unrefined_only_what_the_ratio_can_afford():
+    """Base layers whose coarse loss moves the shadow ratio stay refined; the small ones go
+    unrefined while their *summed* move at every texel stays within the tolerance."""
+    V = np.ones((1, 4), np.float32)  # c_j = 1 for every layer
+    f = compress.Factors(4, np.zeros((4, 3, 4), np.float32), V, {})
+    losses = np.zeros((4, 3, 4), np.float32)
+    losses[0, :, 0] = 0.01  # moves delta's ratio by 0.01: refined
+    losses[1, :, 1:] = 0.0008  # three small ones at one texel: 0.0024 together, one too many
+    delta = _ratio_refinement("delta", X=0.5)
+    assert delta.layers(losses, f) == [0, 3]
+    losses[1, :, 3] = -0.0008  # opposite sign: the three sum to 0.0008
+    assert delta.layers(losses, f) == [0]
+    # In d's layers a loss moves the ratio by -X e / D^2: half as much with X = 0.5.
+    losses[1, :, 3] = 0.0008
+    assert _ratio_refinement("d", X=0.5).layers(losses, f) == [0]
+    assert _ratio_refinement("d", X=2.0).layers(losses, f) == [0, 2, 3]
+
+
 def test_unit_gain_spectrum_matches_the_general_gram_matrices():
     """With unit gain the normalized Gram matrix is taken as the sum of the per-channel ones;
     a gain of 1.0 + 1e-7 (not unit, the general path) must give the same eigenvectors."""
