@@ -24,7 +24,6 @@ import concurrent.futures as futures
 import contextlib
 import datetime as dt
 import errno
-import gzip
 import hashlib
 import json
 import multiprocessing
@@ -46,6 +45,7 @@ from bake import chunkio, compress
 from bake import receivers as rx
 from bake.denoise import smooth_within_labels, surface_labels
 from bake.dome import Dome
+from bake.downloads import download_bytes
 from bake.gltf import write_site_glb
 from bake.irradiance import BounceCache, Estimator, SceneSet, cache_points
 from bake.raytrace import Geometry, RayScene
@@ -718,59 +718,22 @@ class _Compressor:
                 f"{row['base_bytes'] / 1e6:>8.2f}MB{row['light_bytes'] / 1e6:>10.2f}MB"
                 f"{row['light_bytes_per_light'] / 1e3:>9.1f}kB{flag}"
             )
-        session = session_download_bytes(manifest, staging)
+        sizes = download_bytes(manifest, staging)
+
+        def mb(key: str) -> str:
+            return f"{sizes[key] / 1e6:.1f} MB"
+
         self.log(
-            f"  a visitor's phone downloads about {session['phone'] / 1e6:.1f} MB "
-            f"({session['phone_hull'] / 1e6:.1f} MB with the hull planes of hull-plane mode), "
-            f"the kiosk {session['kiosk'] / 1e6:.1f} MB; all compact files "
-            f"{session['all'] / 1e6:.1f} MB"
+            f"  a visitor's phone downloads {mb('phone')} to start, {mb('phone_visit')} over a "
+            f"two-hour visit under a clear sky ({sizes['visit_lights']} lights' images per "
+            f"stack); hull-plane mode adds {(sizes['phone_hull'] - sizes['phone']) / 1e6:.1f} MB"
         )
-
-
-def session_download_bytes(manifest: dict, build_dir: Path) -> dict:
-    """Bytes the web client fetches to show the site, as it fetches them (docs/web.md):
-    the manifest, and per stack it relights its base (and gain) textures, ``V`` and the images
-    of ``selected_lights`` lights (average size).
-
-    - ``phone``: the GLB, the ground/wall and lightmap atlases (the default shading);
-    - ``phone_hull``: plus the hull planes, fetched when hull-plane mode is chosen;
-    - ``kiosk``: the fixed views only (the kiosk draws no model);
-    - ``all``: every compact file (GLB, KTX2, V) and the manifest, i.e. the whole download
-      a server must offer.
-
-    The manifest counts as sent: gzipped."""
-    sizes = {f["path"]: f["bytes"] for f in manifest["files"]}
-    # The server sends JSON gzipped at level 6 (server/routes.py), the binaries as they are.
-    manifest_bytes = len(gzip.compress((build_dir / "manifest.json").read_bytes(), 6))
-    glb = sizes[manifest["model"]["path"]]
-    m = manifest["compression"]["selected_lights"]
-    report = manifest["compression"]["report"]
-    per_light = {row["stack"]: row["light_bytes_per_light"] for row in report}
-
-    def owner_bytes(owners) -> float:
-        files, lights = set(), 0.0  # a pair's shared gain texture counts once
-        for owner in owners:
-            for name, stack in owner["stacks"].items():
-                compact = stack["compact"]
-                files |= {compact["ktx2"], compact["v"]["path"]}
-                if compact.get("gain"):
-                    files.add(compact["gain"]["ktx2"])
-                lights += m * per_light[f"{owner['id']}.{name}"]
-        return sum(sizes[f] for f in files) + lights
-
-    hull = [a for a in manifest["atlases"] if a["id"] == "hull"]
-    default = [a for a in manifest["atlases"] if a["id"] != "hull"]
-    phone = manifest_bytes + glb + owner_bytes(default)
-    compact = sum(
-        f["bytes"] for f in manifest["files"]
-        if f["path"].startswith(("ktx2/", "v/")) or f["path"] == manifest["model"]["path"]
-    )
-    return {
-        "phone": round(phone),
-        "phone_hull": round(phone + owner_bytes(hull)),
-        "kiosk": round(manifest_bytes + owner_bytes(manifest["views"])),
-        "all": compact + manifest_bytes,
-    }
+        if manifest["views"]:
+            self.log(
+                f"  the kiosk downloads {mb('kiosk')} to start, {mb('kiosk_day')} from sunrise "
+                f"to sunset ({sizes['day_lights']} lights)"
+            )
+        self.log(f"  all compact files (what the server offers): {mb('all')}")
 
 
 # --------------------------------------------------------------------------------------------

@@ -35,8 +35,9 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 from bake import compress  # noqa: E402
+from bake.downloads import download_bytes  # noqa: E402
 from bake.evaluate import Build  # noqa: E402
-from bake.pipeline import bake, session_download_bytes  # noqa: E402
+from bake.pipeline import bake  # noqa: E402
 from bake.raytrace import Geometry, RayScene  # noqa: E402
 from bake.scene import load_site  # noqa: E402
 
@@ -87,7 +88,7 @@ def bench_lights(lights: int, quality: str, workers: int, keep: Path | None) -> 
     raw_after = raw_ray_rate(workers)
     raw = 0.5 * (raw_before + raw_after)
     manifest = result.manifest
-    sizes = session_download_bytes(manifest, out)
+    sizes = download_bytes(manifest, out)
     total = sum(f["bytes"] for f in manifest["files"])
     return {
         "lights": manifest["dome"]["count"], "quality": quality, "workers": workers,
@@ -97,7 +98,9 @@ def bench_lights(lights: int, quality: str, workers: int, keep: Path | None) -> 
         "raw_before_after": [raw_before, raw_after],
         "report": manifest["compression"]["report"],
         "phone_bytes": sizes["phone"], "phone_hull_bytes": sizes["phone_hull"],
-        "kiosk_bytes": sizes["kiosk"], "compact_bytes_all": sizes["all"],
+        "phone_visit_bytes": sizes["phone_visit"], "visit_lights": sizes["visit_lights"],
+        "kiosk_bytes": sizes["kiosk"], "kiosk_day_bytes": sizes["kiosk_day"],
+        "day_lights": sizes["day_lights"], "compact_bytes_all": sizes["all"],
         "build_bytes": total, "out": str(out),
     }
 
@@ -145,9 +148,12 @@ def print_result(r: dict) -> None:
         print(f"{row['stack']:<14}{row['k']:>4}{row['error']:>8.2%}{row['base_bytes'] / 1e6:>9.2f}"
               f"{row['light_bytes'] / 1e6:>11.1f}{row['light_bytes_per_light'] / 1e3:>10.1f}"
               f"{row['encode_s']:>10.1f}")
-    print(f"a phone downloads {r['phone_bytes'] / 1e6:.1f} MB "
-          f"({r['phone_hull_bytes'] / 1e6:.1f} MB in hull-plane mode), the kiosk "
-          f"{r['kiosk_bytes'] / 1e6:.1f} MB; all compact files with the manifest (GLB, KTX2, V: "
+    print(f"a phone downloads {r['phone_bytes'] / 1e6:.1f} MB to start "
+          f"({r['phone_hull_bytes'] / 1e6:.1f} MB in hull-plane mode), "
+          f"{r['phone_visit_bytes'] / 1e6:.1f} MB over a two-hour visit ({r['visit_lights']} "
+          f"lights); the kiosk {r['kiosk_bytes'] / 1e6:.1f} MB to start, "
+          f"{r['kiosk_day_bytes'] / 1e6:.1f} MB in a day ({r['day_lights']} lights); "
+          f"all compact files with the manifest (GLB, KTX2, V: "
           f"what the server offers) {r['compact_bytes_all'] / 1e6:.1f} MB; whole build with EXR "
           f"masters {r['build_bytes'] / 1e6:.0f} MB")
 

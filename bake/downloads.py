@@ -1,0 +1,104 @@
+"""What a web client downloads from a build, as it downloads it (docs/web.md).
+
+Per stack it relights, a client fetches the base (and gain) textures and ``V`` once, and the
+own images of the lights it selects as they become selected (docs/compact-assets.md); the
+sun moves one patch in tens of minutes, so the longer a visit, the more light images. The
+manifest counts as the server sends it: gzipped.
+"""
+
+from __future__ import annotations
+
+import gzip
+from pathlib import Path
+
+import numpy as np
+
+# A visit to the site: two hours of clear sky in a spring morning (equinox, 10:00-12:00
+# local time); the kiosk runs from sunrise to sunset that day. Every 10 minutes.
+VISIT = ("2025-03-20 10:00", "2025-03-20 12:00")
+KIOSK_DAY = ("2025-03-20 00:00", "2025-03-21 00:00")
+STEP = "10min"
+
+
+def lights_selected_over(manifest: dict, start: str, end: str, step: str = STEP) -> list[int]:
+    """Every light a client selects under a clear sky at the site between ``start`` and
+    ``end`` (local times, sampled every ``step`` while the sun is up), sorted."""
+    import pandas as pd
+
+    from bake.compress import Selection
+    from daylit import sky as skies
+    from daylit.manifest import dome_vertices
+
+    site = manifest["scene"]
+    compression = manifest["compression"]
+    vertices = dome_vertices(manifest)
+    solid_angles = np.array([light["solid_angle_sr"] for light in manifest["dome"]["lights"]])
+    selection = Selection.of(
+        solid_angles, compression["selected_lights"], compression.get("selectable_lights")
+    )
+    times = pd.date_range(start, end, freq=step, tz=site["timezone"])
+    az, el = skies.sun_positions(
+        site["latitude_deg"], site["longitude_deg"], site["elevation_m"], times
+    )
+    chosen: set[int] = set()
+    for a, e in zip(az, el, strict=True):
+        if e > 0.0:
+            r = skies.patch_mean_radiance(skies.clear_sky(a, e), vertices, samples_per_side=6)
+            chosen |= {int(i) for i in selection(r)}
+    return sorted(chosen)
+
+
+def download_bytes(manifest: dict, build_dir: Path, visit_lights: int | None = None,
+                   day_lights: int | None = None) -> dict:
+    """Bytes a client fetches, by kind of client:
+
+    - ``phone``: the manifest, the GLB, the ground/wall and lightmap atlases (the default
+      shading) with the images of ``selected_lights`` lights per stack (average size);
+    - ``phone_visit``: the same over a two-hour visit (:data:`VISIT`): the images of every
+      light selected meanwhile (``visit_lights`` of them; computed if not given);
+    - ``phone_hull``: ``phone`` plus the hull planes, fetched when hull-plane mode is chosen;
+    - ``kiosk``: the manifest and the fixed views (the kiosk draws no model);
+    - ``kiosk_day``: the kiosk from sunrise to sunset (:data:`KIOSK_DAY`, ``day_lights``);
+    - ``all``: every compact file (GLB, KTX2, V) and the manifest: what a server offers.
+
+    Also ``visit_lights`` and ``day_lights``, the light counts used."""
+    sizes = {f["path"]: f["bytes"] for f in manifest["files"]}
+    # The server sends JSON gzipped at level 6 (server/routes.py), the binaries as they are.
+    manifest_bytes = len(gzip.compress((Path(build_dir) / "manifest.json").read_bytes(), 6))
+    glb = sizes[manifest["model"]["path"]]
+    m = manifest["compression"]["selected_lights"]
+    per_light = {row["stack"]: row["light_bytes_per_light"]
+                 for row in manifest["compression"]["report"]}
+    if visit_lights is None:
+        visit_lights = len(lights_selected_over(manifest, *VISIT))
+    if day_lights is None:
+        day_lights = len(lights_selected_over(manifest, *KIOSK_DAY))
+
+    def owner_bytes(owners, lights: int) -> float:
+        files, light_bytes = set(), 0.0  # a pair's shared gain texture counts once
+        for owner in owners:
+            for name, stack in owner["stacks"].items():
+                compact = stack["compact"]
+                files |= {compact["ktx2"], compact["v"]["path"]}
+                if compact.get("gain"):
+                    files.add(compact["gain"]["ktx2"])
+                light_bytes += lights * per_light[f"{owner['id']}.{name}"]
+        return sum(sizes[f] for f in files) + light_bytes
+
+    hull = [a for a in manifest["atlases"] if a["id"] == "hull"]
+    default = [a for a in manifest["atlases"] if a["id"] != "hull"]
+    phone = manifest_bytes + glb + owner_bytes(default, m)
+    compact = sum(
+        f["bytes"] for f in manifest["files"]
+        if f["path"].startswith(("ktx2/", "v/")) or f["path"] == manifest["model"]["path"]
+    )
+    return {
+        "phone": round(phone),
+        "phone_visit": round(manifest_bytes + glb + owner_bytes(default, visit_lights)),
+        "phone_hull": round(phone + owner_bytes(hull, m)),
+        "kiosk": round(manifest_bytes + owner_bytes(manifest["views"], m)),
+        "kiosk_day": round(manifest_bytes + owner_bytes(manifest["views"], day_lights)),
+        "all": compact + manifest_bytes,
+        "visit_lights": visit_lights,
+        "day_lights": day_lights,
+    }

@@ -1,0 +1,82 @@
+"""What a client downloads (bake/downloads.py): sums of the right files, and the lights a
+visit selects."""
+
+from __future__ import annotations
+
+import gzip
+import json
+
+import numpy as np
+import pandas as pd
+
+from bake import downloads
+from bake.evaluate import Build
+from daylit import sky as skies
+from daylit.spherical import PatchLookup
+
+
+def _stack(name: str, gain: bool = False) -> dict:
+    compact = {"ktx2": f"ktx2/{name}.base.ktx2", "v": {"path": f"v/{name}.V.bin"}}
+    if gain:
+        compact["gain"] = {"ktx2": f"ktx2/{name.split('.')[0]}.d.gain.ktx2"}
+    return {"compact": compact}
+
+
+def test_download_bytes_sums_what_each_client_fetches(tmp_path):
+    """A made-up build with round file sizes: each figure is the sum it should be."""
+    sizes = {
+        "site.glb": 1000,
+        "ktx2/ground.I.base.ktx2": 200, "v/ground.I.V.bin": 10,
+        "ktx2/ground.d.base.ktx2": 100, "v/ground.d.V.bin": 10,
+        "ktx2/ground.d.gain.ktx2": 50,  # shared by the pair: counted once
+        "ktx2/hull.I.base.ktx2": 300, "v/hull.I.V.bin": 20,
+        "ktx2/hull.d.base.ktx2": 30, "v/hull.d.V.bin": 20,
+        "ktx2/hull.d.gain.ktx2": 5,
+        "ktx2/kiosk.O.base.ktx2": 70, "v/kiosk.O.V.bin": 1,
+        "ktx2/ground.I.L0001.ktx2": 4000,  # light images: counted by their average
+        "exr/ground.I.exr": 10**9,  # masters are never downloaded
+    }
+    per_light = {"ground.I": 7, "ground.d": 3, "hull.I": 11, "hull.d": 2, "kiosk.O": 5}
+    manifest = {
+        "model": {"path": "site.glb"},
+        "files": [{"path": p, "bytes": b} for p, b in sizes.items()],
+        "compression": {
+            "selected_lights": 4,
+            "report": [{"stack": s, "light_bytes_per_light": b} for s, b in per_light.items()],
+        },
+        "atlases": [
+            {"id": "ground", "stacks": {"I": _stack("ground.I", True),
+                                        "d": _stack("ground.d", True)}},
+            {"id": "hull", "stacks": {"I": _stack("hull.I", True), "d": _stack("hull.d", True)}},
+        ],
+        "views": [{"id": "kiosk", "stacks": {"O": _stack("kiosk.O")}}],
+    }
+    (tmp_path / "manifest.json").write_text(json.dumps(manifest))
+    sent = len(gzip.compress((tmp_path / "manifest.json").read_bytes(), 6))
+    got = downloads.download_bytes(manifest, tmp_path, visit_lights=9, day_lights=30)
+    ground = 200 + 10 + 100 + 10 + 50
+    assert got["phone"] == sent + 1000 + ground + 4 * (7 + 3)
+    assert got["phone_visit"] == sent + 1000 + ground + 9 * (7 + 3)
+    assert got["phone_hull"] == got["phone"] + 300 + 20 + 30 + 20 + 5 + 4 * (11 + 2)
+    assert got["kiosk"] == sent + 70 + 1 + 4 * 5
+    assert got["kiosk_day"] == sent + 70 + 1 + 30 * 5
+    assert got["all"] == sent + sum(b for p, b in sizes.items() if not p.startswith("exr/"))
+    assert (got["visit_lights"], got["day_lights"]) == (9, 30)
+
+
+def test_a_visit_selects_the_suns_patches_and_a_day_more(demo_draft_build):
+    """Every 10 minutes of the visit the sun's patch is among the lights selected (a clear
+    sky), all of them selectable; a whole day selects at least as many."""
+    build = Build(demo_draft_build)
+    manifest = build.manifest
+    visit = downloads.lights_selected_over(manifest, *downloads.VISIT)
+    day = downloads.lights_selected_over(manifest, *downloads.KIOSK_DAY)
+    assert set(visit) <= set(day) <= set(build.selection.selectable.tolist())
+    assert len(day) > len(visit) >= 1
+    site = manifest["scene"]
+    times = pd.date_range(*downloads.VISIT, freq=downloads.STEP, tz=site["timezone"])
+    az, el = skies.sun_positions(
+        site["latitude_deg"], site["longitude_deg"], site["elevation_m"], times
+    )
+    sun = PatchLookup(build.dome_vertices)(skies.direction_from_azimuth_elevation(az, el))
+    assert set(np.asarray(sun).tolist()) <= set(visit)
