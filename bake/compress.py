@@ -122,8 +122,10 @@ def select_lights(r: np.ndarray, weights_sr: np.ndarray, m: int) -> np.ndarray:
     """The ``m`` brightest lights of ``r`` (n, 3): largest ``max_c(r_ic) * weights_sr_i``,
     ties to the lower index, zero-score lights never. ``weights_sr`` (n,) is each light's
     solid angle, or 0 for a light that cannot be selected (:class:`Selection`). The client
-    does exactly this."""
-    score = np.asarray(r).max(axis=1) * weights_sr
+    does exactly this, on ``r`` as the light stream carries it: float32. Rounding here too
+    makes near-ties (patches of one ring under an overcast sky) come out the same: the
+    client's pick and this one differed in float64 by the last bits of a solid angle."""
+    score = np.asarray(r, dtype=np.float32).max(axis=1).astype(np.float64) * weights_sr
     order = np.lexsort((np.arange(len(score)), -score))[:m]
     return np.sort(order[score[order] > 0.0])
 

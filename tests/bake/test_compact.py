@@ -265,6 +265,16 @@ def test_selection_picks_the_brightest_patches():
     assert list(compress.select_lights(np.zeros((6, 3)), omega, 2)) == []
 
 
+def test_selection_sees_r_as_the_light_stream_carries_it():
+    """The stream sends float32: lights whose radiances differ only beyond float32 tie, and
+    the tie goes to the lower index, as the client picks (a float64 pick differed)."""
+    r = np.ones((3, 3))
+    r[2] += 1e-12
+    assert list(compress.select_lights(r, np.ones(3), 1)) == [0]
+    r[2] += 1e-3
+    assert list(compress.select_lights(r, np.ones(3), 1)) == [2]
+
+
 def test_sky_composites_sum_each_channel_over_the_lights():
     """The one-product composites against the definition, term by term in float64: channels
     must not mix, and sky s must get its own vector."""
