@@ -12,11 +12,11 @@ its few brightest patches is smooth and very low rank. So each stack is stored a
   ``S = C^(1/2)`` and ``Y`` the top eigenvectors of ``S G S`` (``G = B^T B``), ``U = B S Y`` and
   ``V = S^-1 Y``; it is the best rank-k fit for those skies (not for arbitrary columns).
 - ``A(r)`` are the ``m`` brightest selectable lights of the current vector (Sato Sec. 7
-  selects lights the same way): the ``m`` largest ``max_c(r_ic) * solid_angle_i`` among the
-  lights this site's skies can select (:func:`selectable_lights`: the sun's yearly path and
-  its neighbours, about half the dome). Their own basis images ``B_i`` are stored one
-  texture per light; a client downloads only the few it needs (the sun moves one patch in
-  tens of minutes). Keeping ``B_i`` itself rather than the residual
+  selects lights the same way; by default ``m = 1``, the sun's patch under a clear sky): the
+  ``m`` largest ``max_c(r_ic) * solid_angle_i`` among the lights this site's skies can select
+  (:func:`selectable_lights`: the sun's yearly path, about half the dome). Their own basis
+  images ``B_i`` are stored one texture per light; a client downloads only the few it needs
+  (the sun moves one patch in tens of minutes). Keeping ``B_i`` itself rather than the residual
   ``B_i - U V^T e_i`` matters: with residuals the sun's huge ``r_i`` multiplies a low-rank term
   and then cancels it, and the quantization noise of both survives (measured: 2.6-4% error
   against 0.5-0.8% this way).
@@ -63,7 +63,12 @@ class Settings:
     budget: float = 0.01
     max_rank: int = 64
     encoding: str = "uastc"
-    selected_lights: int = 4
+    # One: the sun's patch. Measured on the demo (truncation ranks at 40 / 160 / 400 lights):
+    # with 4 (the sun's patch and its 3 brightest neighbours) the ground pair needed k 32 / 22
+    # / 19 and the lightmap 30 / 14 / 9, with 1 only 17 / 12 / 12 and 14 / 10 / 9, the hull
+    # 20 / 21 / 16 instead of 39 / 64 / 22. Zeroing the neighbours leaves holes around the sun
+    # in r', which the smooth base then has to draw; their light is smooth and it sums well.
+    selected_lights: int = 1
     # UASTC levels, measured on the demo: level 2 is 20x slower than 0 for 0.1 point less RMS
     # error; but on refinement layers (noise-like) level 1 cuts the worst texel of a shadow
     # edge from 4.8 to 0.8 LSB for 4% more bytes, as level 2 does at 4x the time.

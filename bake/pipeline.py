@@ -708,7 +708,8 @@ class _Compressor:
         budget = self.settings.budget
         self.log(
             f"compact assets ({self.settings.encoding}, budget {budget:.2%} RMS of the "
-            f"mean, {self.settings.selected_lights} selected lights):"
+            f"mean, {self.settings.selected_lights} selected "
+            f"light{'' if self.settings.selected_lights == 1 else 's'}):"
         )
         self.log(f"  {'stack':<16}{'k':>4}{'error':>9}{'base':>10}{'lights':>12}{'per light':>11}")
         for row in self.report():

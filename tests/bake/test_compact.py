@@ -405,30 +405,27 @@ def _ranks(build_dir: Path) -> dict:
     }
 
 
-def test_budget_option_sets_the_error_budget(tmp_path):
+def test_budget_option_sets_the_error_budget(tmp_path, demo_draft_build):
     """``daylit bake --budget 5%``: the manifest records 0.05, every stack keeps within it,
-    and a looser budget never needs a higher rank than the default 1 % (and here a lower one
-    for some stack), with the report saying so; a budget out of range is refused up front."""
-    from tests.sites import make_site
-
-    scene = make_site(tmp_path / "scene")
+    and a looser budget never needs a higher rank than the default 1 % (the session's draft
+    demo) and a lower one for some stack, with the report saying so; a budget out of range
+    is refused up front."""
 
     def daylit_bake(out: str, *options: str):
-        command = [sys.executable, "-m", "daylit.cli", "bake", str(scene), "--no-progress"]
+        command = [sys.executable, "-m", "daylit.cli", "bake", str(REPO / "scenes" / "demo"),
+                   "--lights", "40", "--quality", "draft", "--no-progress"]
         return subprocess.run(
             [*command, "-o", str(tmp_path / out), *options],
             capture_output=True, text=True, timeout=600,
         )
 
-    default = daylit_bake("default")
-    assert default.returncode == 0, default.stderr
     loose = daylit_bake("loose", "--budget", "5%")
     assert loose.returncode == 0, loose.stderr
     assert "budget 5.00% RMS" in loose.stderr
 
     manifest = json.loads((tmp_path / "loose" / "manifest.json").read_text())
     assert manifest["compression"]["budget"] == pytest.approx(0.05)
-    k_default, k_loose = _ranks(tmp_path / "default"), _ranks(tmp_path / "loose")
+    k_default, k_loose = _ranks(demo_draft_build), _ranks(tmp_path / "loose")
     assert k_default.keys() == k_loose.keys()
     assert all(k_loose[s] <= k_default[s] for s in k_default), (k_loose, k_default)
     assert any(k_loose[s] < k_default[s] for s in k_default), (k_loose, k_default)

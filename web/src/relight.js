@@ -19,7 +19,7 @@ import {
   domeSkyFragment, relightFragment, relightVertex, viewSkyFragment,
 } from './relight.glsl.js';
 
-const LIGHT_CACHE_PER_STACK = 12; // a clear sky needs 4; the sun moves one patch in tens of minutes
+const LIGHT_CACHE_PER_STACK = 12; // selected_lights per vector (1 by default); the sun moves one patch in tens of minutes
 
 /** Render-target format: half float where the GPU can render to it, else RGBE in RGBA8. */
 export function targetFormat(renderer) {
