@@ -439,6 +439,20 @@ def rms_rank(spec: Spectrum, S, S_inv, skies, selection, settings) -> tuple[int,
     return min(settings.max_rank, n), errors
 
 
+def ratio_checks(spec_d: Spectrum, spec_delta: Spectrum, skies):
+    """Per sky ``(sky, d, delta, lit)``: a shadowing pair's exact normalized composites
+    (T, 3) and where its ratio is checked, ``sum r d`` above ``RATIO_FLOOR`` of its mean
+    (T, 3) bool."""
+    for sky, d_true, delta_true, d_absolute in zip(
+        skies,
+        spec_d.truths(skies),
+        spec_delta.truths(skies),
+        spec_d.absolute_truths(skies),
+        strict=True,
+    ):
+        yield sky, d_true, delta_true, d_absolute > RATIO_FLOOR * d_absolute.mean()
+
+
 def ratio_error(
     spec_delta: Spectrum, spec_d: Spectrum, k: int, S, S_inv, skies, selection, settings
 ) -> float:
@@ -447,18 +461,11 @@ def ratio_error(
     two spectra share one gain, which cancels in the ratio."""
     worst = 0.0
     P_delta, P_d = spec_delta.projections(S, k), spec_d.projections(S, k)
-    for sky, d_true, delta_true, d_absolute in zip(
-        skies,
-        spec_d.truths(skies),
-        spec_delta.truths(skies),
-        spec_d.absolute_truths(skies),
-        strict=True,
-    ):
+    for sky, d_true, delta_true, lit in ratio_checks(spec_d, spec_delta, skies):
         chosen = selection(sky.r)
         I_true = d_true - delta_true
         d_k = spec_d.composite(P_d, k, S_inv, sky.r, chosen)
         I_k = d_k - spec_delta.composite(P_delta, k, S_inv, sky.r, chosen)
-        lit = d_absolute > RATIO_FLOOR * d_absolute.mean()
         if lit.any():
             error = np.abs(I_k / np.maximum(d_k, 1e-12) - I_true / np.maximum(d_true, 1e-12))
             worst = max(worst, float(error[lit].max()))
@@ -1116,16 +1123,9 @@ class RatioRefinement:
     def pair(cls, spec_d: Spectrum, spec_delta: Spectrum, skies, selection):
         """The two roles' :class:`RatioRefinement` (d's, delta's) for a pair's spectra."""
         rests, lit, d, delta, means = [], [], [], [], []
-        for sky, d_true, delta_true, d_absolute in zip(
-            skies,
-            spec_d.truths(skies),
-            spec_delta.truths(skies),
-            spec_d.absolute_truths(skies),
-            strict=True,
-        ):
+        for sky, d_true, delta_true, mask in ratio_checks(spec_d, spec_delta, skies):
             rest = sky.r.copy()
             rest[selection(sky.r)] = 0.0
-            mask = d_absolute > RATIO_FLOOR * d_absolute.mean()
             rests.append(rest)
             lit.append(mask)
             d.append(np.maximum(d_true[mask], 1e-12))
