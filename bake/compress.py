@@ -63,11 +63,12 @@ class Settings:
     budget: float = 0.01
     max_rank: int = 64
     encoding: str = "uastc"
-    # One: the sun's patch. Measured on the demo (truncation ranks at 40 / 160 / 400 lights):
-    # with 4 (the sun's patch and its 3 brightest neighbours) the ground pair needed k 32 / 22
-    # / 19 and the lightmap 30 / 14 / 9, with 1 only 17 / 12 / 12 and 14 / 10 / 9, the hull
-    # 20 / 21 / 16 instead of 39 / 64 / 22. Zeroing the neighbours leaves holes around the sun
-    # in r', which the smooth base then has to draw; their light is smooth and it sums well.
+    # One: the sun's patch. Measured on the demo's final bakes at 160 / 400 lights: with 4
+    # (the sun's patch and its 3 brightest neighbours) the ground pair needed k 22 / 19, the
+    # lightmap 14 / 9, the hull 64 (max_rank) / 22; with 1, 12 / 12, 9 / 9 and 20 / 16 (at
+    # 40 lights, truncation ranks: ground 32 -> 17, lightmap 30 -> 14). Zeroing the
+    # neighbours leaves holes around the sun in r', which the smooth base then has to draw;
+    # their own light is smooth, and the base sums it well.
     selected_lights: int = 1
     # UASTC levels, measured on the demo: level 2 is 20x slower than 0 for 0.1 point less RMS
     # error; but on refinement layers (noise-like) level 1 cuts the worst texel of a shadow
@@ -303,9 +304,9 @@ def prior_sqrt(training: list[np.ndarray], selection: Selection):
 
 RATIO_TRUNCATION = 0.008  # per-texel shadow-ratio error allowed to truncation (test: 0.02)
 # Per-texel shadow-ratio error that the base layers left unrefined may add, for each stack of
-# a pair (d and delta: twice this at most). Measured at 400 lights on the demo's ground: 15 of
-# d's 19 layers and 14 of delta's could go unrefined (the refinements were two thirds of the
-# base's bytes).
+# a pair (d and delta: twice this at most). Measured at 400 lights on the demo's ground (four
+# selected lights, k = 19): 15 of d's layers and 14 of delta's could go unrefined, and the
+# refinements had been two thirds of the base's bytes.
 RATIO_UNREFINED = 0.002
 RATIO_FLOOR = 0.05  # ratios are checked where sum r d exceeds this share of its mean
 
@@ -748,8 +749,8 @@ def compress_stack(
     and ``rank`` fixes it (no RMS criterion);
     ``refine_all`` refines every base layer; ``gain_file`` is the gain entry of an already
     written gain texture to share (the two stacks of a shadowing pair use one, so it cancels
-    exactly in ``I / d``); ``verify``
-    checks the decoded composite against the master on the test skies (a pair checks itself);
+    exactly in ``I / d``); ``verify`` checks the decoded composite against the master on the
+    test skies (a pair checks itself);
     ``refine_mask`` (H, W) limits refinement to where it matters (default: everywhere);
     ``ratio`` (a stack of a shadowing pair) also refines the base layers the per-texel shadow
     ratio needs refined, and measures the RMS rule against the pair's ``d``.
