@@ -1135,24 +1135,29 @@ class RatioRefinement:
         return tuple(cls(role, rests, lit, d, delta, means) for role in ("d", "delta"))
 
     def moves(self, losses: np.ndarray, V: np.ndarray, j: int) -> list[np.ndarray]:
-        """Layer j's move of the ratio on each sky (L,), from ``losses`` (T, 3, k)."""
+        """Layer j's move of the ratio on each sky (L,) float32, from ``losses`` (T, 3, k)."""
         out = []
         for rest, lit, D, X in zip(self.rests, self.lit, self.d, self.delta, strict=True):
-            change = (losses[:, :, j] * (V[:, j] @ rest))[lit]
+            change = (losses[:, :, j] * (V[:, j] @ rest).astype(np.float32))[lit]
             out.append(change / D if self.role == "delta" else -X * change / D**2)
         return out
 
     def layers(self, losses: np.ndarray, f: Factors) -> list[int]:
-        """The layers to refine, given their coarse ``losses`` (T, 3, k)."""
-        moves = [self.moves(losses, f.V, j) for j in range(f.k)]
-        worst = [max(float(np.abs(m).max(initial=0.0)) for m in per_sky) for per_sky in moves]
-        total = [np.zeros_like(m) for m in moves[0]] if moves else []
+        """The layers to refine, given their coarse ``losses`` (T, 3, k).
+
+        One layer's moves are held at a time (all k at once were 2 GB for the hull at 160
+        lights: k x skies x texels)."""
+
+        def largest(per_sky) -> float:
+            return max((float(np.abs(m).max(initial=0.0)) for m in per_sky), default=0.0)
+
+        worst = [largest(self.moves(losses, f.V, j)) for j in range(f.k)]
+        total = None
         refine = []
         for j in np.argsort(worst, kind="stable"):
-            trial = [t + m for t, m in zip(total, moves[j], strict=True)]
-            if max((float(np.abs(t).max(initial=0.0)) for t in trial), default=0.0) <= (
-                self.tolerance
-            ):
+            moves = self.moves(losses, f.V, j)
+            trial = moves if total is None else [t + m for t, m in zip(total, moves, strict=True)]
+            if largest(trial) <= self.tolerance:
                 total = trial
             else:
                 refine.append(int(j))
