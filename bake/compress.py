@@ -166,6 +166,18 @@ class Selection:
             weights[~keep] = 0.0
         return cls(weights, m)
 
+    @classmethod
+    def of_manifest(cls, manifest: dict) -> Selection:
+        """A build's selection, as its client makes it: the dome's solid angles, the
+        manifest's ``selected_lights`` and ``selectable_lights`` (absent in builds made
+        before it: every light)."""
+        solid_angles = [light["solid_angle_sr"] for light in manifest["dome"]["lights"]]
+        compression = manifest["compression"]
+        return cls.of(
+            np.array(solid_angles), compression["selected_lights"],
+            compression.get("selectable_lights"),
+        )
+
 
 def selectable_lights(site, dome_vertices, solid_angles, m, skies) -> np.ndarray:
     """The lights a site's skies can select: every patch the sun passes through in a year

@@ -11,8 +11,6 @@ from __future__ import annotations
 import gzip
 from pathlib import Path
 
-import numpy as np
-
 # A visit to the site: two hours of clear sky in a spring morning (equinox, 10:00-12:00
 # local time); the kiosk runs from sunrise to sunset that day. Every 10 minutes.
 VISIT = ("2025-03-20 10:00", "2025-03-20 12:00")
@@ -30,12 +28,8 @@ def lights_selected_over(manifest: dict, start: str, end: str, step: str = STEP)
     from daylit.manifest import dome_vertices
 
     site = manifest["scene"]
-    compression = manifest["compression"]
     vertices = dome_vertices(manifest)
-    solid_angles = np.array([light["solid_angle_sr"] for light in manifest["dome"]["lights"]])
-    selection = Selection.of(
-        solid_angles, compression["selected_lights"], compression.get("selectable_lights")
-    )
+    selection = Selection.of_manifest(manifest)
     times = pd.date_range(start, end, freq=step, tz=site["timezone"])
     az, el = skies.sun_positions(
         site["latitude_deg"], site["longitude_deg"], site["elevation_m"], times

@@ -82,12 +82,8 @@ class Build:
         )
         from bake.compress import Selection
 
-        # Which lights the compact data takes from their own images, as the client selects
-        # (builds made before selectable_lights existed: every light).
-        compression = self.manifest["compression"]
-        self.selection = Selection.of(
-            self.solid_angles, compression["selected_lights"], compression.get("selectable_lights")
-        )
+        # Which lights the compact data takes from their own images, as the client selects.
+        self.selection = Selection.of_manifest(self.manifest)
 
     @property
     def light_count(self) -> int:
