@@ -838,18 +838,18 @@ def compress_stack(
         coarse_lights = [q.value(decoded[2 + i][0]) for i, q in enumerate(light_q)]
 
         # Stage 2: refinements of the gain, the base layers that matter and every light image.
+        lost = [b - c for b, c in zip(base, coarse_base, strict=True)]  # (H, W, 3) each
         if refine_all:
             refine = list(range(f.k))
         else:
-            losses = np.stack([(base[j] - coarse_base[j])[valid] for j in range(f.k)], axis=-1)
+            losses = np.stack([x[valid] for x in lost], axis=-1)  # (T, 3, k)
             refine = _layers_to_refine(
                 losses, f, skies, selection, settings, None if ratio is None else ratio.means
             )
             if ratio is not None:
                 refine = sorted(set(refine) | set(ratio.layers(losses, f)))
         refine_q = [
-            _refinement_png(base[j] - coarse_base[j], tmp / f"refine{j:04d}.png", refine_mask)
-            for j in refine
+            _refinement_png(lost[j], tmp / f"refine{j:04d}.png", refine_mask) for j in refine
         ]
         base_file = out_dir / "ktx2" / f"{name}.base.ktx2"
         encode_array([q.path for q in base_q + refine_q], base_file)
