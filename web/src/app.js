@@ -5,11 +5,12 @@ import { AssetError, Assets } from './assets.js';
 import { CameraView } from './camera-view.js';
 import { Hud } from './hud.js';
 import { Kiosk } from './kiosk.js';
-import { LightSmoother, openSkyIrradiance, skySH9 } from './lightmath.js';
+import { foldSun, LightSmoother, openSkyIrradiance, skySH9 } from './lightmath.js';
 import { LightStream } from './lightstream.js';
 import { Relighter } from './relight.js';
 import { Site } from './site.js';
 import { makeStatus } from './status.js';
+import { SunShadows } from './sun.js';
 import { VisitView } from './visit.js';
 import { arSupported, XRView } from './xr.js';
 
@@ -128,6 +129,8 @@ export class App {
         this.site = new Site(gltf, manifest, this.relighter);
         this.scene.add(this.site.root);
         if (this.site.sky) this.scene.add(this.site.sky);
+        this.sunShadows = new SunShadows(this.renderer, this.scene,
+          { virtual: this.site.nodes.virtual, real: this.site.nodes.real }, this.site.sun);
         await this._enterMode(this.mode);
       }
       this.ready = true;
@@ -154,6 +157,8 @@ export class App {
       if (this.site.sky) this.scene.remove(this.site.sky);
     }
     this.site = null;
+    this.sunShadows?.dispose();
+    this.sunShadows = null;
     this.kiosk?.dispose();
     this.kiosk = null;
     this.relighter?.dispose();
@@ -167,7 +172,7 @@ export class App {
     if (mode === 'ar') {
       try {
         this.view = await XRView.open(this.renderer, this.scene, this.site.root, this.hudRoot, () => this.switchMode('visit'));
-        this.site.setMode('overlay', this.shadingMode);
+        this.site.setMode('passthrough', this.shadingMode);
         this.mode = 'ar';
         return;
       } catch (err) {
@@ -235,8 +240,26 @@ export class App {
   _onLight(m) {
     this.light = m;
     this.saturated = m.saturated;
-    this.smoother.push(m.rgb, performance.now() / 1000);
+    // The sun's irradiance glides with the sky: smoothed as three more numbers after r.
+    const sun = m.sun?.normalIrradiance ?? [0, 0, 0];
+    const v = new Float64Array(m.rgb.length + 3);
+    v.set(m.rgb);
+    v.set(sun, m.rgb.length);
+    this.smoother.push(v, performance.now() / 1000);
     this._needRelight = true;
+  }
+
+  /** The smoothed sky (n x 3) and the sun to draw with it (null: none, as from a version-1
+   * server, whose sky vector still holds the sun in its patch). */
+  _smoothedLight() {
+    const v = this.smoother.value;
+    const n3 = v.length - 3;
+    const direction = this.light?.sun?.direction;
+    const sun = direction ? { direction, normalIrradiance: Array.from(v.subarray(n3)) } : null;
+    let r = v.slice(0, n3);
+    // The kiosk's fixed view draws the sun from its basis images: folded back into its patch.
+    if (this.mode === 'kiosk' && sun) r = foldSun(r, sun, this.assets.manifest.dome.lights);
+    return { r, sun };
   }
 
   isStale() {
@@ -258,7 +281,8 @@ export class App {
     if (!due) return;
     this._needRelight = false;
     this._lastRelightS = tS;
-    const r = Float64Array.from(this.smoother.value);
+    const { r, sun } = this._smoothedLight();
+    this._pendingSun = sun;
     this.relighter.update(r, this.light?.sequence ?? 0).catch((err) => {
       this.hud.setMessage(`${err.message}. Keeping the last light.`, 'warn');
       this._needRelight = true; // try the images again with the next vector
@@ -268,15 +292,20 @@ export class App {
   _onApplied(applied) {
     const r = applied.r;
     const open = openSkyIrradiance(r, this.assets.manifest.dome.lights.map((l) => l.cosine_weighted_sr));
-    const mean = (open[0] + open[1] + open[2]) / 3;
+    const sun = this.mode === 'kiosk' ? null : this._pendingSun;
+    this.sunShadows?.setSun(sun?.direction ?? [0, 0, 0], sun?.normalIrradiance ?? [0, 0, 0]);
+    // The open ground's irradiance with the sun (unshadowed): the exposure's reference.
+    const sunUp = sun ? Math.max(0, sun.direction[1]) : 0;
+    const ground = open.map((e, c) => e + (sun ? sun.normalIrradiance[c] * sunUp : 0));
+    const mean = (ground[0] + ground[1] + ground[2]) / 3;
     this.site?.setLight({
       L: skySH9(r, this.assets.manifest.dome.lights.map((l) => l.sh9)),
       openIrradiance: open,
       flatIrradiance: [mean, mean, mean].map((v) => v * 0.8), // shading off: even, a little dimmer
     });
     const albedo = this.assets.manifest.ground.albedo;
-    const ground = (0.2126 * albedo[0] * open[0] + 0.7152 * albedo[1] * open[1] + 0.0722 * albedo[2] * open[2]) / Math.PI;
-    this._targetExposure = ground > 0 ? DISPLAY_KEY / ground : 1;
+    const key = (0.2126 * albedo[0] * ground[0] + 0.7152 * albedo[1] * ground[1] + 0.0722 * albedo[2] * ground[2]) / Math.PI;
+    this._targetExposure = key > 0 ? DISPLAY_KEY / key : 1;
     if (this.kiosk) this.kiosk.onRelight();
     if (applied.exact && this.firstRelitMs === null) this._firstRelitPending = true;
   }

@@ -12,16 +12,67 @@ function toBase64(floats) {
 
 export function debugApi(app) {
   return Object.freeze({
-    /** Relight with r (flat n x 3 array) and wait until it is drawn with every light image. */
-    async relight(r, sequence = 0) {
+    /**
+     * Relight with r (flat n x 3 array: the sky) and, optionally, the sun ({direction: [x, y,
+     * z] toward it, normalIrradiance: [r, g, b] W/m^2}, as a version-2 light message carries
+     * it), and wait until it is drawn with every light image.
+     */
+    async relight(r, sequence = 0, sun = null) {
       app.stream?.stop(); // the test's vector, not the server's
-      app.light = { rgb: Float32Array.from(r), sequence, captureTime: Date.now() / 1000, stale: false };
-      app.smoother.push(Float64Array.from(r), performance.now() / 1000);
-      app.smoother.value = Float64Array.from(r);
-      let applied = await app.relighter.update(Float64Array.from(r), sequence);
-      if (!applied.exact) applied = await app.relighter.update(Float64Array.from(r), sequence);
+      app.light = { rgb: Float32Array.from(r), sequence, captureTime: Date.now() / 1000, stale: false, sun };
+      const v = Float64Array.from([...r, ...(sun?.normalIrradiance ?? [0, 0, 0])]);
+      app.smoother.push(v, performance.now() / 1000);
+      app.smoother.value = Float64Array.from(v);
+      const { r: sky, sun: drawn } = app._smoothedLight();
+      app._pendingSun = drawn;
+      let applied = await app.relighter.update(sky, sequence);
+      if (!applied.exact) applied = await app.relighter.update(sky, sequence);
       return { sequence: applied.sequence, exact: applied.exact, selected: applied.selected };
     },
+    /**
+     * What each canvas pixel [x, y] (CSS pixels, from the top left) shows: the world point,
+     * normal and the mesh's role and name (three's Raycaster against the visible site), or
+     * null over the sky. The tests evaluate the oracle there.
+     */
+    pick(pixels) {
+      const rect = app.canvas.getBoundingClientRect();
+      const raycaster = new THREE.Raycaster();
+      const meshes = [];
+      app.site.root.traverse((o) => { if (o.isMesh && o.visible && o.userData.daylit) meshes.push(o); });
+      return pixels.map(([x, y]) => {
+        raycaster.setFromCamera(new THREE.Vector2(2 * x / rect.width - 1, 1 - 2 * y / rect.height), app.camera);
+        const hit = raycaster.intersectObjects(meshes, false)[0];
+        if (!hit) return null;
+        const normal = hit.face.normal.clone().transformDirection(hit.object.matrixWorld);
+        if (normal.dot(raycaster.ray.direction) > 0) normal.negate();
+        const info = hit.object.userData.daylit;
+        return { point: hit.point.toArray(), normal: normal.toArray(), role: info.role, atlas: info.atlas ?? null, name: hit.object.name };
+      });
+    },
+    /** The displayed picture (after tone mapping and sRGB), RGBA8 as base64, rows from the top. */
+    screen() {
+      app.renderFrame();
+      const gl = app.renderer.getContext();
+      const w = gl.drawingBufferWidth;
+      const h = gl.drawingBufferHeight;
+      const px = new Uint8Array(w * h * 4);
+      gl.readPixels(0, 0, w, h, gl.RGBA, gl.UNSIGNED_BYTE, px);
+      const flipped = new Uint8Array(px.length);
+      for (let row = 0; row < h; row++) flipped.set(px.subarray((h - 1 - row) * w * 4, (h - row) * w * 4), row * w * 4);
+      return { width: w, height: h, data: toBase64(flipped) };
+    },
+    /** Show the site as over a camera picture of one colour (sRGB 0-1), or back to the visit. */
+    overlay(colour) {
+      if (colour) {
+        app.scene.background = new THREE.Color().setRGB(...colour, THREE.SRGBColorSpace);
+        app.site.setMode('overlay', app.shadingMode);
+      } else {
+        app.scene.background = null;
+        app.site.setMode('visit', app.shadingMode);
+      }
+    },
+    /** How often the sun's shadow maps were rendered (they follow the sun, not the frames). */
+    sunShadowRenders: () => app.sunShadows?.renders ?? 0,
     targets: () => Object.keys(app.relighter.targets),
     /** The applied light vector and one target read back in the same instant. */
     snapshot(key) {

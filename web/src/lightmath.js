@@ -195,3 +195,45 @@ export class LightSmoother {
     return d / scale;
   }
 }
+
+/**
+ * The patch containing a direction (the first whose three edge planes it lies inside, like
+ * daylit.spherical.PatchLookup), or -1 below the horizon or outside every patch.
+ * @param {{vertices: number[][]}[]} lights the manifest's dome.lights
+ * @param {number[]} direction unit, site frame
+ */
+export function patchContaining(lights, [x, y, z]) {
+  if (y < 0) return -1;
+  for (let i = 0; i < lights.length; i++) {
+    const v = lights[i].vertices;
+    let inside = true;
+    for (let e = 0; e < 3 && inside; e++) {
+      const a = v[e];
+      const b = v[(e + 1) % 3];
+      // (a x b) . d >= 0: on the inner side of the great circle through a and b
+      const nx = a[1] * b[2] - a[2] * b[1];
+      const ny = a[2] * b[0] - a[0] * b[2];
+      const nz = a[0] * b[1] - a[1] * b[0];
+      inside = nx * x + ny * y + nz * z >= 0;
+    }
+    if (inside) return i;
+  }
+  return -1;
+}
+
+/**
+ * The sun folded back into the patch that holds it (r_p += E_sun / solid_angle_p), as the
+ * light vector was before the sun had its own light (protocol version 1): for the parts that
+ * draw the sun from the basis (the kiosk's fixed view). Returns a new array; r unchanged.
+ * @param {ArrayLike<number>} r n x 3, the sky without the sun's disc
+ * @param {{direction: number[], normalIrradiance: number[]} | null} sun
+ * @param {{vertices: number[][], solid_angle_sr: number}[]} lights the manifest's dome.lights
+ */
+export function foldSun(r, sun, lights) {
+  const out = Float64Array.from(r);
+  if (!sun) return out;
+  const p = patchContaining(lights, sun.direction);
+  if (p < 0) return out;
+  for (let c = 0; c < 3; c++) out[3 * p + c] += sun.normalIrradiance[c] / lights[p].solid_angle_sr;
+  return out;
+}

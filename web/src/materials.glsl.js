@@ -1,6 +1,8 @@
 // Shaders of the surfaces drawn every frame. They only sample the relight targets
-// (relight.js), so their cost does not depend on the number of lights. Output is linear
-// radiance times the exposure, then three.js's tone mapping and sRGB encoding.
+// (relight.js), so their cost does not depend on the number of lights, and the sun's shadow
+// maps (sun.js). Output is linear radiance times the exposure, then three.js's tone mapping
+// and sRGB encoding.
+import { sunShadowChunk } from './sun.js';
 
 const common = /* glsl */ `
 uniform float exposure;
@@ -9,10 +11,24 @@ uniform float exposure;
 export const uvVertex = /* glsl */ `
 varying vec2 vUv;
 varying vec3 vNormalW;
+varying vec3 vPositionW;
 void main() {
   vUv = uv;
   vNormalW = normalize(mat3(modelMatrix) * normal);
-  gl_Position = projectionMatrix * modelViewMatrix * vec4(position, 1.0);
+  vec4 world = modelMatrix * vec4(position, 1.0);
+  vPositionW = world.xyz;
+  gl_Position = projectionMatrix * viewMatrix * world;
+}
+`;
+
+// The sun's visibility past both caster sets, and the facing normal of a double-sided face.
+const sunCommon = /* glsl */ `
+${sunShadowChunk}
+float sunVisibilityVirtual(vec3 p, vec3 n) { return sunVisibilityIn(sunMapV, sunMatrixV, sunInfoV, p, n); }
+float sunVisibilityReal(vec3 p, vec3 n) { return sunVisibilityIn(sunMapR, sunMatrixR, sunInfoR, p, n); }
+vec3 facingNormal() {
+  vec3 n = normalize(vNormalW);
+  return gl_FrontFacing ? n : -n;
 }
 `;
 
@@ -36,8 +52,9 @@ function output(expr) {
 }
 
 /**
- * A surface lit from its lightmap: albedo / pi x E (E from the lightmap target). With
- * shading off (the A/B switch) it shows albedo / pi x flatIrradiance: no shading, no shadows.
+ * A surface lit from its lightmap (the sky) and the sun: albedo / pi x (E_sky + E_sun cos V),
+ * V the sun's visibility past the virtual and the real casters. With shading off (the A/B
+ * switch) it shows albedo / pi x flatIrradiance: no shading, no shadows.
  */
 export const lightmapFragment = (decode) => /* glsl */ `
 ${common}
@@ -48,16 +65,22 @@ uniform vec3 flatIrradiance;
 uniform float shading; // 1 shaded from the lightmap, 0 flat
 varying vec2 vUv;
 varying vec3 vNormalW;
+varying vec3 vPositionW;
+${sunCommon}
 void main() {
-  vec3 e = mix(flatIrradiance, decodeTarget(texture2D(irradianceTex, vUv)), shading);
+  vec3 n = facingNormal();
+  vec3 sun = sunOnSurface(n);
+  if (sun != vec3(0.0)) sun *= sunVisibilityVirtual(vPositionW, n) * sunVisibilityReal(vPositionW, n);
+  vec3 e = mix(flatIrradiance, decodeTarget(texture2D(irradianceTex, vUv)) + sun, shading);
   ${output('albedo / 3.14159265 * e * exposure')}
 }
 `;
 
 /**
  * Hull-plane mode (Kakuta): the virtual object's unshadowed shading from the light vector
- * (spherical harmonics of the sky, Ramamoorthi & Hanrahan Eq. 13, from the manifest's sh9),
- * darkened by the hull planes drawn over it.
+ * (spherical harmonics of the sky, Ramamoorthi & Hanrahan Eq. 13, from the manifest's sh9)
+ * and the unshadowed sun, darkened by the hull planes drawn over it (whose ratio carries the
+ * sun's shadows, shadowPlaneFragment).
  */
 export const sh9Fragment = /* glsl */ `
 ${common}
@@ -67,6 +90,7 @@ uniform vec3 flatIrradiance;
 uniform float shading;
 varying vec3 vNormalW;
 varying vec3 vPositionW;
+${sunShadowChunk}
 vec3 irradianceSH(vec3 n) {
   const float c1 = 0.429043, c2 = 0.511664, c3 = 0.743125, c4 = 0.886227, c5 = 0.247708;
   float x = n.x, y = n.y, z = n.z;
@@ -77,17 +101,25 @@ vec3 irradianceSH(vec3 n) {
 void main() {
   vec3 n = normalize(vNormalW);
   if (!gl_FrontFacing) n = -n;
-  vec3 e = mix(flatIrradiance, max(irradianceSH(n), vec3(0.0)), shading);
+  vec3 e = mix(flatIrradiance, max(irradianceSH(n), vec3(0.0)) + sunOnSurface(n), shading);
   ${output('albedo / 3.14159265 * e * exposure')}
 }
 `;
 
 /**
- * A shadowing plane (Kakuta Eq. 2, 4): zero reflectance, alpha = 1 - ratio with
- * ratio = sum r I / sum r d = 1 - X / D. Blending happens on sRGB-encoded colour, so the
- * linear factor `ratio` becomes ratio^(1/2.2) there. Where ratio > 1 (light bounced off a
- * virtual object) a second, additive draw of the same plane (brighten = 1) multiplies the
- * picture by the excess (blending DstColor, One).
+ * A shadowing plane (Kakuta Eq. 2, 4, with the sun apart as in Jensen 2006), per channel in
+ * linear light:
+ *   ratio = (D - X + S Vv Vr) / (D + S Vd)
+ * with D = sum r d and X = sum r (d - I) the sky's part from the basis, S the sun's
+ * irradiance on the plane unshadowed, Vv and Vr its visibility past the virtual and the real
+ * casters, and Vd = Vr where `d` holds the real proxies (ground and wall planes), 1 where it
+ * holds nothing (hull planes). Inside a real shadow the ratio is the sky's alone: a virtual
+ * shadow never darkens what the real scene already shadows.
+ * Over a camera picture drawn into the frame (camera mode) the plane multiplies it by
+ * ratio^(1/2.2) per channel (blending DstColor, Zero, on sRGB-encoded colour); over a
+ * passthrough (AR, transparent frame) it can only be black with alpha 1 - luminance ratio.
+ * Where ratio > 1 (light bounced off a virtual object) a second, additive draw of the same
+ * plane (brighten = 1) adds the excess (blending DstColor, One).
  */
 export const shadowPlaneFragment = (decode) => /* glsl */ `
 ${decode}
@@ -95,25 +127,42 @@ uniform sampler2D dTex;      // D = sum r d
 uniform sampler2D deltaTex;  // X = sum r (d - I)
 uniform float strength;      // 1 shown, 0 hidden (the A/B switch)
 uniform float brighten;      // 0: the darkening draw, 1: the brightening draw
+uniform float alphaOut;      // 1: black with alpha (AR), 0: a factor to multiply by
+uniform float dHasReal;      // 1: d holds the real proxies (ground, walls); 0: nothing (hull)
 varying vec2 vUv;
+varying vec3 vNormalW;
+varying vec3 vPositionW;
+${sunCommon}
 void main() {
-  float D = dot(decodeTarget(texture2D(dTex, vUv)), vec3(0.2126, 0.7152, 0.0722));
-  float X = dot(decodeTarget(texture2D(deltaTex, vUv)), vec3(0.2126, 0.7152, 0.0722));
-  float ratio = D > 1e-6 ? 1.0 - X / D : 1.0;
-  ratio = mix(1.0, clamp(ratio, 0.0, 4.0), strength);
-  float encoded = pow(ratio, 1.0 / 2.2);
+  vec3 D = decodeTarget(texture2D(dTex, vUv));
+  vec3 X = decodeTarget(texture2D(deltaTex, vUv));
+  vec3 n = facingNormal();
+  vec3 S = sunOnSurface(n);
+  float vv = 1.0;
+  float vr = 1.0;
+  if (S != vec3(0.0)) {
+    vv = sunVisibilityVirtual(vPositionW, n);
+    vr = sunVisibilityReal(vPositionW, n);
+  }
+  vec3 present = D - X + S * vv * vr;
+  vec3 absent = D + S * mix(1.0, vr, dHasReal);
+  vec3 ratio = mix(vec3(1.0), present / max(absent, vec3(1e-6)), step(vec3(1e-6), absent));
+  ratio = mix(vec3(1.0), clamp(ratio, 0.0, 4.0), strength);
+  vec3 encoded = pow(ratio, vec3(1.0 / 2.2));
   if (brighten > 0.5) {
-    gl_FragColor = vec4(vec3(max(encoded - 1.0, 0.0)), 1.0);
+    gl_FragColor = vec4(max(encoded - 1.0, 0.0), 1.0);
+  } else if (alphaOut > 0.5) {
+    gl_FragColor = vec4(0.0, 0.0, 0.0, 1.0 - min(dot(encoded, vec3(0.2126, 0.7152, 0.0722)), 1.0));
   } else {
-    gl_FragColor = vec4(0.0, 0.0, 0.0, 1.0 - min(encoded, 1.0));
+    gl_FragColor = vec4(min(encoded, 1.0), 1.0);
   }
 }
 `;
 
 /**
  * A real receiving surface in the virtual visit (no camera view to blend over): the
- * synthesized real scene under the same sky, albedo / pi x I with I = D - X (D alone when
- * the virtual objects' shadows are switched off).
+ * synthesized real scene under the same sky and sun, albedo / pi x (D - X + S Vv Vr) (the
+ * virtual objects' part, X and Vv, left out when their shadows are switched off).
  */
 export const receiverFragment = (decode) => /* glsl */ `
 ${common}
@@ -123,21 +172,38 @@ uniform sampler2D deltaTex;
 uniform vec3 albedo;
 uniform float strength;
 varying vec2 vUv;
+varying vec3 vNormalW;
+varying vec3 vPositionW;
+${sunCommon}
 void main() {
   vec3 D = decodeTarget(texture2D(dTex, vUv));
   vec3 X = decodeTarget(texture2D(deltaTex, vUv));
-  vec3 e = max(D - strength * X, vec3(0.0));
+  vec3 n = facingNormal();
+  vec3 sun = sunOnSurface(n);
+  if (sun != vec3(0.0)) {
+    sun *= sunVisibilityReal(vPositionW, n) * mix(1.0, sunVisibilityVirtual(vPositionW, n), strength);
+  }
+  vec3 e = max(D - strength * X, vec3(0.0)) + sun;
   ${output('albedo / 3.14159265 * e * exposure')}
 }
 `;
 
-/** The open ground beyond the atlases: lit by the open sky, sum r_i cosine_weighted_sr_i. */
+/**
+ * The open ground beyond the atlases: lit by the open sky, sum r_i cosine_weighted_sr_i, and
+ * the sun with the shadows of every caster.
+ */
 export const openGroundFragment = /* glsl */ `
 ${common}
 uniform vec3 albedo;
 uniform vec3 openIrradiance;
+varying vec3 vNormalW;
+varying vec3 vPositionW;
+${sunCommon}
 void main() {
-  ${output('albedo / 3.14159265 * openIrradiance * exposure')}
+  vec3 n = vec3(0.0, 1.0, 0.0);
+  vec3 sun = sunOnSurface(n);
+  if (sun != vec3(0.0)) sun *= sunVisibilityVirtual(vPositionW, n) * sunVisibilityReal(vPositionW, n);
+  ${output('albedo / 3.14159265 * (openIrradiance + sun) * exposure')}
 }
 `;
 
@@ -156,13 +222,18 @@ ${common}
 ${decode}
 uniform sampler2D skyTex;
 uniform vec3 horizon;
+uniform vec3 sunDirection;
+uniform vec3 sunIrradiance;
 varying vec3 vDir;
+const float COS_SUN = ${Math.cos(0.2666 * Math.PI / 180).toFixed(9)};
+const float SUN_SR = ${(2 * Math.PI * (1 - Math.cos(0.2666 * Math.PI / 180))).toExponential(9)};
 void main() {
   vec3 w = normalize(vDir);
   float elevation = asin(clamp(w.y, 0.0, 1.0));
   float azimuth = atan(w.x, -w.z);
   if (azimuth < 0.0) azimuth += 6.28318530718;
   vec3 sky = decodeTarget(texture2D(skyTex, vec2(azimuth / 6.28318530718, elevation / 1.57079632679)));
+  if (dot(w, sunDirection) > COS_SUN) sky += sunIrradiance / SUN_SR; // the disc: white after tone mapping
   if (w.y < 0.0) sky = horizon;
   ${output('sky * exposure')}
 }

@@ -12,6 +12,7 @@ import {
   shadowPlaneFragment, skyFragment, skyVertex, uvVertex,
 } from './materials.glsl.js';
 import { FLOAT_DECODE, RGBE_DECODE } from './relight.glsl.js';
+import { sunUniforms } from './sun.js';
 
 export class Site {
   /**
@@ -34,6 +35,8 @@ export class Site {
       openIrradiance: { value: new THREE.Vector3(1, 1, 1) },
       L: { value: Array.from({ length: 9 }, () => new THREE.Vector3()) },
     };
+    // The sun (sun.js): direction, irradiance and shadow maps, shared by every material.
+    this.sun = sunUniforms();
     this.nodes = { virtual: [], real: [], ground: [], plane: [], hull: [], brighten: [] };
     this.groundAlbedo = new THREE.Vector3(...manifest.ground.albedo);
     const meshes = [];
@@ -55,7 +58,7 @@ export class Site {
         }
       } else if (info.role === 'ground') {
         mesh.userData.visitMaterial = new THREE.ShaderMaterial({
-          uniforms: { exposure: this.shared.exposure, albedo: { value: albedo }, openIrradiance: this.shared.openIrradiance },
+          uniforms: { ...this.sun, exposure: this.shared.exposure, albedo: { value: albedo }, openIrradiance: this.shared.openIrradiance },
           vertexShader: plainVertex, fragmentShader: openGroundFragment,
           polygonOffset: true, polygonOffsetFactor: 1, polygonOffsetUnits: 4,
         });
@@ -64,8 +67,10 @@ export class Site {
         const D = t[`${info.atlas}.d`]?.texture;
         const X = t[`${info.atlas}.I`]?.texture;
         if (!D || !X) continue;
-        mesh.userData.shadowMaterial = this._shadow(decode, D, X, 0);
-        const bright = new THREE.Mesh(mesh.geometry, this._shadow(decode, D, X, 1));
+        const dHasReal = info.atlas === 'hull' ? 0 : 1; // hull d: nothing; ground d: real proxies
+        mesh.userData.shadowMaterial = this._shadow(decode, D, X, { dHasReal });
+        mesh.userData.shadowAlphaMaterial = this._shadow(decode, D, X, { dHasReal, alphaOut: 1 });
+        const bright = new THREE.Mesh(mesh.geometry, this._shadow(decode, D, X, { dHasReal, brighten: 1 }));
         bright.renderOrder = 3;
         mesh.add(bright);
         mesh.userData.brightMesh = bright;
@@ -75,7 +80,7 @@ export class Site {
           this.nodes.hull.push(mesh);
         } else {
           mesh.userData.receiverMaterial = new THREE.ShaderMaterial({
-            uniforms: { exposure: this.shared.exposure, strength: this.shared.strength, albedo: { value: this._receiverAlbedo(info) }, dTex: { value: D }, deltaTex: { value: X } },
+            uniforms: { ...this.sun, exposure: this.shared.exposure, strength: this.shared.strength, albedo: { value: this._receiverAlbedo(info) }, dTex: { value: D }, deltaTex: { value: X } },
             vertexShader: uvVertex, fragmentShader: receiverFragment(decode), side: THREE.DoubleSide,
           });
           this.nodes.plane.push(mesh);
@@ -95,7 +100,7 @@ export class Site {
   _lightmap(albedo, decode, target) {
     return new THREE.ShaderMaterial({
       uniforms: {
-        exposure: this.shared.exposure, shading: this.shared.shading,
+        ...this.sun, exposure: this.shared.exposure, shading: this.shared.shading,
         flatIrradiance: this.shared.flatIrradiance, albedo: { value: albedo },
         irradianceTex: { value: target.texture },
       },
@@ -107,22 +112,31 @@ export class Site {
   _sh9(albedo) {
     return new THREE.ShaderMaterial({
       uniforms: {
-        exposure: this.shared.exposure, shading: this.shared.shading,
+        ...this.sun, exposure: this.shared.exposure, shading: this.shared.shading,
         flatIrradiance: this.shared.flatIrradiance, albedo: { value: albedo }, L: this.shared.L,
       },
       vertexShader: plainVertex, fragmentShader: sh9Fragment, side: THREE.DoubleSide,
     });
   }
 
-  _shadow(decode, D, X, brighten) {
+  /**
+   * A shadowing plane's material: the darkening draw multiplies the picture by the ratio per
+   * channel (alphaOut: black with alpha, for a transparent frame over a passthrough), the
+   * brightening draw adds the excess where the ratio is above 1.
+   */
+  _shadow(decode, D, X, { dHasReal, brighten = 0, alphaOut = 0 }) {
+    const blend = brighten ? { blendSrc: THREE.DstColorFactor, blendDst: THREE.OneFactor }
+      : alphaOut ? { blendSrc: THREE.SrcAlphaFactor, blendDst: THREE.OneMinusSrcAlphaFactor }
+        : { blendSrc: THREE.DstColorFactor, blendDst: THREE.ZeroFactor };
     return new THREE.ShaderMaterial({
-      uniforms: { dTex: { value: D }, deltaTex: { value: X }, strength: this.shared.strength, brighten: { value: brighten } },
+      uniforms: {
+        ...this.sun, dTex: { value: D }, deltaTex: { value: X }, strength: this.shared.strength,
+        brighten: { value: brighten }, alphaOut: { value: alphaOut }, dHasReal: { value: dHasReal },
+      },
       vertexShader: uvVertex, fragmentShader: shadowPlaneFragment(decode),
       transparent: true, depthWrite: false, side: THREE.DoubleSide,
-      ...(brighten ? {
-        blending: THREE.CustomBlending, blendSrc: THREE.DstColorFactor, blendDst: THREE.OneFactor,
-        blendEquation: THREE.AddEquation,
-      } : {}),
+      blending: THREE.CustomBlending, blendEquation: THREE.AddEquation, ...blend,
+      blendSrcAlpha: THREE.ZeroFactor, blendDstAlpha: THREE.OneFactor,
       polygonOffset: true, polygonOffsetFactor: -1, polygonOffsetUnits: -4,
     });
   }
@@ -130,7 +144,10 @@ export class Site {
   _skyDome(decode, texture) {
     if (!texture) return null;
     const sky = new THREE.Mesh(new THREE.SphereGeometry(1, 48, 24), new THREE.ShaderMaterial({
-      uniforms: { exposure: this.shared.exposure, skyTex: { value: texture }, horizon: { value: new THREE.Vector3() } },
+      uniforms: {
+        exposure: this.shared.exposure, skyTex: { value: texture }, horizon: { value: new THREE.Vector3() },
+        sunDirection: this.sun.sunDirection, sunIrradiance: this.sun.sunIrradiance,
+      },
       vertexShader: skyVertex, fragmentShader: skyFragment(decode), side: THREE.BackSide, depthWrite: false,
     }));
     sky.frustumCulled = false;
@@ -139,12 +156,15 @@ export class Site {
   }
 
   /**
-   * @param {'visit'|'overlay'} view  visit: the synthesized site; overlay: over a camera view
+   * @param {'visit'|'overlay'|'passthrough'} view  visit: the synthesized site; overlay: over a
+   *   camera picture drawn into the frame; passthrough: over AR's passthrough (a transparent
+   *   frame: shadows as black with alpha)
    * @param {'lightmap'|'hull'} shading the virtual objects' shading (Kakuta's two options)
    */
   setMode(view, shading) {
     this.view = view;
     this.shadingMode = shading;
+    const shadowMaterial = (m) => (view === 'passthrough' ? m.userData.shadowAlphaMaterial : m.userData.shadowMaterial);
     const visit = view === 'visit';
     for (const m of this.nodes.virtual) {
       m.material = shading === 'hull' ? m.userData.sh9Material : m.userData.lightmapMaterial;
@@ -159,17 +179,18 @@ export class Site {
       // In the visit the lightmap already carries the walls' shadows; the ground plane becomes
       // the synthesized real surface.
       m.visible = !(visit && wall);
-      m.material = visit ? m.userData.receiverMaterial : m.userData.shadowMaterial;
+      m.material = visit ? m.userData.receiverMaterial : shadowMaterial(m);
       m.userData.brightMesh.visible = !visit;
     }
     for (const m of this.nodes.hull) {
       m.visible = shading === 'hull';
-      m.material = m.userData.shadowMaterial;
+      m.material = shadowMaterial(m);
     }
     if (this.sky) this.sky.visible = visit;
   }
 
-  /** New light: the uniforms that come from r directly (SH9, open sky). */
+  /** New light: the uniforms that come from r directly (SH9, open sky). The sun's come from
+   * SunShadows.setSun. */
   setLight({ L, openIrradiance, flatIrradiance }) {
     this.shared.L.value.forEach((v, j) => v.set(L[3 * j], L[3 * j + 1], L[3 * j + 2]));
     this.shared.openIrradiance.value.set(...openIrradiance);

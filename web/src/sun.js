@@ -1,0 +1,245 @@
+// The sun as its own light (docs/sun.md, Jensen et al. 2006): a directional light whose
+// shadows come from two depth maps rendered from the sun, one of the virtual models and one
+// of the real proxies, so that real and virtual shadows can meet as they do in reality. The
+// maps are filtered to the penumbra of the sun's 0.53-degree disc (percentage-closer soft
+// shadows: a blocker search, then a disc filter whose radius is the receiver-to-blocker
+// distance times tan(0.2666 deg)); bake/sunlight.py is the ray-cast oracle of the same term.
+//
+// Why not three.js's DirectionalLight shadows: their PCF blur is a fixed number of texels,
+// not the sun's disc; they need three's lighting chunks in every material; and they cast one
+// set of shadows where daylit needs two (virtual, real).
+//
+// The scene is static, so the maps are rendered only when the sun moves (a new light
+// vector), never per frame; a frame pays only the filter's texture reads.
+import * as THREE from 'three';
+
+export const SUN_ANGULAR_RADIUS_DEG = 0.2666;
+const TAN_SUN = Math.tan(SUN_ANGULAR_RADIUS_DEG * Math.PI / 180);
+const MAP_SIZE = 2048;
+const LAYER = { virtual: 1, real: 2 };
+const MIN_FIT_ELEVATION_SIN = Math.sin(3 * Math.PI / 180); // shadows of a lower sun are clipped
+const RERENDER_COS = Math.cos(0.01 * Math.PI / 180); // re-render when the sun moved 0.01 deg
+
+/**
+ * GLSL of the sun term, shared by every material that receives the sun. Uniforms:
+ * sunIrradiance (RGB normal irradiance, W/m^2), sunDirection (unit, toward the sun), and per
+ * caster set X in {V, R}: sunMapX (depth), sunMatrixX (world -> the sun camera's clip space),
+ * sunInfoX = (metres per texel, near m, far - near m, 1 when the map holds casters).
+ */
+export const sunShadowChunk = /* glsl */ `
+uniform vec3 sunIrradiance;
+uniform vec3 sunDirection;
+uniform sampler2D sunMapV;
+uniform sampler2D sunMapR;
+uniform mat4 sunMatrixV;
+uniform mat4 sunMatrixR;
+uniform vec4 sunInfoV;
+uniform vec4 sunInfoR;
+const float TAN_SUN = ${TAN_SUN.toFixed(9)};
+const int BLOCKER_SAMPLES = 16;
+const int FILTER_SAMPLES = 32;
+
+// Vogel's spiral: evenly spread points on the unit disc, turned by a per-pixel angle.
+vec2 sunDisc(int i, int count, float turn) {
+  float r = sqrt((float(i) + 0.5) / float(count));
+  float a = float(i) * 2.39996323 + turn;
+  return r * vec2(cos(a), sin(a));
+}
+
+// Fraction of the sun's disc seen past one caster set from a world point with normal n.
+float sunVisibilityIn(sampler2D map, mat4 M, vec4 info, vec3 position, vec3 n) {
+  if (info.w < 0.5) return 1.0;
+  float texel = info.x;
+  vec4 clip = M * vec4(position + n * (1.5 * texel), 1.0);
+  vec3 q = clip.xyz * 0.5 + 0.5;
+  if (q.x <= 0.0 || q.y <= 0.0 || q.x >= 1.0 || q.y >= 1.0 || q.z >= 1.0) return 1.0;
+  float depth = info.y + q.z * info.z;   // metres from the map's near plane
+  float bias = 1.5 * texel;
+  float toUv = 1.0 / (texel * ${MAP_SIZE}.0);
+  // Interleaved gradient noise turns the spiral from pixel to pixel (no banding).
+  float turn = 6.2831853 * fract(52.9829189 * fract(dot(gl_FragCoord.xy, vec2(0.06711056, 0.00583715))));
+  // 1. Blockers: any caster nearer than the receiver within the largest penumbra possible.
+  float searchM = max(depth * TAN_SUN, 1.5 * texel);
+  float blockers = 0.0;
+  float blockerDepth = 0.0;
+  for (int i = 0; i < BLOCKER_SAMPLES; i++) {
+    float z = info.y + texture2D(map, q.xy + sunDisc(i, BLOCKER_SAMPLES, turn) * searchM * toUv).r * info.z;
+    if (z < depth - bias) { blockers += 1.0; blockerDepth += z; }
+  }
+  if (blockers == 0.0) return 1.0;
+  // 2. The disc's footprint at the blockers' mean distance: each sample is one direction
+  //    within the sun's disc, blocked or not.
+  float radiusM = max((depth - blockerDepth / blockers) * TAN_SUN, 0.5 * texel);
+  float lit = 0.0;
+  for (int i = 0; i < FILTER_SAMPLES; i++) {
+    float z = info.y + texture2D(map, q.xy + sunDisc(i, FILTER_SAMPLES, turn) * radiusM * toUv).r * info.z;
+    lit += z < depth - bias ? 0.0 : 1.0;
+  }
+  return lit / float(FILTER_SAMPLES);
+}
+
+// The sun's cosine-weighted normal irradiance on a surface (W/m^2, RGB), unshadowed.
+vec3 sunOnSurface(vec3 n) {
+  return sunIrradiance * max(dot(n, sunDirection), 0.0);
+}
+`;
+
+/** Uniforms of sunShadowChunk, shared by every material (one update reaches them all). */
+export function sunUniforms() {
+  return {
+    sunIrradiance: { value: new THREE.Vector3() },
+    sunDirection: { value: new THREE.Vector3(0, 1, 0) },
+    sunMapV: { value: null },
+    sunMapR: { value: null },
+    sunMatrixV: { value: new THREE.Matrix4() },
+    sunMatrixR: { value: new THREE.Matrix4() },
+    sunInfoV: { value: new THREE.Vector4(1, 0, 1, 0) },
+    sunInfoR: { value: new THREE.Vector4(1, 0, 1, 0) },
+  };
+}
+
+/** One caster set's depth map, seen from the sun with an orthographic camera fitted to the
+ * casters and to where their shadows can fall. */
+class ShadowMap {
+  constructor(layer) {
+    this.layer = layer;
+    this.target = new THREE.WebGLRenderTarget(MAP_SIZE, MAP_SIZE, {
+      depthBuffer: true,
+      depthTexture: new THREE.DepthTexture(MAP_SIZE, MAP_SIZE, THREE.FloatType),
+      minFilter: THREE.NearestFilter,
+      magFilter: THREE.NearestFilter,
+      generateMipmaps: false,
+    });
+    const depth = this.target.depthTexture;
+    depth.minFilter = depth.magFilter = THREE.NearestFilter;
+    this.camera = new THREE.OrthographicCamera(-1, 1, 1, -1, 0.1, 10);
+    this.camera.layers.set(layer);
+    this.matrix = new THREE.Matrix4();
+    this.info = new THREE.Vector4(1, 0, 1, 0);
+  }
+
+  /**
+   * Fit the camera to a box of casters (world) and their shadows on the plane y = box.min.y.
+   * @param {THREE.Box3} box
+   * @param {THREE.Vector3} toSun unit
+   */
+  fit(box, toSun) {
+    const s = toSun.clone();
+    if (s.y < MIN_FIT_ELEVATION_SIN) {
+      s.y = MIN_FIT_ELEVATION_SIN;
+      s.normalize();
+    }
+    const centre = box.getCenter(new THREE.Vector3());
+    const radius = box.getSize(new THREE.Vector3()).length();
+    const cam = this.camera;
+    cam.position.copy(centre).addScaledVector(toSun, 2 * radius + 10);
+    cam.up.set(0, 1, 0);
+    if (Math.abs(toSun.y) > 0.99) cam.up.set(0, 0, -1);
+    cam.lookAt(centre);
+    cam.updateMatrixWorld(true);
+    const view = cam.matrixWorldInverse;
+    const lo = new THREE.Vector3(Infinity, Infinity, Infinity);
+    const hi = new THREE.Vector3(-Infinity, -Infinity, -Infinity);
+    const p = new THREE.Vector3();
+    for (let i = 0; i < 8; i++) {
+      const corner = new THREE.Vector3(i & 1 ? box.max.x : box.min.x, i & 2 ? box.max.y : box.min.y, i & 4 ? box.max.z : box.min.z);
+      const ground = corner.clone().addScaledVector(s, -(corner.y - box.min.y) / s.y);
+      for (const q of [corner, ground]) {
+        p.copy(q).applyMatrix4(view);
+        lo.min(p);
+        hi.max(p);
+      }
+    }
+    const margin = 0.5;
+    const half = Math.max(hi.x - lo.x, hi.y - lo.y) / 2 + margin; // square texels
+    const cx = (hi.x + lo.x) / 2;
+    const cy = (hi.y + lo.y) / 2;
+    Object.assign(cam, {
+      left: cx - half, right: cx + half, bottom: cy - half, top: cy + half,
+      near: Math.max(0.01, -hi.z - margin), far: -lo.z + margin,
+    });
+    cam.updateProjectionMatrix();
+    this.matrix.multiplyMatrices(cam.projectionMatrix, cam.matrixWorldInverse);
+    this.info.set(2 * half / MAP_SIZE, cam.near, cam.far - cam.near, 1);
+  }
+
+  dispose() {
+    this.target.depthTexture.dispose();
+    this.target.dispose();
+  }
+}
+
+export class SunShadows {
+  /**
+   * @param {THREE.WebGLRenderer} renderer
+   * @param {THREE.Scene} scene the scene holding the casters
+   * @param {{virtual: THREE.Mesh[], real: THREE.Mesh[]}} casters
+   * @param {object} uniforms from sunUniforms(), shared with the materials
+   */
+  constructor(renderer, scene, casters, uniforms) {
+    this.renderer = renderer;
+    this.scene = scene;
+    this.uniforms = uniforms;
+    this.maps = {};
+    this.boxes = {};
+    for (const [set, meshes] of Object.entries(casters)) {
+      const box = new THREE.Box3();
+      for (const m of meshes) {
+        m.layers.enable(LAYER[set]);
+        box.expandByObject(m);
+      }
+      if (box.isEmpty()) continue;
+      this.boxes[set] = box;
+      this.maps[set] = new ShadowMap(LAYER[set]);
+    }
+    this.depthOnly = new THREE.MeshBasicMaterial({ colorWrite: false, side: THREE.DoubleSide });
+    this.direction = null; // the sun direction the maps were rendered for
+    this.renders = 0;
+  }
+
+  /**
+   * A new sun: direction (unit, toward the sun, site frame) and RGB normal irradiance (W/m^2;
+   * zeros when it is hidden or set). The maps are rendered again only when it moved.
+   */
+  setSun(direction, normalIrradiance) {
+    const u = this.uniforms;
+    const s = new THREE.Vector3(...direction);
+    const up = s.lengthSq() > 0 && s.y > 0;
+    u.sunIrradiance.value.set(...(up ? normalIrradiance : [0, 0, 0]));
+    if (!up) return;
+    s.normalize();
+    u.sunDirection.value.copy(s);
+    if (this.direction && this.direction.dot(s) > RERENDER_COS) return;
+    this.direction = s;
+    this.render();
+  }
+
+  render() {
+    const { renderer, scene, uniforms } = this;
+    const saved = { target: renderer.getRenderTarget(), override: scene.overrideMaterial, auto: scene.matrixWorldAutoUpdate };
+    scene.overrideMaterial = this.depthOnly;
+    for (const [set, map] of Object.entries(this.maps)) {
+      map.fit(this.boxes[set], this.direction);
+      renderer.setRenderTarget(map.target);
+      renderer.clear(true, true, false);
+      renderer.render(scene, map.camera);
+      const key = set === 'virtual' ? 'V' : 'R';
+      uniforms[`sunMap${key}`].value = map.target.depthTexture;
+      uniforms[`sunMatrix${key}`].value.copy(map.matrix);
+      uniforms[`sunInfo${key}`].value.copy(map.info);
+    }
+    scene.overrideMaterial = saved.override;
+    renderer.setRenderTarget(saved.target);
+    this.renders += 1;
+  }
+
+  /** Bytes of GPU memory the maps hold (depth float32 + the RGBA8 colour three.js attaches). */
+  get gpuBytes() {
+    return Object.keys(this.maps).length * MAP_SIZE * MAP_SIZE * 8;
+  }
+
+  dispose() {
+    for (const map of Object.values(this.maps)) map.dispose();
+    this.depthOnly.dispose();
+  }
+}
