@@ -41,12 +41,23 @@ export function debugApi(app) {
       app.site.root.traverse((o) => { if (o.isMesh && o.visible && o.userData.daylit) meshes.push(o); });
       return pixels.map(([x, y]) => {
         raycaster.setFromCamera(new THREE.Vector2(2 * x / rect.width - 1, 1 - 2 * y / rect.height), app.camera);
-        const hit = raycaster.intersectObjects(meshes, false)[0];
-        if (!hit) return null;
+        const hits = raycaster.intersectObjects(meshes, false);
+        if (!hits.length) return null;
+        // Coplanar surfaces: the shadowing plane is drawn over the open ground (polygon offset).
+        const hit = hits.find((h) => h.distance < hits[0].distance + 1e-3 && h.object.userData.daylit.role === 'shadowing-plane') ?? hits[0];
         const normal = hit.face.normal.clone().transformDirection(hit.object.matrixWorld);
         if (normal.dot(raycaster.ray.direction) > 0) normal.negate();
         const info = hit.object.userData.daylit;
         return { point: hit.point.toArray(), normal: normal.toArray(), role: info.role, atlas: info.atlas ?? null, name: hit.object.name };
+      });
+    },
+    /** Where world points appear on the canvas: [x, y] CSS pixels from the top left. */
+    project(points) {
+      const rect = app.canvas.getBoundingClientRect();
+      app.camera.updateMatrixWorld();
+      return points.map((p) => {
+        const v = new THREE.Vector3(...p).project(app.camera);
+        return [(v.x + 1) / 2 * rect.width, (1 - v.y) / 2 * rect.height];
       });
     },
     /** The displayed picture (after tone mapping and sRGB), RGBA8 as base64, rows from the top. */

@@ -69,7 +69,7 @@ float sunVisibilityIn(sampler2D map, mat4 M, vec4 info, vec3 position, vec3 n) {
   if (blockers == 0.0) return 1.0;
   // 2. The disc's footprint at the blockers' mean distance: each sample is one direction
   //    within the sun's disc, blocked or not.
-  float radiusM = max((depth - blockerDepth / blockers) * TAN_SUN, 0.5 * texel);
+  float radiusM = max((depth - blockerDepth / blockers) * TAN_SUN, texel);
   float lit = 0.0;
   for (int i = 0; i < FILTER_SAMPLES; i++) {
     float z = info.y + texture2D(map, q.xy + sunDisc(i, FILTER_SAMPLES, turn) * radiusM * toUv).r * info.z;
