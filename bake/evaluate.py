@@ -77,6 +77,7 @@ class Build:
         self._stacks: dict = {}
         self._compact: dict = {}
         self._surfaces = None
+        self._sun_casters = None
         self.solid_angles = np.array(
             [light["solid_angle_sr"] for light in self.manifest["dome"]["lights"]]
         )
@@ -142,6 +143,31 @@ class Build:
         return r
 
     # ---------------------------------------------------------------------------------------
+    @property
+    def sun_casters(self):
+        """The virtual models and real proxies of ``site.glb`` as the sun's shadow casters
+        (:class:`bake.sunlight.SunCasters`), read on first use."""
+        if self._sun_casters is None:
+            from bake.sunlight import SunCasters
+
+            self._sun_casters = SunCasters.from_site_glb(self.dir / self.manifest["model"]["path"])
+        return self._sun_casters
+
+    def sun_irradiance(
+        self, points, normals, sun_direction, normal_irradiance_rgb, without: str = "real"
+    ) -> dict:
+        """The sun's direct irradiance at receiver points, the oracle of the client's sun.
+
+        ``points``, ``normals``: (m, 3), site frame, metres; ``sun_direction``: (3,) toward
+        the sun; ``normal_irradiance_rgb``: (3,) or a number, W/m^2. Returns
+        ``{"with", "without"}``: (m, 3) W/m^2, with every caster and with the real proxies only
+        (``without="none"``: no caster, as a hull plane's ``d``), and ``"visible_with"``,
+        ``"visible_without"``, ``"cos"``: (m,). See :mod:`bake.sunlight`.
+        """
+        return self.sun_casters.irradiance(
+            points, normals, sun_direction, normal_irradiance_rgb, without=without
+        )
+
     def locate(self, point, normal) -> Sample:
         """The receiver texel at a world point with a given normal.
 
