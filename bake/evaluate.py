@@ -78,6 +78,7 @@ class Build:
         self._compact: dict = {}
         self._surfaces = None
         self._sun_casters = None
+        self._composites: dict = {}
         self.solid_angles = np.array(
             [light["solid_angle_sr"] for light in self.manifest["dome"]["lights"]]
         )
@@ -128,6 +129,15 @@ class Build:
                 return self.composite(atlas, "d", r, source) - composite
             return composite
         raise ProbeError(f"unknown source {source!r}: use master or compact")
+
+    def _composite_of(self, atlas: str, name: str, r: np.ndarray, source: str) -> np.ndarray:
+        """:meth:`composite`, kept for the last light vector (many points, one sky)."""
+        key = (atlas, name, source, r.tobytes())
+        if key not in self._composites:
+            if any(k[3] != key[3] for k in self._composites):
+                self._composites.clear()
+            self._composites[key] = self.composite(atlas, name, r, source)
+        return self._composites[key]
 
     def light_vector(self, sky) -> np.ndarray:
         """(n, 3) patch radiances of a named sky, a :class:`daylit.sky.Sky` or an array."""
@@ -258,7 +268,7 @@ class Build:
             values = [np.einsum("nc,nc->c", self.basis_at(sample, s), r) for s in names]
         else:
             values = [
-                _bilinear(self.composite(sample.atlas, s, r, source), sample.x, sample.y)
+                _bilinear(self._composite_of(sample.atlas, s, r, source), sample.x, sample.y)
                 for s in names
             ]
         return {
