@@ -56,35 +56,81 @@ def add_subcommands(subparsers) -> None:
 
     probe = subparsers.add_parser(
         "probe",
-        help="irradiance at a point of a build under a sky",
+        help="irradiance at points of a build under a sky (and the sun)",
         description=(
-            "Evaluate a build at a world point on a receiver (ground, wall, hull plane or a "
-            "model's surface): irradiance with and without the virtual objects under a named "
-            "sky or a light vector, computed from the baked basis."
+            "Evaluate a build at points on its receivers (ground, wall, hull plane or a "
+            "model's surface): RGB irradiance in W/m^2, the sky's part from the baked basis "
+            "with the virtual objects present, plus the sun's direct term (--sun) ray cast "
+            "against the virtual models and real proxies, and each part without the virtual "
+            "objects where the receiver has it. Site frame: +X east, +Y up, -Z north, metres. "
+            "Negative numbers work as they are: --point -8,0,0 or --point=-8,0,0."
         ),
-        epilog="example: daylit probe build/demo --point 10,0,20 --normal 0,1,0 --sky clear:135,40",
+        epilog=(
+            "examples:\n"
+            "  daylit probe build/demo --points points.csv --env sky.exr --sun 135,40,850\n"
+            "  daylit probe build/demo --point -8,0,20 --normal 0,1,0 --sky overcast:30 --json\n"
+            "\n"
+            "points file: one 'x,y,z' or 'x,y,z,nx,ny,nz' per line (metres; normal +Y by "
+            "default); blank lines and lines starting with # are skipped.\n"
+            "sky map: an equirectangular linear-RGB OpenEXR of the sky without the sun's disc, "
+            "radiance in W/(m^2 sr), twice as wide as high; row 0 at the zenith, the last row "
+            "at the nadir, column 0 starting at north with azimuth growing toward east. Each "
+            "dome patch gets its solid-angle weighted mean; the lower half is ignored.\n"
+            "exit status: 0 done, 2 bad input (the message says what to fix)."
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     probe.add_argument("build", type=Path, help="build directory (with manifest.json)")
-    probe.add_argument("--point", required=True, metavar="X,Y,Z", help="world point, metres")
+    where = probe.add_mutually_exclusive_group(required=True)
+    where.add_argument(
+        "--point", metavar="X,Y,Z", help="one point on a receiver surface, metres (site frame)"
+    )
+    where.add_argument(
+        "--points",
+        type=Path,
+        metavar="FILE",
+        help="CSV of points: x,y,z[,nx,ny,nz] per line (see below)",
+    )
     probe.add_argument(
-        "--normal", default="0,1,0", metavar="X,Y,Z", help="surface normal (default: up)"
+        "--normal",
+        metavar="X,Y,Z",
+        help="the receiver surface's outward normal for --point (default: up, 0,1,0)",
     )
     group = probe.add_mutually_exclusive_group()
     group.add_argument(
+        "--env",
+        type=Path,
+        metavar="SKY.exr",
+        help="equirectangular linear-RGB sky map without the sun, W/(m^2 sr) (see below)",
+    )
+    group.add_argument(
         "--sky",
         default="uniform:1",
-        help="uniform[:L] | overcast[:Lz] | clear:AZIMUTH_DEG,ELEVATION_DEG (default: uniform:1)",
+        help="a named sky: uniform[:L] | overcast[:Lz] | clear:AZIMUTH_DEG,ELEVATION_DEG "
+        "(default: uniform:1; with --sun, a clear sky's own sun disc is left out)",
     )
     group.add_argument(
         "--light-vector", type=Path, metavar="FILE", help="JSON list of n [r, g, b] patch radiances"
     )
     probe.add_argument(
+        "--sun",
+        metavar="AZ_DEG,EL_DEG,DNI_W_M2",
+        help="the sun as its own light: azimuth clockwise from north, elevation above the "
+        "horizon (degrees) and direct normal irradiance (W/m^2, grey); its direct term, "
+        "shadowed by the virtual models and real proxies, is added",
+    )
+    probe.add_argument(
         "--compact",
         action="store_true",
-        help="answer from the compact GPU textures (as the web client sums them) "
+        help="the sky's part from the compact GPU textures (as the web client sums them) "
         "instead of the EXR masters",
     )
-    probe.add_argument("--json", action="store_true", help="print JSON")
+    probe.add_argument(
+        "--json",
+        action="store_true",
+        help="print a JSON list, one object per point: point_m, normal, receiver, "
+        "irradiance_W_m2, sky_W_m2, sun_W_m2, sun_visible_fraction, without_virtual_objects",
+    )
     probe.set_defaults(run=run_probe)
 
 
@@ -124,52 +170,50 @@ def _budget(text: str) -> float:
     return value / 100.0 if percent else value
 
 
-def _vector(text: str, name: str):
-    try:
-        values = [float(v) for v in text.split(",")]
-    except ValueError:
-        values = []
-    if len(values) != 3:
-        raise ValueError(f"{name} must be three numbers X,Y,Z, got {text!r}")
-    return values
-
-
 def run_probe(args) -> int:
-    from bake.evaluate import Build, ProbeError
+    from bake import probe
+    from bake.evaluate import Build, ProbeError, parse_sky
+    from daylit import sky as skies
+    from daylit.envmap import EnvMapError, equirect_light_vector, read_equirect_exr
     from daylit.manifest import ManifestError
 
     try:
-        point = _vector(args.point, "--point")
-        normal = _vector(args.normal, "--normal")
+        sun = probe.parse_sun(args.sun) if args.sun else None
+        if args.points is not None:
+            if args.normal is not None:
+                raise ProbeError("--normal goes with --point; give normals in the points file")
+            points = probe.read_points(args.points)
+        else:
+            points = probe.single_point(args.point, args.normal or "0,1,0")
         build = Build(args.build)
-        sky = args.sky
-        if args.light_vector:
-            sky = json.loads(args.light_vector.read_text())
-        result = build.irradiance(
-            point, normal, sky, source="compact" if args.compact else "master"
+        if args.env is not None:
+            light_vector = equirect_light_vector(read_equirect_exr(args.env), build.dome_vertices)
+        elif args.light_vector is not None:
+            light_vector = build.light_vector(_json_file(args.light_vector))
+        else:
+            # With --sun, a clear sky's own disc would count the sun twice: it is left out.
+            light_vector = skies.patch_mean_radiance(
+                parse_sky(args.sky), build.dome_vertices, include_sun=sun is None
+            )
+        results = probe.evaluate(
+            build, points, light_vector, sun, source="compact" if args.compact else "master"
         )
-    except (ValueError, ProbeError, ManifestError, OSError) as exc:
+    except (ProbeError, ManifestError, EnvMapError, ValueError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    sample = result["sample"]
-    out = {
-        "receiver": sample.receiver,
-        "atlas": sample.atlas,
-        "kind": sample.kind,
-        "texel": [round(sample.x, 3), round(sample.y, 3)],
-        "irradiance_with_W_m2": [round(float(v), 6) for v in result["with"]],
-        "irradiance_without_W_m2": None
-        if result["without"] is None
-        else [round(float(v), 6) for v in result["without"]],
-    }
     if args.json:
-        print(json.dumps(out))
+        print(json.dumps(results))
     else:
-        print(
-            f"receiver  {out['receiver']} ({out['kind']}, atlas {out['atlas']}, "
-            f"texel {out['texel'][0]}, {out['texel'][1]})"
-        )
-        print("with virtual objects     E = " + " ".join(f"{v:.4g}" for v in result["with"]))
-        if result["without"] is not None:
-            print("without virtual objects  E = " + " ".join(f"{v:.4g}" for v in result["without"]))
+        print(probe.format_table(results))
     return 0
+
+
+def _json_file(path: Path):
+    from bake.evaluate import ProbeError
+
+    try:
+        return json.loads(path.read_text("utf-8"))
+    except FileNotFoundError:
+        raise ProbeError(f"{path}: no such light-vector file") from None
+    except (OSError, ValueError) as exc:
+        raise ProbeError(f"{path}: not a JSON light vector ({exc})") from None

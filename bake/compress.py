@@ -708,7 +708,10 @@ def decode(files: list[Path]) -> list[np.ndarray]:
     tool = REPO_ROOT / "tools" / "decode_ktx2.mjs"
     with tempfile.TemporaryDirectory() as tmp:
         outs = [Path(tmp) / f"{i}.bin" for i in range(len(files))]
-        pairs = [str(x) for f, o in zip(files, outs, strict=True) for x in (f, o)]
+        # Node runs in the repository: the paths it gets must not depend on our directory.
+        pairs = [
+            str(Path(x).absolute()) for f, o in zip(files, outs, strict=True) for x in (f, o)
+        ]
         result = subprocess.run(
             ["node", str(tool), *pairs], capture_output=True, text=True, cwd=REPO_ROOT
         )

@@ -77,6 +77,8 @@ class Build:
         self._stacks: dict = {}
         self._compact: dict = {}
         self._surfaces = None
+        self._sun_casters = None
+        self._composites: dict = {}
         self.solid_angles = np.array(
             [light["solid_angle_sr"] for light in self.manifest["dome"]["lights"]]
         )
@@ -128,6 +130,15 @@ class Build:
             return composite
         raise ProbeError(f"unknown source {source!r}: use master or compact")
 
+    def _composite_of(self, atlas: str, name: str, r: np.ndarray, source: str) -> np.ndarray:
+        """:meth:`composite`, kept for the last light vector (many points, one sky)."""
+        key = (atlas, name, source, r.tobytes())
+        if key not in self._composites:
+            if any(k[3] != key[3] for k in self._composites):
+                self._composites.clear()
+            self._composites[key] = self.composite(atlas, name, r, source)
+        return self._composites[key]
+
     def light_vector(self, sky) -> np.ndarray:
         """(n, 3) patch radiances of a named sky, a :class:`daylit.sky.Sky` or an array."""
         if isinstance(sky, str):
@@ -142,6 +153,31 @@ class Build:
         return r
 
     # ---------------------------------------------------------------------------------------
+    @property
+    def sun_casters(self):
+        """The virtual models and real proxies of ``site.glb`` as the sun's shadow casters
+        (:class:`bake.sunlight.SunCasters`), read on first use."""
+        if self._sun_casters is None:
+            from bake.sunlight import SunCasters
+
+            self._sun_casters = SunCasters.from_site_glb(self.dir / self.manifest["model"]["path"])
+        return self._sun_casters
+
+    def sun_irradiance(
+        self, points, normals, sun_direction, normal_irradiance_rgb, without: str = "real"
+    ) -> dict:
+        """The sun's direct irradiance at receiver points, the oracle of the client's sun.
+
+        ``points``, ``normals``: (m, 3), site frame, metres; ``sun_direction``: (3,) toward
+        the sun; ``normal_irradiance_rgb``: (3,) or a number, W/m^2. Returns
+        ``{"with", "without"}``: (m, 3) W/m^2, with every caster and with the real proxies only
+        (``without="none"``: no caster, as a hull plane's ``d``), and ``"visible_with"``,
+        ``"visible_without"``, ``"cos"``: (m,). See :mod:`bake.sunlight`.
+        """
+        return self.sun_casters.irradiance(
+            points, normals, sun_direction, normal_irradiance_rgb, without=without
+        )
+
     def locate(self, point, normal) -> Sample:
         """The receiver texel at a world point with a given normal.
 
@@ -232,7 +268,7 @@ class Build:
             values = [np.einsum("nc,nc->c", self.basis_at(sample, s), r) for s in names]
         else:
             values = [
-                _bilinear(self.composite(sample.atlas, s, r, source), sample.x, sample.y)
+                _bilinear(self._composite_of(sample.atlas, s, r, source), sample.x, sample.y)
                 for s in names
             ]
         return {

@@ -163,9 +163,11 @@ def bake(
     """Bake a site. Raises ``SceneError`` (bad input, nothing written) or ``BakeError``."""
     log = log or (lambda msg: print(msg, file=sys.stderr))
     started = time.perf_counter()
+    # Absolute from here on: helpers (the KTX2 decoder under Node) run in other directories.
+    # The scene's path stays as given: it is only read here, and messages name it as typed.
+    out_dir = Path(out_dir).absolute()
     site = load_site(scene_dir, lights=lights, quality=quality, budget=budget)
     compressor = _Compressor(site, log)
-    out_dir = Path(out_dir)
     _check_output(out_dir)
     settings = site.settings
     dome = Dome.for_light_count(settings.lights)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import re
 import sys
 
 from daylit import __version__
@@ -37,9 +38,32 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+# An option's value that argparse would take for an option: a minus and a digit or a point.
+_NEGATIVE_VALUE = re.compile(r"^-\.?\d")
+
+
+def attach_negative_values(argv: list[str]) -> list[str]:
+    """``--point -8,0,0`` -> ``--point=-8,0,0`` for any long option followed by a value that
+    starts with a minus and a digit (argparse refuses it as an unknown option otherwise; no
+    option of daylit starts with a digit, so nothing else changes meaning)."""
+    out: list[str] = []
+    for token in argv:
+        previous = out[-1] if out else ""
+        if (
+            _NEGATIVE_VALUE.match(token)
+            and previous.startswith("--")
+            and "=" not in previous
+            and previous != "--"
+        ):
+            out[-1] = f"{previous}={token}"
+        else:
+            out.append(token)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(attach_negative_values(sys.argv[1:] if argv is None else argv))
     if not getattr(args, "run", None):
         parser.print_help()
         return 2
