@@ -224,7 +224,7 @@ def create_app(
     stream = settings.stream
     site_feed: SiteCameraFeed | None = None
 
-    def hello(streams: list[str]) -> str:
+    def hello(streams: list[str], version: int = protocol.PROTOCOL_VERSION) -> str:
         site = None
         if site_feed is not None:
             site = {"source": site_feed.source.name, "size": site_feed.size}
@@ -245,6 +245,7 @@ def create_app(
             extra={"server": f"daylit {__version__}", "asset_query": "v",
                    "views": [v["id"] for v in manifest["views"]]},
             occlusion=occ,
+            version=version,
         )
 
     srv = settings.server
