@@ -1,4 +1,9 @@
-"""Replay of a recorded sky: a folder of images (sorted by name) or a video file, looping."""
+"""Replay of a recorded sky: a folder of images (sorted by name) or a video file, looping.
+
+OpenEXR files (``.exr``) are read as linear float RGB with the OpenEXR package (OpenCV's EXR
+reader is off by default) and measured as HDR frames: no value counts as clipped, and no
+inverse response is applied (float frames are linear as they are).
+"""
 
 from __future__ import annotations
 
@@ -8,6 +13,7 @@ import time
 from pathlib import Path
 
 import cv2
+import numpy as np
 
 from server.measure import Frame
 from server.protocol import Flags
@@ -20,6 +26,40 @@ IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp", ".e
 
 class ReplayError(RuntimeError):
     """A replay that has nothing to play."""
+
+
+def read_exr_rgb(path: Path | str) -> np.ndarray:
+    """An OpenEXR image's R, G, B channels as (H, W, 3) float32 linear RGB.
+
+    Raises ``OSError`` (unreadable) or ``ValueError`` (no R, G and B channels).
+    """
+    import OpenEXR
+
+    try:
+        with OpenEXR.File(str(path), separate_channels=True) as f:
+            channels = f.channels()
+            missing = [c for c in "RGB" if c not in channels]
+            if missing:
+                raise ValueError(f"{path}: no {', '.join(missing)} channel "
+                                 f"(has {', '.join(sorted(channels))})")
+            return np.stack([np.asarray(channels[c].pixels, dtype=np.float32)
+                             for c in "RGB"], axis=-1)
+    except RuntimeError as exc:  # OpenEXR reports unreadable files so
+        raise OSError(f"{path}: {exc}") from None
+
+
+def read_frame_image(path: Path) -> tuple[np.ndarray | None, bool, bool]:
+    """One replay image: (image, bgr, hdr). EXR: linear float RGB, HDR; others through
+    OpenCV, BGR (float images such as Radiance .hdr count as HDR). Image None when it cannot
+    be read."""
+    if path.suffix.lower() == ".exr":
+        try:
+            return read_exr_rgb(path), False, True
+        except (OSError, ValueError) as exc:
+            log.warning("replay: skipping %s (%s)", path, exc)
+            return None, False, False
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    return image, True, image is not None and image.dtype.kind == "f"
 
 
 class ReplaySource(Source):
@@ -51,8 +91,8 @@ class ReplaySource(Source):
             frames = self._video_forever()
         else:
             raise ReplayError(f"{self.path}: no such file or folder")
-        async for image in frames:
-            deliver(Frame(image, time.time(), bgr=True))
+        async for image, bgr, hdr in frames:
+            deliver(Frame(image, time.time(), bgr=bgr, hdr=hdr))
             self.played += 1
             next_s = max(next_s + self.period_s, time.monotonic())
             await asyncio.sleep(next_s - time.monotonic())
@@ -61,12 +101,13 @@ class ReplaySource(Source):
         while True:
             good = 0
             for path in self._images():
-                image = await asyncio.to_thread(cv2.imread, str(path), cv2.IMREAD_UNCHANGED)
+                image, bgr, hdr = await asyncio.to_thread(read_frame_image, path)
                 if image is None or image.ndim != 3 or image.shape[2] < 3:
-                    log.warning("replay: skipping %s (not a colour image OpenCV can read)", path)
+                    log.warning("replay: skipping %s (not a colour image that can be read)",
+                                path)
                     continue
                 good += 1
-                yield image[:, :, :3]
+                yield image[:, :, :3], bgr, hdr
             if not good:
                 raise ReplayError(f"{self.path}: none of the images could be read")
 
@@ -82,7 +123,7 @@ class ReplaySource(Source):
                     if not ok:
                         break
                     count += 1
-                    yield image
+                    yield image, True, False
                 if not count:
                     raise ReplayError(f"{self.path}: the video has no frames")
             finally:
