@@ -218,3 +218,47 @@ def test_no_sun_at_night(dome):
                                               sky_time_s=night.timestamp()))
     assert m.sun.source == SunSource.NONE
     assert not np.any(m.sun.normal_irradiance_w_m2) and not np.any(m.sun.direction)
+
+
+def nara_sim(**kw):
+    from server.simsky import SimulatedSky
+
+    return SimulatedSky.for_site(*SITE, "Asia/Tokyo", cloud_cover=0.0, **kw)
+
+
+def test_simulated_sky_follows_the_sun_noon_bright_dusk_dim():
+    from pvlib.location import Location
+
+    from server.simsky import diffuse_horizontal_irradiance
+
+    sim = nara_sim()
+    noon = dt.datetime(2026, 6, 21, 3, 0, tzinfo=dt.UTC).timestamp()
+    evening = noon + np.arange(5 * 3600.0, 8 * 3600.0, 60.0)
+    elevations = np.array([sim.sun_at(t)[1] for t in evening])
+    dusk = float(evening[np.argmin(np.abs(elevations - 5.0))])
+    site = Location(*SITE[:2], altitude=SITE[2])
+    dhi = {}
+    for name, t in (("noon", noon), ("dusk", dusk)):
+        sky = sim.sky_at(t)
+        dhi[name] = diffuse_horizontal_irradiance(sky)
+        expected = site.get_clearsky(pd.DatetimeIndex([pd.Timestamp(t, unit="s", tz="UTC")]),
+                                     model="ineichen", linke_turbidity=3.0)
+        assert dhi[name] == pytest.approx(float(expected["dhi"].iloc[0]), rel=0.02)
+        luminance = float(sky.sun.normal_irradiance @ [0.2126, 0.7152, 0.0722])
+        assert luminance == pytest.approx(float(expected["dni"].iloc[0]), rel=0.02)
+    assert dhi["noon"] > 3.0 * dhi["dusk"]
+
+
+def test_clear_simulated_frame_estimates_the_true_sun(dome):
+    sim = nara_sim()
+    meter = SkyMeter(dome, Photometry(response="srgb"), camera=sim.camera,
+                     sun=SunMeter(*SITE))
+    for hours in (0.0, 7.5):  # 10:00 and 17:30 local
+        frame = sim.render_at(WHEN.timestamp() + 3600.0 * hours, capture_time_s=0.0)
+        m = meter.measure(frame)
+        truth = frame.truth.sun
+        assert m.sun.source == SunSource.MODEL
+        np.testing.assert_allclose(m.sun.normal_irradiance_w_m2, truth.normal_irradiance,
+                                   rtol=0.03)
+        assert angle_deg(m.sun.direction, truth.direction) < 0.05
+        assert not m.saturated.any()
