@@ -19,7 +19,10 @@ Per frame, for the frame's time (``Frame.sky_time_s``, else its capture time):
 4. **Model** (8-bit frames, or any frame clipped at the sun): the clear-sky DNI (Ineichen, Linke
    turbidity ``[sun] linke_turbidity``) times the sun's colour times the *visible fraction*:
    the fraction of the pixels within ``max(sun radius, 1.5 pixels)`` of the ephemeris that
-   are clipped (0 when a cloud hides the sun: none clipped). The direction is the ephemeris.
+   are clipped, or, if larger, the fraction of the pixels the disc itself overlaps that are
+   clipped (at low resolution a disc much smaller than a pixel clips only the one to four
+   pixels it falls on); 0 when a cloud hides the sun (none clipped). The direction is the
+   ephemeris.
 5. **The sky without the disc**: in the working-resolution linear image the patch matrix
    consumes, the working pixels of the sun's region (the aperture or the small disc, plus the
    connected clipped blob, plus a margin of ``MARGIN_WORKING_PX``) are replaced by the median
@@ -166,7 +169,7 @@ class SunMeter:
         """
         clear = self.path.at(time_s)
         if clear.apparent_elevation_deg < 0.0:
-            return SunMeasurement.none(), None
+            return SunMeasurement.none(clear.direction.copy()), None
         s = clear.direction
         px, ok = camera.project(s[None, :])
         u, v = px[0]
@@ -183,20 +186,27 @@ class SunMeter:
         clipped = (raw.reshape(-1, 3).max(axis=1) >= clip_threshold) & seen
         to_sun = _angle_rad(dirs, s)
         disc = (to_sun <= visible_r) & seen
+        # The pixels the disc itself overlaps (at low resolution a disc much smaller than a
+        # pixel clips the one to four pixels it falls on, not all within 1.5 pixels).
+        r_sun_px = math.radians(SUN_ANGULAR_RADIUS_DEG) / pix_rad
+        gap = np.maximum(np.abs(grid - [u, v]) - 0.5, 0.0)
+        touched = (np.hypot(gap[:, 0], gap[:, 1]) < r_sun_px) & seen
         region = None
-        if not np.isfinite(clip_threshold) or not clipped[disc].any():
+        if not np.isfinite(clip_threshold) or not (clipped[disc].any()
+                                                   or clipped[touched].any()):
             if raw.dtype == np.uint8:
                 # 8-bit: a disc that is not clipped is a hidden (or very dim) sun.
                 result = self._model(clear, 0.0)
-                region = to_sun <= visible_r
+                region = (to_sun <= visible_r) | touched
             else:
                 result, region = self._measured(raw, grid, dirs, seen, to_sun, search, aperture,
                                                 ring_in, ring_out, camera, to_linear,
                                                 photometry, exposure, bgr, clear)
         else:
-            fraction = float(clipped[disc].mean()) if disc.any() else 0.0
+            fraction = max(float(clipped[disc].mean()) if disc.any() else 0.0,
+                           float(clipped[touched].mean()) if touched.any() else 0.0)
             result = self._model(clear, fraction)
-            region = to_sun <= visible_r
+            region = (to_sun <= visible_r) | touched
         if clipped.any():
             region = region | _blob_touching(clipped, region, (y1 - y0, x1 - x0),
                                             to_sun <= math.radians(BLOB_LIMIT_DEG))
