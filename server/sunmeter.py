@@ -110,8 +110,15 @@ class SunMeasurement:
         }
 
 
-def _angle_rad(dirs: np.ndarray, toward: np.ndarray) -> np.ndarray:
-    return np.arccos(np.clip(dirs @ toward, -1.0, 1.0))
+class _Cone:
+    """Which unit directions lie within an angle of ``toward``: a cosine comparison (no
+    arccos per pixel). ``within(angle_rad)`` -> (m,) bool."""
+
+    def __init__(self, dirs: np.ndarray, toward: np.ndarray):
+        self.cos = dirs @ toward
+
+    def within(self, angle_rad: float) -> np.ndarray:
+        return self.cos >= math.cos(angle_rad)
 
 
 class SunMeter:
@@ -184,8 +191,9 @@ class SunMeter:
         ring_in, ring_out = aperture + 2 * pix_rad, 2 * aperture + 2 * pix_rad
         raw = image[y0:y1, x0:x1]
         clipped = (raw.reshape(-1, 3).max(axis=1) >= clip_threshold) & seen
-        to_sun = _angle_rad(dirs, s)
-        disc = (to_sun <= visible_r) & seen
+        to_sun = _Cone(dirs, s)
+        near_sun = to_sun.within(visible_r)
+        disc = near_sun & seen
         # The pixels the disc itself overlaps (at low resolution a disc much smaller than a
         # pixel clips the one to four pixels it falls on, not all within 1.5 pixels).
         r_sun_px = math.radians(SUN_ANGULAR_RADIUS_DEG) / pix_rad
@@ -197,7 +205,7 @@ class SunMeter:
             if raw.dtype == np.uint8:
                 # 8-bit: a disc that is not clipped is a hidden (or very dim) sun.
                 result = self._model(clear, 0.0)
-                region = (to_sun <= visible_r) | touched
+                region = near_sun | touched
             else:
                 result, region = self._measured(raw, grid, dirs, seen, to_sun, search, aperture,
                                                 ring_in, ring_out, camera, to_linear,
@@ -206,10 +214,10 @@ class SunMeter:
             fraction = max(float(clipped[disc].mean()) if disc.any() else 0.0,
                            float(clipped[touched].mean()) if touched.any() else 0.0)
             result = self._model(clear, fraction)
-            region = (to_sun <= visible_r) | touched
+            region = near_sun | touched
         if clipped.any():
             region = region | _blob_touching(clipped, region, (y1 - y0, x1 - x0),
-                                            to_sun <= math.radians(BLOB_LIMIT_DEG))
+                                            to_sun.within(math.radians(BLOB_LIMIT_DEG)))
         replaced = self._replace(linear, m, region.reshape(y1 - y0, x1 - x0), x0, y0)
         return result, replaced
 
@@ -250,13 +258,13 @@ class SunMeter:
         factor = np.asarray(photometry.photometric_factor, dtype=np.float64)
         radiance = lin * factor / exposure / gain[:, None]
         lum = radiance @ LUMINANCE_RGB
-        near = np.flatnonzero((to_sun <= search) & seen)
+        near = np.flatnonzero(to_sun.within(search) & seen)
         peak = dirs[near[np.argmax(lum[near])]] if near.size else clear.direction
-        to_peak = _angle_rad(dirs, peak)
-        inside = (to_peak <= aperture) & seen
-        ring = (to_peak > ring_in) & (to_peak <= ring_out) & seen
+        to_peak = _Cone(dirs, peak)
+        inside = to_peak.within(aperture) & seen
+        ring = ~to_peak.within(ring_in) & to_peak.within(ring_out) & seen
         if not inside.any() or not ring.any():
-            return self._model(clear, 1.0), to_sun <= aperture
+            return self._model(clear, 1.0), to_sun.within(aperture)
         background = np.median(radiance[ring], axis=0)
         excess = radiance[inside] - background
         omega = _solid_angles(camera, grid[inside])
@@ -268,7 +276,7 @@ class SunMeter:
             direction, measured = d / np.linalg.norm(d), True
         result = SunMeasurement(direction, irradiance, SunSource.MEASURED, 1.0, measured,
                                 clear.direction.copy())
-        return result, to_peak <= aperture
+        return result, to_peak.within(aperture)
 
     def _replace(self, linear: np.ndarray, m, region: np.ndarray, x0: int, y0: int
                  ) -> np.ndarray | None:
@@ -320,8 +328,9 @@ def _blob_touching(clipped: np.ndarray, region: np.ndarray, shape: tuple[int, in
     if count <= 1:
         return np.zeros(clipped.shape, dtype=bool)
     flat = labels.ravel()
-    touching = np.unique(flat[region & (flat > 0)])
     # Pixels next to the region count too: a blob may start just outside the small disc.
     grown = cv2.dilate(region.reshape(shape).astype(np.uint8), np.ones((3, 3), np.uint8))
-    touching = np.union1d(touching, np.unique(flat[(grown.ravel() > 0) & (flat > 0)]))
-    return np.isin(flat, touching)
+    keep = np.zeros(count, dtype=bool)
+    keep[flat[grown.ravel() > 0]] = True
+    keep[0] = False  # not clipped
+    return keep[flat]
