@@ -101,10 +101,13 @@ def render(yaw_deg: float = 0.0, with_disc: bool = True, cloud_deg: float = 0.0,
 
 
 def write_exr(path, rgb: np.ndarray) -> None:
+    """With the capture time as OpenEXR's standard capDate (local, UTC+9) and utcOffset."""
     import OpenEXR
 
     channels = {c: np.ascontiguousarray(rgb[:, :, k]) for k, c in enumerate("RGB")}
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    local = WHEN + dt.timedelta(hours=9)
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage,
+              "capDate": local.strftime("%Y:%m:%d %H:%M:%S"), "utcOffset": -9 * 3600.0}
     with OpenEXR.File(header, channels) as f:
         f.write(str(path))
 
@@ -129,10 +132,10 @@ def meter_for(dome, response="linear") -> SkyMeter:
 def measure_exr(tmp_path, dome, image, name="sky.exr"):
     path = tmp_path / name
     write_exr(path, image)
-    read, bgr, hdr = read_frame_image(path)
+    read, bgr, hdr, sky_time_s = read_frame_image(path)
     assert read.dtype == np.float32 and hdr and not bgr
-    return meter_for(dome).measure(Frame(read, 0.0, bgr=bgr, hdr=hdr,
-                                         sky_time_s=WHEN.timestamp()))
+    assert sky_time_s == WHEN.timestamp()
+    return meter_for(dome).measure(Frame(read, 0.0, bgr=bgr, hdr=hdr, sky_time_s=sky_time_s))
 
 
 def angle_deg(a, b) -> float:
@@ -218,6 +221,37 @@ def test_no_sun_at_night(dome):
                                               sky_time_s=night.timestamp()))
     assert m.sun.source == SunSource.NONE
     assert not np.any(m.sun.normal_irradiance_w_m2) and not np.any(m.sun.direction)
+
+
+async def test_an_exr_replay_streams_the_measured_sun(aiohttp_client, build_dir, tmp_path):
+    """The whole chain: EXR files in a replay folder -> the server -> a version-2 client.
+    (The test build's site is Nara, as here.)"""
+    import json
+
+    from aiohttp import WSMsgType
+
+    from server import protocol
+    from server.app import create_app
+    from tests.server.helpers import settings_for
+
+    folder = tmp_path / "exr"
+    folder.mkdir()
+    write_exr(folder / "sky_000.exr", render())
+    app = create_app(build_dir, settings_for(tmp_path, sky__source=f"replay:{folder}"))
+    client = await aiohttp_client(app)
+    ws = await client.ws_connect("/ws/light?protocol=2")
+    assert json.loads((await ws.receive(timeout=10)).data)["protocol"] == 2
+    while True:
+        msg = await ws.receive(timeout=30)
+        assert msg.type == WSMsgType.BINARY
+        m = protocol.decode(msg.data)
+        if m.type == protocol.MessageType.LIGHT:
+            break
+    assert m.sun.source_name == "measured" and not m.sun.estimated
+    assert m.flags & protocol.Flags.REPLAY and not m.saturated.any()
+    np.testing.assert_allclose(m.sun.normal_irradiance_w_m2, DNI_TRUE, rtol=0.03)
+    assert angle_deg(m.sun.direction, true_sun()) < 0.5
+    await ws.close()
 
 
 def nara_sim(**kw):
