@@ -10,6 +10,9 @@ saturated lights left out), next to baselines measured in the same run on the sa
   then average the pixels whose centre falls in each patch with ``np.bincount``;
 - *float pass*: one plain numpy pass over the frame (``frame.astype(np.float32)``), the floor
   of any method that touches every pixel;
+- *sun*: the same frame measured with the sun meter (``server.sunmeter``: the sun found,
+  estimated and its disc replaced), timed interleaved with the meter without it, and the
+  sun step's own time; the error is then against the sky *without* the sun;
 - with ``--previous FILE``: an earlier version of ``server/measure.py`` (e.g.
   ``git show REV:server/measure.py > /tmp/prev_measure.py``) at its own default, timed
   interleaved with the current code, frame by frame, so both see the same load.
@@ -46,6 +49,7 @@ from server.measure import (  # noqa: E402
     inverse_response_table,
 )
 from server.simsky import SimulatedSky  # noqa: E402
+from server.sunmeter import SunMeter  # noqa: E402
 
 cv2.setNumThreads(1)
 LIGHTS = 400
@@ -90,6 +94,26 @@ def load_previous(path: str):
     sys.modules[spec.name] = module  # dataclasses look their module up
     spec.loader.exec_module(module)
     return module
+
+
+def sun_line(dome_vertices: np.ndarray, sim: SimulatedSky, frame: Frame, sky_time_s: float,
+             width: int, height: int) -> str:
+    """The sun meter's cost on one frame: measure with and without it, and the sun step."""
+    plain = SkyMeter(dome_vertices, Photometry())
+    with_sun = SkyMeter(dome_vertices, Photometry(),
+                        sun=SunMeter(sim.latitude_deg, sim.longitude_deg, sim.elevation_m))
+    f = Frame(frame.image, frame.capture_time_s, bgr=False, exposure=frame.exposure,
+              sky_time_s=sky_time_s)
+    plain_ms, sun_ms = interleaved([lambda: plain.measure(f), lambda: with_sun.measure(f)])
+    steps = [with_sun.measure(f).sun_ms for _ in range(30)]
+    r = with_sun.measure(f)
+    truth = patch_mean_radiance(frame.truth, dome_vertices, samples_per_side=32,
+                                include_sun=False)
+    err_max, err_mean = errors(r.radiance, r.saturated, truth)
+    return (f"{width}x{height:<5} sun meter: {sun_ms:.2f} ms a frame against {plain_ms:.2f} ms "
+            f"without (sun step {statistics.median(steps):.2f} ms; source "
+            f"{r.sun.source.label}, {int(r.saturated.sum())} saturated lights; sky without "
+            f"the sun: error max {err_max:.2f} %, mean {err_mean:.3f} %)")
 
 
 def main() -> None:
@@ -146,6 +170,7 @@ def main() -> None:
                 f"{ms / mp:6.2f} {err_max:9.2f} {err_mean:10.3f} {base_ms:13.1f} "
                 f"{base_ms / ms:7.1f}x {floor_ms:13.2f}"
             )
+        print(sun_line(dome.vertices, sim, frame, sim.clock.start_s + 3600.0, width, height))
         if previous is not None:
             old = previous.SkyMeter(dome.vertices, previous.Photometry())
             old.prepare(width, height)

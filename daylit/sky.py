@@ -63,32 +63,41 @@ def azimuth_elevation_from_direction(dirs: np.ndarray) -> tuple[np.ndarray, np.n
 def sun_position(
     latitude_deg: float, longitude_deg: float, elevation_m: float, when: dt.datetime
 ) -> tuple[float, float]:
-    """Apparent (refracted) solar azimuth and elevation in degrees, by NREL SPA (pvlib).
+    """Apparent (refracted) solar azimuth and elevation in degrees, by NREL SPA (pvlib), at
+    the site's standard pressure (:func:`daylit.sun.sun_position` has all the parameters).
 
     ``when`` must be timezone-aware.
     """
-    import pandas as pd
-    from pvlib import solarposition
+    from daylit.sun import sun_position as spa
 
     if when.tzinfo is None:
         raise ValueError("sun_position needs a timezone-aware datetime")
-    times = pd.DatetimeIndex([pd.Timestamp(when)])
-    pos = solarposition.get_solarposition(
-        times, latitude_deg, longitude_deg, altitude=elevation_m, method="nrel_numpy"
-    )
-    return float(pos["azimuth"].iloc[0]), float(pos["apparent_elevation"].iloc[0])
+    pos = spa(latitude_deg, longitude_deg, elevation_m, when)
+    return float(pos.azimuth_deg[0]), float(pos.apparent_elevation_deg[0])
 
 
 def sun_positions(
     latitude_deg: float, longitude_deg: float, elevation_m: float, times
 ) -> tuple[np.ndarray, np.ndarray]:
     """Vectorized :func:`sun_position` over a pandas ``DatetimeIndex`` (tz-aware)."""
-    from pvlib import solarposition
+    from daylit.sun import sun_position as spa
 
-    pos = solarposition.get_solarposition(
-        times, latitude_deg, longitude_deg, altitude=elevation_m, method="nrel_numpy"
-    )
-    return pos["azimuth"].to_numpy(), pos["apparent_elevation"].to_numpy()
+    pos = spa(latitude_deg, longitude_deg, elevation_m, times)
+    return pos.azimuth_deg, pos.apparent_elevation_deg
+
+
+def air_mass(sun_elevation_deg: float) -> float:
+    """The simple air mass ``1 / sin(elevation)`` of the sky models (at least 1 degree up, at
+    most 20): not a physical model, the shape of :func:`sun_warmth` and :func:`clear_sky`."""
+    return 1.0 / max(np.sin(np.radians(max(sun_elevation_deg, 1.0))), 0.05)
+
+
+SUN_WARMING_PER_AIR_MASS = np.array([0.02, 0.05, 0.11])  # RGB extinction beyond air mass 1
+
+
+def sun_warmth(sun_elevation_deg: float) -> np.ndarray:
+    """The sun's relative RGB transmission (3,), 1 at the zenith, warming as it sets."""
+    return np.exp(-SUN_WARMING_PER_AIR_MASS * (air_mass(sun_elevation_deg) - 1.0))
 
 
 @dataclass
@@ -209,9 +218,8 @@ def clear_sky(sun_azimuth_deg: float, sun_elevation_deg: float, turbid: bool = F
 
     The sun's colour warms as it sets (more air mass); a simple stand-in, not a spectral model.
     """
-    air_mass = 1.0 / max(np.sin(np.radians(max(sun_elevation_deg, 1.0))), 0.05)
-    warm = np.exp(-np.array([0.02, 0.05, 0.11]) * (air_mass - 1.0))
-    dni = 900.0 * warm * np.exp(-0.03 * (air_mass - 1.0))
+    warm = sun_warmth(sun_elevation_deg)
+    dni = 900.0 * warm * np.exp(-0.03 * (air_mass(sun_elevation_deg) - 1.0))
     return CIESky(
         sky_type=7 if turbid else 12,
         sun_azimuth_deg=sun_azimuth_deg,

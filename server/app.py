@@ -37,6 +37,7 @@ from server.routes import add_static_routes
 from server.simsky import SimulatedSky
 from server.sitecamera import SiteCameraFeed
 from server.sources import CameraSource, ReplaySource, SimSource, Source
+from server.sunmeter import SunMeter
 
 log = logging.getLogger("daylit.server")
 
@@ -97,6 +98,7 @@ def make_sky_source(spec: SourceSpec, settings: Settings, scene: dict) -> Source
             scene["timezone"], cloud_cover=sim.cloud_cover, clock_speed=sim.clock_speed,
             start=sim.start, seed=sim.seed, noise=sim.noise, size_px=sim.size_px,
         )
+        simulated.linke_turbidity = settings.sun.linke_turbidity
         return SimSource(simulated, sky.rate_hz)
     if spec.kind == "replay":
         return ReplaySource(spec.target, sky.rate_hz)
@@ -154,6 +156,11 @@ def make_meter(settings: Settings, manifest: dict, simulated: SimulatedSky | Non
     if simulated is not None:
         simulated.photometry = Photometry(response=photometry.response,
                                           vignetting=photometry.vignetting)
+    sun = None
+    if settings.sun.enabled:
+        scene = manifest["scene"]
+        sun = SunMeter(scene["latitude_deg"], scene["longitude_deg"], scene["elevation_m"],
+                       settings.sun.linke_turbidity)
     return SkyMeter(
         manifest_io.dome_vertices(manifest),
         photometry,
@@ -162,6 +169,7 @@ def make_meter(settings: Settings, manifest: dict, simulated: SimulatedSky | Non
         supersample=sky.supersample,
         max_working_pixels=sky.max_working_pixels,
         sky_mask=mask,
+        sun=sun,
     )
 
 
@@ -224,7 +232,7 @@ def create_app(
     stream = settings.stream
     site_feed: SiteCameraFeed | None = None
 
-    def hello(streams: list[str]) -> str:
+    def hello(streams: list[str], version: int = protocol.PROTOCOL_VERSION) -> str:
         site = None
         if site_feed is not None:
             site = {"source": site_feed.source.name, "size": site_feed.size}
@@ -245,6 +253,7 @@ def create_app(
             extra={"server": f"daylit {__version__}", "asset_query": "v",
                    "views": [v["id"] for v in manifest["views"]]},
             occlusion=occ,
+            version=version,
         )
 
     srv = settings.server
@@ -261,7 +270,9 @@ def create_app(
         site_feed = SiteCameraFeed(site_source, hub, settings.site_camera.jpeg_quality,
                                    settings.site_camera.max_width, occlusion)
     temporal = TemporalFilter(stream.smoothing_s, stream.change_threshold, stream.max_interval_s)
-    pipeline = LightPipeline(meter, temporal, hub, sky_source, settings.sky.stale_after_s)
+    solid_angles_sr = np.array([light["solid_angle_sr"] for light in manifest["dome"]["lights"]])
+    pipeline = LightPipeline(meter, temporal, hub, sky_source, settings.sky.stale_after_s,
+                             solid_angles_sr)
 
     app = web.Application()
     app[SETTINGS] = settings

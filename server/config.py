@@ -75,6 +75,15 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "max_working_pixels": Key(1 << 17, "int", "frames are binned (2 x 2, once or more) to "
                                   "at most this many pixels after linearising", 4096),
     },
+    "sun": {
+        "enabled": Key(True, "bool", "measure the sun apart from the sky (docs/sun.md): its "
+                       "direction, normal irradiance and source in every vector; false: the "
+                       "sun stays in its patch as before (protocol 2 clients then get no sun)"),
+        "linke_turbidity": Key(3.0, "float", "Linke turbidity of the clear-sky model (Ineichen) "
+                               "that estimates the sun where the camera clips it, and of the "
+                               "simulated sky: 2 very clear, 3 clear, 4-5 hazy, 6-7 polluted",
+                               0.5, 10.0),
+    },
     "stream": {
         "smoothing_s": Key(2.0, "float", "time constant of the exponential smoothing; 0: off",
                            0.0, 3600.0),

@@ -9,6 +9,11 @@ A site-camera frame and its occlusion mask are published together as one *frame 
 client subscribed to both streams gets the SITE_CAMERA message and then, next on the wire, the
 OCCLUSION_MASK message of the same frame (same capture time), never a mask of another frame.
 
+Every message is encoded once per protocol version (:data:`server.protocol.VERSIONS`) when it
+is published, and each client is sent its connection's version: ``?protocol=2`` gets version 2
+(the sun apart), no parameter or ``protocol=1`` version 1 (the sun folded into its patch by the
+publisher), any other value HTTP 400.
+
 Per connection (``GET /ws/light``):
 - the Origin must be the page's own or in ``allowed_origins`` (else HTTP 403);
 - beyond ``max_clients`` the connection is accepted and closed at once with 1013;
@@ -49,6 +54,7 @@ class Client:
     ws: web.WebSocketResponse
     remote: str
     streams: set[str]
+    version: int = 1  # the connection's protocol version
     transport: asyncio.BaseTransport | None = None
     wake: asyncio.Event = field(default_factory=asyncio.Event)
     sent: dict[str, int] = field(default_factory=dict)
@@ -66,7 +72,8 @@ class LightHub:
     Parameters
     ----------
     hello : callable
-        ``hello(streams) -> str``: the JSON hello for a client with those streams.
+        ``hello(streams, version) -> str``: the JSON hello for a client with those streams
+        and that protocol version.
     max_clients : int
     allowed_origins : list of str
         Extra allowed ``Origin`` values, or ``["*"]``.
@@ -92,9 +99,11 @@ class LightHub:
         self.site_camera_available = site_camera_available
         self.occlusion_available = occlusion_available and site_camera_available
         self.clients: set[Client] = set()
-        self.latest: dict[str, tuple[int, bytes]] = {}
-        # The newest site-camera frame: (bundle number, {stream: message}), see publish_frame.
-        self.latest_frame: tuple[int, dict[str, bytes]] | None = None
+        # The newest message of each stream: (sequence, {protocol version: message}).
+        self.latest: dict[str, tuple[int, dict[int, bytes]]] = {}
+        # The newest site-camera frame: (bundle number, {version: {stream: message}}), see
+        # publish_frame.
+        self.latest_frame: tuple[int, dict[int, dict[str, bytes]]] | None = None
         self.frames_published = 0
         self.sequence: dict[str, int] = {LIGHT: 0, SITE_CAMERA: 0, OCCLUSION: 0}
         self.refused = 0
@@ -102,20 +111,35 @@ class LightHub:
 
     # --------------------------------------------------------------------------- publishing
 
-    def publish(self, stream: str, data: bytes, sequence: int) -> None:
-        """Make ``data`` the newest message of ``stream`` (``light``) and wake its subscribers.
+    def publish(self, stream: str, data: dict[int, bytes] | bytes, sequence: int) -> None:
+        """Make ``data`` ({protocol version: message}, or one message for every version) the
+        newest message of ``stream`` (``light``) and wake its subscribers.
 
         Site-camera frames and masks go through :meth:`publish_frame` instead.
         """
+        if isinstance(data, bytes | bytearray):
+            data = dict.fromkeys(protocol.VERSIONS, bytes(data))
         self.latest[stream] = (sequence, data)
         for client in self.clients:
             if stream in client.streams:
                 client.wake.set()
 
-    def publish_light(self, rgb, saturated, capture_time_s: float, flags: int) -> int:
-        """Encode and publish a light vector; returns its sequence number."""
+    def publish_light(self, rgb, saturated, capture_time_s: float, flags: int,
+                      sun: object = None, folded_rgb=None) -> int:
+        """Encode and publish a light vector; returns its sequence number.
+
+        ``rgb`` (n, 3): the sky without the sun's disc, sent to version-2 clients with ``sun``
+        (see :func:`server.protocol.encode_light`); ``folded_rgb`` (n, 3): the vector for
+        version-1 clients, with the sun in its patch (:func:`server.protocol.fold_sun`;
+        default ``rgb``).
+        """
         seq = self.sequence[LIGHT] = (self.sequence[LIGHT] + 1) & 0xFFFFFFFF
-        data = protocol.encode_light(rgb, saturated, seq, capture_time_s, flags)
+        v1 = rgb if folded_rgb is None else folded_rgb
+        data = {
+            1: protocol.encode_light(v1, saturated, seq, capture_time_s, flags, version=1),
+            2: protocol.encode_light(rgb, saturated, seq, capture_time_s, flags, version=2,
+                                     sun=sun),
+        }
         self.publish(LIGHT, data, seq)
         return seq
 
@@ -137,14 +161,19 @@ class LightHub:
         carries the frame's capture time. Returns the SITE_CAMERA sequence number.
         """
         seq = self.sequence[SITE_CAMERA] = (self.sequence[SITE_CAMERA] + 1) & 0xFFFFFFFF
-        parts = {SITE_CAMERA: protocol.encode_blob(MessageType.SITE_CAMERA, jpeg, seq,
-                                                   capture_time_s, flags)}
         if mask_payload is not None:
             mseq = self.sequence[OCCLUSION] = (self.sequence[OCCLUSION] + 1) & 0xFFFFFFFF
-            parts[OCCLUSION] = protocol.encode_blob(MessageType.OCCLUSION_MASK, mask_payload,
-                                                    mseq, capture_time_s, mask_flags)
+        by_version = {}
+        for version in protocol.VERSIONS:  # the same but for the version byte
+            parts = {SITE_CAMERA: protocol.encode_blob(MessageType.SITE_CAMERA, jpeg, seq,
+                                                       capture_time_s, flags, version)}
+            if mask_payload is not None:
+                parts[OCCLUSION] = protocol.encode_blob(MessageType.OCCLUSION_MASK,
+                                                        mask_payload, mseq, capture_time_s,
+                                                        mask_flags, version)
+            by_version[version] = parts
         self.frames_published += 1
-        self.latest_frame = (self.frames_published, parts)
+        self.latest_frame = (self.frames_published, by_version)
         for client in self.clients:
             if not client.streams.isdisjoint(parts):
                 client.wake.set()
@@ -174,6 +203,7 @@ class LightHub:
             raise web.HTTPForbidden(text="origin not allowed\n")
         try:
             streams = protocol.parse_streams(request.query.get("streams"))
+            version = protocol.parse_protocol(request.query.get("protocol"))
         except ProtocolError as exc:
             raise web.HTTPBadRequest(text=f"{exc}\n") from None
         ws = web.WebSocketResponse(
@@ -188,10 +218,10 @@ class LightHub:
                         remote, len(self.clients))
             await ws.close(code=WSCloseCode.TRY_AGAIN_LATER, message=b"server full")
             return ws
-        client = Client(ws, remote, set(streams), request.transport,
+        client = Client(ws, remote, set(streams), version, request.transport,
                         tokens=5.0 * self.client_rate)
         self._filter_streams(client)
-        await ws.send_str(self.hello(sorted(client.streams)))
+        await ws.send_str(self.hello(sorted(client.streams), version))
         self.clients.add(client)
         client.wake.set()  # send the newest vector right away
         sender = asyncio.create_task(self._send_loop(client), name=f"send {remote}")
@@ -262,7 +292,8 @@ class LightHub:
                 await client.wake.wait()
                 client.wake.clear()
                 if LIGHT in client.streams and LIGHT in self.latest:
-                    seq, data = self.latest[LIGHT]
+                    seq, by_version = self.latest[LIGHT]
+                    data = by_version[client.version]
                     last = client.sent.get(LIGHT)
                     if last != seq:
                         if last is not None:
@@ -274,7 +305,8 @@ class LightHub:
                 frame = self.latest_frame
                 if (frame is not None and frame[0] != client.sent_frame
                         and not client.streams.isdisjoint(FRAME_STREAMS)):
-                    number, parts = frame  # held here: a newer bundle cannot split this one
+                    number, by_version = frame  # held: a newer bundle cannot split this one
+                    parts = by_version[client.version]
                     if client.sent_frame is not None:
                         client.skipped += max(0, number - client.sent_frame - 1)
                     for stream in FRAME_STREAMS:
@@ -304,6 +336,7 @@ class LightHub:
     def status(self) -> dict:
         return {
             "clients": len(self.clients),
+            "clients_protocol_1": sum(c.version == 1 for c in self.clients),
             "clients_site_camera": sum(SITE_CAMERA in c.streams for c in self.clients),
             "clients_occlusion": sum(OCCLUSION in c.streams for c in self.clients),
             "clients_refused": self.refused,

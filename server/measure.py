@@ -44,6 +44,7 @@ from scipy.spatial import cKDTree
 
 from daylit.spherical import PatchLookup, centroid_direction
 from server.fisheye import FisheyeCamera
+from server.sunmeter import SunMeasurement, SunMeter
 
 # Frames are binned (after linearising, by a power of two) to at most this many pixels of the
 # image circle's bounding box: at 1 megapixel 320 x 240, a hundred or more pixels per light of
@@ -491,19 +492,27 @@ class Measurement:
     Attributes
     ----------
     radiance : (n, 3) float32
-        Mean radiance of each patch, W/(m^2 sr) times the photometric factor.
+        Mean radiance of each patch, W/(m^2 sr) times the photometric factor; with a sun
+        meter, of the sky *without* the sun's disc (its pixels replaced from around it).
     saturated : (n,) bool
-        Lights with clipped pixels; their value is a lower bound.
+        Lights with clipped pixels (outside the sun's replaced region); their value is a
+        lower bound.
     capture_time_s : float
         Unix time of the exposure.
     saturated_pixels : int
-        Clipped pixels in the frame.
+        Clipped working pixels in the frame, outside the sun's replaced region.
+    sun : SunMeasurement or None
+        The sun (None without a sun meter).
+    sun_ms : float
+        Time spent on the sun, milliseconds.
     """
 
     radiance: np.ndarray
     saturated: np.ndarray
     capture_time_s: float
     saturated_pixels: int = 0
+    sun: SunMeasurement | None = None
+    sun_ms: float = 0.0
 
 
 @dataclass
@@ -512,7 +521,10 @@ class Frame:
 
     ``image`` is (H, W, 3) uint8 or uint16 camera codes, or float32 linear values; ``bgr`` says
     whether the channels come in OpenCV's order. ``exposure`` (linear value of unit radiance)
-    overrides the configured one when the source knows it.
+    overrides the configured one when the source knows it. ``hdr``: a float frame without a
+    white point (EXR, merged brackets): no value counts as clipped. ``sky_time_s``: the time
+    the sky is at, for the sun's position (None: ``capture_time_s``; the simulated sky sets its
+    simulated time).
     """
 
     image: np.ndarray
@@ -520,6 +532,8 @@ class Frame:
     bgr: bool = True
     exposure: float | None = None
     truth: object = None  # the simulated sky's known answer, for tests; None for real frames
+    hdr: bool = False
+    sky_time_s: float | None = None
 
 
 class FrameError(ValueError):
@@ -542,7 +556,10 @@ class SkyMeter:
         supersample: int = 6,
         max_working_pixels: int = DEFAULT_WORKING_PIXELS,
         sky_mask: np.ndarray | None = None,
+        sun: SunMeter | None = None,
     ):
+        self.sun = sun
+        self._cameras: dict[tuple[int, int], FisheyeCamera] = {}
         self.dome_vertices = np.asarray(dome_vertices, dtype=np.float64)
         self.photometry = photometry or Photometry()
         self.camera = camera
@@ -556,7 +573,14 @@ class SkyMeter:
         self._factor = np.asarray(self.photometry.photometric_factor, dtype=np.float64)
 
     def camera_for(self, width: int, height: int) -> FisheyeCamera:
-        """The calibrated lens, or an ideal equidistant one centred on a frame of this size."""
+        """The calibrated lens, or an ideal equidistant one centred on a frame of this size
+        (the same object for the same size)."""
+        cached = self._cameras.get((width, height))
+        if cached is None:
+            cached = self._cameras[(width, height)] = self._camera_for(width, height)
+        return cached
+
+    def _camera_for(self, width: int, height: int) -> FisheyeCamera:
         if self.camera is None:
             return FisheyeCamera.equidistant(width, height, self.fov_deg)
         if (self.camera.width, self.camera.height) == (width, height):
@@ -621,9 +645,28 @@ class SkyMeter:
         ys, xs = np.nonzero(peak >= threshold)
         return block_rows[ys].astype(np.int64) * wb + xs
 
-    def linearize(self, image: np.ndarray, m: PatchMatrix) -> tuple[np.ndarray, np.ndarray]:
+    def clip_threshold(self, image: np.ndarray, hdr: bool = False) -> float:
+        """The raw value at or above which a channel counts as clipped (inf: never)."""
+        level = self.photometry.saturation_level
+        if image.dtype == np.uint8:
+            return math.ceil(level * 255)
+        if image.dtype == np.uint16:
+            return math.ceil(level * 65535)
+        return math.inf if hdr else level
+
+    def to_linear(self, raw: np.ndarray) -> np.ndarray:
+        """Codes (..., 3) -> linear float32 through the inverse response; floats unchanged."""
+        if raw.dtype == np.uint8:
+            return self._lut(256)[raw, np.arange(3)]
+        if raw.dtype == np.uint16:
+            return self._lut(65536)[raw, np.arange(3)]
+        return raw.astype(np.float32)
+
+    def linearize(self, image: np.ndarray, m: PatchMatrix,
+                  hdr: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """The crop's linear image at working size (float32, unit: full scale = ``scale``),
-        and the flat working-size indices of pixels with a clipped channel.
+        and the flat working-size indices of pixels with a clipped channel (none for ``hdr``
+        float frames).
 
         8-bit frames go through a 16-bit table (``cv2.LUT``) and are binned in 16 bits: the
         cheapest exact path (a 16-bit linear value resolves even code 1 of an sRGB camera).
@@ -635,26 +678,26 @@ class SkyMeter:
         x0, y0, x1, y1 = m.crop
         crop = image[y0:y1, x0:x1]
         h, w = crop.shape[:2]
-        level = self.photometry.saturation_level
         b = m.binning
+        threshold = self.clip_threshold(image, hdr)
         if image.dtype == np.uint8:
-            threshold = math.ceil(level * 255)
             linear = self._linearize_codes(crop, m)  # already binned
             b = 1
             scale = 65535.0
         elif image.dtype == np.uint16:
             linear = self._lut(65536)[crop, np.arange(3)]
-            threshold = math.ceil(level * 65535)
             scale = 1.0
         elif image.dtype in (np.float32, np.float64):
             linear = crop.astype(np.float32)
             if not np.all(np.isfinite(linear)):
                 raise FrameError("frame has non-finite values")
-            threshold = level
             scale = 1.0
         else:
             raise FrameError(f"unsupported pixel type {image.dtype}")
-        hot_rows = np.flatnonzero(crop.reshape(h, w * 3).max(axis=1) >= threshold)
+        if math.isinf(threshold):
+            hot_rows = np.zeros(0, dtype=np.int64)
+        else:
+            hot_rows = np.flatnonzero(crop.reshape(h, w * 3).max(axis=1) >= threshold)
         while linear.shape[0] > h // b:  # 2 x 2 area means (b is a power of two): exact
             linear = cv2.resize(linear, (linear.shape[1] // 2, linear.shape[0] // 2),
                                 interpolation=cv2.INTER_AREA)
@@ -662,6 +705,8 @@ class SkyMeter:
             linear = np.multiply(linear, np.float32(1.0 / scale), dtype=np.float32)
         else:
             linear = linear.astype(np.float32, copy=False)
+            if np.shares_memory(linear, image):  # the sun's disc is replaced in place
+                linear = linear.copy()
         clipped = self._clipped_pixels(crop, hot_rows, threshold, m.binning)
         return linear, clipped
 
@@ -696,7 +741,17 @@ class SkyMeter:
             raise FrameError(f"frame exposure {exposure!r} is not a positive number")
         h, w = image.shape[:2]
         m = self.prepare(w, h)
-        linear, clipped = self.linearize(image, m)
+        linear, clipped = self.linearize(image, m, frame.hdr)
+        sun, sun_ms = None, 0.0
+        if self.sun is not None:
+            t0 = time.perf_counter()
+            sky_time_s = frame.capture_time_s if frame.sky_time_s is None else frame.sky_time_s
+            sun, replaced = self.sun.measure(
+                image, sky_time_s, self.camera_for(w, h), m, linear, self.to_linear,
+                self.photometry, exposure, frame.bgr, self.clip_threshold(image, frame.hdr))
+            if replaced is not None and clipped.size:
+                clipped = clipped[~replaced[clipped]]  # the sun's clipped pixels are gone
+            sun_ms = 1e3 * (time.perf_counter() - t0)
         radiance = m.apply(linear)
         if frame.bgr:
             radiance = radiance[:, ::-1]
@@ -711,6 +766,8 @@ class SkyMeter:
             saturated=saturated,
             capture_time_s=frame.capture_time_s,
             saturated_pixels=int(clipped.size),
+            sun=sun,
+            sun_ms=sun_ms,
         )
 
 
@@ -719,45 +776,74 @@ class SkyMeter:
 
 @dataclass
 class TemporalFilter:
-    """Exponential smoothing plus a change threshold for the streamed vector.
+    """Exponential smoothing plus a change threshold for the streamed vector and the sun.
 
     Parameters
     ----------
     time_constant_s : float
-        Each new measurement moves the smoothed vector by ``1 - exp(-dt / tau)``; 0 turns
-        smoothing off. A few seconds hides sensor noise; clouds over the sun still come through.
+        Each new measurement moves the smoothed vector (and the sun's normal irradiance) by
+        ``1 - exp(-dt / tau)``; 0 turns smoothing off. A few seconds hides sensor noise;
+        clouds over the sun still come through.
     change_threshold : float
         A new vector is sent only when some light's value has moved by more than this fraction
-        of the sky's mean radiance since the last vector sent (or its flags changed).
+        of the sky's mean radiance ``L`` since the last vector sent (or its flags changed), or
+        the sun's normal irradiance by more than this fraction of ``pi L`` (the horizontal
+        irradiance of a uniform sky of that radiance: the sun is weighed against the sky's
+        own light), or the sun's direction by more than ``sun_direction_threshold_deg``.
     max_interval_s : float
         Send anyway after this long, so clients see that the server is alive.
+    sun_direction_threshold_deg : float
+        The sun's direction is not smoothed (the newest is kept); a move larger than this
+        since the last vector sent is sent.
     """
 
     time_constant_s: float = 2.0
     change_threshold: float = 0.002
     max_interval_s: float = 5.0
+    sun_direction_threshold_deg: float = 0.05
     value: np.ndarray | None = None
+    sun: np.ndarray | None = None  # (3,) smoothed normal irradiance, W/m^2; None: no sun meter
+    sun_direction: np.ndarray | None = None  # (3,) the newest, unit (zeros: none)
     _time_s: float = 0.0
     _sent: np.ndarray | None = None
+    _sent_sun: np.ndarray | None = None
+    _sent_sun_direction: np.ndarray | None = None
     _sent_time_s: float = -math.inf
     _sent_flags: object = None
 
     def reset(self) -> None:
         self.value = None
+        self.sun = None
+        self.sun_direction = None
         self._sent = None
+        self._sent_sun = None
+        self._sent_sun_direction = None
         self._sent_time_s = -math.inf
         self._sent_flags = None
 
-    def update(self, radiance: np.ndarray, time_s: float) -> np.ndarray:
-        """Fold in one measurement (n, 3) taken at ``time_s``; returns the smoothed vector."""
+    def update(self, radiance: np.ndarray, time_s: float,
+               sun_irradiance: np.ndarray | None = None,
+               sun_direction: np.ndarray | None = None) -> np.ndarray:
+        """Fold in one measurement (n, 3) taken at ``time_s``, and the sun's normal irradiance
+        (3,) W/m^2 and direction (3,) when there is a sun meter; returns the smoothed vector."""
         radiance = np.asarray(radiance, dtype=np.float64)
-        if self.value is None or self.value.shape != radiance.shape:
+        fresh = self.value is None or self.value.shape != radiance.shape
+        if fresh:
             self.value = radiance.copy()
+            alpha = 1.0
         else:
             dt = max(0.0, time_s - self._time_s)
             tau = self.time_constant_s
             alpha = 1.0 - math.exp(-dt / tau) if tau > 0 else 1.0
             self.value += alpha * (radiance - self.value)
+        if sun_irradiance is not None:
+            e = np.asarray(sun_irradiance, dtype=np.float64).reshape(3)
+            if self.sun is None or fresh:
+                self.sun = e.copy()
+            else:
+                self.sun += alpha * (e - self.sun)
+            self.sun_direction = (np.zeros(3) if sun_direction is None else
+                                  np.asarray(sun_direction, dtype=np.float64).reshape(3))
         self._time_s = time_s
         return self.value
 
@@ -770,10 +856,27 @@ class TemporalFilter:
         if now_s - self._sent_time_s >= self.max_interval_s:
             return True
         scale = max(float(np.mean(np.abs(self._sent))), 1e-9)
-        return float(np.max(np.abs(self.value - self._sent))) > self.change_threshold * scale
+        if float(np.max(np.abs(self.value - self._sent))) > self.change_threshold * scale:
+            return True
+        if self.sun is None:
+            return False
+        if self._sent_sun is None or self._sent_sun_direction is None:
+            return True
+        if float(np.max(np.abs(self.sun - self._sent_sun))) > \
+                self.change_threshold * math.pi * scale:
+            return True
+        had, has = bool(np.any(self._sent_sun_direction)), bool(np.any(self.sun_direction))
+        if had != has:  # the sun rose or set
+            return True
+        if not has:
+            return False
+        cos = float(np.clip(self.sun_direction @ self._sent_sun_direction, -1.0, 1.0))
+        return math.degrees(math.acos(cos)) > self.sun_direction_threshold_deg
 
     def mark_sent(self, now_s: float, flags: object = None) -> None:
         self._sent = None if self.value is None else self.value.copy()
+        self._sent_sun = None if self.sun is None else self.sun.copy()
+        self._sent_sun_direction = (None if self.sun_direction is None
+                                    else self.sun_direction.copy())
         self._sent_time_s = now_s
         self._sent_flags = flags
-

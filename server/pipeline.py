@@ -5,6 +5,11 @@ measuring task measures it off the event loop, folds it into the temporal filter
 when the change threshold says so. A watchdog marks the light stale when frames stop coming,
 keeps re-sending the last good vector with the STALE flag (so clients know), and the stale flag
 clears with the next good frame. Frames that cannot be measured are skipped with a log line.
+
+With a sun meter, each vector is published with the sun (docs/sun.md): version-2 clients get
+the sky without the disc and the sun apart (direction, smoothed normal irradiance, source;
+SUN_ESTIMATED when it is the clear-sky model's), version-1 clients the sky with the sun's
+irradiance folded back into the patch that holds its direction (``r_p += E / omega_p``).
 """
 
 from __future__ import annotations
@@ -13,16 +18,29 @@ import asyncio
 import collections
 import logging
 import time
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
+from daylit.spherical import PatchLookup, solid_angle
+from daylit.sun import SunSource
 from server.lightstream import LightHub
 from server.measure import Frame, FrameError, Measurement, SkyMeter, TemporalFilter
-from server.protocol import Flags
+from server.protocol import Flags, fold_sun
 from server.sources.base import Source
+from server.sunmeter import SunMeasurement
 
 log = logging.getLogger("daylit.pipeline")
+
+
+@dataclass
+class PublishedSun:
+    """The sun as published: the newest direction and source, the smoothed irradiance."""
+
+    direction: np.ndarray  # (3,) unit, site frame; zeros when none
+    normal_irradiance_w_m2: np.ndarray  # (3,) RGB, W/m^2, smoothed
+    source: SunSource
 
 
 class LightPipeline:
@@ -35,7 +53,10 @@ class LightPipeline:
         hub: LightHub,
         source: Source,
         stale_after_s: float = 5.0,
+        solid_angles_sr: np.ndarray | None = None,
     ):
+        """``solid_angles_sr`` (n,): each light's solid angle (the manifest's), for folding
+        the sun into its patch for version-1 clients; default: from the meter's dome."""
         self.meter = meter
         self.temporal = temporal
         self.hub = hub
@@ -54,6 +75,10 @@ class LightPipeline:
         self._pending: Frame | None = None
         self._new = asyncio.Event()
         self._saturated = np.zeros(0, dtype=bool)
+        self.sun: SunMeasurement | None = None  # the newest frame's sun
+        self.sun_ms: collections.deque[float] = collections.deque(maxlen=50)
+        self._lookup: PatchLookup | None = None
+        self._solid_angles_sr = solid_angles_sr
         self._last_skip_log_s = -1e9
         self.started_s = time.time()
 
@@ -117,7 +142,15 @@ class LightPipeline:
             log.info("saturated lights (clipped pixels, e.g. the sun): %s",
                      np.flatnonzero(m.saturated).tolist())
         self._saturated = m.saturated
-        self.temporal.update(m.radiance, m.capture_time_s)
+        if m.sun is not None:
+            if self.sun is None or m.sun.source != self.sun.source:
+                log.info("sun: %s", m.sun.source.label)
+            self.sun = m.sun
+            self.sun_ms.append(m.sun_ms)
+            self.temporal.update(m.radiance, m.capture_time_s, m.sun.normal_irradiance_w_m2,
+                                 m.sun.direction)
+        else:
+            self.temporal.update(m.radiance, m.capture_time_s)
         self._maybe_publish(now, m.capture_time_s)
 
     def _flags(self) -> int:
@@ -126,15 +159,39 @@ class LightPipeline:
             flags |= Flags.STALE
         if self._saturated.any():
             flags |= Flags.SATURATED
+        if self.sun is not None and self.sun.source == SunSource.MODEL:
+            flags |= Flags.SUN_ESTIMATED
         return flags
+
+    def published_sun(self) -> PublishedSun | None:
+        """The sun to publish now (None without a sun meter)."""
+        if self.sun is None or self.temporal.sun is None:
+            return None
+        if self.sun.source == SunSource.NONE:
+            return PublishedSun(np.zeros(3), np.zeros(3), SunSource.NONE)
+        return PublishedSun(self.sun.direction.copy(), self.temporal.sun.copy(),
+                            self.sun.source)
+
+    def folded(self, rgb: np.ndarray, sun: PublishedSun | None) -> np.ndarray:
+        """The version-1 vector: ``rgb`` with the sun in the patch holding its direction."""
+        if sun is None or not np.any(sun.direction):
+            return rgb
+        if self._lookup is None:
+            self._lookup = PatchLookup(self.meter.dome_vertices)
+            if self._solid_angles_sr is None:
+                self._solid_angles_sr = solid_angle(self.meter.dome_vertices)
+        patch = int(self._lookup(sun.direction[None, :])[0])
+        return fold_sun(rgb, sun, patch, self._solid_angles_sr)
 
     def _maybe_publish(self, now_s: float, capture_time_s: float, force: bool = False) -> None:
         flags = self._flags()
-        key = (flags, self._saturated.tobytes())
+        source = None if self.sun is None else int(self.sun.source)
+        key = (flags, self._saturated.tobytes(), source)
         if force or self.temporal.should_send(now_s, key):
-            self.hub.publish_light(
-                self.temporal.value.astype(np.float32), self._saturated, capture_time_s, flags
-            )
+            rgb = self.temporal.value.astype(np.float32)
+            sun = self.published_sun()
+            self.hub.publish_light(rgb, self._saturated, capture_time_s, flags, sun=sun,
+                                   folded_rgb=self.folded(rgb, sun))
             self.temporal.mark_sent(now_s, key)
 
     async def watch_forever(self, period_s: float = 0.25) -> None:
@@ -180,8 +237,20 @@ class LightPipeline:
             "frames_replaced": self.frames_replaced,
             "measure_ms": round(float(np.median(self.measure_ms)), 3) if self.measure_ms
             else None,
+            "sun": self.sun_status(),
             **self.source.status(),
         }
+
+    def sun_status(self) -> dict | None:
+        """``sun`` of ``/api/status``: where, how bright (smoothed, as streamed), from what;
+        None without a sun meter or before the first frame."""
+        if self.sun is None:
+            return None
+        out = self.sun.status()
+        if self.temporal.sun is not None and self.sun.source != SunSource.NONE:
+            out["normal_irradiance_W_m2"] = [round(float(v), 3) for v in self.temporal.sun]
+        out["sun_ms"] = round(float(np.median(self.sun_ms)), 3) if self.sun_ms else None
+        return out
 
     def sky_jpeg(self, max_size_px: int = 320, quality: int = 80) -> bytes | None:
         """The newest sky frame, scaled to fit ``max_size_px``, as JPEG (None before any)."""

@@ -1,4 +1,6 @@
-"""The light stream's wire format, protocol version 1 (``GET /ws/light``; docs/protocol.md).
+"""The light stream's wire format, protocol versions 1 and 2 (``GET /ws/light``;
+docs/protocol.md). A client asks for version 2 with ``?protocol=2``; without it (or with
+``protocol=1``) it gets version 1, in which the sun is folded back into its patch.
 
 Server -> client
 ----------------
@@ -7,16 +9,19 @@ Server -> client
 
        offset size type     field
        0      4    bytes    magic "DLYT"
-       4      1    uint8    protocol version (1)
+       4      1    uint8    protocol version (1 or 2)
        5      1    uint8    message type (MessageType)
        6      2    uint16   flags (Flags)
        8      4    uint32   sequence number (per message type, wraps at 2^32)
        12     4    uint32   count: lights (LIGHT) or payload bytes (other types)
        16     8    float64  capture time, Unix seconds (UTC)
 
-   LIGHT (1): ``count`` x RGB float32 (light-major: r0 g0 b0 r1 ...), then the saturated
-   bitmask, ``ceil(count / 8)`` bytes, bit ``i % 8`` (least significant first) of byte
-   ``i // 8`` set when light ``i`` had clipped pixels.
+   LIGHT (1), version 1: ``count`` x RGB float32 (light-major: r0 g0 b0 r1 ...), then the
+   saturated bitmask, ``ceil(count / 8)`` bytes, bit ``i % 8`` (least significant first) of
+   byte ``i // 8`` set when light ``i`` had clipped pixels.
+   LIGHT, version 2: first the sun (28 bytes: direction float32[3], unit, site frame, zero
+   when none; normal irradiance float32[3] RGB W/m^2; source uint8 (daylit.sun.SunSource);
+   three reserved zero bytes), then the sky as in version 1 but *without* the sun's disc.
    SITE_CAMERA (2): ``count`` bytes of one JPEG image of the kiosk's site camera.
    OCCLUSION_MASK (3): ``count`` bytes: the mask of visitors standing in front of the virtual
    objects in that site-camera frame (same capture time; payload layout in
@@ -42,10 +47,14 @@ from enum import IntEnum, IntFlag
 
 import numpy as np
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2  # the newest; the server also speaks every version in VERSIONS
+VERSIONS = (1, 2)
 MAGIC = b"DLYT"
 HEADER = struct.Struct("<4sBBHIId")
 HEADER_BYTES = HEADER.size  # 24
+SUN = struct.Struct("<3f3fB3x")
+SUN_BYTES = SUN.size  # 28
+SUN_SOURCES = ("none", "measured", "model", "scene")  # daylit.sun.SunSource by value
 MAX_CLIENT_MESSAGE_BYTES = 1024
 STREAMS = ("light", "site-camera", "occlusion")
 
@@ -63,10 +72,35 @@ class Flags(IntFlag):
     SIMULATED = 4  # the built-in simulated sky, not a camera
     REPLAY = 8  # a recording being replayed
     LEARNING = 16  # OCCLUSION_MASK: the empty site is being learned; the mask is all clear
+    SUN_ESTIMATED = 32  # version 2 LIGHT: the sun's irradiance is a model's, not measured
+
+
+# Flags a version-1 message may carry (an older client knows no others).
+VERSION1_FLAGS = 31
 
 
 class ProtocolError(ValueError):
     """A message that does not follow the protocol; ``str()`` is a short reason."""
+
+
+@dataclass
+class WireSun:
+    """The sun of a version-2 LIGHT message.
+
+    direction : (3,) float32, unit, site frame (+X east, +Y up, -Z north); zero when none.
+    normal_irradiance_w_m2 : (3,) float32, RGB direct normal irradiance, W/m^2.
+    source : int, a ``daylit.sun.SunSource`` value (0 none, 1 measured, 2 model, 3 scene).
+    estimated : bool, the SUN_ESTIMATED flag of the message.
+    """
+
+    direction: np.ndarray
+    normal_irradiance_w_m2: np.ndarray
+    source: int
+    estimated: bool = False
+
+    @property
+    def source_name(self) -> str:
+        return SUN_SOURCES[self.source] if 0 <= self.source < len(SUN_SOURCES) else "unknown"
 
 
 @dataclass
@@ -81,6 +115,7 @@ class Message:
     count: int
     rgb: np.ndarray | None = None  # (count, 3) float32 for LIGHT
     saturated: np.ndarray | None = None  # (count,) bool for LIGHT
+    sun: WireSun | None = None  # LIGHT of version 2; None in version 1
     payload: bytes = field(default=b"", repr=False)  # other types
 
     @property
@@ -95,9 +130,16 @@ def bitmask_bytes(count: int) -> int:
     return (count + 7) // 8
 
 
-def light_message_bytes(count: int) -> int:
+def light_message_bytes(count: int, version: int = PROTOCOL_VERSION) -> int:
     """Size of a LIGHT message with ``count`` lights."""
-    return HEADER_BYTES + 12 * count + bitmask_bytes(count)
+    sun = SUN_BYTES if version >= 2 else 0
+    return HEADER_BYTES + sun + 12 * count + bitmask_bytes(count)
+
+
+def check_version(version: int) -> int:
+    if version not in VERSIONS:
+        raise ValueError(f"protocol version {version!r} is not one of {VERSIONS}")
+    return int(version)
 
 
 def encode_light(
@@ -106,8 +148,16 @@ def encode_light(
     sequence: int,
     capture_time_s: float,
     flags: int = 0,
+    version: int = 1,
+    sun: object = None,
 ) -> bytes:
-    """A LIGHT message: ``rgb`` (n, 3) radiance, ``saturated`` (n,) bool."""
+    """A LIGHT message: ``rgb`` (n, 3) radiance, ``saturated`` (n,) bool.
+
+    Version 2 needs ``sun``: any object with ``direction`` (3,), ``normal_irradiance_w_m2``
+    (3,) and ``source`` (int), or None for no sun (source 0, zeros). Version 1 drops ``sun``
+    (fold it into ``rgb`` first: :func:`fold_sun`) and the flags version 1 does not have.
+    """
+    check_version(version)
     rgb = np.ascontiguousarray(rgb, dtype="<f4")
     if rgb.ndim != 2 or rgb.shape[1] != 3:
         raise ValueError(f"rgb must have shape (n, 3), got {rgb.shape}")
@@ -115,41 +165,78 @@ def encode_light(
     sat = np.asarray(saturated, dtype=bool)
     if sat.shape != (n,):
         raise ValueError(f"saturated must have shape ({n},), got {sat.shape}")
+    flags = int(flags)
     if sat.any():
         flags |= Flags.SATURATED
+    sun_bytes = b""
+    if version == 1:
+        flags &= VERSION1_FLAGS
+    else:
+        if sun is None:
+            sun_bytes = SUN.pack(0, 0, 0, 0, 0, 0, 0)
+        else:
+            d = np.asarray(sun.direction, dtype=np.float64).reshape(3)
+            e = np.asarray(sun.normal_irradiance_w_m2, dtype=np.float64).reshape(3)
+            source = int(sun.source)
+            if not 0 <= source <= 255:
+                raise ValueError(f"sun source {source} does not fit a byte")
+            sun_bytes = SUN.pack(*d, *e, source)
     head = HEADER.pack(
-        MAGIC, PROTOCOL_VERSION, MessageType.LIGHT, int(flags) & 0xFFFF,
+        MAGIC, version, MessageType.LIGHT, flags & 0xFFFF,
         sequence & 0xFFFFFFFF, n, float(capture_time_s),
     )
-    return head + rgb.tobytes() + np.packbits(sat, bitorder="little").tobytes()
+    return head + sun_bytes + rgb.tobytes() + np.packbits(sat, bitorder="little").tobytes()
+
+
+def fold_sun(rgb: np.ndarray, sun: object, sun_patch: int | None,
+             patch_solid_angle_sr: np.ndarray) -> np.ndarray:
+    """The version-1 vector: the sky ``rgb`` (n, 3) with the sun's normal irradiance spread
+    over the patch that holds its direction, ``r_p += E_sun / omega_p`` (omega: (n,) sr).
+    ``sun_patch`` None (or no sun): ``rgb`` unchanged."""
+    out = np.array(rgb, dtype=np.float32)
+    if sun is None or sun_patch is None or sun_patch < 0:
+        return out
+    e = np.asarray(sun.normal_irradiance_w_m2, dtype=np.float64)
+    out[sun_patch] += (e / float(patch_solid_angle_sr[sun_patch])).astype(np.float32)
+    return out
 
 
 def encode_blob(
-    message_type: int, payload: bytes, sequence: int, capture_time_s: float, flags: int = 0
+    message_type: int, payload: bytes, sequence: int, capture_time_s: float, flags: int = 0,
+    version: int = 1,
 ) -> bytes:
-    """A SITE_CAMERA (JPEG bytes) or other payload message."""
+    """A SITE_CAMERA (JPEG bytes) or other payload message (the same in every version but
+    for the version byte)."""
+    check_version(version)
     head = HEADER.pack(
-        MAGIC, PROTOCOL_VERSION, int(message_type), int(flags) & 0xFFFF,
+        MAGIC, version, int(message_type), int(flags) & 0xFFFF,
         sequence & 0xFFFFFFFF, len(payload), float(capture_time_s),
     )
     return head + bytes(payload)
 
 
 def decode(data: bytes) -> Message:
-    """Decode one binary message; raises :class:`ProtocolError` if it is malformed."""
+    """Decode one binary message of version 1 or 2; raises :class:`ProtocolError` if it is
+    malformed."""
     if len(data) < HEADER_BYTES:
         raise ProtocolError(f"message of {len(data)} bytes is shorter than the header")
     magic, version, mtype, flags, seq, count, t = HEADER.unpack_from(data, 0)
     if magic != MAGIC:
         raise ProtocolError("bad magic")
-    if version != PROTOCOL_VERSION:
+    if version not in VERSIONS:
         raise ProtocolError(f"unsupported protocol version {version}")
     body = memoryview(data)[HEADER_BYTES:]
     msg = Message(mtype, version, flags, seq, t, count)
     if mtype == MessageType.LIGHT:
-        need = 12 * count + bitmask_bytes(count)
+        sun_bytes = SUN_BYTES if version >= 2 else 0
+        need = sun_bytes + 12 * count + bitmask_bytes(count)
         if len(body) != need:
             raise ProtocolError(f"light message of {count} lights needs {need} payload bytes")
+        if sun_bytes:
+            values = SUN.unpack_from(body, 0)
+            msg.sun = WireSun(np.array(values[0:3], np.float32), np.array(values[3:6], np.float32),
+                              values[6], bool(flags & Flags.SUN_ESTIMATED))
+            body = body[sun_bytes:]
         msg.rgb = np.frombuffer(body[: 12 * count], dtype="<f4").reshape(count, 3).copy()
         bits = np.frombuffer(body[12 * count:], dtype=np.uint8)
         msg.saturated = np.unpackbits(bits, bitorder="little")[:count].astype(bool)
@@ -158,6 +245,16 @@ def decode(data: bytes) -> Message:
             raise ProtocolError(f"payload is {len(body)} bytes, header says {count}")
         msg.payload = bytes(body)
     return msg
+
+
+def parse_protocol(text: str | None) -> int:
+    """The version a client asks for with ``?protocol=`` (none: 1, the oldest)."""
+    if text is None or text == "":
+        return 1
+    if text.strip() in ("1", "2"):
+        return int(text)
+    raise ProtocolError(f"unsupported protocol {text[:16]!r}: this server speaks "
+                        f"{', '.join(map(str, VERSIONS))}")
 
 
 def hello_message(
@@ -172,12 +269,14 @@ def hello_message(
     server_time_s: float,
     extra: dict | None = None,
     occlusion: dict | None = None,
+    version: int = 1,
 ) -> str:
     """The first (text) message of every connection.
 
     ``site_camera`` and ``occlusion`` describe those streams when the server has them (else
-    None); ``available_streams`` follows from them.
+    None); ``available_streams`` follows from them. ``version``: the connection's protocol.
     """
+    check_version(version)
     available = ["light"]
     if site_camera:
         available.append("site-camera")
@@ -185,7 +284,7 @@ def hello_message(
             available.append("occlusion")
     hello = {
         "type": "hello",
-        "protocol": PROTOCOL_VERSION,
+        "protocol": version,
         "scene": scene_id,
         "lights": light_count,
         "manifest": manifest_url,
@@ -203,9 +302,13 @@ def hello_message(
             "magic": MAGIC.decode(),
             "header_bytes": HEADER_BYTES,
             "types": {t.name.lower().replace("_", "-"): int(t) for t in MessageType},
-            "flags": {f.name.lower(): int(f) for f in Flags if f},
+            "flags": {f.name.lower(): int(f) for f in Flags
+                      if f and (version >= 2 or f & VERSION1_FLAGS)},
         },
     }
+    if version >= 2:
+        hello["sun"] = {"units": "W/m^2, direct normal irradiance, linear RGB",
+                        "frame": "+X east, +Y up, -Z north", "sources": list(SUN_SOURCES)}
     if extra:
         hello.update(extra)
     return json.dumps(hello, separators=(",", ":"))

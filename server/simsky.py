@@ -1,7 +1,11 @@
 """The simulated sky: what a fisheye camera at the site would see, with a known answer.
 
-A CIE clear sky (``daylit.sky.clear_sky``) with a sun disk at the sun's true position for the
-site (NREL SPA via pvlib) at a simulated, optionally accelerated clock, and a layer of clouds
+A CIE clear sky (``daylit.sky.clear_sky``'s shape) with a sun disk at the sun's true position
+for the site (NREL SPA via pvlib) at a simulated, optionally accelerated clock. The sun's
+direct normal irradiance is the Ineichen clear-sky model's for the site and time
+(``daylit.sun``, Linke turbidity ``linke_turbidity``) in the sun's colour, and the sky is
+scaled so its diffuse horizontal irradiance (integrated numerically, sun excluded) is
+Ineichen's: noon is several times brighter than dusk. A layer of clouds
 drifting with the wind that whiten the sky where they are and dim the sun when they pass in
 front of it. The image is made the way a camera makes one: the sky's radiance through the
 lens model (:class:`server.fisheye.FisheyeCamera`), auto-exposure in third stops, vignetting, a
@@ -39,6 +43,13 @@ from daylit.sky import (
     clear_sky,
     direction_from_azimuth_elevation,
     sun_position,
+)
+from daylit.sun import (
+    DEFAULT_LINKE_TURBIDITY,
+    LUMINANCE_RGB,
+    clear_sky_irradiance,
+    day_of_year,
+    sun_colour,
 )
 from server.fisheye import FisheyeCamera
 from server.measure import Frame, Photometry, inverse_response_table
@@ -245,6 +256,31 @@ class CloudySky(Sky):
         return out
 
 
+def _hemisphere_grid(zenith_steps: int = 90, azimuth_steps: int = 180):
+    """Directions (m, 3) and weights ``cos(zenith) dOmega`` (m,) of a midpoint grid over the
+    upper hemisphere (the weights add up to pi)."""
+    dz = (math.pi / 2) / zenith_steps
+    da = 2 * math.pi / azimuth_steps
+    z = (np.arange(zenith_steps) + 0.5) * dz
+    a = (np.arange(azimuth_steps) + 0.5) * da
+    zz, aa = np.meshgrid(z, a, indexing="ij")
+    dirs = np.stack([np.sin(zz) * np.sin(aa), np.cos(zz), -np.sin(zz) * np.cos(aa)], axis=-1)
+    weight = np.cos(zz) * np.sin(zz) * dz * da
+    return dirs.reshape(-1, 3), weight.ravel()
+
+
+_HEMISPHERE = _hemisphere_grid()
+
+
+def diffuse_horizontal_irradiance(sky: Sky, rgb: bool = False):
+    """A sky's diffuse horizontal irradiance, sun disk excluded, W/m^2: its luminance
+    (``0.2126 R + 0.7152 G + 0.0722 B``), or (3,) RGB with ``rgb``; numerically integrated
+    (90 x 180 midpoint grid, about 0.1 % for the CIE skies)."""
+    dirs, weight = _HEMISPHERE
+    e = weight @ sky.radiance(dirs)
+    return e if rgb else float(LUMINANCE_RGB @ e)
+
+
 @dataclass
 class SimulatedSky:
     """Renders fisheye frames of a simulated sky over a site.
@@ -279,6 +315,7 @@ class SimulatedSky:
     noise: float = 0.002
     seed: int = 0
     keep_daylight: bool = False
+    linke_turbidity: float = DEFAULT_LINKE_TURBIDITY
     _sunset_s: float | None = field(default=None, init=False, repr=False)
 
     @classmethod
@@ -355,26 +392,36 @@ class SimulatedSky:
         when = dt.datetime.fromtimestamp(sky_time_s, tz=dt.UTC)
         return sun_position(self.latitude_deg, self.longitude_deg, self.elevation_m, when)
 
+    def clear_sky_at(self, elevation_deg: float, sky_time_s: float) -> tuple[float, float]:
+        """Ineichen's clear-sky DNI and DHI (W/m^2) at the site for a sun at this apparent
+        elevation at that time."""
+        dni, dhi = clear_sky_irradiance([90.0 - elevation_deg], day_of_year([sky_time_s]),
+                                        self.elevation_m, self.linke_turbidity)
+        return float(dni[0]), float(dhi[0])
+
     def sky_at(self, sky_time_s: float) -> CloudySky:
         """The exact sky at a simulated time: the truth that frames are measured against."""
         azimuth_deg, elevation_deg = self.sun_at(sky_time_s)
-        # Below the horizon the sky keeps the shape of a low sun and fades through twilight.
+        # Below the horizon the sky keeps the shape (and brightness) of a low sun and fades
+        # through twilight.
         shape_elevation = max(elevation_deg, 2.0)
-        clear = clear_sky(azimuth_deg, shape_elevation)
-        if elevation_deg < shape_elevation:
-            clear = CIESky(
-                sky_type=clear.sky_type,
-                sun_azimuth_deg=azimuth_deg,
-                sun_elevation_deg=shape_elevation,
-                zenith_radiance=clear.zenith_radiance,
-                sun_radiance=None if elevation_deg <= -SUN_ANGULAR_RADIUS_DEG
-                else clear.sun_radiance,
-            )
-            if clear.sun is not None:  # the disk sits at its true place, not the shape's
-                clear.sun = Sun(
-                    direction_from_azimuth_elevation(azimuth_deg, elevation_deg),
-                    clear.sun.radiance,
-                )
+        shape = clear_sky(azimuth_deg, shape_elevation)
+        dni, _ = self.clear_sky_at(elevation_deg, sky_time_s)
+        _, dhi = self.clear_sky_at(shape_elevation, sky_time_s)
+        scale = dhi / max(diffuse_horizontal_irradiance(shape), 1e-9)
+        up = elevation_deg > -SUN_ANGULAR_RADIUS_DEG
+        clear = CIESky(
+            sky_type=shape.sky_type,
+            sun_azimuth_deg=azimuth_deg,
+            sun_elevation_deg=shape_elevation,
+            zenith_radiance=tuple(scale * np.asarray(shape.zenith_radiance)),
+            sun_radiance=tuple(dni * sun_colour(elevation_deg) / SUN_SOLID_ANGLE_SR)
+            if up else None,
+        )
+        if clear.sun is not None and elevation_deg < shape_elevation:
+            # the disk sits at its true place, not the shape's
+            clear.sun = Sun(direction_from_azimuth_elevation(azimuth_deg, elevation_deg),
+                            clear.sun.radiance)
         daylight = float(np.clip((elevation_deg + 6.0) / 8.0, 0.0005, 1.0))
         return CloudySky(clear=clear, clouds=self.clouds, sky_time_s=sky_time_s,
                          daylight=daylight)
@@ -385,8 +432,10 @@ class SimulatedSky:
         dirs, is_sky, gain = self._pixel_dirs
         radiance = np.zeros((dirs.shape[0], 3))
         radiance[is_sky] = sky.radiance(dirs[is_sky])
-        # Auto-exposure in third stops: the bright end of the sky (not the sun) near 80 %.
-        bright = np.percentile(radiance[is_sky].max(axis=1), 99.5) if is_sky.any() else 1.0
+        # Auto-exposure in third stops: the brightest of the sky (not the sun's disc) near 80 %,
+        # so only the disc clips (a percentile let the bright circumsolar sky clip too, by a
+        # varying amount as the exposure stepped).
+        bright = radiance[is_sky].max() if is_sky.any() else 1.0
         exposure = 2.0 ** (round(3.0 * math.log2(0.8 / max(bright, 1e-9))) / 3.0)
         exposure = min(exposure, MAX_EXPOSURE)  # the longest shutter: night stays dark
         linear = radiance * (exposure * gain)[:, None]
@@ -411,7 +460,9 @@ class SimulatedSky:
         )
 
     def render_at(self, sky_time_s: float, capture_time_s: float | None = None) -> Frame:
-        return self.render(self.sky_at(sky_time_s), capture_time_s)
+        frame = self.render(self.sky_at(sky_time_s), capture_time_s)
+        frame.sky_time_s = sky_time_s  # the sun is where it is at the simulated time
+        return frame
 
     def _to_codes(self, linear: np.ndarray) -> np.ndarray:
         """Nearest 8-bit code whose linear value is closest (the table is monotonic)."""

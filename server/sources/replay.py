@@ -1,13 +1,23 @@
-"""Replay of a recorded sky: a folder of images (sorted by name) or a video file, looping."""
+"""Replay of a recorded sky: a folder of images (sorted by name) or a video file, looping.
+
+OpenEXR files (``.exr``) are read as linear float RGB with the OpenEXR package (OpenCV's EXR
+reader is off by default) and measured as HDR frames: no value counts as clipped, and no
+inverse response is applied (float frames are linear as they are). An EXR file's standard
+``capDate`` ("YYYY:MM:DD HH:MM:SS", local) and ``utcOffset`` (seconds, UTC = local +
+utcOffset; 0 when absent) attributes give the time its sky was at, for the sun's position
+(``Frame.sky_time_s``); other frames are stamped with the time they are played.
+"""
 
 from __future__ import annotations
 
 import asyncio
+import datetime as dt
 import logging
 import time
 from pathlib import Path
 
 import cv2
+import numpy as np
 
 from server.measure import Frame
 from server.protocol import Flags
@@ -20,6 +30,60 @@ IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp", ".e
 
 class ReplayError(RuntimeError):
     """A replay that has nothing to play."""
+
+
+def read_exr_rgb(path: Path | str) -> tuple[np.ndarray, float | None]:
+    """An OpenEXR image's R, G, B channels as (H, W, 3) float32 linear RGB, and its capture
+    time (Unix seconds) from ``capDate``/``utcOffset``, or None.
+
+    Raises ``OSError`` (unreadable) or ``ValueError`` (no R, G and B channels, a malformed
+    ``capDate``).
+    """
+    import OpenEXR
+
+    try:
+        with OpenEXR.File(str(path), separate_channels=True) as f:
+            channels = f.channels()
+            missing = [c for c in "RGB" if c not in channels]
+            if missing:
+                raise ValueError(f"{path}: no {', '.join(missing)} channel "
+                                 f"(has {', '.join(sorted(channels))})")
+            rgb = np.stack([np.asarray(channels[c].pixels, dtype=np.float32)
+                            for c in "RGB"], axis=-1)
+            # Inside the block: closing the file empties its header dict.
+            sky_time_s = exr_capture_time_s(f.header(), path)
+    except RuntimeError as exc:  # OpenEXR reports unreadable files so
+        raise OSError(f"{path}: {exc}") from None
+    return rgb, sky_time_s
+
+
+def exr_capture_time_s(header: dict, where: object = "EXR") -> float | None:
+    """Unix seconds of an EXR header's ``capDate`` (local) and ``utcOffset`` (UTC = local +
+    utcOffset), or None without ``capDate``."""
+    text = header.get("capDate")
+    if not text:
+        return None
+    try:
+        local = dt.datetime.strptime(str(text).strip(), "%Y:%m:%d %H:%M:%S")
+    except ValueError:
+        raise ValueError(f"{where}: capDate {text!r} is not YYYY:MM:DD HH:MM:SS") from None
+    offset_s = float(header.get("utcOffset", 0.0))
+    return local.replace(tzinfo=dt.UTC).timestamp() + offset_s
+
+
+def read_frame_image(path: Path) -> tuple[np.ndarray | None, bool, bool, float | None]:
+    """One replay image: (image, bgr, hdr, sky_time_s). EXR: linear float RGB, HDR, with its
+    capture time when the file has one; others through OpenCV, BGR (float images such as
+    Radiance .hdr count as HDR), no time. Image None when it cannot be read."""
+    if path.suffix.lower() == ".exr":
+        try:
+            rgb, sky_time_s = read_exr_rgb(path)
+            return rgb, False, True, sky_time_s
+        except (OSError, ValueError) as exc:
+            log.warning("replay: skipping %s (%s)", path, exc)
+            return None, False, False, None
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    return image, True, image is not None and image.dtype.kind == "f", None
 
 
 class ReplaySource(Source):
@@ -51,8 +115,8 @@ class ReplaySource(Source):
             frames = self._video_forever()
         else:
             raise ReplayError(f"{self.path}: no such file or folder")
-        async for image in frames:
-            deliver(Frame(image, time.time(), bgr=True))
+        async for image, bgr, hdr, sky_time_s in frames:
+            deliver(Frame(image, time.time(), bgr=bgr, hdr=hdr, sky_time_s=sky_time_s))
             self.played += 1
             next_s = max(next_s + self.period_s, time.monotonic())
             await asyncio.sleep(next_s - time.monotonic())
@@ -61,12 +125,13 @@ class ReplaySource(Source):
         while True:
             good = 0
             for path in self._images():
-                image = await asyncio.to_thread(cv2.imread, str(path), cv2.IMREAD_UNCHANGED)
+                image, bgr, hdr, sky_time_s = await asyncio.to_thread(read_frame_image, path)
                 if image is None or image.ndim != 3 or image.shape[2] < 3:
-                    log.warning("replay: skipping %s (not a colour image OpenCV can read)", path)
+                    log.warning("replay: skipping %s (not a colour image that can be read)",
+                                path)
                     continue
                 good += 1
-                yield image[:, :, :3]
+                yield image[:, :, :3], bgr, hdr, sky_time_s
             if not good:
                 raise ReplayError(f"{self.path}: none of the images could be read")
 
@@ -82,7 +147,7 @@ class ReplaySource(Source):
                     if not ok:
                         break
                     count += 1
-                    yield image
+                    yield image, True, False, None
                 if not count:
                     raise ReplayError(f"{self.path}: the video has no frames")
             finally:

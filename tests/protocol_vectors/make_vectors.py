@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -34,7 +35,7 @@ def vectors() -> dict[str, tuple[bytes, dict]]:
         "type": 1, "type_name": "light", "version": 1, "flags": 7, "stale": True,
         "saturated_flag": True, "simulated": True, "replay": False, "sequence": 7,
         "capture_time_s": 1750000000.25, "count": 4,
-        "rgb": [[float(v) for v in row] for row in rgb], "saturated": [2],
+        "rgb": [[float(v) for v in row] for row in rgb], "saturated": [2], "sun": None,
     })
     rgb10 = (np.arange(30, dtype=np.float32).reshape(10, 3) * 0.25).astype(np.float32)
     sat10 = np.zeros(10, bool)
@@ -44,13 +45,14 @@ def vectors() -> dict[str, tuple[bytes, dict]]:
         "type": 1, "type_name": "light", "version": 1, "flags": 10, "stale": False,
         "saturated_flag": True, "simulated": False, "replay": True, "sequence": 4294967295,
         "capture_time_s": 1767225600.0, "count": 10,
-        "rgb": [[float(v) for v in row] for row in rgb10], "saturated": [0, 9],
+        "rgb": [[float(v) for v in row] for row in rgb10], "saturated": [0, 9], "sun": None,
     })
     data = encode_light(np.full((3, 3), 2.5, np.float32), np.zeros(3, bool), 0, 0.0)
     out["light_3_plain"] = (data, {
         "type": 1, "type_name": "light", "version": 1, "flags": 0, "stale": False,
         "saturated_flag": False, "simulated": False, "replay": False, "sequence": 0,
         "capture_time_s": 0.0, "count": 3, "rgb": [[2.5, 2.5, 2.5]] * 3, "saturated": [],
+        "sun": None,
     })
     jpeg = bytes([0xFF, 0xD8, 0xFF, 0xE0, 0, 16, 74, 70, 73, 70, 0, 1, 0xFF, 0xD9])
     data = encode_blob(MessageType.SITE_CAMERA, jpeg, 42, 1750000001.5)
@@ -63,11 +65,55 @@ def vectors() -> dict[str, tuple[bytes, dict]]:
         "type": 3, "type_name": "occlusion-mask", "version": 1, "flags": 0, "sequence": 1,
         "capture_time_s": 1750000002.0, "count": 8, "payload_hex": bytes(range(8)).hex(),
     })
+    out.update(version2_vectors())
     good = out["light_3_plain"][0]
     out["error_bad_magic"] = (b"XXXX" + good[4:], {"error": "magic"})
-    out["error_version_2"] = (good[:4] + bytes([2]) + good[5:], {"error": "version"})
+    out["error_version_3"] = (good[:4] + bytes([3]) + good[5:], {"error": "version"})
+    # A version-1 body under a version-2 header: 28 bytes short of the sun.
+    out["error_light2_without_sun"] = (good[:4] + bytes([2]) + good[5:], {"error": "bytes"})
     out["error_truncated"] = (good[:-3], {"error": "bytes"})
     out["error_short_header"] = (good[:10], {"error": "header"})
+    return out
+
+
+def version2_vectors() -> dict[str, tuple[bytes, dict]]:
+    """LIGHT messages of protocol version 2: the sun first, then the sky without its disc."""
+    out = {}
+    # 0.6, 0.8 are not exact in float32: a direction of exact values, unit length.
+    direction = np.array([0.375, 0.5, -0.78062475], np.float32)  # az ~ 25.7, el ~ 30
+    sky = np.array([[10.5, 12.25, 20.0], [8.0, 9.5, 16.75], [0.0, 0.125, 3.5]], np.float32)
+
+    def sun(d, e, source):
+        return SimpleNamespace(direction=np.asarray(d, np.float32),
+                               normal_irradiance_w_m2=np.asarray(e, np.float32), source=source)
+
+    def expected(data_flags, seq, t, rgb, sat, sun_dict, **flags):
+        return {
+            "type": 1, "type_name": "light", "version": 2, "flags": data_flags,
+            "stale": flags.get("stale", False), "saturated_flag": bool(sat),
+            "simulated": flags.get("simulated", False), "replay": flags.get("replay", False),
+            "sequence": seq, "capture_time_s": t, "count": len(rgb),
+            "rgb": [[float(v) for v in row] for row in rgb], "saturated": sat, "sun": sun_dict,
+        }
+
+    e = [850.5, 812.25, 760.0]
+    data = encode_light(sky, np.zeros(3, bool), 11, 1790000000.5, Flags.REPLAY, version=2,
+                        sun=sun(direction, e, 1))
+    out["light2_sun_measured"] = (data, expected(8, 11, 1790000000.5, sky, [], {
+        "direction": [float(v) for v in direction], "normal_irradiance": e,
+        "source": "measured", "estimated": False}, replay=True))
+    e = [512.0, 480.5, 421.75]
+    sat = np.array([False, True, False])
+    data = encode_light(sky, sat, 12, 1790000001.0, Flags.SIMULATED | Flags.SUN_ESTIMATED,
+                        version=2, sun=sun(direction, e, 2))
+    out["light2_sun_estimated"] = (data, expected(38, 12, 1790000001.0, sky, [1], {
+        "direction": [float(v) for v in direction], "normal_irradiance": e,
+        "source": "model", "estimated": True}, simulated=True))
+    night = np.full((3, 3), 0.015625, np.float32)
+    data = encode_light(night, np.zeros(3, bool), 13, 1790040000.0, Flags.STALE, version=2)
+    out["light2_night_no_sun"] = (data, expected(1, 13, 1790040000.0, night, [], {
+        "direction": [0.0, 0.0, 0.0], "normal_irradiance": [0.0, 0.0, 0.0],
+        "source": "none", "estimated": False}, stale=True))
     return out
 
 

@@ -224,3 +224,46 @@ async def test_site_camera_frames_go_only_to_subscribers(make_client):
         await client.ws_connect("/ws/light?streams=light,weather")
     await kiosk.close()
     await phone.close()
+
+
+async def test_each_client_gets_the_protocol_version_it_asked_for(make_client):
+    from types import SimpleNamespace
+
+    site = ManualSource("site")
+    client, app, _ = await make_client(site_source=site)
+    new, hello2 = await connect(client, "?protocol=2&streams=light,site-camera")
+    old, hello1 = await connect(client, "?streams=light,site-camera")
+    explicit_old, hello1b = await connect(client, "?protocol=1")
+    assert (hello2["protocol"], hello1["protocol"], hello1b["protocol"]) == (2, 1, 1)
+    assert "sun_estimated" in hello2["binary"]["flags"]
+    assert "sun_estimated" not in hello1["binary"]["flags"] and "sun" not in hello1
+    n = 40
+    sky = np.full((n, 3), 2.0, np.float32)
+    folded = sky.copy()
+    folded[7] += 1000.0
+    sun = SimpleNamespace(direction=np.array([0.0, 0.6, -0.8]),
+                          normal_irradiance_w_m2=np.array([800.0, 780.0, 700.0]), source=2)
+    seq = app[HUB].publish_light(sky, np.zeros(n, bool), 9.5,
+                                 protocol.Flags.SUN_ESTIMATED | protocol.Flags.SIMULATED,
+                                 sun=sun, folded_rgb=folded)
+    m2, m1, m1b = await next_binary(new), await next_binary(old), await next_binary(explicit_old)
+    assert m2.sequence == m1.sequence == m1b.sequence == seq
+    assert m2.version == 2 and m2.sun.source_name == "model" and m2.sun.estimated
+    np.testing.assert_allclose(m2.sun.normal_irradiance_w_m2, [800, 780, 700])
+    np.testing.assert_allclose(m2.sun.direction, [0.0, 0.6, -0.8], atol=1e-7)
+    assert np.all(m2.rgb == 2.0)
+    assert m1.version == 1 and m1.sun is None and m1.rgb[7, 0] == 1002.0
+    assert m1.flags == protocol.Flags.SIMULATED  # SUN_ESTIMATED is not a version-1 flag
+    await site.started()
+    from server.measure import Frame
+
+    site.push(Frame(np.zeros((48, 64, 3), np.uint8), 56.0, bgr=True))
+    f2, f1 = await next_binary(new), await next_binary(old)
+    assert (f2.type, f2.version, f1.type, f1.version) == (2, 2, 2, 1)
+    assert f2.payload == f1.payload
+    for bad in ("7", "two"):
+        with pytest.raises(aiohttp.WSServerHandshakeError) as err:
+            await client.ws_connect(f"/ws/light?protocol={bad}")
+        assert err.value.status == 400
+    for ws in (new, old, explicit_old):
+        await ws.close()

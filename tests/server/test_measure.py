@@ -167,3 +167,30 @@ def test_change_threshold_flags_and_keepalive_decide_what_is_sent():
     f.mark_sent(2.0, flags=0)
     assert not f.should_send(5.0, flags=0)
     assert f.should_send(12.5, flags=0)  # keep-alive
+
+
+def test_temporal_filter_smooths_the_sun_and_sends_its_changes():
+    f = TemporalFilter(time_constant_s=2.0, change_threshold=0.01, max_interval_s=100.0)
+    sky = np.full((4, 3), 10.0)
+    up = np.array([0.0, 1.0, 0.0])
+    f.update(sky, 0.0, np.zeros(3), up)
+    f.mark_sent(0.0)
+    f.update(sky, 2.0, np.full(3, 900.0), up)
+    assert np.allclose(f.sun, 900.0 * (1.0 - math.exp(-1.0)))  # the same time constant
+    assert f.should_send(2.0)
+    f.mark_sent(2.0)
+    # Threshold: 1 % of pi x the sky's mean radiance, 0.314 W/m^2.
+    f = TemporalFilter(time_constant_s=0.0, change_threshold=0.01, max_interval_s=100.0)
+    f.update(sky, 0.0, np.full(3, 900.0), up)
+    f.mark_sent(0.0)
+    f.update(sky, 1.0, np.full(3, 900.2), up)
+    assert not f.should_send(1.0)
+    f.update(sky, 2.0, np.full(3, 900.5), up)
+    assert f.should_send(2.0)
+    f.mark_sent(2.0)
+    tilted = np.array([math.sin(math.radians(0.1)), math.cos(math.radians(0.1)), 0.0])
+    f.update(sky, 3.0, np.full(3, 900.5), tilted)  # the sun moved 0.1 degrees
+    assert f.should_send(3.0)
+    f.mark_sent(3.0)
+    f.update(sky, 4.0, np.zeros(3), np.zeros(3))  # it set
+    assert f.should_send(4.0)

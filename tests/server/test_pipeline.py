@@ -2,6 +2,7 @@
 
 import asyncio
 import json
+import math
 
 import cv2
 import numpy as np
@@ -160,3 +161,58 @@ async def test_replay_of_a_folder_loops(aiohttp_client, build_dir, tmp_path):
     status = await (await client.get("/api/status")).json()
     assert status["source"] == f"replay:{folder}" and status["replayed_frames"] >= 7
     await client.close()
+
+
+async def first_light(ws, timeout=20.0):
+    hello = json.loads((await ws.receive(timeout=timeout)).data)
+    return hello, (await light_messages(ws, 1, timeout))[0]
+
+
+async def test_the_sun_goes_apart_to_version_2_and_into_its_patch_for_version_1(
+        aiohttp_client, build_dir, tmp_path):
+    from daylit.spherical import PatchLookup
+
+    app = create_app(build_dir, settings_for(tmp_path, sim__size_px=160,
+                                             stream__max_interval_s=0.2))
+    client = await aiohttp_client(app)
+    bad = await client.get("/ws/light?protocol=7")
+    assert bad.status == 400 and "protocol" in await bad.text()
+    new = await client.ws_connect("/ws/light?protocol=2")
+    old = await client.ws_connect("/ws/light")
+    hello2, m2 = await first_light(new)
+    hello1, m1 = await first_light(old)
+    assert (hello2["protocol"], hello1["protocol"]) == (2, 1)
+    # Both connections see every vector: find one sequence in both.
+    seen2, seen1 = {m2.sequence: m2}, {m1.sequence: m1}
+    while not set(seen2) & set(seen1):
+        for ws, seen in ((new, seen2), (old, seen1)):
+            m = (await light_messages(ws, 1))[0]
+            seen[m.sequence] = m
+    seq = min(set(seen2) & set(seen1))
+    m2, m1 = seen2[seq], seen1[seq]
+    assert m2.version == 2 and m1.version == 1 and m1.sun is None
+    sun = m2.sun
+    # The simulated camera clips the sun (8 bits): the clear-sky estimate, flagged.
+    assert sun.source_name == "model" and sun.estimated
+    assert m2.flags & protocol.Flags.SUN_ESTIMATED and not m1.flags & 32
+    assert 500.0 < float(sun.normal_irradiance_w_m2[1]) < 1100.0  # a June morning
+    pipeline = app[PIPELINE]
+    truth = pipeline.latest_frame.truth.sun
+    assert float(sun.direction @ truth.direction) > math.cos(math.radians(0.2))
+    manifest = json.loads((build_dir / "manifest.json").read_text())
+    lights = manifest["dome"]["lights"]
+    tris = np.array([light["vertices"] for light in lights])
+    patch = int(PatchLookup(tris)(sun.direction[None].astype(float))[0])
+    omega = lights[patch]["solid_angle_sr"]
+    expected = m2.rgb.astype(np.float64)
+    expected[patch] += sun.normal_irradiance_w_m2 / omega
+    np.testing.assert_allclose(m1.rgb, expected, rtol=1e-5)
+    assert not m2.saturated.any()  # only the sun clipped, and it was taken out
+    status = await (await client.get("/api/status")).json()
+    s = status["sun"]
+    assert s["source"] == "model" and 0.9 <= s["visible_fraction"] <= 1.0
+    assert abs(s["elevation_deg"] - status["sun_elevation_deg"]) < 0.5  # a frame apart
+    assert len(s["normal_irradiance_W_m2"]) == 3 and s["normal_irradiance_W_m2"][1] > 500
+    assert status["clients_protocol_1"] == 1
+    await new.close()
+    await old.close()

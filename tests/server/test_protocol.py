@@ -44,6 +44,14 @@ def test_python_decoder_reads_the_vectors(path):
         assert np.flatnonzero(m.saturated).tolist() == expected["saturated"]
         assert bool(m.flags & protocol.Flags.STALE) == expected["stale"]
         assert bool(m.flags & protocol.Flags.SIMULATED) == expected["simulated"]
+        if expected["sun"] is None:
+            assert m.version == 1 and m.sun is None
+        else:
+            sun = expected["sun"]
+            assert m.version == 2
+            assert m.sun.direction.tolist() == sun["direction"]
+            assert m.sun.normal_irradiance_w_m2.tolist() == sun["normal_irradiance"]
+            assert (m.sun.source_name, m.sun.estimated) == (sun["source"], sun["estimated"])
     else:
         assert m.payload.hex() == expected["payload_hex"]
 
@@ -51,7 +59,38 @@ def test_python_decoder_reads_the_vectors(path):
 def test_header_layout_is_24_bytes_and_light_size_formula():
     assert protocol.HEADER_BYTES == 24
     data = protocol.encode_light(np.ones((400, 3)), np.zeros(400, bool), 1, 2.0)
-    assert len(data) == protocol.light_message_bytes(400) == 24 + 4800 + 50
+    assert len(data) == protocol.light_message_bytes(400, version=1) == 24 + 4800 + 50
+    data = protocol.encode_light(np.ones((400, 3)), np.zeros(400, bool), 1, 2.0, version=2)
+    assert len(data) == protocol.light_message_bytes(400) == 52 + 4800 + 50
+
+
+def test_version_1_drops_the_flags_it_does_not_know():
+    data = protocol.encode_light(np.ones((2, 3)), np.zeros(2, bool), 1, 2.0,
+                                 protocol.Flags.SUN_ESTIMATED | protocol.Flags.STALE, version=1)
+    assert decode(data).flags == protocol.Flags.STALE
+    with pytest.raises(ValueError, match="version"):
+        protocol.encode_light(np.ones((2, 3)), np.zeros(2, bool), 1, 2.0, version=3)
+
+
+def test_fold_sun_puts_the_irradiance_over_its_patch_solid_angle():
+    from types import SimpleNamespace
+
+    sky = np.ones((3, 3), np.float32)
+    sun = SimpleNamespace(normal_irradiance_w_m2=np.array([900.0, 850.0, 800.0]))
+    folded = protocol.fold_sun(sky, sun, 1, np.array([0.5, 0.25, 0.125]))
+    assert folded.tolist() == [[1, 1, 1], [3601, 3401, 3201], [1, 1, 1]]
+    assert protocol.fold_sun(sky, None, 1, np.ones(3)).tolist() == sky.tolist()
+
+
+@pytest.mark.parametrize(("text", "version"), [(None, 1), ("", 1), ("1", 1), ("2", 2)])
+def test_protocol_query_parameter(text, version):
+    assert protocol.parse_protocol(text) == version
+
+
+@pytest.mark.parametrize("text", ["7", "two", "0", "3"])
+def test_unknown_protocol_versions_are_refused(text):
+    with pytest.raises(ProtocolError, match="protocol"):
+        protocol.parse_protocol(text)
 
 
 @pytest.mark.parametrize(

@@ -22,6 +22,9 @@ for (const file of readdirSync(dir).filter((f) => f.endsWith('.bin')).sort()) {
       for (let i = 0; i < m.count; i++) entry.rgb.push(Array.from(m.rgb.subarray(3 * i, 3 * i + 3)));
       entry.saturated = [];
       m.saturated.forEach((bit, i) => { if (bit) entry.saturated.push(i); });
+      entry.sun = m.sun && { direction: m.sun.direction,
+        normal_irradiance: m.sun.normalIrradiance, source: m.sun.source,
+        estimated: m.sun.estimated };
     } else {
       entry.payload_hex = Buffer.from(m.payload).toString('hex');
     }

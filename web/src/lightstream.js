@@ -19,7 +19,9 @@ export class LightStream {
   /**
    * @param {{siteCamera?: boolean, url?: string, onLight?: Function, onFrame?: Function,
    *   onMask?: Function, onHello?: Function, onState?: Function}} options
-   *   onLight({rgb, saturated, sequence, captureTime, stale, flags}),
+   *   onLight({rgb, saturated, sequence, captureTime, stale, flags, sun}): sun is
+   *   {direction, normalIrradiance, source, estimated} (protocol 2) or null (an older
+   *   server's protocol 1: the sun is then inside its patch's value in rgb),
    *   onFrame({jpeg: Uint8Array, sequence, captureTime}),
    *   onMask({width, height, mask, people, sequence, captureTime}),
    *   onState(state): 'connecting' | 'open' | 'reconnecting' | 'closed'.
@@ -118,7 +120,7 @@ export class LightStream {
       this.messages.light += 1;
       this.options.onLight?.({
         rgb: msg.rgb, saturated: msg.saturated, sequence: msg.sequence,
-        captureTime: msg.captureTime, stale: msg.stale, flags: msg.flags,
+        captureTime: msg.captureTime, stale: msg.stale, flags: msg.flags, sun: msg.sun,
       });
     } else if (msg.type === MessageType.SITE_CAMERA) {
       this.messages['site-camera'] += 1;

@@ -1,13 +1,22 @@
-// The light stream's wire format, protocol version 1 (docs/protocol.md).
+// The light stream's wire format, protocol versions 1 and 2 (docs/protocol.md).
 // A pure ES module: no DOM, no network; the web client and the Node tests import it.
 //
 // Binary messages are little-endian: a 24-byte header
 //   0 magic "DLYT" | 4 u8 version | 5 u8 type | 6 u16 flags | 8 u32 sequence
 //   12 u32 count | 16 f64 capture time (Unix seconds)
-// then, for LIGHT, count x RGB float32 and a saturated bitmask of ceil(count / 8) bytes
-// (bit i % 8 of byte i >> 3, least significant bit first); for other types, count bytes.
+// then, for LIGHT of version 2, the sun (28 bytes):
+//   24 f32[3] direction (unit, site frame +X east, +Y up, -Z north; zeros when none)
+//   36 f32[3] normal irradiance RGB, W/m^2 | 48 u8 source (0 none, 1 measured, 2 model,
+//   3 scene) | 49 u8[3] reserved
+// then (both versions) count x RGB float32 (version 2: the sky without the sun's disc) and
+// a saturated bitmask of ceil(count / 8) bytes (bit i % 8 of byte i >> 3, least significant
+// bit first); for other types, count bytes. This client asks for version 2
+// (lightStreamUrl) and still reads version 1 (an older server), with sun: null.
 
-export const PROTOCOL_VERSION = 1;
+export const PROTOCOL_VERSION = 2;
+export const SUPPORTED_VERSIONS = Object.freeze([1, 2]);
+export const SUN_BYTES = 28;
+export const SUN_SOURCES = Object.freeze(['none', 'measured', 'model', 'scene']);
 export const MAGIC = 'DLYT';
 export const HEADER_BYTES = 24;
 
@@ -22,6 +31,8 @@ export const Flags = Object.freeze({
   SATURATED: 2,
   SIMULATED: 4,
   REPLAY: 8,
+  LEARNING: 16,
+  SUN_ESTIMATED: 32,
 });
 
 const TYPE_NAMES = { 1: 'light', 2: 'site-camera', 3: 'occlusion-mask' };
@@ -40,8 +51,10 @@ function asDataView(data) {
  * @returns {{type:number, typeName:string, version:number, flags:number, stale:boolean,
  *   saturatedFlag:boolean, simulated:boolean, replay:boolean, sequence:number,
  *   captureTime:number, count:number, rgb?:Float32Array, saturated?:Uint8Array,
- *   payload?:Uint8Array}}
- *   rgb holds count x 3 values (light-major); saturated[i] is 1 when light i clipped.
+ *   sun?:({direction:number[], normalIrradiance:number[], source:string,
+ *   estimated:boolean}|null), payload?:Uint8Array}}
+ *   rgb holds count x 3 values (light-major); saturated[i] is 1 when light i clipped;
+ *   sun (LIGHT only) is null in version 1 (the sun is then inside its patch's value).
  * @throws {ProtocolError} when the message is malformed.
  */
 export function decodeMessage(data) {
@@ -53,7 +66,7 @@ export function decodeMessage(data) {
     view.getUint8(0), view.getUint8(1), view.getUint8(2), view.getUint8(3));
   if (magic !== MAGIC) throw new ProtocolError('bad magic');
   const version = view.getUint8(4);
-  if (version !== PROTOCOL_VERSION) {
+  if (!SUPPORTED_VERSIONS.includes(version)) {
     throw new ProtocolError(`unsupported protocol version ${version}`);
   }
   const type = view.getUint8(5);
@@ -74,14 +87,27 @@ export function decodeMessage(data) {
   const bodyBytes = view.byteLength - HEADER_BYTES;
   if (type === MessageType.LIGHT) {
     const n = msg.count;
-    const need = 12 * n + ((n + 7) >> 3);
+    const sunBytes = version >= 2 ? SUN_BYTES : 0;
+    const need = sunBytes + 12 * n + ((n + 7) >> 3);
     if (bodyBytes !== need) {
       throw new ProtocolError(`light message of ${n} lights needs ${need} payload bytes`);
     }
+    msg.sun = null;
+    if (sunBytes) {
+      const f = (k) => view.getFloat32(HEADER_BYTES + 4 * k, true);
+      const source = view.getUint8(HEADER_BYTES + 24);
+      msg.sun = {
+        direction: [f(0), f(1), f(2)],
+        normalIrradiance: [f(3), f(4), f(5)],
+        source: SUN_SOURCES[source] ?? 'unknown',
+        estimated: (flags & Flags.SUN_ESTIMATED) !== 0,
+      };
+    }
+    const start = HEADER_BYTES + sunBytes;
     const rgb = new Float32Array(3 * n);
-    for (let i = 0; i < 3 * n; i++) rgb[i] = view.getFloat32(HEADER_BYTES + 4 * i, true);
+    for (let i = 0; i < 3 * n; i++) rgb[i] = view.getFloat32(start + 4 * i, true);
     const saturated = new Uint8Array(n);
-    const maskStart = HEADER_BYTES + 12 * n;
+    const maskStart = start + 12 * n;
     for (let i = 0; i < n; i++) {
       saturated[i] = (view.getUint8(maskStart + (i >> 3)) >> (i & 7)) & 1;
     }
@@ -109,8 +135,9 @@ export function parseHello(text) {
     throw new ProtocolError('hello is not JSON');
   }
   if (!hello || hello.type !== 'hello') throw new ProtocolError('expected a hello message');
-  if (hello.protocol !== PROTOCOL_VERSION) {
-    throw new ProtocolError(`server speaks protocol ${hello.protocol}, client ${PROTOCOL_VERSION}`);
+  if (!SUPPORTED_VERSIONS.includes(hello.protocol)) {
+    throw new ProtocolError(
+      `server speaks protocol ${hello.protocol}, client ${SUPPORTED_VERSIONS.join(' or ')}`);
   }
   if (!Number.isInteger(hello.lights) || hello.lights < 1) {
     throw new ProtocolError('hello has no light count');
@@ -128,11 +155,15 @@ export function pingMessage(id) {
   return JSON.stringify({ type: 'ping', id });
 }
 
-/** WebSocket URL of the light stream for a page at `location` (an URL or Location). */
+/**
+ * WebSocket URL of the light stream for a page at `location` (an URL or Location), asking
+ * for protocol version 2 (a server that only knows version 1 ignores the parameter).
+ */
 export function lightStreamUrl(location, streams = ['light']) {
   const scheme = location.protocol === 'https:' ? 'wss:' : 'ws:';
-  const query = streams.length ? `?streams=${streams.join(',')}` : '';
-  return `${scheme}//${location.host}/ws/light${query}`;
+  const params = [`protocol=${PROTOCOL_VERSION}`];
+  if (streams.length) params.push(`streams=${streams.join(',')}`);
+  return `${scheme}//${location.host}/ws/light?${params.join('&')}`;
 }
 
 // ------------------------------------------------------------------------------------------
