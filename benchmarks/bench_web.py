@@ -1,9 +1,10 @@
 """Benchmark of the web client (issue 5) in headless Chromium (SwiftShader WebGL2) on this
 machine, in one run with same-run baselines:
 
-1. frame time of the demo relit by daylit against the same meshes drawn the ordinary three.js
-   way (MeshStandardMaterial, a DirectionalLight with a 2048^2 PCF shadow map, a
-   HemisphereLight): goal ratio <= 1.2;
+1. frame time of the demo relit by daylit, the sun drawn with its shadow maps (docs/sun.md),
+   against the same meshes drawn the ordinary three.js way (MeshStandardMaterial, a
+   DirectionalLight with a 2048^2 PCF shadow map, a HemisphereLight): goal ratio <= 1.2; and
+   daylit's frame with the sun switched off (no shadow-map reads), to show the sun's cost;
 2. frame time with 40 against 400 lights: goal ratio <= 1.05 (frames only sample the relit
    targets);
 3. relight-pass time against the number of lights and, per stack, against k (layers);
@@ -89,20 +90,39 @@ class Subject:
         page.goto(f"{self.server.url}/?mode=visit&test&exposure=0.02")
         page.wait_for_function("window.daylit.status.ready && window.daylit.status.lightsExact"
                                " && window.daylit.status.firstRelitMs !== null", timeout=180000)
-        r = self.ref.light_vector(SKY).astype("float32").ravel().tolist()
-        page.evaluate("(r) => window.daylit.debug.relight(r, 1)", r)  # and stop the stream
+        from daylit import sky as skies
+
+        azimuth_deg, elevation_deg = (float(v) for v in SKY.split(":")[1].split(","))
+        clear = skies.clear_sky(azimuth_deg, elevation_deg)
+        self.sky = skies.patch_mean_radiance(clear, self.ref.dome_vertices, include_sun=False)
+        self.sun = {
+            "direction": skies.direction_from_azimuth_elevation(azimuth_deg,
+                                                                elevation_deg).tolist(),
+            "normalIrradiance": clear.sun.normal_irradiance.tolist(),
+        }
+        self.set_sun(True)  # and stop the stream
         # The hull planes too (fetched on demand in hull-plane mode), so that every atlas stack
         # is timed; the frames below stay in lightmap mode, where they are not drawn.
         page.evaluate("window.daylit.debug.activateAll()")
         page.evaluate("window.daylit.debug.setCamera([55, 28, 70], [0, 2, 0])")
-        self.ours, self.standard, self.relight = [], [], []
+        self.ours, self.no_sun, self.standard, self.relight = [], [], [], []
         self.stacks: dict[str, list[dict]] = {}
 
-    def frames(self, n: int, standard: bool) -> None:
+    def set_sun(self, on: bool) -> None:
+        self.page.evaluate("([r, s]) => window.daylit.debug.relight(r, 1, s)",
+                           [self.sky.ravel().tolist(), self.sun if on else None])
+
+    def frames(self, n: int, variant: str) -> None:
+        """variant: "daylit" (with the sun), "no sun" or "standard" (plain three.js)."""
+        standard = variant == "standard"
+        if variant == "no sun":
+            self.set_sun(False)
         self.page.evaluate(f"window.daylit.debug.useStandardMaterials({str(standard).lower()})")
         ms = self.page.evaluate(f"window.daylit.debug.timeFrames({n})")
-        (self.standard if standard else self.ours).append(ms)
+        {"daylit": self.ours, "no sun": self.no_sun, "standard": self.standard}[variant].append(ms)
         self.page.evaluate("window.daylit.debug.useStandardMaterials(false)")
+        if variant == "no sun":
+            self.set_sun(True)
 
     def relight_pass(self) -> None:
         self.relight.append(self.page.evaluate("window.daylit.debug.timeRelight(6)"))
@@ -117,6 +137,7 @@ class Subject:
         return {
             "lights": self.ref.light_count,
             "frame_ms": statistics.median(self.ours), "frame_ms_all": self.ours,
+            "no_sun_ms": statistics.median(self.no_sun), "no_sun_ms_all": self.no_sun,
             "standard_ms": statistics.median(self.standard), "standard_ms_all": self.standard,
             "relight_ms": statistics.median(self.relight), "relight_ms_all": self.relight,
             "stacks": stacks,
@@ -132,9 +153,11 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=60)
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--size", default="960x540")
+    parser.add_argument("--lights", type=int, nargs="+", default=[40, 400],
+                        help="dome sizes to compare (default: 40 400; the first is the base)")
     args = parser.parse_args()
     size = tuple(int(v) for v in args.size.split("x"))
-    builds = {n: ensure_build(n) for n in (40, 400)}
+    builds = {n: ensure_build(n) for n in args.lights}
     sky_dir = replay_dir()
     from playwright.sync_api import sync_playwright
 
@@ -147,9 +170,9 @@ def main() -> None:
                 subjects[n] = Subject(browser, build, sky_dir, size)
             # Interleaved, so that the shared machine's load hits every variant alike.
             for _ in range(args.rounds):
-                for standard in (False, True):
+                for variant in ("daylit", "no sun", "standard"):
                     for subject in subjects.values():
-                        subject.frames(args.frames, standard)
+                        subject.frames(args.frames, variant)
                 for subject in subjects.values():
                     subject.relight_pass()
             results = {n: {**subject.result(), **loads[n]} for n, subject in subjects.items()}
@@ -157,11 +180,12 @@ def main() -> None:
             for subject in subjects.values():
                 subject.close()
             browser.close()
-    a, b = results[40], results[400]
+    a, b = results[args.lights[0]], results[args.lights[-1]]
     print(f"\nweb client, headless Chromium + SwiftShader, {size[0]}x{size[1]}, "
           f"{args.frames} frames x {args.rounds} rounds (medians)")
     for n, res in results.items():
-        print(f"  {n:4d} lights: daylit {res['frame_ms']:.2f} ms/frame, three.js standard "
+        print(f"  {n:4d} lights: daylit {res['frame_ms']:.2f} ms/frame (sun and its shadows), "
+              f"{res['no_sun_ms']:.2f} without the sun, three.js standard "
               f"{res['standard_ms']:.2f} ms/frame, ratio {res['frame_ms'] / res['standard_ms']:.2f}"
               f" (goal <= 1.2)")
     print(f"  frame time 400 / 40 lights: {b['frame_ms'] / a['frame_ms']:.3f} (goal <= 1.05); "

@@ -84,6 +84,11 @@ export function debugApi(app) {
     },
     /** How often the sun's shadow maps were rendered (they follow the sun, not the frames). */
     sunShadowRenders: () => app.sunShadows?.renders ?? 0,
+    /** Each shadow map's metres per texel and the maps' GPU bytes. */
+    sunMaps: () => ({
+      texelM: Object.fromEntries(Object.entries(app.sunShadows?.maps ?? {}).map(([k, m]) => [k, m.info.x])),
+      gpuBytes: app.sunShadows?.gpuBytes ?? 0,
+    }),
     targets: () => Object.keys(app.relighter.targets),
     /** The applied light vector and one target read back in the same instant. */
     snapshot(key) {

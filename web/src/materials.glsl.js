@@ -24,8 +24,13 @@ void main() {
 // The sun's visibility past both caster sets, and the facing normal of a double-sided face.
 const sunCommon = /* glsl */ `
 ${sunShadowChunk}
-float sunVisibilityVirtual(vec3 p, vec3 n) { return sunVisibilityIn(sunMapV, sunMatrixV, sunInfoV, p, n); }
-float sunVisibilityReal(vec3 p, vec3 n) { return sunVisibilityIn(sunMapR, sunMatrixR, sunInfoR, p, n); }
+float sunVisibilityVirtual(vec3 p, vec3 n) { return sunVisibilityIn(sunMapV, sunCoarseV, sunMatrixV, sunInfoV, p, n); }
+float sunVisibilityReal(vec3 p, vec3 n) { return sunVisibilityIn(sunMapR, sunCoarseR, sunMatrixR, sunInfoR, p, n); }
+// Past both sets: the real map first, the virtual one only where the real lets the sun through.
+float sunVisibilityBoth(vec3 p, vec3 n) {
+  float real = sunVisibilityReal(p, n);
+  return real > 0.0 ? real * sunVisibilityVirtual(p, n) : 0.0;
+}
 vec3 facingNormal() {
   vec3 n = normalize(vNormalW);
   return gl_FrontFacing ? n : -n;
@@ -70,7 +75,7 @@ ${sunCommon}
 void main() {
   vec3 n = facingNormal();
   vec3 sun = sunOnSurface(n);
-  if (sun != vec3(0.0)) sun *= sunVisibilityVirtual(vPositionW, n) * sunVisibilityReal(vPositionW, n);
+  if (sun != vec3(0.0)) sun *= sunVisibilityBoth(vPositionW, n);
   vec3 e = mix(flatIrradiance, decodeTarget(texture2D(irradianceTex, vUv)) + sun, shading);
   ${output('albedo / 3.14159265 * e * exposure')}
 }
@@ -141,8 +146,8 @@ void main() {
   float vv = 1.0;
   float vr = 1.0;
   if (S != vec3(0.0)) {
-    vv = sunVisibilityVirtual(vPositionW, n);
     vr = sunVisibilityReal(vPositionW, n);
+    vv = vr > 0.0 ? sunVisibilityVirtual(vPositionW, n) : 1.0; // inside a real shadow vv is not used
   }
   vec3 present = D - X + S * vv * vr;
   vec3 absent = D + S * mix(1.0, vr, dHasReal);
@@ -181,7 +186,8 @@ void main() {
   vec3 n = facingNormal();
   vec3 sun = sunOnSurface(n);
   if (sun != vec3(0.0)) {
-    sun *= sunVisibilityReal(vPositionW, n) * mix(1.0, sunVisibilityVirtual(vPositionW, n), strength);
+    float real = sunVisibilityReal(vPositionW, n);
+    sun *= real > 0.0 ? real * mix(1.0, sunVisibilityVirtual(vPositionW, n), strength) : 0.0;
   }
   vec3 e = max(D - strength * X, vec3(0.0)) + sun;
   ${output('albedo / 3.14159265 * e * exposure')}
@@ -202,7 +208,7 @@ ${sunCommon}
 void main() {
   vec3 n = vec3(0.0, 1.0, 0.0);
   vec3 sun = sunOnSurface(n);
-  if (sun != vec3(0.0)) sun *= sunVisibilityVirtual(vPositionW, n) * sunVisibilityReal(vPositionW, n);
+  if (sun != vec3(0.0)) sun *= sunVisibilityBoth(vPositionW, n);
   ${output('albedo / 3.14159265 * (openIrradiance + sun) * exposure')}
 }
 `;

@@ -12,19 +12,81 @@
 // The scene is static, so the maps are rendered only when the sun moves (a new light
 // vector), never per frame; a frame pays only the filter's texture reads.
 import * as THREE from 'three';
+import { FullscreenPass } from './relight.js';
 
 export const SUN_ANGULAR_RADIUS_DEG = 0.2666;
 const TAN_SUN = Math.tan(SUN_ANGULAR_RADIUS_DEG * Math.PI / 180);
 const MAP_SIZE = 2048;
+// The coarse map: per CELL x CELL block of the depth map, the least and greatest depth over
+// the block and CELL texels around it, so one read answers "no caster near" (lit) or "casters
+// everywhere near" (umbra) for any search disc of up to CELL texels.
+const CELL = 16;
+const COARSE = MAP_SIZE / CELL;
 const LAYER = { virtual: 1, real: 2 };
 const MIN_FIT_ELEVATION_SIN = Math.sin(3 * Math.PI / 180); // shadows of a lower sun are clipped
-const RERENDER_COS = Math.cos(0.01 * Math.PI / 180); // re-render when the sun moved 0.01 deg
+// Re-render when the sun moved 0.05 deg (a shadow edge 10 m from its caster moves 9 mm / sin
+// of the sun's elevation: a fraction of its penumbra; the demo's clock at 20x moves the sun
+// that far every 0.6 s).
+const RERENDER_COS = Math.cos(0.05 * Math.PI / 180);
 
 /**
  * GLSL of the sun term, shared by every material that receives the sun. Uniforms:
  * sunIrradiance (RGB normal irradiance, W/m^2), sunDirection (unit, toward the sun), and per
  * caster set X in {V, R}: sunMapX (depth), sunMatrixX (world -> the sun camera's clip space),
  * sunInfoX = (metres per texel, near m, far - near m, 1 when the map holds casters).
+ */
+/** Vogel's spiral: `count` evenly spread points on the unit disc, as a GLSL vec2 array. */
+function spiral(name, count) {
+  const points = Array.from({ length: count }, (_, i) => {
+    const r = Math.sqrt((i + 0.5) / count);
+    const a = i * 2.39996323;
+    return `vec2(${(r * Math.cos(a)).toFixed(6)}, ${(r * Math.sin(a)).toFixed(6)})`;
+  });
+  return `const vec2 ${name}[${count}] = vec2[](${points.join(', ')});`;
+}
+
+const BLOCKER_SAMPLES = 12;
+const FILTER_SAMPLES = 32;
+
+// 16-bit depths in two 8-bit channels (RGBA8 renders everywhere; float targets do not).
+const PACK16 = /* glsl */ `
+vec2 pack16(float units) { return vec2(floor(units / 256.0), mod(units, 256.0)) / 255.0; }
+float unpack16(vec2 p) { return (p.x * 65280.0 + p.y * 255.0) / 65535.0; }
+`;
+
+/** Reduction of the depth map to its coarse map, along x (pass 0) then y (pass 1). */
+function coarseFragment(pass) {
+  const read = pass === 0
+    ? 'float d = texelFetch(source, ivec2(x, y), 0).r; lo = min(lo, d); hi = max(hi, d);'
+    : 'vec4 t = texelFetch(source, ivec2(x, y), 0); lo = min(lo, unpack16(t.rg)); hi = max(hi, unpack16(t.ba));';
+  const loop = pass === 0
+    ? `int y = int(gl_FragCoord.y); int c = int(gl_FragCoord.x);
+  for (int x = max(0, (c - 1) * ${CELL}); x < min(${MAP_SIZE}, (c + 2) * ${CELL}); x++) { ${read} }`
+    : `int x = int(gl_FragCoord.x); int c = int(gl_FragCoord.y);
+  for (int y = max(0, (c - 1) * ${CELL}); y < min(${MAP_SIZE}, (c + 2) * ${CELL}); y++) { ${read} }`;
+  return /* glsl */ `
+precision highp float;
+precision highp int;
+uniform highp sampler2D source;
+out vec4 outColor;
+${PACK16}
+void main() {
+  float lo = 1.0;
+  float hi = 0.0;
+  ${loop}
+  // rounded outward: the bounds stay bounds
+  outColor = vec4(pack16(floor(lo * 65535.0)), pack16(ceil(hi * 65535.0)));
+}
+`;
+}
+
+/**
+ * GLSL of the sun term, shared by every material that receives the sun. Uniforms:
+ * sunIrradiance (RGB normal irradiance, W/m^2), sunDirection (unit, toward the sun), and per
+ * caster set X in {V, R}: sunMapX (depth), sunMatrixX (world -> the sun camera's clip space),
+ * sunInfoX = (metres per texel, near m, far - near m, 1 when the map holds casters).
+ * Cost: a lit or umbral pixel reads BLOCKER_SAMPLES texels per map; only penumbrae (where the
+ * blocker search finds some but not all samples blocked) read FILTER_SAMPLES more.
  */
 export const sunShadowChunk = /* glsl */ `
 uniform vec3 sunIrradiance;
@@ -35,47 +97,53 @@ uniform mat4 sunMatrixV;
 uniform mat4 sunMatrixR;
 uniform vec4 sunInfoV;
 uniform vec4 sunInfoR;
+uniform sampler2D sunCoarseV;
+uniform sampler2D sunCoarseR;
 const float TAN_SUN = ${TAN_SUN.toFixed(9)};
-const int BLOCKER_SAMPLES = 16;
-const int FILTER_SAMPLES = 32;
-
-// Vogel's spiral: evenly spread points on the unit disc, turned by a per-pixel angle.
-vec2 sunDisc(int i, int count, float turn) {
-  float r = sqrt((float(i) + 0.5) / float(count));
-  float a = float(i) * 2.39996323 + turn;
-  return r * vec2(cos(a), sin(a));
-}
+${spiral('SUN_BLOCKER_DISC', BLOCKER_SAMPLES)}
+${spiral('SUN_FILTER_DISC', FILTER_SAMPLES)}
+${PACK16}
 
 // Fraction of the sun's disc seen past one caster set from a world point with normal n.
-float sunVisibilityIn(sampler2D map, mat4 M, vec4 info, vec3 position, vec3 n) {
+float sunVisibilityIn(sampler2D map, sampler2D coarse, mat4 M, vec4 info, vec3 position, vec3 n) {
   if (info.w < 0.5) return 1.0;
   float texel = info.x;
   vec4 clip = M * vec4(position + n * (1.5 * texel), 1.0);
   vec3 q = clip.xyz * 0.5 + 0.5;
   if (q.x <= 0.0 || q.y <= 0.0 || q.x >= 1.0 || q.y >= 1.0 || q.z >= 1.0) return 1.0;
-  float depth = info.y + q.z * info.z;   // metres from the map's near plane
+  float depth = info.y + q.z * info.z;   // metres from the sun camera
   float bias = 1.5 * texel;
   float toUv = 1.0 / (texel * ${MAP_SIZE}.0);
-  // Interleaved gradient noise turns the spiral from pixel to pixel (no banding).
+  // A blocker lies between the near plane (the casters' nearest point) and the receiver.
+  float searchM = max((depth - info.y) * TAN_SUN, 1.5 * texel);
+  if (searchM <= ${CELL}.0 * texel) {
+    // One read of the coarse map settles most pixels: no caster near, or casters all around.
+    vec4 bounds = texelFetch(coarse, ivec2(q.xy * ${COARSE}.0), 0);
+    if (info.y + unpack16(bounds.rg) * info.z >= depth - bias) return 1.0;
+    if (info.y + unpack16(bounds.ba) * info.z < depth - bias) return 0.0;
+  }
+  // Interleaved gradient noise turns the spirals from pixel to pixel (no banding).
   float turn = 6.2831853 * fract(52.9829189 * fract(dot(gl_FragCoord.xy, vec2(0.06711056, 0.00583715))));
+  mat2 rotate = mat2(cos(turn), sin(turn), -sin(turn), cos(turn));
   // 1. Blockers: any caster nearer than the receiver within the largest penumbra possible.
-  float searchM = max(depth * TAN_SUN, 1.5 * texel);
+  float searchUv = searchM * toUv;
   float blockers = 0.0;
   float blockerDepth = 0.0;
-  for (int i = 0; i < BLOCKER_SAMPLES; i++) {
-    float z = info.y + texture2D(map, q.xy + sunDisc(i, BLOCKER_SAMPLES, turn) * searchM * toUv).r * info.z;
+  for (int i = 0; i < ${BLOCKER_SAMPLES}; i++) {
+    float z = info.y + texture2D(map, q.xy + rotate * SUN_BLOCKER_DISC[i] * searchUv).r * info.z;
     if (z < depth - bias) { blockers += 1.0; blockerDepth += z; }
   }
   if (blockers == 0.0) return 1.0;
+  if (blockers == ${BLOCKER_SAMPLES}.0) return 0.0; // the whole search disc is blocked: umbra
   // 2. The disc's footprint at the blockers' mean distance: each sample is one direction
   //    within the sun's disc, blocked or not.
-  float radiusM = max((depth - blockerDepth / blockers) * TAN_SUN, texel);
+  float radiusUv = max((depth - blockerDepth / blockers) * TAN_SUN, texel) * toUv;
   float lit = 0.0;
-  for (int i = 0; i < FILTER_SAMPLES; i++) {
-    float z = info.y + texture2D(map, q.xy + sunDisc(i, FILTER_SAMPLES, turn) * radiusM * toUv).r * info.z;
+  for (int i = 0; i < ${FILTER_SAMPLES}; i++) {
+    float z = info.y + texture2D(map, q.xy + rotate * SUN_FILTER_DISC[i] * radiusUv).r * info.z;
     lit += z < depth - bias ? 0.0 : 1.0;
   }
-  return lit / float(FILTER_SAMPLES);
+  return lit / ${FILTER_SAMPLES}.0;
 }
 
 // The sun's cosine-weighted normal irradiance on a surface (W/m^2, RGB), unshadowed.
@@ -95,6 +163,8 @@ export function sunUniforms() {
     sunMatrixR: { value: new THREE.Matrix4() },
     sunInfoV: { value: new THREE.Vector4(1, 0, 1, 0) },
     sunInfoR: { value: new THREE.Vector4(1, 0, 1, 0) },
+    sunCoarseV: { value: null },
+    sunCoarseR: { value: null },
   };
 }
 
@@ -112,6 +182,15 @@ class ShadowMap {
     });
     const depth = this.target.depthTexture;
     depth.minFilter = depth.magFilter = THREE.NearestFilter;
+    const coarseTarget = (w, h) => new THREE.WebGLRenderTarget(w, h, {
+      minFilter: THREE.NearestFilter, magFilter: THREE.NearestFilter, generateMipmaps: false, depthBuffer: false,
+    });
+    this.rows = coarseTarget(COARSE, MAP_SIZE); // reduced along x
+    this.coarse = coarseTarget(COARSE, COARSE); // then along y
+    this.reduce = [0, 1].map((pass) => new FullscreenPass({
+      fragmentShader: coarseFragment(pass),
+      uniforms: { source: { value: pass === 0 ? depth : this.rows.texture } },
+    }));
     this.camera = new THREE.OrthographicCamera(-1, 1, 1, -1, 0.1, 10);
     this.camera.layers.set(layer);
     this.matrix = new THREE.Matrix4();
@@ -163,9 +242,18 @@ class ShadowMap {
     this.info.set(2 * half / MAP_SIZE, cam.near, cam.far - cam.near, 1);
   }
 
+  /** The coarse map from the depth map just rendered. */
+  reduceDepth(renderer) {
+    this.reduce[0].render(renderer, this.rows);
+    this.reduce[1].render(renderer, this.coarse);
+  }
+
   dispose() {
     this.target.depthTexture.dispose();
     this.target.dispose();
+    this.rows.dispose();
+    this.coarse.dispose();
+    for (const pass of this.reduce) pass.dispose();
   }
 }
 
@@ -223,8 +311,10 @@ export class SunShadows {
       renderer.setRenderTarget(map.target);
       renderer.clear(true, true, false);
       renderer.render(scene, map.camera);
+      map.reduceDepth(renderer);
       const key = set === 'virtual' ? 'V' : 'R';
       uniforms[`sunMap${key}`].value = map.target.depthTexture;
+      uniforms[`sunCoarse${key}`].value = map.coarse.texture;
       uniforms[`sunMatrix${key}`].value.copy(map.matrix);
       uniforms[`sunInfo${key}`].value.copy(map.info);
     }
@@ -233,9 +323,10 @@ export class SunShadows {
     this.renders += 1;
   }
 
-  /** Bytes of GPU memory the maps hold (depth float32 + the RGBA8 colour three.js attaches). */
+  /** Bytes of GPU memory the maps hold: depth float32 and the RGBA8 colour three.js attaches,
+   * and the coarse maps (RGBA8). */
   get gpuBytes() {
-    return Object.keys(this.maps).length * MAP_SIZE * MAP_SIZE * 8;
+    return Object.keys(this.maps).length * (MAP_SIZE * MAP_SIZE * 8 + (COARSE * MAP_SIZE + COARSE * COARSE) * 4);
   }
 
   dispose() {
