@@ -1001,7 +1001,7 @@ def compress_sun_bounce(image, name, out_dir, lights, settings) -> CompactStack 
     SVD (prior ``S = I``) fits it; k is the smallest rank whose RMS error stays within
     ``TRUNCATION_SHARE`` of the budget on every column of ``lights``
     (:func:`unit_light_skies`), and after encoding every such column is checked against the
-    master. Every base layer is refined (two-stage quantization), at the RMS stacks' level.
+    master. Base layers are refined as in :func:`compress_stack`, at the RMS stacks' level.
 
     Writes ``ktx2/<name>.base.ktx2`` and ``v/<name>.V.bin``. Returns the
     :class:`CompactStack` (its entry without ``lights``; ``error`` holds ``truncation_max``,
@@ -1016,13 +1016,15 @@ def compress_sun_bounce(image, name, out_dir, lights, settings) -> CompactStack 
     skies = unit_light_skies(n, lights)
     nothing_selected = Selection(np.zeros(n), 0)
     rms_settings = replace(settings, refine_level=settings.rms_refine_level)
-    # Every base layer refined: the sun's bounce is zero or nearly so over much of an atlas
-    # (open ground facing up sees no ground) and large on walls, so one layer's 8-bit step is
-    # several per cent of a column's mean; measured on the demo at 40 lights without it:
-    # 2.0-3.4 % RMS error after encoding, over the 1 % budget.
+    # No gain (g = 1). Measured on the demo at 40 lights (draft): 2.0-3.4 % RMS error after
+    # encoding, over the 1 % budget, at k = all 26 sun-path patches: the bounce is near zero
+    # on ground facing up and up to 50x its mean on walls, and the decoded error (median
+    # 1e-5 per texel, 4e-4 of a column's maximum) is a few per cent of the mean. Refining
+    # every base layer changed nothing (the same errors to 1e-4, 2 % more bytes). A
+    # per-texel gain, as the shadowing atlases have, is the likely remedy (not done).
     stack = compress_stack(
         image, name, out_dir, skies, identity, identity, nothing_selected, rms_settings,
-        valid=valid, verify=False, refine_all=True,
+        valid=valid, verify=False,
     )
     entry = stack.entry
     del entry["lights"]
