@@ -117,19 +117,21 @@ def add_subcommands(subparsers) -> None:
         metavar="AZ_DEG,EL_DEG,DNI_W_M2",
         help="the sun as its own light: azimuth clockwise from north, elevation above the "
         "horizon (degrees) and direct normal irradiance (W/m^2, grey); its direct term, "
-        "shadowed by the virtual models and real proxies, is added",
+        "shadowed by the virtual models and real proxies, and its bounce off the ground, walls "
+        "and models are added",
     )
     probe.add_argument(
         "--compact",
         action="store_true",
-        help="the sky's part from the compact GPU textures (as the web client sums them) "
-        "instead of the EXR masters",
+        help="the sky's part and the sun's bounce from the compact GPU textures (as the web "
+        "client sums them) instead of the EXR masters",
     )
     probe.add_argument(
         "--json",
         action="store_true",
         help="print a JSON list, one object per point: point_m, normal, receiver, "
-        "irradiance_W_m2, sky_W_m2, sun_W_m2, sun_visible_fraction, without_virtual_objects",
+        "irradiance_W_m2 (sky + sun + sun bounce), sky_W_m2, sun_W_m2, sun_bounce_W_m2, "
+        "sun_visible_fraction, without_virtual_objects",
     )
     probe.set_defaults(run=run_probe)
 
@@ -196,7 +198,8 @@ def run_probe(args) -> int:
                 parse_sky(args.sky), build.dome_vertices, include_sun=sun is None
             )
         results = probe.evaluate(
-            build, points, light_vector, sun, source="compact" if args.compact else "master"
+            build, points, light_vector, sun, source="compact" if args.compact else "master",
+            warn=lambda message: print(f"warning: {message}", file=sys.stderr),
         )
     except (ProbeError, ManifestError, EnvMapError, ValueError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -79,6 +79,7 @@ class Build:
         self._surfaces = None
         self._sun_casters = None
         self._composites: dict = {}
+        self._sun_composites: dict = {}  # (atlas, stack, patch): a compact sun-bounce column
         self.solid_angles = np.array(
             [light["solid_angle_sr"] for light in self.manifest["dome"]["lights"]]
         )
@@ -102,6 +103,27 @@ class Build:
                 self.dir / self._entry(atlas)["stacks"][name]["master"]
             )
         return self._stacks[key]
+
+    def sun_bounce_stack(self, atlas: str, name: str) -> np.ndarray:
+        """The master sun-bounce stack (H, W, n, 3) of an atlas (``atlas["sun_bounce"]``)."""
+        key = (atlas, "sun_bounce", name)
+        if key not in self._stacks:
+            self._stacks[key] = read_stack_exr(
+                self.dir / self.atlases[atlas]["sun_bounce"][name]["master"]
+            )
+        return self._stacks[key]
+
+    def sun_bounce_compact(self, atlas: str, name: str):
+        """The compact reader of a sun-bounce stack (a low-rank base alone)."""
+        from bake.compress import CompactReader
+
+        key = (atlas, "sun_bounce", name)
+        if key not in self._compact:
+            entry = self.atlases[atlas]
+            self._compact[key] = CompactReader(
+                self.dir, entry["sun_bounce"][name]["compact"], (entry["height"], entry["width"])
+            )
+        return self._compact[key]
 
     def compact(self, atlas: str, name: str):
         """The compact reader of a stack (see ``bake.compress.CompactReader``)."""
@@ -177,6 +199,88 @@ class Build:
         return self.sun_casters.irradiance(
             points, normals, sun_direction, normal_irradiance_rgb, without=without
         )
+
+    def sun_patch(self, sun_direction) -> int | None:
+        """The dome patch holding the direction toward the sun, or None below the horizon."""
+        from daylit.spherical import PatchLookup
+
+        s = np.asarray(sun_direction, dtype=np.float64)
+        s = s / np.linalg.norm(s)
+        if s[1] <= 0.0:
+            return None
+        return int(PatchLookup(self.dome_vertices)(s[None, :])[0])
+
+    def sun_bounce(
+        self, points, normals, sun_direction, normal_irradiance_rgb, source: str = "master"
+    ) -> dict:
+        """The sun's bounce at receiver points: sunlight reflected once off the ground, the
+        walls and the models onto them (docs/sun.md, item 5), W/m^2.
+
+        The sun in patch ``p`` of the dome is spread over its patch for this (the bounce is
+        smooth over neighbouring patches): ``E_sun / solid_angle_p`` times column ``p`` of the
+        atlas's sun-bounce stacks, interpolated bilinearly at each point's texel, from the
+        EXR masters (``source="master"``) or the compact base as the client sums it
+        (``"compact"``). ``points``, ``normals``: (m, 3) on receivers (:meth:`locate`);
+        ``sun_direction``: (3,) toward the sun; ``normal_irradiance_rgb``: (3,) or a number.
+
+        Returns ``{"with": (m, 3), "without": (m, 3), "patch": p or None, "samples"}``: with
+        every object present (``I``) and without the virtual objects (``d``: the real
+        proxies alone on ground and walls, nothing but the open ground on hull planes);
+        ``without`` is NaN where the receiver has no ``d`` (the models' own surfaces). Zero
+        with the sun below the horizon. Raises :class:`ProbeError` for a build without
+        sun-bounce stacks (baked before 2026-11-24, or without a bounce) and for a sun in a
+        patch the sun never crosses at this site (its column was not baked).
+        """
+        points = np.atleast_2d(np.asarray(points, dtype=np.float64))
+        normals = np.atleast_2d(np.asarray(normals, dtype=np.float64))
+        samples = [self.locate(p, n) for p, n in zip(points, normals, strict=True)]
+        m = len(points)
+        out_with = np.zeros((m, 3))
+        out_without = np.zeros((m, 3))
+        for k, sample in enumerate(samples):
+            if "d" not in self.atlases[sample.atlas]["stacks"]:
+                out_without[k] = np.nan
+        p = self.sun_patch(sun_direction)
+        E = np.broadcast_to(np.asarray(normal_irradiance_rgb, dtype=np.float64), (3,))
+        result = {"with": out_with, "without": out_without, "patch": p, "samples": samples}
+        if p is None or not np.any(E):
+            return result
+        for sample in samples:
+            if "sun_bounce" not in self.atlases[sample.atlas]:
+                raise ProbeError(
+                    f"{self.dir}: atlas {sample.atlas} has no sun-bounce stacks (a build made "
+                    "before 2026-11-24, or baked without a bounce): bake it again"
+                )
+        if p not in set(self.selection.selectable.tolist()):
+            raise ProbeError(
+                f"the sun is in patch {p}, which it never crosses at this site: the build has "
+                "no sun bounce for it (only compression.selectable_lights are baked)"
+            )
+        r = np.zeros((self.light_count, 3))
+        r[p] = E / self.solid_angles[p]
+        for k, sample in enumerate(samples):
+            names = self.atlases[sample.atlas]["sun_bounce"]
+            for stack, out in (("I", out_with), ("d", out_without)):
+                if stack not in names:
+                    continue
+                if source == "master":
+                    column = _bilinear(
+                        self.sun_bounce_stack(sample.atlas, stack)[:, :, p], sample.x, sample.y
+                    )
+                    out[k] = column * r[p]
+                elif source == "compact":
+                    key = (sample.atlas, stack, p)  # one column: the scale comes after
+                    if key not in self._sun_composites:
+                        unit = np.zeros((self.light_count, 3))
+                        unit[p] = 1.0
+                        reader = self.sun_bounce_compact(sample.atlas, stack)
+                        self._sun_composites[key] = reader.composite(
+                            unit, _no_selection(self.light_count)
+                        )
+                    out[k] = _bilinear(self._sun_composites[key], sample.x, sample.y) * r[p]
+                else:
+                    raise ProbeError(f"unknown source {source!r}: use master or compact")
+        return result
 
     def locate(self, point, normal) -> Sample:
         """The receiver texel at a world point with a given normal.
@@ -276,6 +380,13 @@ class Build:
             "without": values[1] if len(values) > 1 else None,
             "sample": sample,
         }
+
+
+def _no_selection(n: int):
+    """The selection of a sun-bounce stack: no light has its own images."""
+    from bake.compress import Selection
+
+    return Selection(np.zeros(n), 0)
 
 
 def _bilinear(image: np.ndarray, x: float, y: float) -> np.ndarray:

@@ -203,7 +203,9 @@ def bake(
         rays, trace_s = work.run(partial, workers, progress, stage_s, log)
 
     t0 = time.perf_counter()
-    compressor.start(site, dome, work.stack_names, progress=progress)
+    sun_bounce = _SunBounce.of(site, dome, atlases)
+    compressor.start(site, dome, work.stack_names + sun_bounce.stack_names, progress=progress)
+    sun_bounce.lights = compressor.selection.selectable
     staging = partial / "build"
     if staging.exists():
         shutil.rmtree(staging)
@@ -213,7 +215,10 @@ def bake(
     # Each unit loads its own traced arrays when it starts and lets go of them when done:
     # loading every set first held them all at once (15.8 GB at 400 lights).
     traced = _TracedResults(work.point_sets, partial)
-    units = [partial_fn(_write_atlas, a, traced, staging, compressor) for a in atlases.values()]
+    units = [
+        partial_fn(_write_atlas, a, traced, staging, compressor, sun_bounce)
+        for a in atlases.values()
+    ]
     units += [
         partial_fn(
             _write_view, view, view_hits[view.name], traced, geometry, dome, site, staging,
@@ -470,9 +475,57 @@ def _run_two_at_a_time(units: list) -> list:
             raise
 
 
-def _write_atlas(a, traced: _TracedResults, staging: Path, compressor) -> dict:
+@dataclass
+class _SunBounce:
+    """What the sun-bounce stacks need (docs/sun.md, item 5): the lights the sun can be in
+    (``compression.selectable_lights``, set once the compressor knows them), the dome's
+    upward irradiance per light and the ground's albedo (the closed-form bounce of a hull
+    plane's ``d``); ``enabled`` is False when the scene traces no bounce."""
+
+    enabled: bool
+    up: np.ndarray  # (n,)
+    albedo: np.ndarray  # (3,)
+    stack_names: list  # <atlas>.sun_bounce.<stack>, the report's rows
+    lights: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+
+    @classmethod
+    def of(cls, site: Site, dome: Dome, atlases: dict) -> _SunBounce:
+        enabled = site.settings.bounce_rays > 0
+        names = [
+            f"{a.id}.sun_bounce.{stack}" for a in atlases.values() for stack in a.stacks
+        ] if enabled else []
+        return cls(enabled, dome.cosine_weighted_sr, np.asarray(site.ground.albedo), names)
+
+    def image(self, a, config, bounce, coverage, labels) -> np.ndarray:
+        """The one-bounce part of an atlas stack (H, W, n, 3), exactly as
+        :func:`_atlas_image` adds it (smoothed within each surface, gutters filled), for the
+        lights the sun can be in; zero in the other columns (light i stays column i).
+        ``"none"`` (a hull plane's ``d``) has the open ground's bounce in closed form,
+        ``albedo E_up_i (1 - n_y) / 2`` (:meth:`Estimator.basis`)."""
+        lights = self.lights
+        if config == "none":
+            lower = 0.5 * (1.0 - a.normals[:, 1])
+            part = a.to_image(
+                (
+                    lower[:, None, None]
+                    * self.up[None, lights, None]
+                    * self.albedo[None, None, :]
+                ).astype(np.float32)
+            )
+        else:
+            part = smooth_within_labels(
+                a.to_image(np.ascontiguousarray(bounce[:, lights])), labels, BOUNCE_SIGMA_TEXELS
+            )
+        part = _dilate(part, coverage, rings=3)
+        image = np.zeros((a.height, a.width, len(self.up), 3), dtype=np.float32)
+        image[:, :, lights] = part
+        return image
+
+
+def _write_atlas(a, traced: _TracedResults, staging: Path, compressor, sun_bounce) -> dict:
     """Assemble an atlas's stacks (direct plus smoothed bounce, gutters filled), write their
-    EXR masters and compact textures; returns the atlas's manifest entry."""
+    EXR masters and compact textures; then its sun-bounce stacks (the bounce alone, the
+    sun's lights only: :class:`_SunBounce`); returns the atlas's manifest entry."""
     entry = {
         "id": a.id,
         "role": a.role,
@@ -487,7 +540,7 @@ def _write_atlas(a, traced: _TracedResults, staging: Path, compressor) -> dict:
     coverage = a.coverage()
     labels = a.label_image()
     results = traced.load(a.id)
-    images = {}
+    images, sun_images = {}, {}
     for stack, config in a.stacks.items():
         direct, bounce = _lookup_result(results, f"{a.id}.{stack}", config)
         images[stack] = _atlas_image(a, config, direct, bounce, coverage, labels)
@@ -498,10 +551,28 @@ def _write_atlas(a, traced: _TracedResults, staging: Path, compressor) -> dict:
             "quantity": "irradiance",
             "channels": CHANNEL_PATTERN,
         }
+        if sun_bounce.enabled and (bounce is not None or config == "none"):
+            sun_images[stack] = sun_bounce.image(a, config, bounce, coverage, labels)
     del results, direct, bounce  # the images hold what compression needs
     # Shadowing atlases show I / d: their two stacks are compressed together for it.
     for stack, compact in compressor.run(images, a.id, staging).items():
         entry["stacks"][stack]["compact"] = compact
+    del images
+    sun_entries = {}
+    for stack in list(sun_images):
+        image = sun_images.pop(stack)
+        rel = f"exr/{a.id}.sun_bounce.{stack}.exr"
+        write_stack_exr(staging / rel, image)
+        compact = compressor.run_sun_bounce(image, f"{a.id}.sun_bounce.{stack}", staging)
+        if compact is not None:
+            sun_entries[stack] = {
+                "master": rel,
+                "quantity": "irradiance",
+                "channels": CHANNEL_PATTERN,
+                "compact": compact,
+            }
+    if sun_entries:
+        entry["sun_bounce"] = sun_entries
     return entry
 
 
@@ -688,6 +759,31 @@ class _Compressor:
             out[name] = result.entry
         return out
 
+    def run_sun_bounce(self, image: np.ndarray, name: str, staging: Path) -> dict | None:
+        """Compress one sun-bounce stack ``name`` (``<atlas>.sun_bounce.<stack>``) into a
+        low-rank base alone (:func:`bake.compress.compress_sun_bounce`); its compact entry,
+        or None when it is zero everywhere (then the master is dropped too)."""
+        try:
+            result = compress.compress_sun_bounce(
+                image, name, staging, self.selection.selectable, self.settings
+            )
+        except compress.CompressionError as exc:
+            raise BakeError(str(exc)) from None
+        self.bar.update(1)
+        if result is None:
+            (staging / "exr" / f"{name}.exr").unlink(missing_ok=True)
+            return None
+        self.rows[name] = {
+            "stack": name,
+            "k": result.entry["k"],
+            "error": result.entry["error"]["max"],
+            "base_bytes": result.base_bytes,
+            "light_bytes": 0,
+            "light_bytes_per_light": 0,
+            "encode_s": round(result.encode_s, 2),
+        }
+        return result.entry
+
     def close(self) -> None:
         self.bar.close()
 
@@ -713,11 +809,11 @@ class _Compressor:
             f"mean, {self.settings.selected_lights} selected "
             f"light{'' if self.settings.selected_lights == 1 else 's'}):"
         )
-        self.log(f"  {'stack':<16}{'k':>4}{'error':>9}{'base':>10}{'lights':>12}{'per light':>11}")
+        self.log(f"  {'stack':<22}{'k':>4}{'error':>9}{'base':>10}{'lights':>12}{'per light':>11}")
         for row in self.report():
             flag = "" if row["error"] <= budget else "  over budget"
             self.log(
-                f"  {row['stack']:<16}{row['k']:>4}{row['error']:>9.2%}"
+                f"  {row['stack']:<22}{row['k']:>4}{row['error']:>9.2%}"
                 f"{row['base_bytes'] / 1e6:>8.2f}MB{row['light_bytes'] / 1e6:>10.2f}MB"
                 f"{row['light_bytes_per_light'] / 1e3:>9.1f}kB{flag}"
             )
@@ -737,6 +833,18 @@ class _Compressor:
                 f"to sunset ({sizes['day_lights']} lights)"
             )
         self.log(f"  all compact files (what the server offers): {mb('all')}")
+        sun_rows = [row for row in self.report() if ".sun_bounce." in row["stack"]]
+        if sun_rows:
+            hull = sum(r["base_bytes"] for r in sun_rows if r["stack"].startswith("hull."))
+            total = sum(r["base_bytes"] for r in sun_rows)
+            masters = sum(
+                e["bytes"] for e in manifest["files"] if ".sun_bounce." in e["path"]
+                and e["path"].startswith("exr/")
+            )
+            self.log(
+                f"  the sun's bounce: {total / 1e6:.2f} MB of compact files (of which hull "
+                f"{hull / 1e6:.2f} MB), {masters / 1e6:.1f} MB of EXR masters"
+            )
 
 
 # --------------------------------------------------------------------------------------------

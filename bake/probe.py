@@ -9,7 +9,13 @@ optionally, the sun as its own light. Per point:
   present (and ``d``, without them, where the receiver has it);
 - the sun's direct term ``E_n max(0, n . s) V`` from :mod:`bake.sunlight`, with every caster
   (and without the virtual objects: the real proxies alone on ground and wall receivers,
-  no caster on hull planes, as their ``d``).
+  no caster on hull planes, as their ``d``);
+- the sun's bounce, sunlight reflected once off the ground, walls and models onto the point,
+  from the build's sun-bounce stacks (:meth:`Build.sun_bounce`), with and without likewise.
+
+The total is sky + sun direct + sun bounce. A build without sun-bounce stacks (baked before
+2026-11-24) or a sun in a patch it never crosses at the site gives ``sun_bounce_W_m2: null``
+and a warning: the total is then sky + sun direct.
 
 All in W/m^2, linear RGB, site frame (+X east, +Y up, -Z north), metres.
 """
@@ -122,13 +128,16 @@ def evaluate(
     light_vector: np.ndarray,
     sun: SunSpec | None = None,
     source: str = "master",
+    warn=None,
 ) -> list[dict]:
     """Probe every point: a list of JSON-ready dicts (see the module's docstring).
 
     Keys: ``point_m``, ``normal``, ``receiver`` (``name``, ``atlas``, ``kind``, ``texel``),
-    ``irradiance_W_m2`` (sky + sun), ``sky_W_m2``, ``sun_W_m2`` and ``sun_visible_fraction``
-    (``None`` without a sun), ``without_virtual_objects`` (the same four, or ``None`` where
-    the receiver has no ``d``: the models' own surfaces).
+    ``irradiance_W_m2`` (sky + sun + sun bounce), ``sky_W_m2``, ``sun_W_m2``,
+    ``sun_bounce_W_m2`` and ``sun_visible_fraction`` (``None`` without a sun),
+    ``without_virtual_objects`` (the same five, or ``None`` where the receiver has no ``d``:
+    the models' own surfaces). ``warn`` (a callable taking a message) is told when the sun's
+    bounce is missing.
     """
     skies = []
     for p in points:
@@ -153,6 +162,14 @@ def evaluate(
         v_without[hull] = v_none
         cos = np.maximum(0.0, normals @ sun.direction)
         sun_parts = (v_all, v_without, cos)
+        try:
+            bounce = build.sun_bounce(
+                positions, normals, sun.direction, sun.dni_w_m2, source=source
+            )
+        except ProbeError as exc:
+            if warn is not None:
+                warn(f"no sun bounce: {exc}")
+            bounce = None
     results = []
     for k, (p, sky) in enumerate(zip(points, skies, strict=True)):
         sample = sky["sample"]
@@ -166,15 +183,20 @@ def evaluate(
                 "texel": [round(sample.x, 3), round(sample.y, 3)],
             },
         }
-        parts = {"with": (sky["with"], None, None), "without": None}
+        parts = {"with": (sky["with"], None, None, None), "without": None}
         if sky["without"] is not None:
-            parts["without"] = (sky["without"], None, None)
+            parts["without"] = (sky["without"], None, None, None)
         if sun_parts is not None:
             v_all, v_without, cos = sun_parts
             direct = sun.dni_w_m2 * cos[k]
-            parts["with"] = (sky["with"], np.full(3, direct * v_all[k]), v_all[k])
+            bounce_with = None if bounce is None else bounce["with"][k]
+            bounce_without = None if bounce is None else bounce["without"][k]
+            parts["with"] = (sky["with"], np.full(3, direct * v_all[k]), v_all[k], bounce_with)
             if sky["without"] is not None:
-                parts["without"] = (sky["without"], np.full(3, direct * v_without[k]), v_without[k])
+                parts["without"] = (
+                    sky["without"], np.full(3, direct * v_without[k]), v_without[k],
+                    bounce_without,
+                )
         out.update(_parts(*parts["with"]))
         out["without_virtual_objects"] = (
             None if parts["without"] is None else _parts(*parts["without"])
@@ -183,12 +205,19 @@ def evaluate(
     return results
 
 
-def _parts(sky_rgb, sun_rgb, visible) -> dict:
-    total = sky_rgb if sun_rgb is None else sky_rgb + sun_rgb
+def _parts(sky_rgb, sun_rgb, visible, bounce_rgb) -> dict:
+    # Each part rounded first, the total their sum: the JSON's parts add up to its total.
+    sky_r = np.array(_round(sky_rgb))
+    total = sky_r
+    if sun_rgb is not None:
+        total = total + np.array(_round(sun_rgb))
+    if bounce_rgb is not None:
+        total = total + np.array(_round(bounce_rgb))
     return {
         "irradiance_W_m2": _round(total),
-        "sky_W_m2": _round(sky_rgb),
+        "sky_W_m2": _round(sky_r),
         "sun_W_m2": None if sun_rgb is None else _round(sun_rgb),
+        "sun_bounce_W_m2": None if bounce_rgb is None else _round(bounce_rgb),
         "sun_visible_fraction": None if visible is None else round(float(visible), 6),
     }
 
@@ -213,6 +242,7 @@ def format_table(results: list[dict]) -> str:
         "E_W_m2 (R G B)",
         "sky_W_m2",
         "sun_W_m2",
+        "sun_bounce_W_m2",
         "V_sun",
         "without virtual: E_W_m2",
     ]
@@ -228,6 +258,7 @@ def format_table(results: list[dict]) -> str:
                 rgb(r["irradiance_W_m2"]),
                 rgb(r["sky_W_m2"]),
                 rgb(r["sun_W_m2"]),
+                rgb(r["sun_bounce_W_m2"]),
                 "-" if visible is None else f"{visible:.3f}",
                 "-" if without is None else rgb(without["irradiance_W_m2"]),
             ]

@@ -60,8 +60,16 @@ def test_sky_map_and_sun_give_the_known_answers(site, capsys):
     )
     for before, after in zip(results, with_sun, strict=True):
         assert after["sky_W_m2"] == before["sky_W_m2"]
-        total = np.array(after["sky_W_m2"]) + np.array(after["sun_W_m2"])
-        assert np.allclose(after["irradiance_W_m2"], total, atol=1e-5)
+        assert before["sun_bounce_W_m2"] is None
+        # The parts add up: sky + sun direct + sun bounce (each rounded, then summed).
+        for parts in (after, after["without_virtual_objects"]):
+            total = (
+                np.array(parts["sky_W_m2"])
+                + np.array(parts["sun_W_m2"])
+                + np.array(parts["sun_bounce_W_m2"])
+            )
+            assert np.allclose(parts["irradiance_W_m2"], total, atol=2e-6)
+            assert np.all(np.array(parts["sun_bounce_W_m2"]) >= 0.0)
     open_ground, behind_wall, behind_shed, hull_top = with_sun
     for r in (open_ground, hull_top):
         assert np.allclose(r["sun_W_m2"], SUN_DIRECT_W_M2, rtol=1e-6)
@@ -69,9 +77,15 @@ def test_sky_map_and_sun_give_the_known_answers(site, capsys):
     assert np.allclose(
         open_ground["irradiance_W_m2"], np.pi * L_W_M2_SR + SUN_DIRECT_W_M2, rtol=0.01
     )
-    # The virtual wall's shadow: the sky's part only; without the wall the sun is back.
+    # Facing up, 25 m from the wall: almost no sunlit surface below its horizon; the hull's
+    # top sees none.
+    assert np.all(np.array(open_ground["sun_bounce_W_m2"]) < 0.005 * SUN_DIRECT_W_M2)
+    assert hull_top["sun_bounce_W_m2"] == [0.0] * 3
+    # The virtual wall's shadow: the sky's part and the sun's bounce (off the sunlit ground
+    # and the shed); without the wall the sun is back.
     assert behind_wall["sun_W_m2"] == [0.0] * 3
-    assert behind_wall["irradiance_W_m2"] == behind_wall["sky_W_m2"]
+    total = np.array(behind_wall["sky_W_m2"]) + np.array(behind_wall["sun_bounce_W_m2"])
+    assert np.allclose(behind_wall["irradiance_W_m2"], total, atol=2e-6)
     without = behind_wall["without_virtual_objects"]
     assert np.allclose(without["sun_W_m2"], SUN_DIRECT_W_M2, rtol=1e-6)
     assert without["sun_visible_fraction"] == 1.0
@@ -159,4 +173,5 @@ def test_compact_answers_agree_with_the_masters(site, capsys):
     compact = probe_json(capsys, *args, "--compact")
     for m, c in zip(master, compact, strict=True):
         assert c["sun_W_m2"] == m["sun_W_m2"]
+        assert np.allclose(c["sun_bounce_W_m2"], m["sun_bounce_W_m2"], rtol=0.05, atol=0.05)
         assert np.allclose(c["sky_W_m2"], m["sky_W_m2"], rtol=0.05)
