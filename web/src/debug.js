@@ -48,7 +48,8 @@ export function debugApi(app) {
         const normal = hit.face.normal.clone().transformDirection(hit.object.matrixWorld);
         if (normal.dot(raycaster.ray.direction) > 0) normal.negate();
         const info = hit.object.userData.daylit;
-        return { point: hit.point.toArray(), normal: normal.toArray(), role: info.role, atlas: info.atlas ?? null, name: hit.object.name };
+        const albedo = hit.object.userData.albedo?.toArray() ?? null;
+        return { point: hit.point.toArray(), normal: normal.toArray(), role: info.role, atlas: info.atlas ?? null, name: hit.object.name, albedo };
       });
     },
     /** Where world points appear on the canvas: [x, y] CSS pixels from the top left. */
