@@ -451,12 +451,45 @@ def site_points(build, nodes: dict, ground_step_m: float, wall_step_m: float,
             normals.append(normal)
             labels.append(names[k])
         points, normals = np.array(points), np.array(normals)
-        ok = np.flatnonzero(locatable(build, points, normals))[:model_points]
+        ok = locatable(build, points, normals) & ~buried(nodes, points, normals)
+        ok = np.flatnonzero(ok)[:model_points]
         ps.extend(points[ok], normals[ok], "model", [labels[k] for k in ok])
     ok = locatable(build, ps.points, ps.normals)
     return PointSet(ps.points[ok], ps.normals[ok], [g for g, k in zip(ps.group, ok, strict=True)
                                                     if k],
                     [g for g, k in zip(ps.label, ok, strict=True) if k])
+
+
+def buried(nodes: dict, points: np.ndarray, normals: np.ndarray, rays: int = 32) -> np.ndarray:
+    """Points on faces buried inside another part (a wall's face inside a column): every ray
+    over the hemisphere hits the back of a face (half of them: some solids are open).
+    Nobody sees them; Radiance gives them
+    nothing, the bake's texels bleed light into them: they are left out."""
+    from bake.raytrace import Geometry, RayScene
+
+    meshes = [(n["vertices"], n["faces"]) for n in nodes.values()
+              if n["extras"].get("role") in ("virtual", "real")]
+    offsets = np.cumsum([0] + [len(v) for v, _ in meshes])[:-1]
+    v = np.concatenate([m[0] for m in meshes])
+    f = np.concatenate([m[1] + o for m, o in zip(meshes, offsets, strict=True)])
+    scene = RayScene(Geometry(v, f, np.zeros((len(f), 3)), np.zeros(len(f), bool),
+                              np.zeros(len(f), int)))
+    # Cosine-distributed Fibonacci directions about +Z, turned onto each normal.
+    k = np.arange(rays) + 0.5
+    r, phi = np.sqrt(k / rays), k * np.pi * (3.0 - np.sqrt(5.0))
+    local = np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(1.0 - r**2)], -1)
+    out = np.zeros(len(points), bool)
+    for i, (p, n) in enumerate(zip(points, normals, strict=True)):
+        helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        t1 = np.cross(n, helper)
+        t1 /= np.linalg.norm(t1)
+        t2 = np.cross(n, t1)
+        d = local[:, :1] * t1 + local[:, 1:2] * t2 + local[:, 2:] * n
+        face, _ = scene.first_hit(np.tile(p + SURFACE_OFFSET_M * n, (rays, 1)), d)
+        hit = face >= 0
+        back = np.einsum("ij,ij->i", scene.face_normals[face[hit]], d[hit]) > 0.0
+        out[i] = back.sum() >= rays // 2
+    return out
 
 
 LINE_OBJECTS = ("hall", "fence", "visitor_centre")
@@ -880,10 +913,12 @@ def report_sky(sky: Sky, ps: PointSet, rad: dict, dl: dict, dlc: dict) -> dict:
                 "v_daylit": dl["visible"][k], "v_radiance": v_rad}
         out["worst"].append(item)
         p, n = ps.points[k], ps.normals[k]
-        print(f"    {ps.group[k]:<6} {ps.label[k]:<26} ({p[0]:7.2f},{p[1]:5.2f},{p[2]:7.2f}) n "
-              f"({n[0]:+.2f},{n[1]:+.2f},{n[2]:+.2f})  {ours_k:7.1f} vs {ref_k:7.1f} "
-              f"({100 * (ours_k - ref_k) / ref_k:+5.1f} %)  sky {dl['sky'][k].mean():6.1f} vs "
-              f"{rad['sky'][k].mean():6.1f}  sun bounce {rad['sun_bounce'][k].mean():5.1f}  V "
+        where = f"{ps.label[k]} [{dl['atlas'][k]}]"
+        pct = 100 * (ours_k - ref_k) / max(ref_k, 1e-9)
+        sky_pair = f"{dl['sky'][k].mean():6.1f} vs {rad['sky'][k].mean():6.1f}"
+        print(f"    {where:<34} ({p[0]:7.2f},{p[1]:5.2f},{p[2]:7.2f}) n ({n[0]:+.2f},"
+              f"{n[1]:+.2f},{n[2]:+.2f})  {ours_k:6.1f} vs {ref_k:6.1f} ({pct:+5.1f} %)  sky "
+              f"{sky_pair}  sun bounce {rad['sun_bounce'][k].mean():5.1f}  V "
               f"{dl['visible'][k]:.2f} vs {v_rad:.2f}")
     return out
 
