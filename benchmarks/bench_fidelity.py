@@ -876,7 +876,8 @@ def report_sky(sky: Sky, ps: PointSet, rad: dict, dl: dict, dlc: dict) -> dict:
     print("  (PSNR in dB, peak = the largest Radiance value of the group; RMS and bias relative "
           "to the mean; full = Radiance's direct + one bounce of sky and sun, like = without the "
           "sun's bounce; compact against like; sky part, sun part: daylit's vs Radiance's own "
-          "part, each with its own peak)")
+          "part, each with its own peak; no virtual: ground and walls without the virtual "
+          "objects, daylit's d against Radiance with the real proxies alone)")
     # Without the virtual objects: daylit's d against Radiance with the real proxies alone.
     keep = np.isin(group, ("ground", "wall"))
     full_real = rad["sky_real"] + rad["sun_real"] + rad["sun_bounce_real"]
@@ -885,7 +886,7 @@ def report_sky(sky: Sky, ps: PointSet, rad: dict, dl: dict, dlc: dict) -> dict:
            "like": psnr_rms(dl["irradiance_real"][keep], like_real[keep]),
            "compact_like": psnr_rms(dlc["irradiance_real"][keep], like_real[keep])}
     out["groups"]["without virtual (ground+walls)"] = row
-    print(f"  {'without virtual objects (ground+walls)':<12}  {row['full']['n']:>4}  "
+    print(f"  {'no virtual':<12} {row['full']['n']:>4}  "
           f"{row['full']['psnr_db']:9.1f} {row['full']['rms_pct']:5.1f}%  "
           f"{row['like']['psnr_db']:9.1f} {row['like']['rms_pct']:5.1f}% "
           f"{row['like']['bias_pct']:+5.1f}%  {row['compact_like']['psnr_db']:7.1f}")
@@ -1055,6 +1056,7 @@ def main() -> None:
     print_summary(results)
     print(f"\ntotal {time.perf_counter() - started:.0f} s")
     if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(results, indent=1, default=_jsonable))
 
 
