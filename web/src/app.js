@@ -11,6 +11,7 @@ import { Relighter } from './relight.js';
 import { Site } from './site.js';
 import { makeStatus } from './status.js';
 import { SunShadows } from './sun.js';
+import { SunBounce } from './sunbounce.js';
 import { VisitView } from './visit.js';
 import { arSupported, XRView } from './xr.js';
 
@@ -126,7 +127,8 @@ export class App {
       if (kiosk) {
         this.kiosk = new Kiosk(this.renderer, this.relighter, view);
       } else {
-        this.site = new Site(gltf, manifest, this.relighter);
+        this.sunBounce = new SunBounce(this.renderer, this.assets, this.relighter.format);
+        this.site = new Site(gltf, manifest, this.relighter, this.sunBounce);
         this.scene.add(this.site.root);
         if (this.site.sky) this.scene.add(this.site.sky);
         this.sunShadows = new SunShadows(this.renderer, this.scene,
@@ -159,6 +161,8 @@ export class App {
     this.site = null;
     this.sunShadows?.dispose();
     this.sunShadows = null;
+    this.sunBounce?.dispose();
+    this.sunBounce = null;
     this.kiosk?.dispose();
     this.kiosk = null;
     this.relighter?.dispose();
@@ -294,6 +298,10 @@ export class App {
     const open = openSkyIrradiance(r, this.assets.manifest.dome.lights.map((l) => l.cosine_weighted_sr));
     const sun = this.mode === 'kiosk' ? null : this._pendingSun;
     this.sunShadows?.setSun(sun?.direction ?? [0, 0, 0], sun?.normalIrradiance ?? [0, 0, 0]);
+    this.sunBounce?.update(sun).catch((err) => {
+      this.hud.setMessage(`${err.message}. The sun's bounce follows with the next light.`, 'warn');
+      setTimeout(() => this.hud.setMessage(null), 5000);
+    });
     // The open ground's irradiance with the sun (unshadowed): the exposure's reference.
     const sunUp = sun ? Math.max(0, sun.direction[1]) : 0;
     const ground = open.map((e, c) => e + (sun ? sun.normalIrradiance[c] * sunUp : 0));

@@ -83,6 +83,12 @@ export function debugApi(app) {
         app.site.setMode('visit', app.shadingMode);
       }
     },
+    /** Wait until the sun's bounce is drawn for the applied sun; its patch (-1: none). */
+    async sunBounce() {
+      const sun = app._pendingSun;
+      if (app.sunBounce) await app.sunBounce.update(sun);
+      return app.sunBounce?.patch ?? -1;
+    },
     /** How often the sun's shadow maps were rendered (they follow the sun, not the frames). */
     sunShadowRenders: () => app.sunShadows?.renders ?? 0,
     /** Each shadow map's metres per texel and the maps' GPU bytes. */

@@ -57,8 +57,8 @@ function output(expr) {
 }
 
 /**
- * A surface lit from its lightmap (the sky) and the sun: albedo / pi x (E_sky + E_sun cos V),
- * V the sun's visibility past the virtual and the real casters. With shading off (the A/B
+ * A surface lit from its lightmap (the sky) and the sun: albedo / pi x (E_sky + E_sun cos V +
+ * the sun's bounce), V the sun's visibility past the virtual and the real casters. With shading off (the A/B
  * switch) it shows albedo / pi x flatIrradiance: no shading, no shadows.
  */
 export const lightmapFragment = (decode) => /* glsl */ `
@@ -68,6 +68,7 @@ uniform sampler2D irradianceTex;
 uniform vec3 albedo;
 uniform vec3 flatIrradiance;
 uniform float shading; // 1 shaded from the lightmap, 0 flat
+uniform sampler2D sunBounceTex; // the sun's bounce (sunbounce.js), black without one
 varying vec2 vUv;
 varying vec3 vNormalW;
 varying vec3 vPositionW;
@@ -76,6 +77,7 @@ void main() {
   vec3 n = facingNormal();
   vec3 sun = sunOnSurface(n);
   if (sun != vec3(0.0)) sun *= sunVisibilityBoth(vPositionW, n);
+  sun += decodeTarget(texture2D(sunBounceTex, vUv));
   vec3 e = mix(flatIrradiance, decodeTarget(texture2D(irradianceTex, vUv)) + sun, shading);
   ${output('albedo / 3.14159265 * e * exposure')}
 }
@@ -93,6 +95,7 @@ uniform vec3 L[9];
 uniform vec3 albedo;
 uniform vec3 flatIrradiance;
 uniform float shading;
+uniform vec3 groundAlbedo;
 varying vec3 vNormalW;
 varying vec3 vPositionW;
 ${sunShadowChunk}
@@ -106,7 +109,9 @@ vec3 irradianceSH(vec3 n) {
 void main() {
   vec3 n = normalize(vNormalW);
   if (!gl_FrontFacing) n = -n;
-  vec3 e = mix(flatIrradiance, max(irradianceSH(n), vec3(0.0)) + sunOnSurface(n), shading);
+  // The sun's bounce off the open ground, as the hull planes' d holds it (docs/sun.md).
+  vec3 bounce = groundAlbedo * sunIrradiance * max(sunDirection.y, 0.0) * 0.5 * (1.0 - n.y);
+  vec3 e = mix(flatIrradiance, max(irradianceSH(n), vec3(0.0)) + sunOnSurface(n) + bounce, shading);
   ${output('albedo / 3.14159265 * e * exposure')}
 }
 `;
@@ -114,11 +119,12 @@ void main() {
 /**
  * A shadowing plane (Kakuta Eq. 2, 4, with the sun apart as in Jensen 2006), per channel in
  * linear light:
- *   ratio = (D - X + S Vv Vr) / (D + S Vd)
+ *   ratio = (D - X + S Vv Vr + B_I) / (D + S Vd + B_d)
  * with D = sum r d and X = sum r (d - I) the sky's part from the basis, S the sun's
  * irradiance on the plane unshadowed, Vv and Vr its visibility past the virtual and the real
  * casters, and Vd = Vr where `d` holds the real proxies (ground and wall planes), 1 where it
- * holds nothing (hull planes). Inside a real shadow the ratio is the sky's alone: a virtual
+ * holds nothing (hull planes), B the sun's bounce with and without the virtual objects
+ * (sunbounce.js; black where the build has none). Inside a real shadow the ratio is the sky's alone: a virtual
  * shadow never darkens what the real scene already shadows.
  * Over a camera picture drawn into the frame (camera mode) the plane multiplies it by
  * ratio^(1/2.2) per channel (blending DstColor, Zero, on sRGB-encoded colour); over a
@@ -134,6 +140,8 @@ uniform float strength;      // 1 shown, 0 hidden (the A/B switch)
 uniform float brighten;      // 0: the darkening draw, 1: the brightening draw
 uniform float alphaOut;      // 1: black with alpha (AR), 0: a factor to multiply by
 uniform float dHasReal;      // 1: d holds the real proxies (ground, walls); 0: nothing (hull)
+uniform sampler2D sunBounceTex;  // the sun's bounce with everything (I)
+uniform sampler2D sunBounceDTex; // and as d sees it
 varying vec2 vUv;
 varying vec3 vNormalW;
 varying vec3 vPositionW;
@@ -149,8 +157,8 @@ void main() {
     vr = sunVisibilityReal(vPositionW, n);
     vv = vr > 0.0 ? sunVisibilityVirtual(vPositionW, n) : 1.0; // inside a real shadow vv is not used
   }
-  vec3 present = D - X + S * vv * vr;
-  vec3 absent = D + S * mix(1.0, vr, dHasReal);
+  vec3 present = D - X + S * vv * vr + decodeTarget(texture2D(sunBounceTex, vUv));
+  vec3 absent = D + S * mix(1.0, vr, dHasReal) + decodeTarget(texture2D(sunBounceDTex, vUv));
   vec3 ratio = mix(vec3(1.0), present / max(absent, vec3(1e-6)), step(vec3(1e-6), absent));
   ratio = mix(vec3(1.0), clamp(ratio, 0.0, 4.0), strength);
   vec3 encoded = pow(ratio, vec3(1.0 / 2.2));
@@ -166,8 +174,8 @@ void main() {
 
 /**
  * A real receiving surface in the virtual visit (no camera view to blend over): the
- * synthesized real scene under the same sky and sun, albedo / pi x (D - X + S Vv Vr) (the
- * virtual objects' part, X and Vv, left out when their shadows are switched off).
+ * synthesized real scene under the same sky and sun, albedo / pi x (D - X + S Vv Vr + B_I) (the
+ * virtual objects' part, X, Vv and B_I for B_d, left out when their shadows are switched off).
  */
 export const receiverFragment = (decode) => /* glsl */ `
 ${common}
@@ -176,6 +184,8 @@ uniform sampler2D dTex;
 uniform sampler2D deltaTex;
 uniform vec3 albedo;
 uniform float strength;
+uniform sampler2D sunBounceTex;
+uniform sampler2D sunBounceDTex;
 varying vec2 vUv;
 varying vec3 vNormalW;
 varying vec3 vPositionW;
@@ -184,12 +194,13 @@ void main() {
   vec3 D = decodeTarget(texture2D(dTex, vUv));
   vec3 X = decodeTarget(texture2D(deltaTex, vUv));
   vec3 n = facingNormal();
+  vec3 bounce = mix(decodeTarget(texture2D(sunBounceDTex, vUv)), decodeTarget(texture2D(sunBounceTex, vUv)), strength);
   vec3 sun = sunOnSurface(n);
   if (sun != vec3(0.0)) {
     float real = sunVisibilityReal(vPositionW, n);
     sun *= real > 0.0 ? real * mix(1.0, sunVisibilityVirtual(vPositionW, n), strength) : 0.0;
   }
-  vec3 e = max(D - strength * X, vec3(0.0)) + sun;
+  vec3 e = max(D - strength * X, vec3(0.0)) + sun + bounce;
   ${output('albedo / 3.14159265 * e * exposure')}
 }
 `;

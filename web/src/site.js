@@ -19,8 +19,9 @@ export class Site {
    * @param {object} gltf from GLTFLoader
    * @param {object} manifest
    * @param {import('./relight.js').Relighter} relighter
+   * @param {import('./sunbounce.js').SunBounce} [sunBounce] the sun's bounce targets
    */
-  constructor(gltf, manifest, relighter) {
+  constructor(gltf, manifest, relighter, sunBounce = null) {
     this.root = gltf.scene;
     this.manifest = manifest;
     this.relighter = relighter;
@@ -37,6 +38,10 @@ export class Site {
     };
     // The sun (sun.js): direction, irradiance and shadow maps, shared by every material.
     this.sun = sunUniforms();
+    this.black = new THREE.DataTexture(new Uint8Array(4), 1, 1);
+    this.black.needsUpdate = true;
+    // The sun's bounce of an atlas stack ('ground.I'), black where the build has none.
+    const bounce = (key) => ({ value: sunBounce?.texture(key) ?? this.black });
     this.nodes = { virtual: [], real: [], ground: [], plane: [], hull: [], brighten: [] };
     this.groundAlbedo = new THREE.Vector3(...manifest.ground.albedo);
     const meshes = [];
@@ -48,7 +53,7 @@ export class Site {
       mesh.userData.daylit = info;
       mesh.userData.albedo = albedo;
       if (info.role === 'virtual' || info.role === 'real') {
-        mesh.userData.lightmapMaterial = this._lightmap(albedo, decode, t[`${info.atlas}.I`]);
+        mesh.userData.lightmapMaterial = this._lightmap(albedo, decode, t[`${info.atlas}.I`], bounce(`${info.atlas}.I`));
         if (info.role === 'virtual') {
           mesh.userData.sh9Material = this._sh9(albedo);
           this.nodes.virtual.push(mesh);
@@ -68,9 +73,10 @@ export class Site {
         const X = t[`${info.atlas}.I`]?.texture;
         if (!D || !X) continue;
         const dHasReal = info.atlas === 'hull' ? 0 : 1; // hull d: nothing; ground d: real proxies
-        mesh.userData.shadowMaterial = this._shadow(decode, D, X, { dHasReal });
-        mesh.userData.shadowAlphaMaterial = this._shadow(decode, D, X, { dHasReal, alphaOut: 1 });
-        const bright = new THREE.Mesh(mesh.geometry, this._shadow(decode, D, X, { dHasReal, brighten: 1 }));
+        const b = { bI: bounce(`${info.atlas}.I`), bD: bounce(`${info.atlas}.d`) };
+        mesh.userData.shadowMaterial = this._shadow(decode, D, X, { dHasReal, ...b });
+        mesh.userData.shadowAlphaMaterial = this._shadow(decode, D, X, { dHasReal, alphaOut: 1, ...b });
+        const bright = new THREE.Mesh(mesh.geometry, this._shadow(decode, D, X, { dHasReal, brighten: 1, ...b }));
         bright.renderOrder = 3;
         mesh.add(bright);
         mesh.userData.brightMesh = bright;
@@ -80,7 +86,10 @@ export class Site {
           this.nodes.hull.push(mesh);
         } else {
           mesh.userData.receiverMaterial = new THREE.ShaderMaterial({
-            uniforms: { ...this.sun, exposure: this.shared.exposure, strength: this.shared.strength, albedo: { value: this._receiverAlbedo(info) }, dTex: { value: D }, deltaTex: { value: X } },
+            uniforms: {
+              ...this.sun, exposure: this.shared.exposure, strength: this.shared.strength, albedo: { value: this._receiverAlbedo(info) },
+              dTex: { value: D }, deltaTex: { value: X }, sunBounceTex: b.bI, sunBounceDTex: b.bD,
+            },
             vertexShader: uvVertex, fragmentShader: receiverFragment(decode), side: THREE.DoubleSide,
           });
           this.nodes.plane.push(mesh);
@@ -97,12 +106,12 @@ export class Site {
     return real ? real.userData.albedo : this.groundAlbedo;
   }
 
-  _lightmap(albedo, decode, target) {
+  _lightmap(albedo, decode, target, sunBounceTex) {
     return new THREE.ShaderMaterial({
       uniforms: {
         ...this.sun, exposure: this.shared.exposure, shading: this.shared.shading,
         flatIrradiance: this.shared.flatIrradiance, albedo: { value: albedo },
-        irradianceTex: { value: target.texture },
+        irradianceTex: { value: target.texture }, sunBounceTex,
       },
       vertexShader: uvVertex, fragmentShader: lightmapFragment(decode),
       side: THREE.DoubleSide,
@@ -114,6 +123,7 @@ export class Site {
       uniforms: {
         ...this.sun, exposure: this.shared.exposure, shading: this.shared.shading,
         flatIrradiance: this.shared.flatIrradiance, albedo: { value: albedo }, L: this.shared.L,
+        groundAlbedo: { value: this.groundAlbedo },
       },
       vertexShader: plainVertex, fragmentShader: sh9Fragment, side: THREE.DoubleSide,
     });
@@ -124,7 +134,7 @@ export class Site {
    * channel (alphaOut: black with alpha, for a transparent frame over a passthrough), the
    * brightening draw adds the excess where the ratio is above 1.
    */
-  _shadow(decode, D, X, { dHasReal, brighten = 0, alphaOut = 0 }) {
+  _shadow(decode, D, X, { dHasReal, bI, bD, brighten = 0, alphaOut = 0 }) {
     const blend = brighten ? { blendSrc: THREE.DstColorFactor, blendDst: THREE.OneFactor }
       : alphaOut ? { blendSrc: THREE.SrcAlphaFactor, blendDst: THREE.OneMinusSrcAlphaFactor }
         : { blendSrc: THREE.DstColorFactor, blendDst: THREE.ZeroFactor };
@@ -132,6 +142,7 @@ export class Site {
       uniforms: {
         ...this.sun, dTex: { value: D }, deltaTex: { value: X }, strength: this.shared.strength,
         brighten: { value: brighten }, alphaOut: { value: alphaOut }, dHasReal: { value: dHasReal },
+        sunBounceTex: bI, sunBounceDTex: bD,
       },
       vertexShader: uvVertex, fragmentShader: shadowPlaneFragment(decode),
       transparent: true, depthWrite: false, side: THREE.DoubleSide,

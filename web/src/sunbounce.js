@@ -1,0 +1,160 @@
+// The sun's bounce (docs/sun.md, item 5): sunlight reflected once off sunlit ground, walls and
+// models. The bake keeps, for every patch the sun can be in, that patch's one-bounce image of
+// each atlas stack (manifest `atlases[i].sun_bounce[stack]`, images only, no low-rank base);
+// the sun's bounce is the image of the patch that holds the sun times E_sun / solid_angle_p
+// (the bounce is smooth over neighbouring patches, so spreading the sun over its patch is
+// harmless here, unlike for its direct term). One image (two refinement levels) per stack is
+// fetched when the sun enters a patch; its target is rendered once per sun update.
+import * as THREE from 'three';
+import { patchContaining } from './lightmath.js';
+import { RGBE_ENCODE } from './relight.glsl.js';
+import { FullscreenPass, makeTarget } from './relight.js';
+
+const CACHE_PER_STACK = 4; // the sun stays tens of minutes in a patch
+
+function bounceFragment(encodeRGBE) {
+  return /* glsl */ `
+precision highp float;
+uniform sampler2D level0;
+uniform sampler2D level1;
+uniform vec3 weight0;
+uniform vec3 weight1;
+uniform vec3 constantTerm;
+out vec4 outColor;
+${encodeRGBE ? RGBE_ENCODE : ''}
+void main() {
+  ivec2 p = ivec2(gl_FragCoord.xy);
+  vec3 e = constantTerm + texelFetch(level0, p, 0).rgb * weight0 + texelFetch(level1, p, 0).rgb * weight1;
+  outColor = ${encodeRGBE ? 'encodeRGBE(e)' : 'vec4(e, 1.0)'};
+}
+`;
+}
+
+/** One atlas stack's sun bounce: its per-light images, cached, and its target. */
+class BounceStack {
+  constructor(assets, key, compact, width, height, format) {
+    this.assets = assets;
+    this.key = key; // e.g. 'ground.I'
+    this.compact = compact;
+    this.target = makeTarget(width, height, format);
+    this.target.texture.name = `${key}.sun_bounce`;
+    this.images = new Map(); // light -> Promise of [level textures]
+    const dummy = new THREE.DataTexture(new Uint8Array(4), 1, 1);
+    dummy.needsUpdate = true;
+    this.dummy = dummy;
+    this.uniforms = {
+      level0: { value: dummy }, level1: { value: dummy },
+      weight0: { value: new THREE.Vector3() }, weight1: { value: new THREE.Vector3() },
+      constantTerm: { value: new THREE.Vector3() },
+    };
+    this.pass = new FullscreenPass({ fragmentShader: bounceFragment(format.rgbe), uniforms: this.uniforms });
+    this.light = null; // the light whose image the target holds (null: zero)
+  }
+
+  has(light) {
+    return Array.isArray(this.compact.lights.scale[light]);
+  }
+
+  fetch(light) {
+    if (!this.images.has(light)) {
+      const files = this.compact.lights.ktx2.map((pattern) => pattern.replace('{index:04d}', String(light).padStart(4, '0')));
+      const promise = Promise.all(files.map((f) => this.assets.texture(f))).then((textures) => {
+        for (const t of textures) t.minFilter = t.magFilter = THREE.NearestFilter;
+        return textures;
+      });
+      promise.catch(() => this.images.delete(light)); // retried with the next sun
+      this.images.set(light, promise);
+      for (const [old, p] of this.images) {
+        if (this.images.size <= CACHE_PER_STACK) break;
+        if (old === light) continue;
+        p.then((textures) => textures.forEach((t) => t.dispose()), () => {});
+        this.images.delete(old);
+      }
+    }
+    return this.images.get(light);
+  }
+
+  /** Render weight (RGB: E_sun / solid angle) times light `light`'s images (`textures`, from
+   * fetch); light null: zero. */
+  render(renderer, light, textures, weight) {
+    const u = this.uniforms;
+    if (light === null) {
+      u.level0.value = u.level1.value = this.dummy;
+      u.weight0.value.set(0, 0, 0);
+      u.weight1.value.set(0, 0, 0);
+      u.constantTerm.value.set(0, 0, 0);
+    } else {
+      const { scale, offset } = this.compact.lights;
+      const levels = [u.level0, u.level1];
+      const weights = [u.weight0, u.weight1];
+      const constant = [0, 0, 0];
+      for (let level = 0; level < 2; level++) {
+        const present = level < textures.length;
+        levels[level].value = present ? textures[level] : this.dummy;
+        const s = present ? scale[light][level] : [0, 0, 0];
+        weights[level].value.set(...s.map((v, c) => v * weight[c]));
+        if (present) for (let c = 0; c < 3; c++) constant[c] += offset[light][level][c] * weight[c];
+      }
+      u.constantTerm.value.set(...constant);
+    }
+    this.pass.render(renderer, this.target);
+    this.light = light;
+  }
+
+  dispose() {
+    this.target.dispose();
+    this.pass.dispose();
+    this.dummy.dispose();
+    for (const p of this.images.values()) p.then((textures) => textures.forEach((t) => t.dispose()), () => {});
+  }
+}
+
+export class SunBounce {
+  /**
+   * @param {THREE.WebGLRenderer} renderer
+   * @param {import('./assets.js').Assets} assets with its manifest loaded
+   * @param {{rgbe: boolean, type: number}} format the relight targets' format
+   */
+  constructor(renderer, assets, format) {
+    this.renderer = renderer;
+    this.lights = assets.manifest.dome.lights;
+    this.stacks = new Map();
+    for (const atlas of assets.manifest.atlases) {
+      for (const [name, entry] of Object.entries(atlas.sun_bounce ?? {})) {
+        if (!entry.compact?.lights) continue; // a base-only form this client does not read
+        const key = `${atlas.id}.${name}`;
+        this.stacks.set(key, new BounceStack(assets, key, entry.compact, atlas.width, atlas.height, format));
+      }
+    }
+    this.patch = null;
+    this.updates = 0;
+    this._asked = 0;
+  }
+
+  /** The target of an atlas stack ('ground.I'), or null when the build has none. */
+  texture(key) {
+    return this.stacks.get(key)?.target.texture ?? null;
+  }
+
+  /**
+   * A new sun ({direction, normalIrradiance} or null): every stack's target becomes the bounce
+   * of the patch that holds it. Resolves when drawn (after any image it needed arrived).
+   */
+  async update(sun) {
+    const up = sun && sun.direction[1] > 0 && sun.normalIrradiance.some((e) => e > 0);
+    const p = up ? patchContaining(this.lights, sun.direction) : -1;
+    const weight = p >= 0 ? sun.normalIrradiance.map((e) => e / this.lights[p].solid_angle_sr) : null;
+    const asked = ++this._asked;
+    const stacks = [...this.stacks.values()];
+    const lights = stacks.map((s) => (p >= 0 && s.has(p) ? p : null));
+    const images = await Promise.all(stacks.map((s, j) => (lights[j] === null ? null : s.fetch(lights[j]))));
+    if (asked !== this._asked) return; // a newer sun came meanwhile: it draws
+    stacks.forEach((s, j) => s.render(this.renderer, lights[j], images[j], weight));
+    this.patch = p;
+    this.updates += 1;
+  }
+
+  dispose() {
+    for (const s of this.stacks.values()) s.dispose();
+  }
+}
