@@ -124,17 +124,20 @@ class SunPage:
         return px, hits, shown
 
 
-def ground_expected(build, casters, s, r, hits, with_virtual=True):
-    """Displayed codes of ground-plane pixels in the visit: albedo / pi x (sky + sun) x exposure,
-    tone mapped and sRGB encoded, from the basis (compact, as the client sums it) and the
-    oracle."""
+def ground_expected(build, casters, s, r, hits, with_virtual=True, albedo=None):
+    """Displayed codes of pixels in the visit: albedo / pi x (sky + sun + the sun's bounce) x
+    exposure, tone mapped and sRGB encoded, from the basis and the sun's bounce (compact, as
+    the client sums them) and the oracle's direct sun. Returns the codes, the sky and the sun
+    (direct + bounce)."""
     points = np.array([h["point"] for h in hits])
     normals = np.array([h["normal"] for h in hits])
-    sky = np.array([build.irradiance(p, n, r, source="compact")["with" if with_virtual else
-                                                                 "without"]
+    key = "with" if with_virtual else "without"
+    sky = np.array([build.irradiance(p, n, r, source="compact")[key]
                     for p, n in zip(points, normals, strict=True)])
-    sun = casters.irradiance(points, normals, s, SUN_DNI)["with" if with_virtual else "without"]
-    albedo = np.asarray(build.manifest["ground"]["albedo"])
+    sun = casters.irradiance(points, normals, s, SUN_DNI)[key]
+    sun = sun + build.sun_bounce(points, normals, s, SUN_DNI, source="compact")[key]
+    if albedo is None:
+        albedo = np.asarray(build.manifest["ground"]["albedo"])
     radiance = albedo / math.pi * (sky + sun) * EXPOSURE
     return srgb_codes(neutral_tone_map(radiance)), sky, sun
 
@@ -231,8 +234,8 @@ def test_penumbra_of_the_shadow_tip(new_page, sun_build, sun_reference):
         radius_m = 8.77 * math.tan(math.radians(0.2666)) / math.sin(math.radians(20.0))
         geometric = 2 * _segment_point(0.9) * radius_m
         assert abs(width_want - geometric) < 0.2 * geometric, (width_want, geometric)
-        print(f"penumbra 10-90 %: client {100 * width_got:.1f} cm, oracle {100 * width_want:.1f} cm, "
-              f"circular segment {100 * geometric:.1f} cm; 50 % point off by "
+        print(f"penumbra 10-90 %: client {100 * width_got:.1f} cm, oracle "
+              f"{100 * width_want:.1f} cm, circular segment {100 * geometric:.1f} cm; 50 % point off by "
               f"{100 * (got[1] - want[1]):+.2f} cm")
         assert abs(got[1] - want[1]) < 0.02, (got, want)
         assert abs(width_got - width_want) < 0.25 * width_want, (width_got, width_want)
@@ -271,6 +274,8 @@ def test_overlay_ratio_real_and_virtual_shadows(new_page, sun_build, sun_referen
         sky_d = np.array([build.irradiance(p, n, r, source="compact")["without"]
                           for p, n in zip(pts, nrm, strict=True)])
         sun = casters.irradiance(pts, nrm, s, SUN_DNI)
+        bounce = build.sun_bounce(pts, nrm, s, SUN_DNI, source="compact")
+        sky_i, sky_d = sky_i + bounce["with"], sky_d + bounce["without"]  # no sun disc in either
         ratio = (sky_i + sun["with"]) / (sky_d + sun["without"])
         k = 0
         for name, group in groups.items():
@@ -306,4 +311,30 @@ def test_shadow_maps_follow_the_sun_not_the_frames(new_page, sun_build, sun_refe
         moved = skies.direction_from_azimuth_elevation(SUN_AZIMUTH_DEG + 0.5, SUN_ELEVATION_DEG)
         SunPage(page, build, moved, r)
         assert page.page.evaluate("window.daylit.debug.sunShadowRenders()") == renders + 1
+        assert not page.errors, page.errors
+
+
+def test_sun_bounce_on_the_shaded_face(new_page, sun_build, sun_reference):
+    """The virtual box's west face, away from the low eastern sun, lit by the sky and by the
+    sun's bounce off the sunlit ground in front of it: displayed as the oracle says (the
+    baked sky and sun bounce, compact), and clearly brighter than the sky alone would make it."""
+    build, casters = sun_reference
+    s, r = sun_and_sky(build)
+    with StubServer(sun_build) as server:
+        page = open_page(new_page, server)
+        sp = SunPage(page, build, s, r)
+        assert page.page.evaluate("window.daylit.debug.sunBounce()") >= 0
+        sp.look([-5.0, 1.6, 0.0], [-1.0, 1.5, 0.0])
+        face = [[-1.0, y, z] for y in (0.6, 1.2, 1.8, 2.4) for z in (-0.6, 0.0, 0.6)]
+        _, hits, shown = sp.at(face)
+        assert all(h is not None and h["role"] == "virtual" for h in hits), hits
+        albedo = np.array([h["albedo"] for h in hits])
+        expected, sky, sun = ground_expected(build, casters, s, r, hits, albedo=albedo)
+        no_bounce = srgb_codes(neutral_tone_map(albedo / math.pi * sky * EXPOSURE))  # sky only
+        share = sun.sum(axis=1) / (sun + sky).sum(axis=1)
+        print(f"the shaded face: the sun's bounce is {100 * share.min():.0f}-"
+              f"{100 * share.max():.0f} % of its light")
+        assert share.min() > 0.1, share
+        assert np.abs(shown - expected).max() <= 3.0, (shown, expected)
+        assert (shown.mean(axis=1) > no_bounce.mean(axis=1) + 3.0).all(), (shown, no_bounce)
         assert not page.errors, page.errors
