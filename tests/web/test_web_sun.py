@@ -235,8 +235,8 @@ def test_penumbra_of_the_shadow_tip(new_page, sun_build, sun_reference):
         geometric = 2 * _segment_point(0.9) * radius_m
         assert abs(width_want - geometric) < 0.2 * geometric, (width_want, geometric)
         print(f"penumbra 10-90 %: client {100 * width_got:.1f} cm, oracle "
-              f"{100 * width_want:.1f} cm, circular segment {100 * geometric:.1f} cm; 50 % point off by "
-              f"{100 * (got[1] - want[1]):+.2f} cm")
+              f"{100 * width_want:.1f} cm, circular segment {100 * geometric:.1f} cm; "
+              f"50 % point off by {100 * (got[1] - want[1]):+.2f} cm")
         assert abs(got[1] - want[1]) < 0.02, (got, want)
         assert abs(width_got - width_want) < 0.25 * width_want, (width_got, width_want)
         assert not page.errors, page.errors
