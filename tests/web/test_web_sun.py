@@ -231,8 +231,9 @@ def test_penumbra_of_the_shadow_tip(new_page, sun_build, sun_reference):
         radius_m = 8.77 * math.tan(math.radians(0.2666)) / math.sin(math.radians(20.0))
         geometric = 2 * _segment_point(0.9) * radius_m
         assert abs(width_want - geometric) < 0.2 * geometric, (width_want, geometric)
-        print(f"penumbra 10-90 %: client {100 * width_got:.1f} cm, oracle {100 * width_want:.1f} cm, "
-              f"circular segment {100 * geometric:.1f} cm; 50 % point off by "
+        print(f"penumbra 10-90 %: client {100 * width_got:.1f} cm, "
+              f"oracle {100 * width_want:.1f} cm, circular segment {100 * geometric:.1f} cm; "
+              f"50 % point off by "
               f"{100 * (got[1] - want[1]):+.2f} cm")
         assert abs(got[1] - want[1]) < 0.02, (got, want)
         assert abs(width_got - width_want) < 0.25 * width_want, (width_got, width_want)
