@@ -601,7 +601,7 @@ def encode(
     else:
         args += ["-q", "255", "-comp_level", "2"]
     if not pngs:
-        return  # nothing to encode (a stack without light images: the sun's bounce)
+        return  # nothing to encode
     if array:
         layers = ["-tex_type", "2darray", "-tex_array", "-output_file", str(out)]
         _run_encoders([args + layers + [str(p) for p in pngs]])
