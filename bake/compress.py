@@ -601,7 +601,7 @@ def encode(
     else:
         args += ["-q", "255", "-comp_level", "2"]
     if not pngs:
-        return  # nothing to encode (a stack without light images: the sun's bounce)
+        return  # nothing to encode
     if array:
         layers = ["-tex_type", "2darray", "-tex_array", "-output_file", str(out)]
         _run_encoders([args + layers + [str(p) for p in pngs]])
@@ -962,83 +962,112 @@ def compress_stacks(images, prefix, out_dir, skies, S, S_inv, selection, setting
 # The sun's bounce (docs/sun.md, item 5)
 
 
-def unit_light_skies(n: int, lights) -> list[TestSky]:
-    """One test vector per light of ``lights``: that patch alone at unit radiance (n, 3).
-    The sun's bounce is ``E_sun / solid_angle_p`` times column ``p`` for the sun's patch
-    ``p``, so these are exactly the vectors it is ever evaluated at, up to a scale."""
-    out = []
-    for p in lights:
-        r = np.zeros((n, 3))
-        r[int(p)] = 1.0
-        out.append(TestSky(f"L{int(p):04d}", r))
-    return out
-
-
-def column_errors(base: np.ndarray, V: np.ndarray, M: np.ndarray, lights) -> np.ndarray:
-    """RMS error over the mean of each column ``p`` of ``lights``: the decoded composite
-    ``sum_l base[:, :, l] V[p, l]`` against the master's column ``M[:, p]``.
-
-    ``base`` (T, 3, k) decoded base layers at the valid texels, ``V`` (n, k), ``M``
-    (T, n, 3) the master at the same texels. Returns (len(lights),)."""
-    T = len(M)
-    flat = np.ascontiguousarray(base, dtype=np.float32).reshape(T * 3, -1)
-    errors = []
-    lights = np.asarray(lights, dtype=int)
-    for start in range(0, len(lights), 32):  # (T * 3, 32) float32 at a time
-        chunk = lights[start : start + 32]
-        approx = (flat @ V[chunk].T.astype(np.float32)).reshape(T, 3, len(chunk))
-        truth = np.ascontiguousarray(M[:, chunk].transpose(0, 2, 1), dtype=np.float32)
-        rms = np.sqrt(((approx - truth) ** 2).mean(axis=(0, 1), dtype=np.float64))
-        errors.append(rms / np.maximum(truth.mean(axis=(0, 1), dtype=np.float64), 1e-30))
-    return np.concatenate(errors)
+SUN_BOUNCE_DECODE_CHUNK = 16  # light images decoded at a time (memory: the lightmap is large)
 
 
 def compress_sun_bounce(image, name, out_dir, lights, settings) -> CompactStack | None:
     """Compress a sun-bounce stack ``image`` (H, W, n, 3), whose columns outside ``lights``
-    (the patches the sun can be in) are zero, into a low-rank base ``U V^T`` alone: no
-    selected lights' images, no gain, no ``d - I``. The sun's bounce is one column at a time
-    (the sun's patch), smooth in space and over neighbouring patches, so a plain truncated
-    SVD (prior ``S = I``) fits it; k is the smallest rank whose RMS error stays within
-    ``TRUNCATION_SHARE`` of the budget on every column of ``lights``
-    (:func:`unit_light_skies`), and after encoding every such column is checked against the
-    master. Base layers are refined as in :func:`compress_stack`, at the RMS stacks' level.
+    (the patches the sun can be in) are zero, into one image per light of ``lights``: its
+    column, as it is (no base, no gain, no ``d - I``).
 
-    Writes ``ktx2/<name>.base.ktx2`` and ``v/<name>.V.bin``. Returns the
-    :class:`CompactStack` (its entry without ``lights``; ``error`` holds ``truncation_max``,
-    ``max``, the ``worst_light`` and the number of ``test_lights``), or ``None`` when the
-    stack is zero everywhere."""
+    The sun's bounce is one column at a time (the sun's patch ``p``: ``E_sun /
+    solid_angle_p`` times column ``p``), so a client fetches that column's image alone, on
+    demand, as it fetches a selected light's own image of an ordinary stack; a low-rank base
+    would have to be downloaded whole, and the columns are not low rank anyway (measured on
+    the demo at 40 lights, draft: k = all 26 sun-path patches, 2.0-3.4 % RMS error).
+
+    Each image is encoded exactly as the ordinary stacks' light images
+    (:func:`compress_stack`): quantized to 8 bits with its own scale and offset, encoded at
+    UASTC level ``settings.uastc_level``, decoded, and what was lost encoded again as a
+    refinement at level ``settings.refine_level``. Every column is then
+    decoded as the client decodes it (:class:`CompactReader`) and checked against the master:
+    RMS error over the stack's valid texels relative to the column's mean there.
+
+    Writes ``ktx2/<name>.L<i>.ktx2`` and ``ktx2/<name>.L<i>r.ktx2`` for each light ``i`` of
+    ``lights``. Returns the :class:`CompactStack` (entry ``{"k": 0, "lights", "error"}``;
+    ``error`` holds ``max`` and ``median`` over the columns, the ``worst_light`` and the
+    number of ``test_lights``), or ``None`` when the stack is zero everywhere."""
+    started = time.perf_counter()
     H, W, n, _ = image.shape
     lights = np.asarray(lights, dtype=int)
     valid = np.any(image != 0.0, axis=(2, 3))
     if not valid.any() or len(lights) == 0:
         return None
-    identity = np.eye(n)
-    skies = unit_light_skies(n, lights)
-    nothing_selected = Selection(np.zeros(n), 0)
-    rms_settings = replace(settings, refine_level=settings.rms_refine_level)
-    # No gain (g = 1). Measured on the demo at 40 lights (draft): 2.0-3.4 % RMS error after
-    # encoding, over the 1 % budget, at k = all 26 sun-path patches: the bounce is near zero
-    # on ground facing up and up to 50x its mean on walls, and the decoded error (median
-    # 1e-5 per texel, 4e-4 of a column's maximum) is a few per cent of the mean. Refining
-    # every base layer changed nothing (the same errors to 1e-4, 2 % more bytes). A
-    # per-texel gain, as the shadowing atlases have, is the likely remedy (not done).
-    stack = compress_stack(
-        image, name, out_dir, skies, identity, identity, nothing_selected, rms_settings,
-        valid=valid, verify=False,
-    )
-    entry = stack.entry
-    del entry["lights"]
-    reader = CompactReader(out_dir, entry, (H, W))
-    base = np.moveaxis(reader.base(), 0, -1)[valid]  # (T, 3, k)
-    errors = column_errors(base, reader.V, image[valid], lights)
-    truncation = stack.factors.truncation_error
+    # The selected lights' images' two levels (coarse at uastc_level, refinement at
+    # refine_level), not the RMS stacks' cheaper refinement (rms_refine_level): measured on
+    # the demo at 40 lights (draft), a column's refinement is noise-like and level 1 cut the
+    # worst column's error from 2.7 to 1.9 % (ground I) for 3 % more bytes.
+    image_settings = settings
+    (out_dir / "ktx2").mkdir(exist_ok=True)
+    light_files = []
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        coarse_dir, refine_dir = tmp / "coarse", tmp / "refine"
+        coarse_dir.mkdir()
+        refine_dir.mkdir()
+        coarse_q = [
+            _quantized_png(image[:, :, i], tmp / f"{name}.L{i:04d}.png") for i in lights
+        ]
+        encode([q.path for q in coarse_q], coarse_dir, image_settings, array=False)
+        refine_q = []
+        for start in range(0, len(lights), SUN_BOUNCE_DECODE_CHUNK):
+            chunk = lights[start : start + SUN_BOUNCE_DECODE_CHUNK]
+            decoded = decode([coarse_dir / f"{name}.L{i:04d}.ktx2" for i in chunk])
+            for j, i in enumerate(chunk):
+                coarse = coarse_q[start + j].value(decoded[j][0])
+                refine_q.append(
+                    _refinement_png(image[:, :, i] - coarse, tmp / f"{name}.L{i:04d}r.png", None)
+                )
+            del decoded
+        encode(
+            [q.path for q in refine_q], refine_dir, image_settings, array=False,
+            level=image_settings.refine_level,
+        )
+        for i in lights:
+            for folder, suffix in ((coarse_dir, ""), (refine_dir, "r")):
+                target = out_dir / "ktx2" / f"{name}.L{i:04d}{suffix}.ktx2"
+                shutil.move(folder / f"{name}.L{i:04d}{suffix}.ktx2", target)
+                light_files.append(target)
+    encode_s = time.perf_counter() - started
+    # [light][level], null for the lights the sun is never in (they have no images).
+    scales: list = [None] * n
+    offsets: list = [None] * n
+    for i, q, r in zip(lights, coarse_q, refine_q, strict=True):
+        scales[i], offsets[i] = [q.scale_list, r.scale_list], [q.offset_list, r.offset_list]
+    entry = {
+        "k": 0,
+        "lights": {
+            "ktx2": [f"ktx2/{name}.L{{index:04d}}.ktx2", f"ktx2/{name}.L{{index:04d}}r.ktx2"],
+            "scale": scales,
+            "offset": offsets,
+        },
+    }
+    errors = sun_bounce_errors(CompactReader(out_dir, entry, (H, W)), image, valid, lights)
     entry["error"] = {
         "test_lights": int(len(lights)),
-        "truncation_max": round(max(truncation.values(), default=0.0), 6),
         "max": round(float(errors.max()), 6),
+        "median": round(float(np.median(errors)), 6),
         "worst_light": int(lights[int(np.argmax(errors))]),
     }
-    return stack
+    compact = CompactStack(entry, light_files, encode_s=encode_s)
+    compact.light_bytes = sum(p.stat().st_size for p in light_files)
+    return compact
+
+
+def sun_bounce_errors(reader: CompactReader, image, valid, lights) -> np.ndarray:
+    """Each column ``p`` of ``lights`` decoded from its images as the client decodes it,
+    against the master ``image[:, :, p]`` (H, W, n, 3): RMS error over the ``valid`` texels
+    (H, W) relative to the column's mean there. Returns (len(lights),)."""
+    errors = []
+    for start in range(0, len(lights), SUN_BOUNCE_DECODE_CHUNK):
+        chunk = [int(i) for i in lights[start : start + SUN_BOUNCE_DECODE_CHUNK]]
+        decoded = reader.lights(chunk)
+        for i in chunk:
+            truth = image[:, :, i][valid].astype(np.float64)
+            rms = np.sqrt(((decoded[i][valid] - truth) ** 2).mean())
+            errors.append(rms / max(float(truth.mean()), 1e-30))
+        reader.forget_lights()
+    return np.array(errors)
 
 
 def compress_ratio_pair(I, d, names, out_dir, skies, S, S_inv, selection, settings):
@@ -1272,14 +1301,21 @@ def _write_png(path: Path, rgb: np.ndarray) -> None:
 
 class CompactReader:
     """Evaluates a stack from its compact files exactly as the client does (for checks,
-    tests and ``daylit probe --compact``). Decoded textures are cached."""
+    tests and ``daylit probe --compact``). Decoded textures are cached.
+
+    An entry with ``k = 0`` has no base (no ``ktx2``, ``layers``, ``v``): the lights' own
+    images alone, as the sun-bounce stacks are stored (:func:`compress_sun_bounce`; read a
+    column with :meth:`lights`)."""
 
     def __init__(self, build_dir: Path, entry: dict, shape: tuple[int, int]):
         self.dir = Path(build_dir)
         self.entry = entry
         self.shape = shape
-        n, k = entry["v"]["shape"]
-        self.V = np.fromfile(self.dir / entry["v"]["path"], dtype="<f4").reshape(n, k)
+        if "v" in entry:
+            n, k = entry["v"]["shape"]
+            self.V = np.fromfile(self.dir / entry["v"]["path"], dtype="<f4").reshape(n, k)
+        else:
+            self.V = np.zeros((len(entry["lights"]["scale"]), 0))
         self._base = None
         self._gain = None
         self._lights: dict[int, np.ndarray] = {}
@@ -1299,6 +1335,8 @@ class CompactReader:
 
     def base(self) -> np.ndarray:
         """(k, H, W, 3) float32 decoded base layers, refinements added to their layers."""
+        if self._base is None and "ktx2" not in self.entry:
+            self._base = np.zeros((0,) + self.shape + (3,), dtype=np.float32)
         if self._base is None:
             raw = decode([self.dir / self.entry["ktx2"]])[0][..., :3].astype(np.float32) / 255.0
             n, k = self.entry["v"]["shape"]
@@ -1326,6 +1364,10 @@ class CompactReader:
                 )
             self._lights[i] = value
         return {i: self._lights[i] for i in indices}
+
+    def forget_lights(self) -> None:
+        """Drop the decoded light images (memory)."""
+        self._lights.clear()
 
     def composite(self, r: np.ndarray, selection: Selection) -> np.ndarray:
         """``g (sum_l U_l (V^T r')_l + sum_{i in A(r)} r_i B_i)``: (H, W, 3) float32."""

@@ -3,7 +3,8 @@
 Per stack it relights, a client fetches the base (and gain) textures and ``V`` once, and the
 own images of the lights it selects as they become selected (docs/compact-assets.md); the
 sun moves one patch in tens of minutes, so the longer a visit, the more light images. The
-manifest counts as the server sends it: gzipped.
+sun's bounce is one light's images per sun-bounce stack, of the sun's patch (docs/sun.md,
+item 5), counted apart. The manifest counts as the server sends it: gzipped.
 """
 
 from __future__ import annotations
@@ -42,8 +43,47 @@ def lights_selected_over(manifest: dict, start: str, end: str, step: str = STEP)
     return sorted(chosen)
 
 
+def sun_patches_over(manifest: dict, start: str, end: str, step: str = STEP) -> list[int]:
+    """The dome patches the sun is in between ``start`` and ``end`` (local times, sampled
+    every ``step`` while it is up), in the order it enters them: the sun-bounce columns a
+    client fetches (docs/sun.md, item 5)."""
+    import pandas as pd
+
+    from daylit import sky as skies
+    from daylit.manifest import dome_vertices
+    from daylit.spherical import PatchLookup
+
+    site = manifest["scene"]
+    times = pd.date_range(start, end, freq=step, tz=site["timezone"])
+    az, el = skies.sun_positions(
+        site["latitude_deg"], site["longitude_deg"], site["elevation_m"], times
+    )
+    up = el > 0.0
+    if not up.any():
+        return []
+    patches = PatchLookup(dome_vertices(manifest))(
+        skies.direction_from_azimuth_elevation(az[up], el[up])
+    )
+    return list(dict.fromkeys(int(p) for p in patches))
+
+
+def sun_bounce_bytes(manifest: dict, atlases: list[dict], patches: list[int]) -> int:
+    """Bytes of the sun-bounce images a client fetches for the sun in each of ``patches``:
+    light ``p``'s files (both levels) of every sun-bounce stack of ``atlases``."""
+    sizes = {f["path"]: f["bytes"] for f in manifest["files"]}
+    total = 0
+    for atlas in atlases:
+        for stack in atlas.get("sun_bounce", {}).values():
+            table = stack["compact"]["lights"]
+            for p in patches:
+                if table["scale"][p] is not None:
+                    total += sum(sizes[pattern.format(index=p)] for pattern in table["ktx2"])
+    return total
+
+
 def download_bytes(manifest: dict, build_dir: Path, visit_lights: int | None = None,
-                   day_lights: int | None = None) -> dict:
+                   day_lights: int | None = None, visit_sun: list[int] | None = None,
+                   day_sun: list[int] | None = None) -> dict:
     """Bytes a client fetches, by kind of client:
 
     - ``phone``: the manifest, the GLB, the ground/wall and lightmap atlases (the default
@@ -53,9 +93,16 @@ def download_bytes(manifest: dict, build_dir: Path, visit_lights: int | None = N
     - ``phone_hull``: ``phone`` plus the hull planes, fetched when hull-plane mode is chosen;
     - ``kiosk``: the manifest and the fixed views (the kiosk draws no model);
     - ``kiosk_day``: the kiosk from sunrise to sunset (:data:`KIOSK_DAY`, ``day_lights``);
-    - ``all``: every compact file (GLB, KTX2, V) and the manifest: what a server offers.
+    - ``all``: every compact file (GLB, KTX2, V) and the manifest: what a server offers;
+    - the sun's bounce, apart (not in the figures above): ``sun_bounce_start`` the images of
+      the sun's patch at the visit's start, per sun-bounce stack of the default atlases
+      (lightmap ``I``, ground ``I`` and ``d``); ``sun_bounce_visit`` those of every patch the
+      sun is in over the visit (``visit_sun``: the patches, computed if not given);
+      ``sun_bounce_day`` from sunrise to sunset (``day_sun``); ``sun_bounce_hull_visit`` what
+      hull-plane mode adds over the visit. Zero for a build without sun-bounce stacks.
 
-    Also ``visit_lights`` and ``day_lights``, the light counts used."""
+    Also ``visit_lights``, ``day_lights``, ``visit_sun_patches`` and ``day_sun_patches``,
+    the counts used."""
     sizes = {f["path"]: f["bytes"] for f in manifest["files"]}
     # The server sends JSON gzipped at level 6 (server/routes.py), the binaries as they are.
     manifest_bytes = len(gzip.compress((Path(build_dir) / "manifest.json").read_bytes(), 6))
@@ -86,6 +133,12 @@ def download_bytes(manifest: dict, build_dir: Path, visit_lights: int | None = N
         f["bytes"] for f in manifest["files"]
         if f["path"].startswith(("ktx2/", "v/")) or f["path"] == manifest["model"]["path"]
     )
+    if any("sun_bounce" in a for a in manifest["atlases"]):
+        if visit_sun is None:
+            visit_sun = sun_patches_over(manifest, *VISIT)
+        if day_sun is None:
+            day_sun = sun_patches_over(manifest, *KIOSK_DAY)
+    visit_sun, day_sun = visit_sun or [], day_sun or []
     return {
         "phone": round(phone),
         "phone_visit": round(manifest_bytes + glb + owner_bytes(default, visit_lights)),
@@ -95,4 +148,10 @@ def download_bytes(manifest: dict, build_dir: Path, visit_lights: int | None = N
         "all": compact + manifest_bytes,
         "visit_lights": visit_lights,
         "day_lights": day_lights,
+        "sun_bounce_start": sun_bounce_bytes(manifest, default, visit_sun[:1]),
+        "sun_bounce_visit": sun_bounce_bytes(manifest, default, visit_sun),
+        "sun_bounce_day": sun_bounce_bytes(manifest, default, day_sun),
+        "sun_bounce_hull_visit": sun_bounce_bytes(manifest, hull, visit_sun),
+        "visit_sun_patches": len(visit_sun),
+        "day_sun_patches": len(day_sun),
     }

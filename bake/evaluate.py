@@ -79,7 +79,6 @@ class Build:
         self._surfaces = None
         self._sun_casters = None
         self._composites: dict = {}
-        self._sun_composites: dict = {}  # (atlas, stack, patch): a compact sun-bounce column
         self.solid_angles = np.array(
             [light["solid_angle_sr"] for light in self.manifest["dome"]["lights"]]
         )
@@ -114,7 +113,7 @@ class Build:
         return self._stacks[key]
 
     def sun_bounce_compact(self, atlas: str, name: str):
-        """The compact reader of a sun-bounce stack (a low-rank base alone)."""
+        """The compact reader of a sun-bounce stack (one image per light, no base)."""
         from bake.compress import CompactReader
 
         key = (atlas, "sun_bounce", name)
@@ -219,8 +218,8 @@ class Build:
         The sun in patch ``p`` of the dome is spread over its patch for this (the bounce is
         smooth over neighbouring patches): ``E_sun / solid_angle_p`` times column ``p`` of the
         atlas's sun-bounce stacks, interpolated bilinearly at each point's texel, from the
-        EXR masters (``source="master"``) or the compact base as the client sums it
-        (``"compact"``). ``points``, ``normals``: (m, 3) on receivers (:meth:`locate`);
+        EXR masters (``source="master"``) or light ``p``'s own compact image as the client
+        decodes it (``"compact"``). ``points``, ``normals``: (m, 3) on receivers (:meth:`locate`);
         ``sun_direction``: (3,) toward the sun; ``normal_irradiance_rgb``: (3,) or a number.
 
         Returns ``{"with": (m, 3), "without": (m, 3), "patch": p or None, "samples"}``: with
@@ -269,15 +268,9 @@ class Build:
                     )
                     out[k] = column * r[p]
                 elif source == "compact":
-                    key = (sample.atlas, stack, p)  # one column: the scale comes after
-                    if key not in self._sun_composites:
-                        unit = np.zeros((self.light_count, 3))
-                        unit[p] = 1.0
-                        reader = self.sun_bounce_compact(sample.atlas, stack)
-                        self._sun_composites[key] = reader.composite(
-                            unit, _no_selection(self.light_count)
-                        )
-                    out[k] = _bilinear(self._sun_composites[key], sample.x, sample.y) * r[p]
+                    # Light p's own image (both levels), as the client fetches it.
+                    column = self.sun_bounce_compact(sample.atlas, stack).lights([p])[p]
+                    out[k] = _bilinear(column, sample.x, sample.y) * r[p]
                 else:
                     raise ProbeError(f"unknown source {source!r}: use master or compact")
         return result
@@ -380,13 +373,6 @@ class Build:
             "without": values[1] if len(values) > 1 else None,
             "sample": sample,
         }
-
-
-def _no_selection(n: int):
-    """The selection of a sun-bounce stack: no light has its own images."""
-    from bake.compress import Selection
-
-    return Selection(np.zeros(n), 0)
 
 
 def _bilinear(image: np.ndarray, x: float, y: float) -> np.ndarray:

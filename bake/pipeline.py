@@ -760,9 +760,9 @@ class _Compressor:
         return out
 
     def run_sun_bounce(self, image: np.ndarray, name: str, staging: Path) -> dict | None:
-        """Compress one sun-bounce stack ``name`` (``<atlas>.sun_bounce.<stack>``) into a
-        low-rank base alone (:func:`bake.compress.compress_sun_bounce`); its compact entry,
-        or None when it is zero everywhere (then the master is dropped too)."""
+        """Compress one sun-bounce stack ``name`` (``<atlas>.sun_bounce.<stack>``) into one
+        image per light the sun can be in (:func:`bake.compress.compress_sun_bounce`); its
+        compact entry, or None when it is zero everywhere (then the master is dropped too)."""
         try:
             result = compress.compress_sun_bounce(
                 image, name, staging, self.selection.selectable, self.settings
@@ -777,9 +777,11 @@ class _Compressor:
             "stack": name,
             "k": result.entry["k"],
             "error": result.entry["error"]["max"],
-            "base_bytes": result.base_bytes,
-            "light_bytes": 0,
-            "light_bytes_per_light": 0,
+            "base_bytes": 0,
+            "light_bytes": result.light_bytes,
+            "light_bytes_per_light": round(
+                result.light_bytes / max(result.entry["error"]["test_lights"], 1)
+            ),
             "encode_s": round(result.encode_s, 2),
         }
         return result.entry
@@ -835,15 +837,23 @@ class _Compressor:
         self.log(f"  all compact files (what the server offers): {mb('all')}")
         sun_rows = [row for row in self.report() if ".sun_bounce." in row["stack"]]
         if sun_rows:
-            hull = sum(r["base_bytes"] for r in sun_rows if r["stack"].startswith("hull."))
-            total = sum(r["base_bytes"] for r in sun_rows)
+            default = [r for r in sun_rows if not r["stack"].startswith("hull.")]
+            per_light = sum(r["light_bytes_per_light"] for r in default)
+            total = sum(r["light_bytes"] for r in sun_rows)
             masters = sum(
                 e["bytes"] for e in manifest["files"] if ".sun_bounce." in e["path"]
                 and e["path"].startswith("exr/")
             )
             self.log(
-                f"  the sun's bounce: {total / 1e6:.2f} MB of compact files (of which hull "
-                f"{hull / 1e6:.2f} MB), {masters / 1e6:.1f} MB of EXR masters"
+                f"  the sun's bounce: one light's images per stack, fetched for the sun's "
+                f"patch: {per_light / 1e3:.0f} kB per patch without the hull, "
+                f"{mb('sun_bounce_visit')} over the visit ({sizes['visit_sun_patches']} "
+                f"patches), {mb('sun_bounce_day')} over a day ({sizes['day_sun_patches']}); "
+                f"hull-plane mode adds {mb('sun_bounce_hull_visit')} over the visit"
+            )
+            self.log(
+                f"  the sun's bounce on the server: {total / 1e6:.2f} MB of light images, "
+                f"{masters / 1e6:.1f} MB of EXR masters"
             )
 
 

@@ -80,3 +80,43 @@ def test_a_visit_selects_the_suns_patches_and_a_day_more(demo_draft_build):
     )
     sun = PatchLookup(build.dome_vertices)(skies.direction_from_azimuth_elevation(az, el))
     assert set(np.asarray(sun).tolist()) <= set(visit)
+
+
+def test_the_suns_bounce_is_one_lights_images_per_stack_per_patch(tmp_path):
+    """The sun's bounce: light p's two files of each sun-bounce stack for each patch p the
+    sun is in; the hull's only in hull-plane mode; a light without files counts nothing."""
+    pattern = "ktx2/{atlas}.sun_bounce.{stack}.L{{index:04d}}{suffix}.ktx2"
+
+    def sun_stack(atlas: str, stack: str) -> dict:
+        files = [pattern.format(atlas=atlas, stack=stack, suffix=s) for s in ("", "r")]
+        levels = [[1.0, 1.0, 1.0], [0.1, 0.1, 0.1]]
+        return {"compact": {"k": 0, "lights": {
+            "ktx2": files, "scale": [levels, levels, None], "offset": [levels, levels, None],
+        }}}
+
+    sizes = {"site.glb": 1000}
+    for atlas, stack, base in (("ground", "I", 100), ("ground", "d", 200), ("hull", "I", 300)):
+        for p in (0, 1):
+            for suffix, extra in (("", 0), ("r", 5)):
+                name = pattern.format(atlas=atlas, stack=stack, suffix=suffix).format(index=p)
+                sizes[name] = base + 10 * p + extra
+    manifest = {
+        "model": {"path": "site.glb"},
+        "files": [{"path": p, "bytes": b} for p, b in sizes.items()],
+        "compression": {"selected_lights": 1, "report": []},
+        "atlases": [
+            {"id": "ground", "stacks": {},
+             "sun_bounce": {"I": sun_stack("ground", "I"), "d": sun_stack("ground", "d")}},
+            {"id": "hull", "stacks": {}, "sun_bounce": {"I": sun_stack("hull", "I")}},
+        ],
+        "views": [],
+    }
+    (tmp_path / "manifest.json").write_text(json.dumps(manifest))
+    got = downloads.download_bytes(manifest, tmp_path, visit_lights=0, day_lights=0,
+                                   visit_sun=[1, 0], day_sun=[1, 0, 2])
+    one = {p: (100 + 10 * p) * 2 + 5 + (200 + 10 * p) * 2 + 5 for p in (0, 1)}
+    assert got["sun_bounce_start"] == one[1]  # the sun's patch at the visit's start
+    assert got["sun_bounce_visit"] == one[0] + one[1]
+    assert got["sun_bounce_day"] == one[0] + one[1]  # light 2 has no files
+    assert got["sun_bounce_hull_visit"] == (300 * 2 + 5) + (310 * 2 + 5)
+    assert (got["visit_sun_patches"], got["day_sun_patches"]) == (2, 3)
