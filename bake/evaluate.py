@@ -27,6 +27,7 @@ from daylit import sky as skies
 from daylit.stackio import read_stack_exr
 
 PLANE_TOLERANCE_M = 0.05
+ATLAS_ORDER = ("ground", "hull", "lightmap")  # where Build.locate looks, in this order
 
 
 class ProbeError(ValueError):
@@ -210,7 +211,8 @@ class Build:
         return int(PatchLookup(self.dome_vertices)(s[None, :])[0])
 
     def sun_bounce(
-        self, points, normals, sun_direction, normal_irradiance_rgb, source: str = "master"
+        self, points, normals, sun_direction, normal_irradiance_rgb, source: str = "master",
+        atlases=ATLAS_ORDER,
     ) -> dict:
         """The sun's bounce at receiver points: sunlight reflected once off the ground, the
         walls and the models onto them (docs/sun.md, item 5), W/m^2.
@@ -232,7 +234,7 @@ class Build:
         """
         points = np.atleast_2d(np.asarray(points, dtype=np.float64))
         normals = np.atleast_2d(np.asarray(normals, dtype=np.float64))
-        samples = [self.locate(p, n) for p, n in zip(points, normals, strict=True)]
+        samples = [self.locate(p, n, atlases) for p, n in zip(points, normals, strict=True)]
         m = len(points)
         out_with = np.zeros((m, 3))
         out_without = np.zeros((m, 3))
@@ -275,17 +277,20 @@ class Build:
                     raise ProbeError(f"unknown source {source!r}: use master or compact")
         return result
 
-    def locate(self, point, normal) -> Sample:
+    def locate(self, point, normal, atlases=ATLAS_ORDER) -> Sample:
         """The receiver texel at a world point with a given normal.
 
-        Planes of the ``ground`` and ``hull`` atlases are tried first (they carry ``d``); then
-        the lightmap surfaces. Raises :class:`ProbeError` when nothing is within 5 cm.
+        By default planes of the ``ground`` and ``hull`` atlases are tried first (they carry
+        ``d``); then the lightmap surfaces. ``atlases`` narrows that order, e.g.
+        ``("lightmap",)`` for a model's own surface where a hull plane lies 3 cm outside it
+        (what the client draws in lightmap mode). Raises :class:`ProbeError` when nothing is
+        within 5 cm.
         """
         point = np.asarray(point, dtype=float)
         normal = np.asarray(normal, dtype=float)
         normal = normal / np.linalg.norm(normal)
         best = None
-        for atlas_id in ("ground", "hull"):
+        for atlas_id in (a for a in ("ground", "hull") if a in atlases):
             for r in self.atlases.get(atlas_id, {}).get("receivers", []):
                 n = np.array(r["normal"])
                 if n @ normal < 0.99:
@@ -311,6 +316,9 @@ class Build:
                     )
             if best is not None:
                 return best
+        if "lightmap" not in atlases:
+            raise ProbeError(f"no {' or '.join(atlases)} receiver within {PLANE_TOLERANCE_M} m "
+                             f"of {point.tolist()} facing {normal.tolist()}")
         return self._locate_surface(point, normal)
 
     def _locate_surface(self, point, normal) -> Sample:
@@ -349,7 +357,8 @@ class Build:
         """Bilinearly interpolated master basis values (n, 3) at a located sample."""
         return _bilinear(self.stack(sample.atlas, stack), sample.x, sample.y)
 
-    def irradiance(self, point, normal, sky, source: str = "master") -> dict:
+    def irradiance(self, point, normal, sky, source: str = "master",
+                   atlases=ATLAS_ORDER) -> dict:
         """Irradiance (W/m^2, RGB) at a receiver point under a sky, from ``source``
         (``"master"``: the EXR masters; ``"compact"``: the GPU textures as the client uses them).
 
@@ -357,7 +366,7 @@ class Build:
         virtual objects present (``I``) and without them (``d``: real proxies only on ground
         and walls, nothing on hull planes); ``None`` where the receiver has no ``d``.
         """
-        sample = self.locate(point, normal)
+        sample = self.locate(point, normal, atlases)
         r = self.light_vector(sky)
         stacks = self.atlases[sample.atlas]["stacks"]
         names = ["I", "d"] if "d" in stacks else ["I"]

@@ -89,6 +89,11 @@ export function debugApi(app) {
       if (app.sunBounce) await app.sunBounce.update(sun);
       return app.sunBounce?.patch ?? -1;
     },
+    /** The sun's bounce target of an atlas stack ('ground.I') as base64 float32 RGBA. */
+    readSunBounce(key) {
+      const { width, height, data } = app.relighter.readTarget(app.sunBounce.stacks.get(key).target);
+      return { width, height, data: toBase64(data) };
+    },
     /** How often the sun's shadow maps were rendered (they follow the sun, not the frames). */
     sunShadowRenders: () => app.sunShadows?.renders ?? 0,
     /** Each shadow map's metres per texel and the maps' GPU bytes. */

@@ -362,7 +362,11 @@ export class Relighter {
 
   /** Read one target back as float RGBA rows from the top (tests and the benchmark). */
   read(key) {
-    const target = this.targets[key];
+    return this.readTarget(this.targets[key]);
+  }
+
+  /** Any relight-format render target read back as float32 RGBA (see read). */
+  readTarget(target) {
     const { width, height } = target;
     const gl = this.renderer.getContext();
     this.renderer.setRenderTarget(target);
