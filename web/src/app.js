@@ -133,6 +133,7 @@ export class App {
         if (this.site.sky) this.scene.add(this.site.sky);
         this.sunShadows = new SunShadows(this.renderer, this.scene,
           { virtual: this.site.nodes.virtual, real: this.site.nodes.real }, this.site.sun);
+        this.sunShadows.setMaterials(this.site.sunMaterials());
         await this._enterMode(this.mode);
       }
       this.ready = true;

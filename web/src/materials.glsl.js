@@ -24,13 +24,9 @@ void main() {
 // The sun's visibility past both caster sets, and the facing normal of a double-sided face.
 const sunCommon = /* glsl */ `
 ${sunShadowChunk}
-float sunVisibilityVirtual(vec3 p, vec3 n) { return sunVisibilityIn(sunMapV, sunCoarseV, sunMatrixV, sunInfoV, p, n); }
+// Past every caster (virtual and real), and past the real ones alone.
+float sunVisibilityAll(vec3 p, vec3 n) { return sunVisibilityIn(sunMapA, sunCoarseA, sunMatrixA, sunInfoA, p, n); }
 float sunVisibilityReal(vec3 p, vec3 n) { return sunVisibilityIn(sunMapR, sunCoarseR, sunMatrixR, sunInfoR, p, n); }
-// Past both sets: the real map first, the virtual one only where the real lets the sun through.
-float sunVisibilityBoth(vec3 p, vec3 n) {
-  float real = sunVisibilityReal(p, n);
-  return real > 0.0 ? real * sunVisibilityVirtual(p, n) : 0.0;
-}
 vec3 facingNormal() {
   vec3 n = normalize(vNormalW);
   return gl_FrontFacing ? n : -n;
@@ -76,7 +72,7 @@ ${sunCommon}
 void main() {
   vec3 n = facingNormal();
   vec3 sun = sunOnSurface(n);
-  if (sun != vec3(0.0)) sun *= sunVisibilityBoth(vPositionW, n);
+  sun *= sunVisibilityAll(vPositionW, n);
   sun += decodeTarget(texture2D(sunBounceTex, vUv));
   vec3 e = mix(flatIrradiance, decodeTarget(texture2D(irradianceTex, vUv)) + sun, shading);
   ${output('albedo / 3.14159265 * e * exposure')}
@@ -119,10 +115,10 @@ void main() {
 /**
  * A shadowing plane (Kakuta Eq. 2, 4, with the sun apart as in Jensen 2006), per channel in
  * linear light:
- *   ratio = (D - X + S Vv Vr + B_I) / (D + S Vd + B_d)
+ *   ratio = (D - X + S V + B_I) / (D + S Vd + B_d)
  * with D = sum r d and X = sum r (d - I) the sky's part from the basis, S the sun's
- * irradiance on the plane unshadowed, Vv and Vr its visibility past the virtual and the real
- * casters, and Vd = Vr where `d` holds the real proxies (ground and wall planes), 1 where it
+ * irradiance on the plane unshadowed, V its visibility past every caster and Vr past the real
+ * ones, and Vd = Vr where `d` holds the real proxies (ground and wall planes), 1 where it
  * holds nothing (hull planes), B the sun's bounce with and without the virtual objects
  * (sunbounce.js; black where the build has none). Inside a real shadow the ratio is the sky's alone: a virtual
  * shadow never darkens what the real scene already shadows.
@@ -151,13 +147,9 @@ void main() {
   vec3 X = decodeTarget(texture2D(deltaTex, vUv));
   vec3 n = facingNormal();
   vec3 S = sunOnSurface(n);
-  float vv = 1.0;
-  float vr = 1.0;
-  if (S != vec3(0.0)) {
-    vr = sunVisibilityReal(vPositionW, n);
-    vv = vr > 0.0 ? sunVisibilityVirtual(vPositionW, n) : 1.0; // inside a real shadow vv is not used
-  }
-  vec3 present = D - X + S * vv * vr + decodeTarget(texture2D(sunBounceTex, vUv));
+  float all = sunVisibilityAll(vPositionW, n);
+  float vr = sunVisibilityReal(vPositionW, n);
+  vec3 present = D - X + S * all + decodeTarget(texture2D(sunBounceTex, vUv));
   vec3 absent = D + S * mix(1.0, vr, dHasReal) + decodeTarget(texture2D(sunBounceDTex, vUv));
   vec3 ratio = mix(vec3(1.0), present / max(absent, vec3(1e-6)), step(vec3(1e-6), absent));
   ratio = mix(vec3(1.0), clamp(ratio, 0.0, 4.0), strength);
@@ -174,8 +166,9 @@ void main() {
 
 /**
  * A real receiving surface in the virtual visit (no camera view to blend over): the
- * synthesized real scene under the same sky and sun, albedo / pi x (D - X + S Vv Vr + B_I) (the
- * virtual objects' part, X, Vv and B_I for B_d, left out when their shadows are switched off).
+ * synthesized real scene under the same sky and sun, albedo / pi x (D - X + S V + B_I) (the
+ * virtual objects' part left out when their shadows are switched off: X, V for Vr (compiled
+ * with VIRTUAL_SHADOWS 0), B_I for B_d).
  */
 export const receiverFragment = (decode) => /* glsl */ `
 ${common}
@@ -196,10 +189,11 @@ void main() {
   vec3 n = facingNormal();
   vec3 bounce = mix(decodeTarget(texture2D(sunBounceDTex, vUv)), decodeTarget(texture2D(sunBounceTex, vUv)), strength);
   vec3 sun = sunOnSurface(n);
-  if (sun != vec3(0.0)) {
-    float real = sunVisibilityReal(vPositionW, n);
-    sun *= real > 0.0 ? real * mix(1.0, sunVisibilityVirtual(vPositionW, n), strength) : 0.0;
-  }
+#if VIRTUAL_SHADOWS == 1
+  sun *= sunVisibilityAll(vPositionW, n);
+#else
+  sun *= sunVisibilityReal(vPositionW, n); // the A/B switch's "off": the real shadows only
+#endif
   vec3 e = max(D - strength * X, vec3(0.0)) + sun + bounce;
   ${output('albedo / 3.14159265 * e * exposure')}
 }
@@ -219,7 +213,7 @@ ${sunCommon}
 void main() {
   vec3 n = vec3(0.0, 1.0, 0.0);
   vec3 sun = sunOnSurface(n);
-  if (sun != vec3(0.0)) sun *= sunVisibilityBoth(vPositionW, n);
+  sun *= sunVisibilityAll(vPositionW, n);
   ${output('albedo / 3.14159265 * (openIrradiance + sun) * exposure')}
 }
 `;

@@ -12,7 +12,7 @@ import {
   shadowPlaneFragment, skyFragment, skyVertex, uvVertex,
 } from './materials.glsl.js';
 import { FLOAT_DECODE, RGBE_DECODE } from './relight.glsl.js';
-import { sunUniforms } from './sun.js';
+import { SUN_DEFINES, sunUniforms } from './sun.js';
 
 export class Site {
   /**
@@ -64,7 +64,7 @@ export class Site {
       } else if (info.role === 'ground') {
         mesh.userData.visitMaterial = new THREE.ShaderMaterial({
           uniforms: { ...this.sun, exposure: this.shared.exposure, albedo: { value: albedo }, openIrradiance: this.shared.openIrradiance },
-          vertexShader: plainVertex, fragmentShader: openGroundFragment,
+          vertexShader: plainVertex, fragmentShader: openGroundFragment, defines: { ...SUN_DEFINES },
           polygonOffset: true, polygonOffsetFactor: 1, polygonOffsetUnits: 4,
         });
         this.nodes.ground.push(mesh);
@@ -91,6 +91,7 @@ export class Site {
               dTex: { value: D }, deltaTex: { value: X }, sunBounceTex: b.bI, sunBounceDTex: b.bD,
             },
             vertexShader: uvVertex, fragmentShader: receiverFragment(decode), side: THREE.DoubleSide,
+            defines: { ...SUN_DEFINES, VIRTUAL_SHADOWS: 1 },
           });
           this.nodes.plane.push(mesh);
         }
@@ -114,7 +115,7 @@ export class Site {
         irradianceTex: { value: target.texture }, sunBounceTex,
       },
       vertexShader: uvVertex, fragmentShader: lightmapFragment(decode),
-      side: THREE.DoubleSide,
+      side: THREE.DoubleSide, defines: { ...SUN_DEFINES },
     });
   }
 
@@ -126,6 +127,7 @@ export class Site {
         groundAlbedo: { value: this.groundAlbedo },
       },
       vertexShader: plainVertex, fragmentShader: sh9Fragment, side: THREE.DoubleSide,
+      defines: { ...SUN_DEFINES },
     });
   }
 
@@ -144,7 +146,7 @@ export class Site {
         brighten: { value: brighten }, alphaOut: { value: alphaOut }, dHasReal: { value: dHasReal },
         sunBounceTex: bI, sunBounceDTex: bD,
       },
-      vertexShader: uvVertex, fragmentShader: shadowPlaneFragment(decode),
+      vertexShader: uvVertex, fragmentShader: shadowPlaneFragment(decode), defines: { ...SUN_DEFINES },
       transparent: true, depthWrite: false, side: THREE.DoubleSide,
       blending: THREE.CustomBlending, blendEquation: THREE.AddEquation, ...blend,
       blendSrcAlpha: THREE.ZeroFactor, blendDstAlpha: THREE.OneFactor,
@@ -216,6 +218,24 @@ export class Site {
   setShading(on) {
     this.shared.shading.value = on ? 1 : 0;
     this.shared.strength.value = on ? 1 : 0;
+    for (const m of this.nodes.plane) {
+      const material = m.userData.receiverMaterial;
+      if (!material || material.defines.VIRTUAL_SHADOWS === (on ? 1 : 0)) continue;
+      material.defines = { ...material.defines, VIRTUAL_SHADOWS: on ? 1 : 0 };
+      material.needsUpdate = true;
+    }
+  }
+
+  /** Every material that draws the sun (sun.js compiles them with or without it). */
+  sunMaterials() {
+    const out = new Set();
+    this.root.traverse((o) => {
+      for (const key of ['lightmapMaterial', 'sh9Material', 'visitMaterial', 'receiverMaterial', 'shadowMaterial', 'shadowAlphaMaterial']) {
+        if (o.userData[key]) out.add(o.userData[key]);
+      }
+      if (o.userData.brightMesh) out.add(o.userData.brightMesh.material);
+    });
+    return [...out];
   }
 
   /** Centre and size of the virtual objects (for cameras). */

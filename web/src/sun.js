@@ -1,13 +1,15 @@
 // The sun as its own light (docs/sun.md, Jensen et al. 2006): a directional light whose
-// shadows come from two depth maps rendered from the sun, one of the virtual models and one
-// of the real proxies, so that real and virtual shadows can meet as they do in reality. The
+// shadows come from two depth maps rendered from the sun, one of every caster (virtual models
+// and real proxies) and one of the real proxies alone, so that real and virtual shadows can
+// meet as they do in reality (a surface needs the first; a shadowing plane over a camera
+// picture both: sun past everything, and past what is real). The
 // maps are filtered to the penumbra of the sun's 0.53-degree disc (percentage-closer soft
 // shadows: a blocker search, then a disc filter whose radius is the receiver-to-blocker
 // distance times tan(0.2666 deg)); bake/sunlight.py is the ray-cast oracle of the same term.
 //
 // Why not three.js's DirectionalLight shadows: their PCF blur is a fixed number of texels,
 // not the sun's disc; they need three's lighting chunks in every material; and they cast one
-// set of shadows where daylit needs two (virtual, real).
+// set of shadows where daylit needs two (all, real).
 //
 // The scene is static, so the maps are rendered only when the sun moves (a new light
 // vector), never per frame; a frame pays only the filter's texture reads.
@@ -22,7 +24,7 @@ const MAP_SIZE = 2048;
 // everywhere near" (umbra) for any search disc of up to CELL texels.
 const CELL = 16;
 const COARSE = MAP_SIZE / CELL;
-const LAYER = { virtual: 1, real: 2 };
+const LAYER = { virtual: 1, real: 2 }; // caster layers; the 'all' map sees both
 const MIN_FIT_ELEVATION_SIN = Math.sin(3 * Math.PI / 180); // shadows of a lower sun are clipped
 // Re-render when the sun moved 0.05 deg (a shadow edge 10 m from its caster moves 9 mm / sin
 // of the sun's elevation: a fraction of its penumbra; the demo's clock at 20x moves the sun
@@ -32,7 +34,7 @@ const RERENDER_COS = Math.cos(0.05 * Math.PI / 180);
 /**
  * GLSL of the sun term, shared by every material that receives the sun. Uniforms:
  * sunIrradiance (RGB normal irradiance, W/m^2), sunDirection (unit, toward the sun), and per
- * caster set X in {V, R}: sunMapX (depth), sunMatrixX (world -> the sun camera's clip space),
+ * caster set X in {A, R}: sunMapX (depth), sunMatrixX (world -> the sun camera's clip space),
  * sunInfoX = (metres per texel, near m, far - near m, 1 when the map holds casters).
  */
 /** Vogel's spiral: `count` evenly spread points on the unit disc, as a GLSL vec2 array. */
@@ -83,21 +85,22 @@ void main() {
 /**
  * GLSL of the sun term, shared by every material that receives the sun. Uniforms:
  * sunIrradiance (RGB normal irradiance, W/m^2), sunDirection (unit, toward the sun), and per
- * caster set X in {V, R}: sunMapX (depth), sunMatrixX (world -> the sun camera's clip space),
- * sunInfoX = (metres per texel, near m, far - near m, 1 when the map holds casters).
+ * caster set X in {A (all), R (real)}: sunMapX (depth), sunMatrixX (world -> the sun camera's
+ * clip space), sunInfoX = (metres per texel, near m, far - near m, 1 when the map holds
+ * casters). Compiled with SUN 0 (materials' define) it draws no sun and costs nothing.
  * Cost: a lit or umbral pixel reads BLOCKER_SAMPLES texels per map; only penumbrae (where the
  * blocker search finds some but not all samples blocked) read FILTER_SAMPLES more.
  */
 export const sunShadowChunk = /* glsl */ `
 uniform vec3 sunIrradiance;
 uniform vec3 sunDirection;
-uniform sampler2D sunMapV;
+uniform sampler2D sunMapA;
 uniform sampler2D sunMapR;
-uniform mat4 sunMatrixV;
+uniform mat4 sunMatrixA;
 uniform mat4 sunMatrixR;
-uniform vec4 sunInfoV;
+uniform vec4 sunInfoA;
 uniform vec4 sunInfoR;
-uniform sampler2D sunCoarseV;
+uniform sampler2D sunCoarseA;
 uniform sampler2D sunCoarseR;
 const float TAN_SUN = ${TAN_SUN.toFixed(9)};
 ${spiral('SUN_BLOCKER_DISC', BLOCKER_SAMPLES)}
@@ -105,22 +108,31 @@ ${spiral('SUN_FILTER_DISC', FILTER_SAMPLES)}
 ${PACK16}
 
 // Fraction of the sun's disc seen past one caster set from a world point with normal n.
+// One exit and loops whose counts are 0 where they are not needed: a software GPU
+// (SwiftShader) runs the code under a branch not taken with its lanes masked, but leaves a
+// loop as soon as no lane needs another turn.
 float sunVisibilityIn(sampler2D map, sampler2D coarse, mat4 M, vec4 info, vec3 position, vec3 n) {
-  if (info.w < 0.5) return 1.0;
+#if SUN == 0
+  return 1.0;
+#else
   float texel = info.x;
   vec4 clip = M * vec4(position + n * (1.5 * texel), 1.0);
   vec3 q = clip.xyz * 0.5 + 0.5;
-  if (q.x <= 0.0 || q.y <= 0.0 || q.x >= 1.0 || q.y >= 1.0 || q.z >= 1.0) return 1.0;
   float depth = info.y + q.z * info.z;   // metres from the sun camera
   float bias = 1.5 * texel;
   float toUv = 1.0 / (texel * ${MAP_SIZE}.0);
   // A blocker lies between the near plane (the casters' nearest point) and the receiver.
   float searchM = max((depth - info.y) * TAN_SUN, 1.5 * texel);
-  if (searchM <= ${CELL}.0 * texel) {
+  bool inMap = info.w > 0.5 && q.x > 0.0 && q.y > 0.0 && q.x < 1.0 && q.y < 1.0 && q.z < 1.0;
+  float visible = 1.0;
+  int blockerCount = inMap ? ${BLOCKER_SAMPLES} : 0;
+  if (inMap && searchM <= ${CELL}.0 * texel) {
     // One read of the coarse map settles most pixels: no caster near, or casters all around.
     vec4 bounds = texelFetch(coarse, ivec2(q.xy * ${COARSE}.0), 0);
-    if (info.y + unpack16(bounds.rg) * info.z >= depth - bias) return 1.0;
-    if (info.y + unpack16(bounds.ba) * info.z < depth - bias) return 0.0;
+    bool clear = info.y + unpack16(bounds.rg) * info.z >= depth - bias;
+    bool covered = info.y + unpack16(bounds.ba) * info.z < depth - bias;
+    if (clear || covered) blockerCount = 0;
+    if (covered) visible = 0.0;
   }
   // Interleaved gradient noise turns the spirals from pixel to pixel (no banding).
   float turn = 6.2831853 * fract(52.9829189 * fract(dot(gl_FragCoord.xy, vec2(0.06711056, 0.00583715))));
@@ -129,41 +141,50 @@ float sunVisibilityIn(sampler2D map, sampler2D coarse, mat4 M, vec4 info, vec3 p
   float searchUv = searchM * toUv;
   float blockers = 0.0;
   float blockerDepth = 0.0;
-  for (int i = 0; i < ${BLOCKER_SAMPLES}; i++) {
+  for (int i = 0; i < blockerCount; i++) {
     float z = info.y + texture2D(map, q.xy + rotate * SUN_BLOCKER_DISC[i] * searchUv).r * info.z;
     if (z < depth - bias) { blockers += 1.0; blockerDepth += z; }
   }
-  if (blockers == 0.0) return 1.0;
-  if (blockers == ${BLOCKER_SAMPLES}.0) return 0.0; // the whole search disc is blocked: umbra
+  // All blocked: umbra; none: lit; else the penumbra's filter below.
+  if (blockerCount > 0 && blockers == ${BLOCKER_SAMPLES}.0) visible = 0.0;
+  int filterCount = blockers > 0.0 && blockers < ${BLOCKER_SAMPLES}.0 ? ${FILTER_SAMPLES} : 0;
   // 2. The disc's footprint at the blockers' mean distance: each sample is one direction
   //    within the sun's disc, blocked or not.
-  float radiusUv = max((depth - blockerDepth / blockers) * TAN_SUN, texel) * toUv;
+  float radiusUv = max((depth - blockerDepth / max(blockers, 1.0)) * TAN_SUN, texel) * toUv;
   float lit = 0.0;
-  for (int i = 0; i < ${FILTER_SAMPLES}; i++) {
+  for (int i = 0; i < filterCount; i++) {
     float z = info.y + texture2D(map, q.xy + rotate * SUN_FILTER_DISC[i] * radiusUv).r * info.z;
     lit += z < depth - bias ? 0.0 : 1.0;
   }
-  return lit / ${FILTER_SAMPLES}.0;
+  if (filterCount > 0) visible = lit / ${FILTER_SAMPLES}.0;
+  return visible;
+#endif
 }
 
 // The sun's cosine-weighted normal irradiance on a surface (W/m^2, RGB), unshadowed.
 vec3 sunOnSurface(vec3 n) {
+#if SUN == 0
+  return vec3(0.0);
+#else
   return sunIrradiance * max(dot(n, sunDirection), 0.0);
+#endif
 }
 `;
 
 /** Uniforms of sunShadowChunk, shared by every material (one update reaches them all). */
+export const SUN_DEFINES = { SUN: 0 }; // materials start without the sun (SunShadows turns it on)
+
 export function sunUniforms() {
   return {
     sunIrradiance: { value: new THREE.Vector3() },
     sunDirection: { value: new THREE.Vector3(0, 1, 0) },
-    sunMapV: { value: null },
+    sunMapA: { value: null },
     sunMapR: { value: null },
-    sunMatrixV: { value: new THREE.Matrix4() },
+    sunMatrixA: { value: new THREE.Matrix4() },
     sunMatrixR: { value: new THREE.Matrix4() },
-    sunInfoV: { value: new THREE.Vector4(1, 0, 1, 0) },
+    sunInfoA: { value: new THREE.Vector4(1, 0, 1, 0) },
     sunInfoR: { value: new THREE.Vector4(1, 0, 1, 0) },
-    sunCoarseV: { value: null },
+    sunCoarseA: { value: null },
     sunCoarseR: { value: null },
   };
 }
@@ -171,8 +192,7 @@ export function sunUniforms() {
 /** One caster set's depth map, seen from the sun with an orthographic camera fitted to the
  * casters and to where their shadows can fall. */
 class ShadowMap {
-  constructor(layer) {
-    this.layer = layer;
+  constructor(layers) {
     this.target = new THREE.WebGLRenderTarget(MAP_SIZE, MAP_SIZE, {
       depthBuffer: true,
       depthTexture: new THREE.DepthTexture(MAP_SIZE, MAP_SIZE, THREE.FloatType),
@@ -192,7 +212,8 @@ class ShadowMap {
       uniforms: { source: { value: pass === 0 ? depth : this.rows.texture } },
     }));
     this.camera = new THREE.OrthographicCamera(-1, 1, 1, -1, 0.1, 10);
-    this.camera.layers.set(layer);
+    this.camera.layers.disableAll();
+    for (const layer of layers) this.camera.layers.enable(layer);
     this.matrix = new THREE.Matrix4();
     this.info = new THREE.Vector4(1, 0, 1, 0);
   }
@@ -270,16 +291,17 @@ export class SunShadows {
     this.uniforms = uniforms;
     this.maps = {};
     this.boxes = {};
-    for (const [set, meshes] of Object.entries(casters)) {
+    for (const [set, meshes] of Object.entries(casters)) for (const m of meshes) m.layers.enable(LAYER[set]);
+    const sets = { all: [...casters.virtual, ...casters.real], real: casters.real };
+    for (const [set, meshes] of Object.entries(sets)) {
       const box = new THREE.Box3();
-      for (const m of meshes) {
-        m.layers.enable(LAYER[set]);
-        box.expandByObject(m);
-      }
+      for (const m of meshes) box.expandByObject(m);
       if (box.isEmpty()) continue;
       this.boxes[set] = box;
-      this.maps[set] = new ShadowMap(LAYER[set]);
+      this.maps[set] = new ShadowMap(set === 'all' ? [LAYER.virtual, LAYER.real] : [LAYER.real]);
     }
+    this.on = null; // whether the materials are compiled with the sun (SUN 1)
+    this.materials = []; // every material that draws the sun (setMaterials)
     this.depthOnly = new THREE.MeshBasicMaterial({ colorWrite: false, side: THREE.DoubleSide });
     this.direction = null; // the sun direction the maps were rendered for
     this.renders = 0;
@@ -294,12 +316,30 @@ export class SunShadows {
     const s = new THREE.Vector3(...direction);
     const up = s.lengthSq() > 0 && s.y > 0;
     u.sunIrradiance.value.set(...(up ? normalIrradiance : [0, 0, 0]));
-    if (!up) return;
+    const on = up && normalIrradiance.some((e) => e > 0);
+    this._compileWithSun(on);
+    if (!on) return;
     s.normalize();
     u.sunDirection.value.copy(s);
     if (this.direction && this.direction.dot(s) > RERENDER_COS) return;
     this.direction = s;
     this.render();
+  }
+
+  /** The materials that draw the sun: compiled with SUN 0 while there is none (night, a
+   * cloud over it), so that they cost nothing then. */
+  setMaterials(materials) {
+    this.materials = materials;
+    this.on = null;
+  }
+
+  _compileWithSun(on) {
+    if (on === this.on) return;
+    this.on = on;
+    for (const m of this.materials) {
+      m.defines = { ...m.defines, SUN: on ? 1 : 0 };
+      m.needsUpdate = true;
+    }
   }
 
   render() {
@@ -312,7 +352,7 @@ export class SunShadows {
       renderer.clear(true, true, false);
       renderer.render(scene, map.camera);
       map.reduceDepth(renderer);
-      const key = set === 'virtual' ? 'V' : 'R';
+      const key = set === 'all' ? 'A' : 'R';
       uniforms[`sunMap${key}`].value = map.target.depthTexture;
       uniforms[`sunCoarse${key}`].value = map.coarse.texture;
       uniforms[`sunMatrix${key}`].value.copy(map.matrix);
