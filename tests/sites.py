@@ -105,6 +105,18 @@ def make_site(
     return root
 
 
+def real_box(name: str, box_m, translation_m, albedo=(0.5, 0.5, 0.5)) -> str:
+    """The scene.toml table of a real proxy box (docs/scene-format.md), for ``make_site``'s
+    ``real``."""
+    return textwrap.dedent(f"""
+        [[real]]
+        name = "{name}"
+        box_m = {list(map(float, box_m))}
+        translation_m = {list(map(float, translation_m))}
+        albedo = {list(map(float, albedo))}
+        """)
+
+
 def sphere(radius: float, center) -> trimesh.Trimesh:
     m = trimesh.creation.icosphere(subdivisions=4, radius=radius)
     m.apply_translation(np.asarray(center, dtype=float))

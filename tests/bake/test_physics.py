@@ -12,7 +12,7 @@ import pytest
 from bake.evaluate import Build
 from bake.pipeline import bake
 from tests.bake.reference import ReferenceRenderer
-from tests.sites import box, make_site, sphere
+from tests.sites import box, make_site, real_box, sphere
 
 QUIET = {"progress": False, "log": lambda msg: None}
 
@@ -62,13 +62,7 @@ def test_ground_under_a_sphere_gets_the_view_factor(sphere_build):
 
 def test_vertical_wall_without_ground_reflection_gets_half(tmp_path):
     # A real wall whose east face can catch the box's shadow; ground albedo 0: E = pi L / 2.
-    wall = """
-    [[real]]
-    name = "wall"
-    box_m = [0.4, 3.0, 6.0]
-    translation_m = [3.0, 0.0, 0.0]
-    albedo = [0.5, 0.5, 0.5]
-    """
+    wall = real_box("wall", (0.4, 3.0, 6.0), (3.0, 0.0, 0.0))
     scene = make_site(tmp_path / "scene", real=wall, ground_albedo=(0, 0, 0))
     bake(scene, tmp_path / "build", **QUIET)
     build = Build(tmp_path / "build")

@@ -30,19 +30,13 @@ EXPOSURE = 0.02  # open sunlit ground: albedo / pi x ~330 W/m^2 x 0.02 = 0.42 be
 @pytest.fixture(scope="module")
 def sun_build(tmp_path_factory):
     from bake.pipeline import bake
-    from tests.sites import box, make_site
+    from tests.sites import box, make_site, real_box
 
     root = tmp_path_factory.mktemp("sunsite")
     scene = make_site(
         root / "scene",
         virtual=[("vbox", box([2.0, 3.0, 2.0], [0.0, 0.0, 0.0]), (0.6, 0.6, 0.6))],
-        real="""
-            [[real]]
-            name = "rbox"
-            box_m = [3.0, 3.0, 3.0]
-            translation_m = [6.0, 0.0, 0.0]
-            albedo = [0.5, 0.5, 0.5]
-            """,
+        real=real_box("rbox", (3.0, 3.0, 3.0), (6.0, 0.0, 0.0)),
         ground_m=40.0,
         ground_texel_m=0.25,
     )
