@@ -259,8 +259,9 @@ export class App {
   _smoothedLight() {
     const v = this.smoother.value;
     const n3 = v.length - 3;
-    const direction = this.light?.sun?.direction;
-    const sun = direction ? { direction, normalIrradiance: Array.from(v.subarray(n3)) } : null;
+    const direction = this.light?.sun?.direction; // (0, 0, 0) from a server with no sun now
+    const known = direction && direction.some((x) => x !== 0);
+    const sun = known ? { direction, normalIrradiance: Array.from(v.subarray(n3)) } : null;
     let r = v.slice(0, n3);
     // The kiosk's fixed view draws the sun from its basis images: folded back into its patch.
     if (this.mode === 'kiosk' && sun) r = foldSun(r, sun, this.assets.manifest.dome.lights);
