@@ -171,9 +171,11 @@ vec3 sunOnSurface(vec3 n) {
 }
 `;
 
-/** Uniforms of sunShadowChunk, shared by every material (one update reaches them all). */
-export const SUN_DEFINES = { SUN: 0 }; // materials start without the sun (SunShadows turns it on)
+/** The defines every material with sunShadowChunk starts with: no sun until SunShadows.setSun
+ * brings one (SunShadows.setMaterials). */
+export const SUN_DEFINES = { SUN: 0 };
 
+/** Uniforms of sunShadowChunk, shared by every material (one update reaches them all). */
 export function sunUniforms() {
   return {
     sunIrradiance: { value: new THREE.Vector3() },
