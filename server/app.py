@@ -100,8 +100,8 @@ def make_sky_source(spec: SourceSpec, settings: Settings, scene: dict) -> Source
         )
         simulated.linke_turbidity = settings.sun.linke_turbidity
         return SimSource(simulated, sky.rate_hz)
-    if spec.kind == "replay":
-        return ReplaySource(spec.target, sky.rate_hz)
+    if spec.kind == "replay":  # brackets in it are merged with the sky camera's response
+        return ReplaySource(spec.target, sky.rate_hz, make_photometry(settings))
     return CameraSource(spec.camera_target, sky.rate_hz, sky.reconnect_min_s,
                         sky.reconnect_max_s)
 

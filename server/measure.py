@@ -522,9 +522,10 @@ class Frame:
     ``image`` is (H, W, 3) uint8 or uint16 camera codes, or float32 linear values; ``bgr`` says
     whether the channels come in OpenCV's order. ``exposure`` (linear value of unit radiance)
     overrides the configured one when the source knows it. ``hdr``: a float frame without a
-    white point (EXR, merged brackets): no value counts as clipped. ``sky_time_s``: the time
-    the sky is at, for the sun's position (None: ``capture_time_s``; the simulated sky sets its
-    simulated time).
+    white point (EXR, merged brackets): no value counts as clipped, unless ``clip_level`` is
+    given: then values at or above it do (a merged bracket: where even its shortest exposure
+    clipped, the value is only a lower bound). ``sky_time_s``: the time the sky is at, for the
+    sun's position (None: ``capture_time_s``; the simulated sky sets its simulated time).
     """
 
     image: np.ndarray
@@ -534,6 +535,7 @@ class Frame:
     truth: object = None  # the simulated sky's known answer, for tests; None for real frames
     hdr: bool = False
     sky_time_s: float | None = None
+    clip_level: float | None = None
 
 
 class FrameError(ValueError):
@@ -645,14 +647,18 @@ class SkyMeter:
         ys, xs = np.nonzero(peak >= threshold)
         return block_rows[ys].astype(np.int64) * wb + xs
 
-    def clip_threshold(self, image: np.ndarray, hdr: bool = False) -> float:
-        """The raw value at or above which a channel counts as clipped (inf: never)."""
+    def clip_threshold(self, image: np.ndarray, hdr: bool = False,
+                       clip_level: float | None = None) -> float:
+        """The raw value at or above which a channel counts as clipped (inf: never). An HDR
+        float frame clips only at its own ``clip_level`` (a merged bracket), if it has one."""
         level = self.photometry.saturation_level
         if image.dtype == np.uint8:
             return math.ceil(level * 255)
         if image.dtype == np.uint16:
             return math.ceil(level * 65535)
-        return math.inf if hdr else level
+        if hdr:
+            return math.inf if clip_level is None else float(clip_level)
+        return level
 
     def to_linear(self, raw: np.ndarray) -> np.ndarray:
         """Codes (..., 3) -> linear float32 through the inverse response; floats unchanged."""
@@ -662,11 +668,11 @@ class SkyMeter:
             return self._lut(65536)[raw, np.arange(3)]
         return raw.astype(np.float32)
 
-    def linearize(self, image: np.ndarray, m: PatchMatrix,
-                  hdr: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    def linearize(self, image: np.ndarray, m: PatchMatrix, hdr: bool = False,
+                  clip_level: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """The crop's linear image at working size (float32, unit: full scale = ``scale``),
-        and the flat working-size indices of pixels with a clipped channel (none for ``hdr``
-        float frames).
+        and the flat working-size indices of pixels with a clipped channel (for ``hdr`` float
+        frames none, or those at or above their ``clip_level``).
 
         8-bit frames go through a 16-bit table (``cv2.LUT``) and are binned in 16 bits: the
         cheapest exact path (a 16-bit linear value resolves even code 1 of an sRGB camera).
@@ -679,7 +685,7 @@ class SkyMeter:
         crop = image[y0:y1, x0:x1]
         h, w = crop.shape[:2]
         b = m.binning
-        threshold = self.clip_threshold(image, hdr)
+        threshold = self.clip_threshold(image, hdr, clip_level)
         if image.dtype == np.uint8:
             linear = self._linearize_codes(crop, m)  # already binned
             b = 1
@@ -741,14 +747,15 @@ class SkyMeter:
             raise FrameError(f"frame exposure {exposure!r} is not a positive number")
         h, w = image.shape[:2]
         m = self.prepare(w, h)
-        linear, clipped = self.linearize(image, m, frame.hdr)
+        linear, clipped = self.linearize(image, m, frame.hdr, frame.clip_level)
         sun, sun_ms = None, 0.0
         if self.sun is not None:
             t0 = time.perf_counter()
             sky_time_s = frame.capture_time_s if frame.sky_time_s is None else frame.sky_time_s
             sun, replaced = self.sun.measure(
                 image, sky_time_s, self.camera_for(w, h), m, linear, self.to_linear,
-                self.photometry, exposure, frame.bgr, self.clip_threshold(image, frame.hdr))
+                self.photometry, exposure, frame.bgr,
+                self.clip_threshold(image, frame.hdr, frame.clip_level))
             if replaced is not None and clipped.size:
                 clipped = clipped[~replaced[clipped]]  # the sun's clipped pixels are gone
             sun_ms = 1e3 * (time.perf_counter() - t0)

@@ -6,6 +6,13 @@ inverse response is applied (float frames are linear as they are). An EXR file's
 ``capDate`` ("YYYY:MM:DD HH:MM:SS", local) and ``utcOffset`` (seconds, UTC = local +
 utcOffset; 0 when absent) attributes give the time its sky was at, for the sun's position
 (``Frame.sky_time_s``); other frames are stamped with the time they are played.
+
+A sub-folder of a replay folder is a **bracket** (``server.brackets``): its 8-bit exposures,
+with their times from EXIF or its ``bracket.json``, are merged into one linear HDR frame (with
+the clip level of its shortest exposure) and measured like an EXR frame. A bracket that cannot
+be merged (one exposure, sizes that differ, a missing time) is skipped with a log line and
+``last_error`` in the status. Brackets are replay-only: a live camera's exposure cannot be
+driven through OpenCV portably.
 """
 
 from __future__ import annotations
@@ -19,7 +26,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from server.measure import Frame
+from server.brackets import BracketError, read_bracket
+from server.measure import Frame, Photometry, inverse_response_table
 from server.protocol import Flags
 from server.sources.base import Deliver, Source
 
@@ -89,23 +97,59 @@ def read_frame_image(path: Path) -> tuple[np.ndarray | None, bool, bool, float |
 class ReplaySource(Source):
     """Plays ``path`` at ``rate_hz`` frames per second, forever.
 
-    Images that cannot be read are skipped with a log line. Frames are stamped with the time
-    they are played (the recording's own time is not known in general).
+    Images that cannot be read, and brackets that cannot be merged, are skipped with a log
+    line (once per file and reason). Frames are stamped with the time they are played (the
+    recording's own time is not known in general).
+
+    ``photometry``: its inverse response and saturation level merge brackets (default sRGB).
     """
 
     flags = Flags.REPLAY
 
-    def __init__(self, path: Path | str, rate_hz: float = 2.0):
+    def __init__(self, path: Path | str, rate_hz: float = 2.0,
+                 photometry: Photometry | None = None):
         self.path = Path(path)
         self.period_s = 1.0 / rate_hz
         self.name = f"replay:{self.path}"
         self.played = 0
+        self.skipped = 0
+        self.last_error = ""
+        self.photometry = photometry or Photometry()
+        self._response = inverse_response_table(self.photometry.response)
+        self._warned: set[str] = set()
 
     def _images(self) -> list[Path]:
-        files = sorted(p for p in self.path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-        if not files:
-            raise ReplayError(f"{self.path}: no images ({', '.join(sorted(IMAGE_SUFFIXES))})")
-        return files
+        """The folder's images and bracket folders (not hidden ones), in name order."""
+        entries = sorted(p for p in self.path.iterdir() if not p.name.startswith(".") and (
+            p.is_dir() or p.suffix.lower() in IMAGE_SUFFIXES))
+        if not entries:
+            raise ReplayError(f"{self.path}: no images ({', '.join(sorted(IMAGE_SUFFIXES))}) "
+                              "or bracket folders")
+        return entries
+
+    def _skip(self, message: str) -> None:
+        self.skipped += 1
+        self.last_error = message
+        if message not in self._warned:  # a looping replay would repeat it every loop
+            self._warned.add(message)
+            log.warning("replay: skipping %s", message)
+
+    def read_entry(self, path: Path) -> tuple[np.ndarray, bool, bool, float | None,
+                                              float | None] | None:
+        """One entry: (image, bgr, hdr, sky_time_s, clip_level), or None (skipped)."""
+        if path.is_dir():
+            try:
+                b = read_bracket(path, self._response, self.photometry.saturation_level)
+            except (BracketError, OSError) as exc:
+                self._skip(f"bracket {exc}" if isinstance(exc, BracketError) else
+                           f"bracket {path} ({exc})")
+                return None
+            return b.image, True, True, b.sky_time_s, b.clip_level
+        image, bgr, hdr, sky_time_s = read_frame_image(path)
+        if image is None or image.ndim != 3 or image.shape[2] < 3:
+            self._skip(f"{path} (not a colour image that can be read)")
+            return None
+        return image[:, :, :3], bgr, hdr, sky_time_s, None
 
     async def run(self, deliver: Deliver) -> None:
         next_s = time.monotonic()
@@ -115,8 +159,9 @@ class ReplaySource(Source):
             frames = self._video_forever()
         else:
             raise ReplayError(f"{self.path}: no such file or folder")
-        async for image, bgr, hdr, sky_time_s in frames:
-            deliver(Frame(image, time.time(), bgr=bgr, hdr=hdr, sky_time_s=sky_time_s))
+        async for image, bgr, hdr, sky_time_s, clip_level in frames:
+            deliver(Frame(image, time.time(), bgr=bgr, hdr=hdr, sky_time_s=sky_time_s,
+                          clip_level=clip_level))
             self.played += 1
             next_s = max(next_s + self.period_s, time.monotonic())
             await asyncio.sleep(next_s - time.monotonic())
@@ -125,15 +170,14 @@ class ReplaySource(Source):
         while True:
             good = 0
             for path in self._images():
-                image, bgr, hdr, sky_time_s = await asyncio.to_thread(read_frame_image, path)
-                if image is None or image.ndim != 3 or image.shape[2] < 3:
-                    log.warning("replay: skipping %s (not a colour image that can be read)",
-                                path)
+                entry = await asyncio.to_thread(self.read_entry, path)
+                if entry is None:
                     continue
                 good += 1
-                yield image[:, :, :3], bgr, hdr, sky_time_s
+                yield entry
             if not good:
-                raise ReplayError(f"{self.path}: none of the images could be read")
+                raise ReplayError(f"{self.path}: none of the images could be read "
+                                  f"(last: {self.last_error})")
 
     async def _video_forever(self):
         while True:
@@ -147,11 +191,12 @@ class ReplaySource(Source):
                     if not ok:
                         break
                     count += 1
-                    yield image, True, False, None
+                    yield image, True, False, None, None
                 if not count:
                     raise ReplayError(f"{self.path}: the video has no frames")
             finally:
                 cap.release()
 
     def status(self) -> dict:
-        return {"replayed_frames": self.played}
+        return {"replayed_frames": self.played, "skipped_frames": self.skipped,
+                "last_error": self.last_error}
