@@ -22,8 +22,9 @@ the configured ``[sky] response`` (the same inverse response 8-bit frames are re
 scale and shape that change with the scene (the light would flicker from bracket to bracket),
 while a camera's response is fixed; a curve recovered once offline can be given as the table.
 Each channel is merged on its own (as a one-channel image): OpenCV weighs a colour pixel by the
-mean of its channels' weights, so a channel clipped at 255 (or at 0) while the others are not
-still counts, which pulls a blue sky's blue channel several per cent low.
+mean of its channels' weights, so a channel at code 0 or 255 still counts while the others are
+mid-range (a constructed pixel with red at code 0 in the shortest exposure came out 30 % low in
+red). On the tests' skies both ways agree (the sun's DNI within 0.01 %, the sky within 0.3 %).
 
 The merged frame is in **linear value per second of exposure** (so ``[sky] exposure`` is, for
 brackets, the linear value of unit radiance in a 1 s exposure), marked ``Frame.hdr``, with a
