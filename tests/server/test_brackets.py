@@ -129,8 +129,6 @@ def test_a_bracket_measures_the_sun_unclipped(tmp_path, sky, dome, curve, times_
     folder = write_bracket(tmp_path / "b", sky, DENOMINATORS, curve, "png", times_in)
     m = measure(folder, dome, curve)
     sun = m.sun
-    print("DNI", sun.normal_irradiance_w_m2 / DNI_TRUE - 1, "deg",
-          angle_deg(sun.direction, true_sun()))
     assert sun.source == SunSource.MEASURED and sun.direction_measured
     np.testing.assert_allclose(sun.normal_irradiance_w_m2, DNI_TRUE, rtol=0.03)
     assert angle_deg(sun.direction, true_sun()) < 0.5
@@ -145,7 +143,6 @@ def test_a_bracket_that_clips_the_disc_is_the_clear_sky_estimate(tmp_path, sky, 
     assert sun.source == SunSource.MODEL and not sun.direction_measured
     assert sun.visible_fraction > 0.9
     luminance = float(sun.normal_irradiance_w_m2 @ [0.2126, 0.7152, 0.0722])
-    print("model", luminance / clear_sky_dni() - 1, sun.visible_fraction)
     assert luminance == pytest.approx(clear_sky_dni() * sun.visible_fraction, rel=0.005)
     assert angle_deg(sun.direction, true_sun()) < 0.01
     assert not m.saturated.any()  # the clipped disc was replaced, nothing else clipped
