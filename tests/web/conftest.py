@@ -82,3 +82,26 @@ def reference(web_build):
     from bake.evaluate import Build
 
     return Build(web_build)
+
+
+@pytest.fixture(scope="session")
+def sun_build(tmp_path_factory):
+    """The sun tests' site (tests/web/sunsite.py), baked once per session (draft);
+    DAYLIT_SUN_BUILD names an existing bake of it instead, to iterate quickly."""
+    from tests.web.sunsite import bake_sun_site
+
+    existing = os.environ.get("DAYLIT_SUN_BUILD")
+    if existing:
+        return Path(existing)
+    return bake_sun_site(tmp_path_factory.mktemp("sunsite"))
+
+
+@pytest.fixture(scope="session")
+def sun_reference(sun_build):
+    """The sun site's build reader and its ray-cast casters (bake/sunlight.py, the oracle)."""
+    from bake.evaluate import Build
+    from bake.sunlight import SunCasters
+
+    build = Build(sun_build)
+    casters = SunCasters.from_site_glb(sun_build / build.manifest["model"]["path"])
+    return build, casters

@@ -2,12 +2,12 @@
 // tests/web/test_lightmath_js.py to compare with Python's reference.
 import { readFileSync } from 'node:fs';
 import {
-  baseCoefficients, foldSun, irradianceSH9, LightSmoother, openSkyIrradiance, selectionWeights,
-  selectLights, skySH9,
+  baseCoefficients, irradianceSH9, LightSmoother, openSkyIrradiance, patchContaining,
+  selectionWeights, selectLights, skySH9,
 } from '../../web/src/lightmath.js';
 
 const input = JSON.parse(readFileSync(0, 'utf8'));
-const out = { select: [], coefficients: [], sh9: [], open: [], smoothing: [], fold: [] };
+const out = { select: [], coefficients: [], sh9: [], open: [], smoothing: [], patch: [] };
 for (const c of input.select) {
   out.select.push(selectLights(c.r.flat(), selectionWeights(c.solid, c.selectable), c.m));
 }
@@ -21,5 +21,5 @@ s.push([0, 0, 0], 0);
 s.push([1, 1, 1], 0);
 s.step(2.0);
 out.smoothing.push(Array.from(s.value));
-for (const c of input.fold ?? []) out.fold.push(Array.from(foldSun(c.r.flat(), c.sun, c.lights)));
+for (const c of input.patch ?? []) out.patch.push(patchContaining(c.lights, c.direction));
 process.stdout.write(JSON.stringify(out));

@@ -117,7 +117,7 @@ def test_an_asset_that_fails_shows_its_message(new_page, web_build):
 
 
 def test_a_lost_graphics_context_is_restored(new_page, web_build, reference):
-    from tests.web.test_web_kiosk import light_message
+    from tests.web.kioskref import light_message
 
     with StubServer(web_build) as server:
         server.push(light_message(reference.light_vector("overcast"), 3), remember=True)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from tests.web.harness import StubServer, decode_floats
-from tests.web.test_web_kiosk import light_message
+from tests.web.kioskref import light_message
 from tests.web.test_web_relight import check
 
 pytestmark = [pytest.mark.browser]

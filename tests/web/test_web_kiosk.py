@@ -11,7 +11,6 @@ exact to 8-bit precision). Measured worst: printed by the test.
 
 from __future__ import annotations
 
-import time
 import types
 
 import cv2
@@ -19,60 +18,22 @@ import numpy as np
 import pytest
 
 from bake.views import pixel_rays, sky_weights
-from server import protocol
 from server.occlusion import OcclusionProcessor, encode_message
 from server.occlusion.synthetic import SyntheticSite, Walker
-from tests.web.harness import StubServer, decode_floats, srgb_to_linear
+from tests.web.harness import StubServer, srgb_to_linear
+from tests.web.kioskref import (
+    ABS,
+    KIOSK_HELLO,
+    REL,
+    composite,
+    eq9,
+    frame_message,
+    open_kiosk,
+    view_inputs,
+    worst,
+)
 
 pytestmark = [pytest.mark.browser]
-
-REL = 5e-3
-ABS = 2e-3
-
-KIOSK_HELLO = {"streams": ["light", "site-camera"],
-               "available_streams": ["light", "site-camera", "occlusion-mask"],
-               "site_camera": {"source": "test", "size": [320, 180]}}
-
-
-def light_message(r, seq, t=None):
-    r = np.asarray(r, dtype=np.float32)
-    t = time.time() if t is None else t
-    return protocol.encode_light(r, np.zeros(len(r), bool), seq, t, 0)
-
-
-def frame_message(image_bytes, seq, t):
-    return protocol.encode_blob(protocol.MessageType.SITE_CAMERA, image_bytes, seq, t)
-
-
-def composite(page):
-    return decode_floats(page.page.evaluate("window.daylit.debug.kioskComposite()"))[..., :3]
-
-
-def view_inputs(ref, r):
-    view = ref.manifest["views"][0]
-    O = ref.compact(view["id"], "O").composite(r, ref.selection).astype(np.float64)
-    S = ref.compact(view["id"], "S").composite(r, ref.selection).astype(np.float64)
-    mask = cv2.imread(str(ref.dir / view["mask"]), cv2.IMREAD_GRAYSCALE)
-    return view, O, S, mask
-
-
-def eq9(O, S, mask, P, k):
-    safe = np.where(S > 1e-6, S, 1.0)
-    ratio = np.where(S > 1e-6, O / safe, 1.0)
-    M = mask[..., None]
-    return np.where(M == 255, k * O, np.where(M == 128, P, P * ratio))
-
-
-def worst(gpu, want):
-    return float((np.abs(gpu - want) / (REL * np.abs(want) + ABS)).max())
-
-
-def open_kiosk(server, new_page, r, seq=1):
-    server.push(light_message(r, seq), remember=True)
-    page = new_page(480, 270).open(f"{server.url}/?mode=kiosk&test")
-    page.wait(f"window.daylit.status.lightSeq === {seq} && window.daylit.status.lightsExact")
-    return page
-
 
 def test_kiosk_composite_equals_eq9(new_page, web_build, reference):
     ref = reference

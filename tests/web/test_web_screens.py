@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from tests.web.harness import StubServer
-from tests.web.test_web_kiosk import KIOSK_HELLO, light_message
+from tests.web.kioskref import KIOSK_HELLO, light_message
 
 pytestmark = [pytest.mark.browser]
 

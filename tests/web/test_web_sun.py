@@ -2,12 +2,9 @@
 (bake/sunlight.py), in headless Chromium, as the visitor sees it: the displayed pixel after
 tone mapping and sRGB encoding, and the shadowing planes' ratio over a camera picture.
 
-The site is made here: a virtual box and a real box (a proxy that receives shadows) on open
-ground, the sun due east and low, so that the real box's shadow falls over the virtual box
-and runs on past it beside the virtual box's own shadow:
-
-    x:  -12      -9.2          -3.7   -1  0  1     4.5  6  7.5
-        open ..  virtual only  overlap  [V]    real     [R]     (shadows fall west, -X)
+The site (tests/web/sunsite.py, baked once per session: the fixtures sun_build and
+sun_reference of conftest.py): a virtual box and a real box on open ground, the sun due east
+and low, the real box's shadow falling over the virtual box and beside its shadow.
 """
 
 from __future__ import annotations
@@ -19,72 +16,18 @@ import numpy as np
 import pytest
 
 from tests.web.harness import StubServer
+from tests.web.sunsite import (
+    SUN_AZIMUTH_DEG,
+    SUN_DNI,
+    SUN_ELEVATION_DEG,
+    neutral_tone_map,
+    srgb_codes,
+    sun_and_sky,
+)
 
 pytestmark = [pytest.mark.browser]
 
-SUN_AZIMUTH_DEG, SUN_ELEVATION_DEG = 90.0, 20.0
-SUN_DNI = np.array([780.0, 760.0, 700.0])  # W/m^2, a little warm
 EXPOSURE = 0.02  # open sunlit ground: albedo / pi x ~330 W/m^2 x 0.02 = 0.42 before tone mapping
-
-
-@pytest.fixture(scope="module")
-def sun_build(tmp_path_factory):
-    from bake.pipeline import bake
-    from tests.sites import box, make_site, real_box
-
-    root = tmp_path_factory.mktemp("sunsite")
-    scene = make_site(
-        root / "scene",
-        virtual=[("vbox", box([2.0, 3.0, 2.0], [0.0, 0.0, 0.0]), (0.6, 0.6, 0.6))],
-        real=real_box("rbox", (3.0, 3.0, 3.0), (6.0, 0.0, 0.0)),
-        ground_m=40.0,
-        ground_texel_m=0.25,
-    )
-    out = root / "build"
-    bake(scene, out, quality="draft", progress=False, log=lambda m: None)
-    return out
-
-
-@pytest.fixture(scope="module")
-def sun_reference(sun_build):
-    from bake.evaluate import Build
-    from bake.sunlight import SunCasters
-
-    build = Build(sun_build)
-    casters = SunCasters.from_site_glb(sun_build / build.manifest["model"]["path"])
-    return build, casters
-
-
-def sun_and_sky(build):
-    """The sun (direction toward it, normal irradiance) and a clear sky without its disc."""
-    from daylit import sky as skies
-
-    clear = skies.clear_sky(SUN_AZIMUTH_DEG, SUN_ELEVATION_DEG)
-    r = skies.patch_mean_radiance(clear, build.dome_vertices, include_sun=False)
-    s = skies.direction_from_azimuth_elevation(SUN_AZIMUTH_DEG, SUN_ELEVATION_DEG)
-    return s, r
-
-
-def neutral_tone_map(c: np.ndarray) -> np.ndarray:
-    """Khronos PBR Neutral (the display transform three.js calls NeutralToneMapping), written
-    from the Khronos specification: linear (..., 3) -> display-linear (..., 3)."""
-    start, desaturation = 0.8 - 0.04, 0.15
-    c = np.array(c, dtype=np.float64)
-    x = c.min(axis=-1, keepdims=True)
-    offset = np.where(x < 0.08, x - 6.25 * x * x, 0.04)
-    c = c - offset
-    peak = c.max(axis=-1, keepdims=True)
-    d = 1.0 - start
-    new_peak = 1.0 - d * d / (peak + d - start)
-    g = 1.0 - 1.0 / (desaturation * (peak - new_peak) + 1.0)
-    compressed = (1.0 - g) * c * new_peak / np.maximum(peak, 1e-12) + g * new_peak
-    return np.where(peak < start, c, compressed)
-
-
-def srgb_codes(linear: np.ndarray) -> np.ndarray:
-    """IEC 61966-2-1 encoding to 8-bit codes (float, unrounded)."""
-    x = np.clip(linear, 0.0, 1.0)
-    return 255.0 * np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055)
 
 
 class SunPage:

@@ -5,7 +5,8 @@ import { AssetError, Assets } from './assets.js';
 import { CameraView } from './camera-view.js';
 import { Hud } from './hud.js';
 import { Kiosk } from './kiosk.js';
-import { foldSun, LightSmoother, openSkyIrradiance, skySH9 } from './lightmath.js';
+import { KioskSun } from './kiosksun.js';
+import { LightSmoother, openSkyIrradiance, skySH9 } from './lightmath.js';
 import { LightStream } from './lightstream.js';
 import { Relighter } from './relight.js';
 import { Site } from './site.js';
@@ -118,14 +119,16 @@ export class App {
       this._hullStacks = stacks.filter((key) => key.startsWith('hull.'));
       this.relighter = new Relighter(this.renderer, this.assets,
         { stacks, deferred: this._hullStacks, views: kiosk, dome: !kiosk });
+      // The kiosk needs the model too, for the sun's shadows in its view (kiosksun.js).
       const [gltf] = await Promise.all([
-        kiosk ? null : this.assets.gltf(manifest.model.path),
+        this.assets.gltf(manifest.model.path),
         this.relighter.load(),
         this.shadingMode === 'hull' ? this.relighter.activate(this._hullStacks) : null,
       ]);
       this.relighter.onApplied = (applied) => this._onApplied(applied);
       if (kiosk) {
-        this.kiosk = new Kiosk(this.renderer, this.relighter, view);
+        this.kiosk = new Kiosk(this.renderer, this.relighter, view,
+          new KioskSun(this.renderer, gltf, manifest, view, this.relighter.format));
       } else {
         this.sunBounce = new SunBounce(this.renderer, this.assets, this.relighter.format);
         this.site = new Site(gltf, manifest, this.relighter, this.sunBounce);
@@ -262,10 +265,7 @@ export class App {
     const direction = this.light?.sun?.direction; // (0, 0, 0) from a server with no sun now
     const known = direction && direction.some((x) => x !== 0);
     const sun = known ? { direction, normalIrradiance: Array.from(v.subarray(n3)) } : null;
-    let r = v.slice(0, n3);
-    // The kiosk's fixed view draws the sun from its basis images: folded back into its patch.
-    if (this.mode === 'kiosk' && sun) r = foldSun(r, sun, this.assets.manifest.dome.lights);
-    return { r, sun };
+    return { r: v.slice(0, n3), sun };
   }
 
   isStale() {
@@ -298,7 +298,7 @@ export class App {
   _onApplied(applied) {
     const r = applied.r;
     const open = openSkyIrradiance(r, this.assets.manifest.dome.lights.map((l) => l.cosine_weighted_sr));
-    const sun = this.mode === 'kiosk' ? null : this._pendingSun;
+    const sun = this._pendingSun;
     this.sunShadows?.setSun(sun?.direction ?? [0, 0, 0], sun?.normalIrradiance ?? [0, 0, 0]);
     this.sunBounce?.update(sun).catch((err) => {
       this.hud.setMessage(`${err.message}. The sun's bounce follows with the next light.`, 'warn');
@@ -316,7 +316,7 @@ export class App {
     const albedo = this.assets.manifest.ground.albedo;
     const key = (0.2126 * albedo[0] * ground[0] + 0.7152 * albedo[1] * ground[1] + 0.0722 * albedo[2] * ground[2]) / Math.PI;
     this._targetExposure = key > 0 ? DISPLAY_KEY / key : 1;
-    if (this.kiosk) this.kiosk.onRelight();
+    if (this.kiosk) this.kiosk.onRelight(sun);
     if (applied.exact && this.firstRelitMs === null) this._firstRelitPending = true;
   }
 

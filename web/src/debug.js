@@ -125,6 +125,19 @@ export function debugApi(app) {
       cameraScale: app.kiosk.cameraScale, framesShown: app.kiosk.framesShown,
     }),
     setCameraScale: (k) => app.kiosk.setCameraScale(k),
+    /** The kiosk's sun term (kiosksun.js): drawn or not, and how often its view pass ran. */
+    kioskSun: () => ({ on: app.kiosk?.sun?.on ?? false, renders: app.kiosk?.sun?.renders ?? 0,
+      mapRenders: app.kiosk?.sun?.shadows.renders ?? 0 }),
+    /** Milliseconds of one sun move at the kiosk: both shadow maps and the view pass, waited
+     * for (a 1-pixel read). */
+    timeKioskSun() {
+      const ks = app.kiosk.sun;
+      const t0 = performance.now();
+      ks.shadows.render();
+      ks.render();
+      app.relighter.readTarget(ks.targets.S); // waits for the GPU
+      return performance.now() - t0;
+    },
     /** Force the kiosk to pick a frame now (tests step it without waiting for rAF). */
     kioskTick: () => app.kiosk.render({ exposure: app.exposure, strength: 1 }),
     setExposure: (e) => { app.fixedExposure = e; },

@@ -5,6 +5,9 @@
 // and where the occlusion mask says a person stands in front: P (the person hides the
 // virtual object). Without a live frame the background is synthesized: P = k S', so real
 // pixels become k O' and sky pixels k sum r phi (relight.js).
+// With a sun (kiosksun.js), O' and S' include its direct term: O' = O_sky + E_sun O_sun and
+// S' = S_sky + E_sun S_sun, O_sun and S_sun the view's sun images per unit normal irradiance
+// (albedo / pi cos V, with V past every caster, resp. past the real proxies alone).
 // uv: (0, 0) is the top-left corner of the view image; every texture here stores rows top
 // first (no flips anywhere), so uv samples the same pixel in all of them.
 
@@ -23,6 +26,9 @@ export const kioskFragment = (decode) => /* glsl */ `
 precision highp float;
 uniform sampler2D oTex;       // O'
 uniform sampler2D sTex;       // S'
+uniform sampler2D sunOTex;    // O_sun: albedo / pi cos V per unit normal irradiance
+uniform sampler2D sunSTex;    // S_sun: the same with V_r (the real proxies only)
+uniform vec3 sunIrradiance;   // E_sun, RGB W/m^2; 0 when there is no sun to draw
 uniform sampler2D skyTex;     // sum r phi on sky pixels
 uniform sampler2D maskTex;    // 255 virtual, 128 sky, 0 real
 uniform sampler2D frameTex;   // P, sRGB-decoded by the GPU (SRGB8_ALPHA8)
@@ -44,6 +50,10 @@ void main() {
   if (vUv.x < 0.0 || vUv.x > 1.0 || vUv.y < 0.0 || vUv.y > 1.0) { outColor = vec4(0.0, 0.0, 0.0, 1.0); return; }
   vec3 O = decodeTarget(texture(oTex, vUv));
   vec3 S = decodeTarget(texture(sTex, vUv));
+  if (sunIrradiance != vec3(0.0)) {
+    O += sunIrradiance * decodeTarget(texture(sunOTex, vUv));
+    S += sunIrradiance * decodeTarget(texture(sunSTex, vUv));
+  }
   float m = texture(maskTex, vUv).r;
   bool isVirtual = m > 0.75;
   bool isSky = m > 0.25 && !isVirtual;

@@ -15,10 +15,15 @@ const CAMERA_SCALE_TAU_S = 2;
 const KEEP = 6; // frames and masks kept for pairing
 
 export class Kiosk {
-  constructor(renderer, relighter, view) {
+  /**
+   * @param {import('./kiosksun.js').KioskSun} [sun] the view's sun term (null: no sun drawn,
+   *   O' and S' from the basis alone)
+   */
+  constructor(renderer, relighter, view, sun = null) {
     this.renderer = renderer;
     this.relighter = relighter;
     this.view = view;
+    this.sun = sun;
     const t = relighter.targets;
     const decode = relighter.format.rgbe ? RGBE_DECODE : FLOAT_DECODE;
     this.frameTex = new THREE.Texture();
@@ -28,9 +33,14 @@ export class Kiosk {
     this.frameTex.minFilter = THREE.LinearFilter;
     this.occlusionTex = new THREE.DataTexture(new Uint8Array(1), 1, 1, THREE.RedFormat);
     this.occlusionTex.needsUpdate = true;
+    this.black = new THREE.DataTexture(new Uint8Array(4), 1, 1);
+    this.black.needsUpdate = true;
     this.uniforms = {
       oTex: { value: t[`${view.id}.O`].texture },
       sTex: { value: t[`${view.id}.S`].texture },
+      sunOTex: { value: sun?.targets.O.texture ?? this.black },
+      sunSTex: { value: sun?.targets.S.texture ?? this.black },
+      sunIrradiance: { value: new THREE.Vector3() },
       skyTex: { value: t[`${view.id}.sky`].texture },
       maskTex: { value: relighter.viewSky.get(view.id).mask },
       frameTex: { value: this.frameTex },
@@ -136,9 +146,23 @@ export class Kiosk {
     this.shown = null;
   }
 
-  /** After each relight: S' on a coarse grid for the camera scale. */
-  onRelight() {
+  /**
+   * After each relight, with the sun applied with it ({direction, normalIrradiance} or null):
+   * the view's sun images (rendered again only when the sun moved), and S' on a coarse grid
+   * for the camera scale.
+   */
+  onRelight(sun = null) {
+    const drawn = this.sun ? this.sun.setSun(sun) : false;
+    const E = this.uniforms.sunIrradiance.value;
+    if (drawn) E.copy(this.sun.irradiance);
+    else E.set(0, 0, 0);
     const { width, height, data } = this.relighter.read(`${this.view.id}.S`); // rows from the top
+    if (drawn) {
+      const sunS = this.relighter.readTarget(this.sun.targets.S).data;
+      for (let p = 0; p < width * height; p++) {
+        for (let c = 0; c < 3; c++) data[4 * p + c] += E.getComponent(c) * sunS[4 * p + c];
+      }
+    }
     const maskData = this._maskPixels();
     const step = Math.max(1, Math.floor(width / 64));
     const samples = [];
@@ -255,6 +279,8 @@ export class Kiosk {
 
   dispose() {
     this.pass.dispose();
+    this.black.dispose();
+    this.sun?.dispose();
     this.frameTex.dispose();
     this.occlusionTex.dispose();
     this._readTarget?.dispose();

@@ -220,20 +220,3 @@ export function patchContaining(lights, [x, y, z]) {
   }
   return -1;
 }
-
-/**
- * The sun folded back into the patch that holds it (r_p += E_sun / solid_angle_p), as the
- * light vector was before the sun had its own light (protocol version 1): for the parts that
- * draw the sun from the basis (the kiosk's fixed view). Returns a new array; r unchanged.
- * @param {ArrayLike<number>} r n x 3, the sky without the sun's disc
- * @param {{direction: number[], normalIrradiance: number[]} | null} sun
- * @param {{vertices: number[][], solid_angle_sr: number}[]} lights the manifest's dome.lights
- */
-export function foldSun(r, sun, lights) {
-  const out = Float64Array.from(r);
-  if (!sun) return out;
-  const p = patchContaining(lights, sun.direction);
-  if (p < 0) return out;
-  for (let c = 0; c < 3; c++) out[3 * p + c] += sun.normalIrradiance[c] / lights[p].solid_angle_sr;
-  return out;
-}

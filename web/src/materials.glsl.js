@@ -22,7 +22,7 @@ void main() {
 `;
 
 // The sun's visibility past both caster sets, and the facing normal of a double-sided face.
-const sunCommon = /* glsl */ `
+export const sunCommon = /* glsl */ `
 ${sunShadowChunk}
 // Past every caster (virtual and real), and past the real ones alone.
 float sunVisibilityAll(vec3 p, vec3 n) { return sunVisibilityIn(sunMapA, sunCoarseA, sunMatrixA, sunInfoA, p, n); }

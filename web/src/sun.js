@@ -24,7 +24,7 @@ const MAP_SIZE = 2048;
 // everywhere near" (umbra) for any search disc of up to CELL texels.
 const CELL = 16;
 const COARSE = MAP_SIZE / CELL;
-const LAYER = { virtual: 1, real: 2 }; // caster layers; the 'all' map sees both
+export const LAYER = { virtual: 1, real: 2 }; // caster layers; the 'all' map sees both
 const MIN_FIT_ELEVATION_SIN = Math.sin(3 * Math.PI / 180); // shadows of a lower sun are clipped
 // Re-render when the sun moved 0.05 deg (a shadow edge 10 m from its caster moves 9 mm / sin
 // of the sun's elevation: a fraction of its penumbra; the demo's clock at 20x moves the sun
