@@ -135,7 +135,8 @@ export class App {
         this.scene.add(this.site.root);
         if (this.site.sky) this.scene.add(this.site.sky);
         this.sunShadows = new SunShadows(this.renderer, this.scene,
-          { virtual: this.site.nodes.virtual, real: this.site.nodes.real }, this.site.sun);
+          { virtual: this.site.nodes.virtual, real: this.site.nodes.real }, this.site.sun,
+          { groundY: this.site.groundY });
         this.sunShadows.setMaterials(this.site.sunMaterials());
         await this._enterMode(this.mode);
       }

@@ -181,7 +181,7 @@ export class KioskSun {
       return t;
     };
     this.targets = { O: target(), S: target() };
-    this.shadows = new SunShadows(renderer, this.scene, casters, this.uniforms);
+    this.shadows = new SunShadows(renderer, this.scene, casters, this.uniforms, { groundY });
     this.shadows.setMaterials(this.materials);
     this.on = false; // a sun is drawn
     this.renders = 0; // view passes rendered (they follow the sun, not the frames)

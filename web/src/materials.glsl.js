@@ -24,9 +24,15 @@ void main() {
 // The sun's visibility past both caster sets, and the facing normal of a double-sided face.
 export const sunCommon = /* glsl */ `
 ${sunShadowChunk}
-// Past every caster (virtual and real), and past the real ones alone.
-float sunVisibilityAll(vec3 p, vec3 n) { return sunVisibilityIn(sunMapA, sunCoarseA, sunMatrixA, sunInfoA, p, n); }
-float sunVisibilityReal(vec3 p, vec3 n) { return sunVisibilityIn(sunMapR, sunCoarseR, sunMatrixR, sunInfoR, p, n); }
+// Past every caster (virtual and real), and past the real ones alone: on the flat ground
+// (SUN_GROUND 1) and on any other surface from the visibility maps (sun.js).
+#if SUN_GROUND == 1
+float sunVisibilityAll(vec3 p, vec3 n) { return sunVisibilityOnGround(sunVisibilityA, sunMatrixA, sunInfoA, p); }
+float sunVisibilityReal(vec3 p, vec3 n) { return sunVisibilityOnGround(sunVisibilityR, sunMatrixR, sunInfoR, p); }
+#else
+float sunVisibilityAll(vec3 p, vec3 n) { return sunVisibilityOnSurface(sunMapA, sunCoarseA, sunVisibilityA, sunMatrixA, sunInfoA, p, n); }
+float sunVisibilityReal(vec3 p, vec3 n) { return sunVisibilityOnSurface(sunMapR, sunCoarseR, sunVisibilityR, sunMatrixR, sunInfoR, p, n); }
+#endif
 vec3 facingNormal() {
   vec3 n = normalize(vNormalW);
   return gl_FrontFacing ? n : -n;

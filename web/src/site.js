@@ -46,6 +46,11 @@ export class Site {
     this.groundAlbedo = new THREE.Vector3(...manifest.ground.albedo);
     const meshes = [];
     this.root.traverse((o) => { if (o.isMesh) meshes.push(o); });
+    // The flat ground's height: its materials read the sun's ground maps (sun.js).
+    this.root.updateMatrixWorld(true);
+    const open = meshes.find((m) => findDaylit(m)?.role === 'ground');
+    this.groundY = open ? new THREE.Box3().setFromObject(open).max.y : 0;
+    const sunDefines = (mesh) => ({ ...SUN_DEFINES, SUN_GROUND: isFlatGround(mesh, this.groundY) ? 1 : 0 });
     for (const mesh of meshes) {
       const info = findDaylit(mesh);
       if (!info) continue;
@@ -64,16 +69,19 @@ export class Site {
       } else if (info.role === 'ground') {
         mesh.userData.visitMaterial = new THREE.ShaderMaterial({
           uniforms: { ...this.sun, exposure: this.shared.exposure, albedo: { value: albedo }, openIrradiance: this.shared.openIrradiance },
-          vertexShader: plainVertex, fragmentShader: openGroundFragment, defines: { ...SUN_DEFINES },
+          vertexShader: plainVertex, fragmentShader: openGroundFragment, defines: { ...SUN_DEFINES, SUN_GROUND: 1 },
           polygonOffset: true, polygonOffsetFactor: 1, polygonOffsetUnits: 4,
         });
+        // After the ground and wall planes (2), which cover most of it: the depth test then
+        // skips its pixels under them instead of shading them twice.
+        mesh.renderOrder = 4;
         this.nodes.ground.push(mesh);
       } else if (info.role === 'shadowing-plane') {
         const D = t[`${info.atlas}.d`]?.texture;
         const X = t[`${info.atlas}.I`]?.texture;
         if (!D || !X) continue;
         const dHasReal = info.atlas === 'hull' ? 0 : 1; // hull d: nothing; ground d: real proxies
-        const b = { bI: bounce(`${info.atlas}.I`), bD: bounce(`${info.atlas}.d`) };
+        const b = { bI: bounce(`${info.atlas}.I`), bD: bounce(`${info.atlas}.d`), defines: sunDefines(mesh) };
         mesh.userData.shadowMaterial = this._shadow(decode, D, X, { dHasReal, ...b });
         mesh.userData.shadowAlphaMaterial = this._shadow(decode, D, X, { dHasReal, alphaOut: 1, ...b });
         const bright = new THREE.Mesh(mesh.geometry, this._shadow(decode, D, X, { dHasReal, brighten: 1, ...b }));
@@ -91,7 +99,7 @@ export class Site {
               dTex: { value: D }, deltaTex: { value: X }, sunBounceTex: b.bI, sunBounceDTex: b.bD,
             },
             vertexShader: uvVertex, fragmentShader: receiverFragment(decode), side: THREE.DoubleSide,
-            defines: { ...SUN_DEFINES, VIRTUAL_SHADOWS: 1 },
+            defines: { ...b.defines, VIRTUAL_SHADOWS: 1 },
           });
           this.nodes.plane.push(mesh);
         }
@@ -136,7 +144,7 @@ export class Site {
    * channel (alphaOut: black with alpha, for a transparent frame over a passthrough), the
    * brightening draw adds the excess where the ratio is above 1.
    */
-  _shadow(decode, D, X, { dHasReal, bI, bD, brighten = 0, alphaOut = 0 }) {
+  _shadow(decode, D, X, { dHasReal, bI, bD, defines, brighten = 0, alphaOut = 0 }) {
     const blend = brighten ? { blendSrc: THREE.DstColorFactor, blendDst: THREE.OneFactor }
       : alphaOut ? { blendSrc: THREE.SrcAlphaFactor, blendDst: THREE.OneMinusSrcAlphaFactor }
         : { blendSrc: THREE.DstColorFactor, blendDst: THREE.ZeroFactor };
@@ -146,7 +154,7 @@ export class Site {
         brighten: { value: brighten }, alphaOut: { value: alphaOut }, dHasReal: { value: dHasReal },
         sunBounceTex: bI, sunBounceDTex: bD,
       },
-      vertexShader: uvVertex, fragmentShader: shadowPlaneFragment(decode), defines: { ...SUN_DEFINES },
+      vertexShader: uvVertex, fragmentShader: shadowPlaneFragment(decode), defines: { ...defines },
       transparent: true, depthWrite: false, side: THREE.DoubleSide,
       blending: THREE.CustomBlending, blendEquation: THREE.AddEquation, ...blend,
       blendSrcAlpha: THREE.ZeroFactor, blendDstAlpha: THREE.OneFactor,
@@ -244,6 +252,12 @@ export class Site {
     for (const m of this.nodes.virtual) box.expandByObject(m);
     return box;
   }
+}
+
+/** Whether a mesh lies flat on the ground plane y = groundY (within a millimetre). */
+function isFlatGround(mesh, groundY) {
+  const box = new THREE.Box3().setFromObject(mesh);
+  return Math.abs(box.min.y - groundY) < 1e-3 && Math.abs(box.max.y - groundY) < 1e-3;
 }
 
 function findDaylit(object) {

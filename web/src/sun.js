@@ -12,7 +12,10 @@
 // set of shadows where daylit needs two (all, real).
 //
 // The scene is static, so the maps are rendered only when the sun moves (a new light
-// vector), never per frame; a frame pays only the filter's texture reads.
+// vector), never per frame. The penumbra filter runs then too, not per frame: once for the
+// surface each texel of a depth map sees and once for the ground point under it, into a
+// visibility map; a frame reads that map (docs/sun.md, "Visibility maps"), and filters only
+// where a surface lies behind the first one the sun meets (inside a shadow's edge).
 import * as THREE from 'three';
 import { FullscreenPass } from './relight.js';
 
@@ -31,12 +34,6 @@ const MIN_FIT_ELEVATION_SIN = Math.sin(3 * Math.PI / 180); // shadows of a lower
 // that far every 0.6 s).
 const RERENDER_COS = Math.cos(0.05 * Math.PI / 180);
 
-/**
- * GLSL of the sun term, shared by every material that receives the sun. Uniforms:
- * sunIrradiance (RGB normal irradiance, W/m^2), sunDirection (unit, toward the sun), and per
- * caster set X in {A, R}: sunMapX (depth), sunMatrixX (world -> the sun camera's clip space),
- * sunInfoX = (metres per texel, near m, far - near m, 1 when the map holds casters).
- */
 /** Vogel's spiral: `count` evenly spread points on the unit disc, as a GLSL vec2 array. */
 function spiral(name, count) {
   const points = Array.from({ length: count }, (_, i) => {
@@ -47,8 +44,13 @@ function spiral(name, count) {
   return `const vec2 ${name}[${count}] = vec2[](${points.join(', ')});`;
 }
 
+// The filter's samples where its result is kept in the visibility maps (the ground, and the
+// surfaces the sun meets first), and where a frame filters (inside a shadow's edge on a
+// surface other than the ground: a few pixels, in a penumbra a few centimetres wide).
 const BLOCKER_SAMPLES = 12;
 const FILTER_SAMPLES = 32;
+const QUICK_BLOCKER_SAMPLES = 8;
+const QUICK_FILTER_SAMPLES = 16;
 
 // 16-bit depths in two 8-bit channels (RGBA8 renders everywhere; float targets do not).
 const PACK16 = /* glsl */ `
@@ -82,6 +84,132 @@ void main() {
 `;
 }
 
+/** The visibility map's pass: per texel of a depth map, the sun's visibility of the surface
+ * the texel sees (R) and of the flat ground under it (G), with the same filter as
+ * sunVisibilityIn, and the texel's depth (0..1 of near..far, 16 bits in B and A), into an
+ * RGBA8 target: a surface needs one read of it. The surface's point comes from the depth, its normal
+ * from the colour the depth pass wrote (NORMAL_PASS). */
+function visibilityFragment() {
+  return /* glsl */ `
+precision highp float;
+precision highp int;
+#define SUN 1
+#define texture2D texture
+${sunShadowChunk}
+uniform sampler2D depthMap;
+uniform sampler2D normalMap;
+uniform sampler2D coarseMap;
+uniform mat4 worldToMap;
+uniform vec4 mapInfo;
+// World points of the texel at uv (0..1): on the near plane nearOrigin + uv.x axisU +
+// uv.y axisV, plus depth01 axisDepth; on the ground groundOrigin + uv.x groundAxisU + ...
+uniform vec3 nearOrigin;
+uniform vec3 axisU;
+uniform vec3 axisV;
+uniform vec3 axisDepth;
+uniform vec3 groundOrigin;
+uniform vec3 groundAxisU;
+uniform vec3 groundAxisV;
+out vec4 outColor;
+void main() {
+  vec2 uv = gl_FragCoord.xy / ${MAP_SIZE}.0;
+  ivec2 t = ivec2(gl_FragCoord.xy);
+  vec3 g = groundOrigin + uv.x * groundAxisU + uv.y * groundAxisV;
+  float ground = sunVisibilityIn(depthMap, coarseMap, worldToMap, mapInfo, g, vec3(0.0, 1.0, 0.0));
+  float depth01 = texelFetch(depthMap, t, 0).r;
+  vec3 n = texelFetch(normalMap, t, 0).xyz * 2.0 - 1.0;
+  vec3 p = nearOrigin + uv.x * axisU + uv.y * axisV + depth01 * axisDepth;
+  float surface = 1.0;
+  for (int k = 0; k < (depth01 < 1.0 ? 1 : 0); k++) {  // a texel that sees a surface
+    surface = sunVisibilityIn(depthMap, coarseMap, worldToMap, mapInfo, p, normalize(n));
+  }
+  outColor = vec4(surface, ground, pack16(floor(depth01 * 65535.0 + 0.5)));
+}
+`;
+}
+
+// The depth pass writes the world normal of the face toward the sun (as colour, 0..1).
+const NORMAL_VERTEX = /* glsl */ `
+varying vec3 vNormalW;
+void main() {
+  vNormalW = normalize(mat3(modelMatrix) * normal);
+  gl_Position = projectionMatrix * modelViewMatrix * vec4(position, 1.0);
+}
+`;
+const NORMAL_FRAGMENT = /* glsl */ `
+uniform vec3 toSun;
+varying vec3 vNormalW;
+void main() {
+  vec3 n = normalize(vNormalW);
+  if (dot(n, toSun) < 0.0) n = -n;
+  gl_FragColor = vec4(n * 0.5 + 0.5, 1.0);
+}
+`;
+
+/**
+ * GLSL of the penumbra filter, `float name(depth map, coarse map, M, info, world point, normal)`:
+ * the fraction of the sun's disc seen past one caster set from a world point with normal n,
+ * with `blockers` samples in the blocker search and `filters` in the disc filter.
+ * One exit and loops whose counts are 0 where they are not needed: a software GPU
+ * (SwiftShader) runs the code under a branch not taken with its lanes masked, but leaves a
+ * loop as soon as no lane needs another turn.
+ */
+function penumbraFilter(name, blockers, filters) {
+  return /* glsl */ `
+${spiral(`${name}_BLOCKERS`, blockers)}
+${spiral(`${name}_FILTERS`, filters)}
+float ${name}(sampler2D map, sampler2D coarse, mat4 M, vec4 info, vec3 position, vec3 n) {
+#if SUN == 0
+  return 1.0;
+#else
+  float texel = info.x;
+  vec4 clip = M * vec4(position + n * (1.5 * texel), 1.0);
+  vec3 q = clip.xyz * 0.5 + 0.5;
+  float depth = info.y + q.z * info.z;   // metres from the sun camera
+  float bias = 1.5 * texel;
+  float toUv = 1.0 / (texel * ${MAP_SIZE}.0);
+  // A blocker lies between the near plane (the casters' nearest point) and the receiver.
+  float searchM = max((depth - info.y) * TAN_SUN, 1.5 * texel);
+  bool inMap = info.w > 0.5 && q.x > 0.0 && q.y > 0.0 && q.x < 1.0 && q.y < 1.0 && q.z < 1.0;
+  float visible = 1.0;
+  int blockerCount = inMap ? ${blockers} : 0;
+  if (inMap && searchM <= ${CELL}.0 * texel) {
+    // One read of the coarse map settles most pixels: no caster near, or casters all around.
+    vec4 bounds = texelFetch(coarse, ivec2(q.xy * ${COARSE}.0), 0);
+    bool clear = info.y + unpack16(bounds.rg) * info.z >= depth - bias;
+    bool covered = info.y + unpack16(bounds.ba) * info.z < depth - bias;
+    if (clear || covered) blockerCount = 0;
+    if (covered) visible = 0.0;
+  }
+  // Interleaved gradient noise turns the spirals from pixel to pixel (no banding).
+  float turn = 6.2831853 * fract(52.9829189 * fract(dot(gl_FragCoord.xy, vec2(0.06711056, 0.00583715))));
+  mat2 rotate = mat2(cos(turn), sin(turn), -sin(turn), cos(turn));
+  // 1. Blockers: any caster nearer than the receiver within the largest penumbra possible.
+  float searchUv = searchM * toUv;
+  float blockers = 0.0;
+  float blockerDepth = 0.0;
+  for (int i = 0; i < blockerCount; i++) {
+    float z = info.y + texture2D(map, q.xy + rotate * ${name}_BLOCKERS[i] * searchUv).r * info.z;
+    if (z < depth - bias) { blockers += 1.0; blockerDepth += z; }
+  }
+  // All blocked: umbra; none: lit; else the penumbra's filter below.
+  if (blockerCount > 0 && blockers == ${blockers}.0) visible = 0.0;
+  int filterCount = blockers > 0.0 && blockers < ${blockers}.0 ? ${filters} : 0;
+  // 2. The disc's footprint at the blockers' mean distance: each sample is one direction
+  //    within the sun's disc, blocked or not.
+  float radiusUv = max((depth - blockerDepth / max(blockers, 1.0)) * TAN_SUN, texel) * toUv;
+  float lit = 0.0;
+  for (int i = 0; i < filterCount; i++) {
+    float z = info.y + texture2D(map, q.xy + rotate * ${name}_FILTERS[i] * radiusUv).r * info.z;
+    lit += z < depth - bias ? 0.0 : 1.0;
+  }
+  if (filterCount > 0) visible = lit / ${filters}.0;
+  return visible;
+#endif
+}
+`;
+}
+
 /**
  * GLSL of the sun term, shared by every material that receives the sun. Uniforms:
  * sunIrradiance (RGB normal irradiance, W/m^2), sunDirection (unit, toward the sun), and per
@@ -102,61 +230,57 @@ uniform vec4 sunInfoA;
 uniform vec4 sunInfoR;
 uniform sampler2D sunCoarseA;
 uniform sampler2D sunCoarseR;
+uniform sampler2D sunVisibilityA;
+uniform sampler2D sunVisibilityR;
 const float TAN_SUN = ${TAN_SUN.toFixed(9)};
-${spiral('SUN_BLOCKER_DISC', BLOCKER_SAMPLES)}
-${spiral('SUN_FILTER_DISC', FILTER_SAMPLES)}
 ${PACK16}
 
-// Fraction of the sun's disc seen past one caster set from a world point with normal n.
-// One exit and loops whose counts are 0 where they are not needed: a software GPU
-// (SwiftShader) runs the code under a branch not taken with its lanes masked, but leaves a
-// loop as soon as no lane needs another turn.
-float sunVisibilityIn(sampler2D map, sampler2D coarse, mat4 M, vec4 info, vec3 position, vec3 n) {
+${penumbraFilter('sunVisibilityIn', BLOCKER_SAMPLES, FILTER_SAMPLES)}
+${penumbraFilter('sunVisibilityQuick', QUICK_BLOCKER_SAMPLES, QUICK_FILTER_SAMPLES)}
+
+// Fraction of the sun's disc seen past one caster set from a point of the flat ground: the
+// visibility map's G (the filter run once per texel when the maps were rendered), one
+// bilinear read.
+float sunVisibilityOnGround(sampler2D visibility, mat4 M, vec4 info, vec3 position) {
+#if SUN == 0
+  return 1.0;
+#else
+  vec2 q = (M * vec4(position, 1.0)).xy * 0.5 + 0.5;
+  bool inMap = info.w > 0.5 && q.x > 0.0 && q.y > 0.0 && q.x < 1.0 && q.y < 1.0;
+  return inMap ? texture2D(visibility, q).g : 1.0;
+#endif
+}
+
+// The same from a point of any surface with normal n: where it is the surface its texel of
+// the depth map sees (the first the sun meets: lit, or a penumbra's outer half) the
+// visibility map's R, read once; behind it (an umbra, a penumbra's inner half) or in front of
+// it (a surface that casts no shadow, e.g. a hull plane) the filter. Facing away from the
+// sun: 1 (its cosine is 0).
+float sunVisibilityOnSurface(sampler2D map, sampler2D coarse, sampler2D visibility, mat4 M, vec4 info, vec3 position, vec3 n) {
 #if SUN == 0
   return 1.0;
 #else
   float texel = info.x;
-  vec4 clip = M * vec4(position + n * (1.5 * texel), 1.0);
-  vec3 q = clip.xyz * 0.5 + 0.5;
-  float depth = info.y + q.z * info.z;   // metres from the sun camera
-  float bias = 1.5 * texel;
-  float toUv = 1.0 / (texel * ${MAP_SIZE}.0);
-  // A blocker lies between the near plane (the casters' nearest point) and the receiver.
-  float searchM = max((depth - info.y) * TAN_SUN, 1.5 * texel);
+  float cosSun = dot(n, sunDirection);
+  vec3 q = (M * vec4(position + n * (1.5 * texel), 1.0)).xyz * 0.5 + 0.5;
   bool inMap = info.w > 0.5 && q.x > 0.0 && q.y > 0.0 && q.x < 1.0 && q.y < 1.0 && q.z < 1.0;
-  float visible = 1.0;
-  int blockerCount = inMap ? ${BLOCKER_SAMPLES} : 0;
-  if (inMap && searchM <= ${CELL}.0 * texel) {
-    // One read of the coarse map settles most pixels: no caster near, or casters all around.
-    vec4 bounds = texelFetch(coarse, ivec2(q.xy * ${COARSE}.0), 0);
-    bool clear = info.y + unpack16(bounds.rg) * info.z >= depth - bias;
-    bool covered = info.y + unpack16(bounds.ba) * info.z < depth - bias;
-    if (clear || covered) blockerCount = 0;
-    if (covered) visible = 0.0;
+  ivec2 t = ivec2(clamp(q.xy * ${MAP_SIZE}.0, vec2(0.0), vec2(${MAP_SIZE - 1}.0)));
+  // Metres from the surface the texel sees to this point. On that surface, moved 1.5 texels
+  // along its normal, the point is 1.5 texels / cos nearer the sun than the surface's depth
+  // there, within its slope (tan) times the 0.71 texel from a texel's centre to its corner.
+  vec4 v = texelFetch(visibility, t, 0);
+  float behind = (q.z - unpack16(v.ba)) * info.z;
+  float c = max(cosSun, 0.125);
+  float slope = sqrt(1.0 - c * c) / c;
+  bool seen = abs(behind + 1.5 * texel / c) < texel * (1.0 + 0.75 * slope);
+  float visible = inMap ? v.r : 1.0;
+  bool refilter = inMap && !seen && cosSun > 0.0;
+  // Behind casters all around (the coarse map's greatest depth nearer than the point): umbra.
+  for (int k = 0; k < (refilter ? 1 : 0); k++) {
+    float deepest = unpack16(texelFetch(coarse, ivec2(q.xy * ${COARSE}.0), 0).ba);
+    if ((q.z - deepest) * info.z > 1.5 * texel) { visible = 0.0; refilter = false; }
   }
-  // Interleaved gradient noise turns the spirals from pixel to pixel (no banding).
-  float turn = 6.2831853 * fract(52.9829189 * fract(dot(gl_FragCoord.xy, vec2(0.06711056, 0.00583715))));
-  mat2 rotate = mat2(cos(turn), sin(turn), -sin(turn), cos(turn));
-  // 1. Blockers: any caster nearer than the receiver within the largest penumbra possible.
-  float searchUv = searchM * toUv;
-  float blockers = 0.0;
-  float blockerDepth = 0.0;
-  for (int i = 0; i < blockerCount; i++) {
-    float z = info.y + texture2D(map, q.xy + rotate * SUN_BLOCKER_DISC[i] * searchUv).r * info.z;
-    if (z < depth - bias) { blockers += 1.0; blockerDepth += z; }
-  }
-  // All blocked: umbra; none: lit; else the penumbra's filter below.
-  if (blockerCount > 0 && blockers == ${BLOCKER_SAMPLES}.0) visible = 0.0;
-  int filterCount = blockers > 0.0 && blockers < ${BLOCKER_SAMPLES}.0 ? ${FILTER_SAMPLES} : 0;
-  // 2. The disc's footprint at the blockers' mean distance: each sample is one direction
-  //    within the sun's disc, blocked or not.
-  float radiusUv = max((depth - blockerDepth / max(blockers, 1.0)) * TAN_SUN, texel) * toUv;
-  float lit = 0.0;
-  for (int i = 0; i < filterCount; i++) {
-    float z = info.y + texture2D(map, q.xy + rotate * SUN_FILTER_DISC[i] * radiusUv).r * info.z;
-    lit += z < depth - bias ? 0.0 : 1.0;
-  }
-  if (filterCount > 0) visible = lit / ${FILTER_SAMPLES}.0;
+  for (int k = 0; k < (refilter ? 1 : 0); k++) visible = sunVisibilityQuick(map, coarse, M, info, position, n);
   return visible;
 #endif
 }
@@ -172,8 +296,9 @@ vec3 sunOnSurface(vec3 n) {
 `;
 
 /** The defines every material with sunShadowChunk starts with: no sun until SunShadows.setSun
- * brings one (SunShadows.setMaterials). */
-export const SUN_DEFINES = { SUN: 0 };
+ * brings one (SunShadows.setMaterials). SUN_GROUND 1 marks a material drawn only on the flat
+ * ground, which reads its visibility bilinearly (sunVisibilityOnGround). */
+export const SUN_DEFINES = { SUN: 0, SUN_GROUND: 0 };
 
 /** Uniforms of sunShadowChunk, shared by every material (one update reaches them all). */
 export function sunUniforms() {
@@ -188,13 +313,19 @@ export function sunUniforms() {
     sunInfoR: { value: new THREE.Vector4(1, 0, 1, 0) },
     sunCoarseA: { value: null },
     sunCoarseR: { value: null },
+    sunVisibilityA: { value: null },
+    sunVisibilityR: { value: null },
   };
 }
 
 /** One caster set's depth map, seen from the sun with an orthographic camera fitted to the
- * casters and to where their shadows can fall. */
+ * casters and to where their shadows can fall, its coarse map and its visibility map. */
 class ShadowMap {
-  constructor(layers) {
+  /**
+   * @param {number[]} layers the caster layers it sees
+   * @param {number} groundY height of the flat ground (m)
+   */
+  constructor(layers, groundY) {
     this.target = new THREE.WebGLRenderTarget(MAP_SIZE, MAP_SIZE, {
       depthBuffer: true,
       depthTexture: new THREE.DepthTexture(MAP_SIZE, MAP_SIZE, THREE.FloatType),
@@ -213,11 +344,29 @@ class ShadowMap {
       fragmentShader: coarseFragment(pass),
       uniforms: { source: { value: pass === 0 ? depth : this.rows.texture } },
     }));
+    this.target.texture.minFilter = this.target.texture.magFilter = THREE.NearestFilter;
+    this.groundY = groundY;
+    this.visibility = new THREE.WebGLRenderTarget(MAP_SIZE, MAP_SIZE, {
+      type: THREE.UnsignedByteType, depthBuffer: false,
+      minFilter: THREE.LinearFilter, magFilter: THREE.LinearFilter, generateMipmaps: false,
+    });
+    // World points of a texel (visibilityFragment), set by fit().
+    this.axes = Object.fromEntries(['nearOrigin', 'axisU', 'axisV', 'axisDepth', 'groundOrigin',
+      'groundAxisU', 'groundAxisV'].map((k) => [k, new THREE.Vector3()]));
+    this.matrix = new THREE.Matrix4();
+    this.info = new THREE.Vector4(1, 0, 1, 0);
+    this.visibilityPass = new FullscreenPass({
+      fragmentShader: visibilityFragment(),
+      uniforms: {
+        depthMap: { value: depth }, normalMap: { value: this.target.texture },
+        coarseMap: { value: this.coarse.texture }, worldToMap: { value: this.matrix },
+        mapInfo: { value: this.info },
+        ...Object.fromEntries(Object.entries(this.axes).map(([k, v]) => [k, { value: v }])),
+      },
+    });
     this.camera = new THREE.OrthographicCamera(-1, 1, 1, -1, 0.1, 10);
     this.camera.layers.disableAll();
     for (const layer of layers) this.camera.layers.enable(layer);
-    this.matrix = new THREE.Matrix4();
-    this.info = new THREE.Vector4(1, 0, 1, 0);
   }
 
   /**
@@ -263,12 +412,34 @@ class ShadowMap {
     cam.updateProjectionMatrix();
     this.matrix.multiplyMatrices(cam.projectionMatrix, cam.matrixWorldInverse);
     this.info.set(2 * half / MAP_SIZE, cam.near, cam.far - cam.near, 1);
+    this._fitAxes(toSun);
   }
 
-  /** The coarse map from the depth map just rendered. */
-  reduceDepth(renderer) {
+  /** A texel's points are affine in its (u, v) in 0..1 (an orthographic view): on the near
+   * plane, along the view by the depth map's 0..1, and on the ground plane. */
+  _fitAxes(toSun) {
+    const cam = this.camera;
+    const near = (u, v) => new THREE.Vector3(cam.left + u * (cam.right - cam.left),
+      cam.bottom + v * (cam.top - cam.bottom), -cam.near).applyMatrix4(cam.matrixWorld);
+    const ground = (u, v) => {
+      const w = near(u, v);
+      return w.addScaledVector(toSun, -(w.y - this.groundY) / toSun.y);
+    };
+    const a = this.axes;
+    a.nearOrigin.copy(near(0, 0));
+    a.axisU.copy(near(1, 0)).sub(a.nearOrigin);
+    a.axisV.copy(near(0, 1)).sub(a.nearOrigin);
+    a.axisDepth.copy(toSun).multiplyScalar(-(cam.far - cam.near));
+    a.groundOrigin.copy(ground(0, 0));
+    a.groundAxisU.copy(ground(1, 0)).sub(a.groundOrigin);
+    a.groundAxisV.copy(ground(0, 1)).sub(a.groundOrigin);
+  }
+
+  /** The coarse map, then the visibility map, from the depth and normals just rendered. */
+  filter(renderer) {
     this.reduce[0].render(renderer, this.rows);
     this.reduce[1].render(renderer, this.coarse);
+    this.visibilityPass.render(renderer, this.visibility);
   }
 
   dispose() {
@@ -277,6 +448,8 @@ class ShadowMap {
     this.rows.dispose();
     this.coarse.dispose();
     for (const pass of this.reduce) pass.dispose();
+    this.visibility.dispose();
+    this.visibilityPass.dispose();
   }
 }
 
@@ -286,8 +459,10 @@ export class SunShadows {
    * @param {THREE.Scene} scene the scene holding the casters
    * @param {{virtual: THREE.Mesh[], real: THREE.Mesh[]}} casters
    * @param {object} uniforms from sunUniforms(), shared with the materials
+   * @param {{groundY?: number}} [options] height of the flat ground (m), whose visibility the
+   *   materials with SUN_GROUND 1 read
    */
-  constructor(renderer, scene, casters, uniforms) {
+  constructor(renderer, scene, casters, uniforms, { groundY = 0 } = {}) {
     this.renderer = renderer;
     this.scene = scene;
     this.uniforms = uniforms;
@@ -300,11 +475,14 @@ export class SunShadows {
       for (const m of meshes) box.expandByObject(m);
       if (box.isEmpty()) continue;
       this.boxes[set] = box;
-      this.maps[set] = new ShadowMap(set === 'all' ? [LAYER.virtual, LAYER.real] : [LAYER.real]);
+      this.maps[set] = new ShadowMap(set === 'all' ? [LAYER.virtual, LAYER.real] : [LAYER.real], groundY);
     }
     this.on = null; // whether the materials are compiled with the sun (SUN 1)
     this.materials = []; // every material that draws the sun (setMaterials)
-    this.depthOnly = new THREE.MeshBasicMaterial({ colorWrite: false, side: THREE.DoubleSide });
+    this.depthPass = new THREE.ShaderMaterial({
+      vertexShader: NORMAL_VERTEX, fragmentShader: NORMAL_FRAGMENT, side: THREE.DoubleSide,
+      uniforms: { toSun: { value: new THREE.Vector3(0, 1, 0) } },
+    });
     this.direction = null; // the sun direction the maps were rendered for
     this.renders = 0;
   }
@@ -347,16 +525,18 @@ export class SunShadows {
   render() {
     const { renderer, scene, uniforms } = this;
     const saved = { target: renderer.getRenderTarget(), override: scene.overrideMaterial, auto: scene.matrixWorldAutoUpdate };
-    scene.overrideMaterial = this.depthOnly;
+    scene.overrideMaterial = this.depthPass;
+    this.depthPass.uniforms.toSun.value.copy(this.direction);
     for (const [set, map] of Object.entries(this.maps)) {
       map.fit(this.boxes[set], this.direction);
       renderer.setRenderTarget(map.target);
       renderer.clear(true, true, false);
       renderer.render(scene, map.camera);
-      map.reduceDepth(renderer);
+      map.filter(renderer);
       const key = set === 'all' ? 'A' : 'R';
       uniforms[`sunMap${key}`].value = map.target.depthTexture;
       uniforms[`sunCoarse${key}`].value = map.coarse.texture;
+      uniforms[`sunVisibility${key}`].value = map.visibility.texture;
       uniforms[`sunMatrix${key}`].value.copy(map.matrix);
       uniforms[`sunInfo${key}`].value.copy(map.info);
     }
@@ -366,13 +546,13 @@ export class SunShadows {
   }
 
   /** Bytes of GPU memory the maps hold: depth float32 and the RGBA8 colour three.js attaches,
-   * and the coarse maps (RGBA8). */
+   * (the normals), the coarse maps (RGBA8) and the visibility maps (RGBA8). */
   get gpuBytes() {
-    return Object.keys(this.maps).length * (MAP_SIZE * MAP_SIZE * 8 + (COARSE * MAP_SIZE + COARSE * COARSE) * 4);
+    return Object.keys(this.maps).length * (MAP_SIZE * MAP_SIZE * (8 + 4) + (COARSE * MAP_SIZE + COARSE * COARSE) * 4);
   }
 
   dispose() {
     for (const map of Object.values(this.maps)) map.dispose();
-    this.depthOnly.dispose();
+    this.depthPass.dispose();
   }
 }
