@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import json
 import signal
 import socket
 import subprocess
@@ -215,3 +216,20 @@ def interrupt_and_wait(proc: subprocess.Popen, timeout_s: float) -> None:
     except subprocess.TimeoutExpired:
         proc.kill()
         proc.wait()
+
+
+async def first_light_v2(client):
+    """Open ``/ws/light?protocol=2`` on an aiohttp test client and wait for its first LIGHT
+    message; returns (the socket, the decoded message)."""
+    from aiohttp import WSMsgType
+
+    from server import protocol
+
+    ws = await client.ws_connect("/ws/light?protocol=2")
+    assert json.loads((await ws.receive(timeout=10)).data)["protocol"] == 2
+    while True:
+        msg = await ws.receive(timeout=30)
+        assert msg.type == WSMsgType.BINARY
+        m = protocol.decode(msg.data)
+        if m.type == protocol.MessageType.LIGHT:
+            return ws, m

@@ -183,11 +183,9 @@ async def test_a_replayed_bracket_streams_the_measured_sun(aiohttp_client, build
                                                           sky):
     """The whole chain: a replay folder with a bracket folder (and a broken one, skipped) ->
     the server -> a version-2 client. (The test build's site is Nara, as here.)"""
-    from aiohttp import WSMsgType
-
     from server import protocol
     from server.app import create_app
-    from tests.server.helpers import settings_for
+    from tests.server.helpers import first_light_v2, settings_for
 
     folder = tmp_path / "replay"
     write_bracket(folder / "a", sky, DENOMINATORS)
@@ -195,14 +193,7 @@ async def test_a_replayed_bracket_streams_the_measured_sun(aiohttp_client, build
     app = create_app(build_dir, settings_for(tmp_path, sky__source=f"replay:{folder}",
                                              sky__response="gamma:2.2", sky__exposure=K))
     client = await aiohttp_client(app)
-    ws = await client.ws_connect("/ws/light?protocol=2")
-    assert json.loads((await ws.receive(timeout=10)).data)["protocol"] == 2
-    while True:
-        msg = await ws.receive(timeout=30)
-        assert msg.type == WSMsgType.BINARY
-        m = protocol.decode(msg.data)
-        if m.type == protocol.MessageType.LIGHT:
-            break
+    ws, m = await first_light_v2(client)
     assert m.sun.source_name == "measured" and not m.sun.estimated
     assert m.flags & protocol.Flags.REPLAY and not m.saturated.any()
     np.testing.assert_allclose(m.sun.normal_irradiance_w_m2, DNI_TRUE, rtol=0.03)

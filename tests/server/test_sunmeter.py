@@ -226,27 +226,16 @@ def test_no_sun_at_night(dome):
 async def test_an_exr_replay_streams_the_measured_sun(aiohttp_client, build_dir, tmp_path):
     """The whole chain: EXR files in a replay folder -> the server -> a version-2 client.
     (The test build's site is Nara, as here.)"""
-    import json
-
-    from aiohttp import WSMsgType
-
     from server import protocol
     from server.app import create_app
-    from tests.server.helpers import settings_for
+    from tests.server.helpers import first_light_v2, settings_for
 
     folder = tmp_path / "exr"
     folder.mkdir()
     write_exr(folder / "sky_000.exr", render())
     app = create_app(build_dir, settings_for(tmp_path, sky__source=f"replay:{folder}"))
     client = await aiohttp_client(app)
-    ws = await client.ws_connect("/ws/light?protocol=2")
-    assert json.loads((await ws.receive(timeout=10)).data)["protocol"] == 2
-    while True:
-        msg = await ws.receive(timeout=30)
-        assert msg.type == WSMsgType.BINARY
-        m = protocol.decode(msg.data)
-        if m.type == protocol.MessageType.LIGHT:
-            break
+    ws, m = await first_light_v2(client)
     assert m.sun.source_name == "measured" and not m.sun.estimated
     assert m.flags & protocol.Flags.REPLAY and not m.saturated.any()
     np.testing.assert_allclose(m.sun.normal_irradiance_w_m2, DNI_TRUE, rtol=0.03)

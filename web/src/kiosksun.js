@@ -13,24 +13,13 @@
 // bake's open-ground pixels. The targets follow the sun (rendered with the shadow maps, when
 // it moved), never the frames or the sun's irradiance (a uniform).
 import * as THREE from 'three';
-import { sunCommon } from './materials.glsl.js';
+import { plainVertex as viewVertex, sunCommon } from './materials.glsl.js';
 import { RGBE_ENCODE } from './relight.glsl.js';
 import { worldFromPixel } from './relight.js';
 import { LAYER, SUN_DEFINES, SunShadows, sunUniforms } from './sun.js';
 
 const GROUND_LAYER = 3; // the site's ground in the view pass (not a caster)
 const NEAR_M = 0.05;
-
-const viewVertex = /* glsl */ `
-varying vec3 vNormalW;
-varying vec3 vPositionW;
-void main() {
-  vNormalW = normalize(mat3(modelMatrix) * normal);
-  vec4 world = modelMatrix * vec4(position, 1.0);
-  vPositionW = world.xyz;
-  gl_Position = projectionMatrix * viewMatrix * world;
-}
-`;
 
 const viewFragment = (encodeRGBE) => /* glsl */ `
 uniform vec3 albedo;
