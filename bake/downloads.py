@@ -19,9 +19,18 @@ KIOSK_DAY = ("2025-03-20 00:00", "2025-03-21 00:00")
 STEP = "10min"
 
 
-def lights_selected_over(manifest: dict, start: str, end: str, step: str = STEP) -> list[int]:
+def stack_selected_lights(manifest: dict, compact: dict) -> int:
+    """How many lights a client takes from a stack's own images: its entry's
+    ``selected_lights`` (absent in builds made before 2026-11-24: the build's)."""
+    return int(compact.get("selected_lights", manifest["compression"]["selected_lights"]))
+
+
+def lights_selected_over(manifest: dict, start: str, end: str, step: str = STEP,
+                         m: int | None = None) -> list[int]:
     """Every light a client selects under a clear sky at the site between ``start`` and
-    ``end`` (local times, sampled every ``step`` while the sun is up), sorted."""
+    ``end`` (local times, sampled every ``step`` while the sun is up), sorted; ``m`` selected
+    lights per vector (default: the build's ``selected_lights``). The sun is in its patch:
+    the light vector of a version-1 client, and what the kiosk relights its views with."""
     import pandas as pd
 
     from bake.compress import Selection
@@ -31,6 +40,10 @@ def lights_selected_over(manifest: dict, start: str, end: str, step: str = STEP)
     site = manifest["scene"]
     vertices = dome_vertices(manifest)
     selection = Selection.of_manifest(manifest)
+    if m is not None:
+        selection = Selection(selection.weights_sr, m)
+    if selection.m == 0:
+        return []
     times = pd.date_range(start, end, freq=step, tz=site["timezone"])
     az, el = skies.sun_positions(
         site["latitude_deg"], site["longitude_deg"], site["elevation_m"], times
@@ -87,12 +100,15 @@ def download_bytes(manifest: dict, build_dir: Path, visit_lights: int | None = N
     """Bytes a client fetches, by kind of client:
 
     - ``phone``: the manifest, the GLB, the ground/wall and lightmap atlases (the default
-      shading) with the images of ``selected_lights`` lights per stack (average size);
+      shading) with the images of each stack's selected lights (:func:`stack_selected_lights`,
+      at their average size; none since 2026-11-24);
     - ``phone_visit``: the same over a two-hour visit (:data:`VISIT`): the images of every
-      light selected meanwhile (``visit_lights`` of them; computed if not given);
+      light selected meanwhile (``visit_lights`` of them per stack that selects any;
+      computed if not given);
     - ``phone_hull``: ``phone`` plus the hull planes, fetched when hull-plane mode is chosen;
     - ``kiosk``: the manifest and the fixed views (the kiosk draws no model);
-    - ``kiosk_day``: the kiosk from sunrise to sunset (:data:`KIOSK_DAY`, ``day_lights``);
+    - ``kiosk_day``: the kiosk from sunrise to sunset (:data:`KIOSK_DAY`, ``day_lights``
+      per view stack that selects lights);
     - ``all``: every compact file (GLB, KTX2, V) and the manifest: what a server offers;
     - the sun's bounce, apart (not in the figures above): ``sun_bounce_start`` the images of
       the sun's patch at the visit's start, per sun-bounce stack of the default atlases
@@ -107,15 +123,26 @@ def download_bytes(manifest: dict, build_dir: Path, visit_lights: int | None = N
     # The server sends JSON gzipped at level 6 (server/routes.py), the binaries as they are.
     manifest_bytes = len(gzip.compress((Path(build_dir) / "manifest.json").read_bytes(), 6))
     glb = sizes[manifest["model"]["path"]]
-    m = manifest["compression"]["selected_lights"]
     per_light = {row["stack"]: row["light_bytes_per_light"]
                  for row in manifest["compression"]["report"]}
-    if visit_lights is None:
-        visit_lights = len(lights_selected_over(manifest, *VISIT))
-    if day_lights is None:
-        day_lights = len(lights_selected_over(manifest, *KIOSK_DAY))
+    hull = [a for a in manifest["atlases"] if a["id"] == "hull"]
+    default = [a for a in manifest["atlases"] if a["id"] != "hull"]
 
-    def owner_bytes(owners, lights: int) -> float:
+    def selecting(owners) -> int:
+        """The largest number of selected lights among these owners' stacks."""
+        return max((stack_selected_lights(manifest, s["compact"])
+                    for o in owners for s in o["stacks"].values()), default=0)
+
+    if visit_lights is None:
+        m = selecting(default)
+        visit_lights = len(lights_selected_over(manifest, *VISIT, m=m)) if m else 0
+    if day_lights is None:
+        m = selecting(manifest["views"])
+        day_lights = len(lights_selected_over(manifest, *KIOSK_DAY, m=m)) if m else 0
+
+    def owner_bytes(owners, lights: int | None) -> float:
+        """The owners' base files, and per stack the images of ``lights`` lights (None:
+        its selected lights; none for a stack that selects none)."""
         files, light_bytes = set(), 0.0  # a pair's shared gain texture counts once
         for owner in owners:
             for name, stack in owner["stacks"].items():
@@ -123,12 +150,12 @@ def download_bytes(manifest: dict, build_dir: Path, visit_lights: int | None = N
                 files |= {compact["ktx2"], compact["v"]["path"]}
                 if compact.get("gain"):
                     files.add(compact["gain"]["ktx2"])
-                light_bytes += lights * per_light[f"{owner['id']}.{name}"]
+                m = stack_selected_lights(manifest, compact)
+                count = m if lights is None else (lights if m else 0)
+                light_bytes += count * per_light[f"{owner['id']}.{name}"]
         return sum(sizes[f] for f in files) + light_bytes
 
-    hull = [a for a in manifest["atlases"] if a["id"] == "hull"]
-    default = [a for a in manifest["atlases"] if a["id"] != "hull"]
-    phone = manifest_bytes + glb + owner_bytes(default, m)
+    phone = manifest_bytes + glb + owner_bytes(default, None)
     compact = sum(
         f["bytes"] for f in manifest["files"]
         if f["path"].startswith(("ktx2/", "v/")) or f["path"] == manifest["model"]["path"]
@@ -142,8 +169,8 @@ def download_bytes(manifest: dict, build_dir: Path, visit_lights: int | None = N
     return {
         "phone": round(phone),
         "phone_visit": round(manifest_bytes + glb + owner_bytes(default, visit_lights)),
-        "phone_hull": round(phone + owner_bytes(hull, m)),
-        "kiosk": round(manifest_bytes + owner_bytes(manifest["views"], m)),
+        "phone_hull": round(phone + owner_bytes(hull, None)),
+        "kiosk": round(manifest_bytes + owner_bytes(manifest["views"], None)),
         "kiosk_day": round(manifest_bytes + owner_bytes(manifest["views"], day_lights)),
         "all": compact + manifest_bytes,
         "visit_lights": visit_lights,

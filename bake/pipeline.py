@@ -618,7 +618,7 @@ def _write_view(
             "master": rel,
             "quantity": "radiance",
             "channels": CHANNEL_PATTERN,
-            "compact": compressor.run({stack: image}, view.name, staging)[stack],
+            "compact": compressor.run({stack: image}, view.name, staging, view=True)[stack],
         }
     entry["mask"] = f"views/{view.name}.mask.png"
     _write_png(staging / entry["mask"], mask_image(view, hits["O"]))
@@ -681,6 +681,10 @@ def write_manifest(build_dir: Path, manifest: dict) -> None:
     os.replace(tmp, build_dir / "manifest.json")
 
 
+# Selected lights of the fixed views' stacks, which the kiosk relights with the sun folded
+# into its patch (docs/compact-assets.md, "The sun apart").
+VIEW_SELECTED_LIGHTS = 1
+
 SELECTION_RULE = (
     "top selected_lights of the selectable_lights (every light when absent) by "
     "max(r_i.R, r_i.G, r_i.B) * solid_angle_sr_i, ties to the lower index, zero scores never"
@@ -714,13 +718,24 @@ class _Compressor:
             "longitude_deg": site.longitude_deg,
             "elevation_m": site.elevation_m,
         }
+        # The fixed views keep the sun in its patch: the kiosk folds it back there and sums
+        # it from the views' stacks (docs/sun.md, item 6 open), as a version-1 light vector
+        # carries it. Their selection also fixes the selectable lights (the sun's path and
+        # the brightest patches), which the sun-bounce stacks have columns for.
+        m_views = max(VIEW_SELECTED_LIGHTS, self.settings.selected_lights)
+        self.view_context = compress.prepare(
+            scene, dome.vertices, dome.solid_angles_sr, m_views, sun_in_patch=True
+        )
+        selectable = self.view_context[3].selectable
+        # Everything else is relit with the sky without the sun's disc (protocol version 2).
         self.skies, self.S, self.S_inv, self.selection = compress.prepare(
-            scene, dome.vertices, dome.solid_angles_sr, self.settings.selected_lights
+            scene, dome.vertices, dome.solid_angles_sr, self.settings.selected_lights,
+            selectable=selectable, sun_in_patch=False,
         )
         self.log(
             f"  {len(self.selection.selectable)} of {dome.count} lights can be selected "
             "(the sun's path and the brightest patches of the site's skies): only they get "
-            "their own images"
+            "their own images, in the stacks that select lights and the sun's bounce"
         )
         self.bar = tqdm(
             total=len(self.stack_names),
@@ -731,14 +746,16 @@ class _Compressor:
             dynamic_ncols=True,
         )
 
-    def run(self, images: dict, prefix: str, staging: Path) -> dict:
-        """Compress the stacks ``images`` ({name: (H, W, n, 3)}) of one atlas or view;
-        ``I`` and ``d`` together (shadow ratio). Returns {name: compact manifest entry}.
-        Safe to call from several threads at once (each with its own stacks)."""
+    def run(self, images: dict, prefix: str, staging: Path, view: bool = False) -> dict:
+        """Compress the stacks ``images`` ({name: (H, W, n, 3)}) of one atlas or (``view``)
+        fixed view; ``I`` and ``d`` together (shadow ratio). Returns {name: compact manifest
+        entry}. Safe to call from several threads at once (each with its own stacks)."""
+        skies, S, S_inv, selection = (
+            self.view_context if view else (self.skies, self.S, self.S_inv, self.selection)
+        )
         try:
             results = compress.compress_stacks(
-                images, prefix, staging, self.skies, self.S, self.S_inv, self.selection,
-                self.settings,
+                images, prefix, staging, skies, S, S_inv, selection, self.settings,
             )
         except compress.CompressionError as exc:
             raise BakeError(str(exc)) from None
@@ -797,6 +814,8 @@ class _Compressor:
             "selectable_lights": self.selection.selectable.tolist(),
             "selection": SELECTION_RULE,
             "test_skies": [s.name for s in self.skies],
+            "view_selected_lights": self.view_context[3].m,
+            "view_test_skies": [s.name for s in self.view_context[0]],
             "report": self.report(),
         }
 
@@ -827,7 +846,8 @@ class _Compressor:
         self.log(
             f"  a visitor's phone downloads {mb('phone')} to start, {mb('phone_visit')} over a "
             f"two-hour visit under a clear sky ({sizes['visit_lights']} lights' images per "
-            f"stack); hull-plane mode adds {(sizes['phone_hull'] - sizes['phone']) / 1e6:.1f} MB"
+            f"stack{'' if sizes['visit_lights'] else ': none, the sky is relit without the sun'}"
+            f"); hull-plane mode adds {(sizes['phone_hull'] - sizes['phone']) / 1e6:.1f} MB"
         )
         if manifest["views"]:
             self.log(

@@ -494,7 +494,7 @@ def _load_settings(root: _Table, file: Path, lights: int | None, quality: str | 
         "budget": compression_t.number("budget", 0.01, lo=1e-5, hi=0.5),
         "max_rank": compression_t.number("max_rank", 64, lo=1, hi=512, integer=True),
         "encoding": compression_t.string("encoding", "uastc", choices=("uastc", "etc1s")),
-        "selected_lights": compression_t.number("selected_lights", 1, lo=0, hi=64, integer=True),
+        "selected_lights": compression_t.number("selected_lights", 0, lo=0, hi=64, integer=True),
     }
 
     q = levels[chosen]

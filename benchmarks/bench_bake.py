@@ -109,10 +109,17 @@ def etc1s_comparison(build_dir: Path) -> list[dict]:
     """Recompress every stack of a build with ETC1S and compare with its UASTC report."""
     build = Build(build_dir)
     m = build.manifest
-    skies, S, S_inv, selection = compress.prepare(
-        m["scene"], build.dome_vertices, build.solid_angles, m["compression"]["selected_lights"],
-        selectable=build.selection.selectable,
-    )
+    # The atlases with the sky without the sun's disc, the views with the sun in its patch
+    # and their own selected lights, as the bake compresses them.
+    contexts = {
+        view: compress.prepare(
+            m["scene"], build.dome_vertices, build.solid_angles,
+            m["compression"].get("view_selected_lights", m["compression"]["selected_lights"])
+            if view else m["compression"]["selected_lights"],
+            selectable=build.selection.selectable, sun_in_patch=view,
+        )
+        for view in (False, True)
+    }
     settings = compress.Settings(encoding="etc1s", budget=m["compression"]["budget"],
                                  selected_lights=m["compression"]["selected_lights"])
     rows = []
@@ -121,6 +128,7 @@ def etc1s_comparison(build_dir: Path) -> list[dict]:
         for entry in m["atlases"] + m["views"]:
             stacks = {name: build.stack(entry["id"], name) for name in entry["stacks"]}
             started = time.perf_counter()
+            skies, S, S_inv, selection = contexts[entry in m["views"]]
             results = compress.compress_stacks(stacks, entry["id"], tmp, skies, S, S_inv,
                                                selection, settings)
             seconds = time.perf_counter() - started

@@ -22,30 +22,26 @@ from daylit import sky as skies
 REPO = Path(__file__).resolve().parents[2]
 
 
-def held_out_skies(build: Build) -> dict:
-    """The sun where it really is at the site at a time no test sky used (10 May, 10:40) and a
-    partly cloudy sky (CIE type 7, bright patches, the sun of a January afternoon).
+def held_out_skies(build: Build, sun_in_patch: bool = False) -> dict:
+    """Skies that chose no k (``bake.compress.held_out_skies``): the sun where it really is at
+    the site at a time no test sky used (10 May, 10:40) under a clear, an intermediate and a
+    turbid sky, and a partly cloudy sky (CIE type 7, the sun of a January afternoon).
+    Without the sun's disc (what the atlases are relit with, protocol version 2) or, with
+    ``sun_in_patch``, with it in its patch (what the kiosk relights its views with).
 
-    (A sun the site never sees has no selectable patch: at 400 lights the base would have to
-    carry it, which the compact data is not built for.)"""
-    import pandas as pd
-
+    (A sun the site never sees has no selectable patch: at 400 lights the views' base would
+    have to carry it, which their compact data is not built for.)"""
     site = build.manifest["scene"]
-    when = pd.DatetimeIndex([pd.Timestamp("2025-05-10 10:40", tz=site["timezone"])])
-    az, el = skies.sun_positions(
-        site["latitude_deg"], site["longitude_deg"], site["elevation_m"], when
-    )
-    partly = skies.CIESky(
-        sky_type=7,
-        sun_azimuth_deg=205.0,
-        sun_elevation_deg=27.0,
-        zenith_radiance=(26.0, 28.0, 33.0),
-        sun_radiance=tuple(np.array([520.0, 500.0, 470.0]) / 6.8e-5),
-    )
     return {
-        "clear 10 May 10:40": build.light_vector(skies.clear_sky(float(az[0]), float(el[0]))),
-        "partly cloudy": build.light_vector(partly),
+        sky.name: sky.r
+        for sky in compress.held_out_skies(site, build.dome_vertices, sun_in_patch)
     }
+
+
+def stack_skies(build: Build, atlas: str) -> dict:
+    """The held-out skies a stack is relit with: the views' with the sun in its patch."""
+    views = {view["id"] for view in build.manifest["views"]}
+    return held_out_skies(build, sun_in_patch=atlas in views)
 
 
 def every_stack(build: Build):
@@ -69,9 +65,9 @@ def _valid(build, atlas, name):
 def test_composite_stays_within_budget_on_held_out_skies(build):
     budget = build.manifest["compression"]["budget"]
     assert {"uniform", "overcast"} <= set(build.manifest["compression"]["test_skies"])
-    for sky_name, r in held_out_skies(build).items():
-        for atlas, name in every_stack(build):
-            valid = _valid(build, atlas, name)
+    for atlas, name in every_stack(build):
+        valid = _valid(build, atlas, name)
+        for sky_name, r in stack_skies(build, atlas).items():
             master = build.composite(atlas, name, r, "master")[valid]
             compact = build.composite(atlas, name, r, "compact")[valid]
             error = np.sqrt(((compact - master) ** 2).mean()) / master.mean()
@@ -92,7 +88,7 @@ def test_ground_shadow_ratio_within_002_at_every_texel(build):
 def test_shuffled_v_breaks_the_composite(build):
     """The tests above can fail: V's row order is the dome's light order."""
     reader = build.compact("ground", "d")
-    r = held_out_skies(build)["partly cloudy"]
+    r = held_out_skies(build)["partly cloudy sky"]
     valid = _valid(build, "ground", "d")
     master = build.composite("ground", "d", r, "master")[valid]
     good = reader.composite(r, build.selection)[valid]
@@ -112,18 +108,25 @@ def test_shuffled_v_breaks_the_composite(build):
 
 def test_light_images_are_in_dome_order(build):
     """File L<i> of a stack decodes to the master's light i and to no other light."""
-    reader = build.compact("lightmap", "I")  # no gain: its images are the master's as they are
-    master = build.stack("lightmap", "I")
+    view = build.manifest["views"][0]["id"]  # the atlases have no light images
+    reader = build.compact(view, "O")  # no gain: its images are the master's as they are
+    master = build.stack(view, "O")
     lit = build.selection.selectable
     for i in (lit[0], lit[len(lit) // 3], lit[-1]):
         decoded = reader.lights([i])[i]
         distance = np.abs(master - decoded[:, :, None, :]).mean(axis=(0, 1, 3))
         assert np.argmin(distance) == i
-        # Within the same stated error as the base layers (units of the image's range).
+        # Within the base layers' stated RMS error (units of the image's range); a view's
+        # images (silhouettes against the sky, refined at UASTC level 0 as RMS-judged stacks
+        # are) keep worse worst texels than the lightmap's, which this checked while the
+        # atlases had light images (measured on the 40-light draft demo, lights 1, 12, 38:
+        # the 99.9th percentile 2.7-3.4/255, the worst 7-22/255, against 3 and 10 for the
+        # base layers; the RMS 0.25-0.39/255).
         error = np.abs(decoded - master[:, :, i])
         span = master[:, :, i].max() - master[:, :, i].min()
         assert np.sqrt((error**2).mean()) <= span / 255.0
-        assert error.max() <= 10.0 * span / 255.0
+        assert np.percentile(error, 99.9) <= 4.0 * span / 255.0
+        assert error.max() <= 32.0 * span / 255.0
 
 
 def test_ktx2_files_parse_with_an_independent_reader(build):
@@ -133,9 +136,10 @@ def test_ktx2_files_parse_with_an_independent_reader(build):
         compact = entry["stacks"][name]["compact"]
         files.append(build.dir / compact["ktx2"])
         expected.append((entry["width"], entry["height"], len(compact["layers"])))
-        lit = build.selection.selectable[len(build.selection.selectable) // 2]
-        files.append(build.dir / compact["lights"]["ktx2"][0].format(index=lit))
-        expected.append((entry["width"], entry["height"], 0))
+        if compact["selected_lights"]:  # only the views' stacks have light images
+            lit = build.selection.selectable[len(build.selection.selectable) // 2]
+            files.append(build.dir / compact["lights"]["ktx2"][0].format(index=lit))
+            expected.append((entry["width"], entry["height"], 0))
     result = subprocess.run(
         ["node", str(REPO / "tools" / "inspect_ktx2.mjs"), *map(str, files)],
         capture_output=True,
@@ -200,28 +204,35 @@ def test_probe_answers_from_compact_data_too(build):
 
 
 def test_only_selectable_lights_have_images(build):
-    """Every stack has the two images of each selectable light and none of the others, whose
-    scale and offset are null; the set is a real subset of the dome."""
+    """Every stack that selects lights (the views') has the two images of each selectable
+    light and none of the others, whose scale and offset are null; the set is a real subset
+    of the dome. A stack that selects none (the atlases') has no light images at all."""
     n = build.light_count
     lit = build.manifest["compression"]["selectable_lights"]
     assert lit == sorted(set(lit)) and 0 < len(lit) < n
     listed = {f["path"] for f in build.manifest["files"]}
+    selecting = set()
     for atlas, name in every_stack(build):
-        lights = build._entry(atlas)["stacks"][name]["compact"]["lights"]
+        compact = build._entry(atlas)["stacks"][name]["compact"]
+        lights = compact["lights"]
         assert len(lights["scale"]) == len(lights["offset"]) == n
+        if compact["selected_lights"]:
+            selecting.add(atlas)
         for i in range(n):
             paths = [pattern.format(index=i) for pattern in lights["ktx2"]]
-            if i in lit:
+            if i in lit and compact["selected_lights"]:
                 assert all(p in listed and (build.dir / p).is_file() for p in paths)
                 assert lights["scale"][i] is not None and lights["offset"][i] is not None
             else:
                 assert not any(p in listed or (build.dir / p).exists() for p in paths)
                 assert lights["scale"][i] is None and lights["offset"][i] is None
+    assert selecting == {view["id"] for view in build.manifest["views"]}
 
 
 def test_the_sun_patch_is_selected_under_a_clear_sky_all_year(build):
-    """Wherever the sun is at the site, at any time of year, its patch can be selected and is
-    selected under a clear sky (it holds most of the light)."""
+    """Wherever the sun is at the site, at any time of year, its patch can be selected and,
+    with the sun in it (the kiosk's views), is selected under a clear sky (it holds most of
+    the light). The atlases select none: they are relit with the sky without the sun."""
     import pandas as pd
 
     from daylit.spherical import PatchLookup
@@ -238,10 +249,14 @@ def test_the_sun_patch_is_selected_under_a_clear_sky_all_year(build):
     lookup = PatchLookup(build.dome_vertices)
     sun_patch = lookup(skies.direction_from_azimuth_elevation(az[up], el[up]))
     assert set(sun_patch.tolist()) <= set(build.selection.selectable.tolist())
+    compression = build.manifest["compression"]
+    views = compress.Selection(build.selection.weights_sr, compression["view_selected_lights"])
+    assert compression["selected_lights"] == 0 and views.m == 1
     for j in up[:40]:
         r = build.light_vector(skies.clear_sky(az[j], el[j]))
         patch = lookup(skies.direction_from_azimuth_elevation(az[j], el[j])[None])[0]
-        assert patch in build.selection(r)
+        assert patch in views(r)
+        assert list(build.selection(r)) == []
 
 
 def test_selection_never_picks_a_light_that_cannot_be_selected():
@@ -438,3 +453,63 @@ def test_budget_option_sets_the_error_budget(tmp_path, demo_draft_build):
         refused = daylit_bake("refused", "--budget", bad)
         assert refused.returncode == 2 and words in refused.stderr, refused.stderr
         assert not (tmp_path / "refused").exists()
+
+
+def test_test_skies_hold_the_sky_without_the_suns_disc():
+    """The skies that choose k and the held-out ones are the sky a version-2 client relights
+    with: the same sky with its disc differs in the sun's patch alone, by the disc's normal
+    irradiance over the patch's solid angle (``DNI / omega_p``); the views' skies keep it."""
+    from bake.dome import Dome
+    from daylit.spherical import PatchLookup
+
+    dome = Dome.for_light_count(40)
+    site = {"timezone": "Europe/Paris", "latitude_deg": 48.85, "longitude_deg": 2.35,
+            "elevation_m": 35.0}
+    fitted = {s.name: s.r for s in compress.test_skies(site, dome.vertices)}
+    with_sun = {s.name: s.r for s in compress.test_skies(site, dome.vertices, sun_in_patch=True)}
+    held = {s.name: s.r for s in compress.held_out_skies(site, dome.vertices)}
+    assert not set(held) & set(fitted)
+    assert len([name for name in fitted if name.startswith("clear")]) > 50  # the yearly path
+    for az, el in compress._sun_path(site):
+        name = f"clear {az:.0f},{el:.0f}"
+        sun = skies.clear_sky(az, el).sun
+        patch = PatchLookup(dome.vertices)(sun.direction[None])[0]
+        excess = with_sun[name] - fitted[f"{name} sky"]
+        expected = sun.radiance * sun.solid_angle_sr / dome.solid_angles_sr[patch]
+        np.testing.assert_allclose(excess[patch], expected, rtol=1e-9)
+        excess[patch] = 0.0
+        assert np.all(excess == 0.0)
+
+
+def test_the_sky_without_the_sun_is_within_budget_without_light_images(sun_site_build):
+    """The small test site (a virtual wall and a real shed): no stack selects a light or has
+    light images, and on held-out skies without the sun's disc (which chose no k) every
+    stack's decoded composite is within the 1 % budget of its master's, and the ground's
+    shadow ratio within 0.02 of the master's at every texel where ``sum r d`` is not tiny."""
+    build = Build(sun_site_build)
+    compression = build.manifest["compression"]
+    assert compression["selected_lights"] == 0
+    budget = compression["budget"]
+    files = {f["path"] for f in build.manifest["files"]}
+    held = held_out_skies(build)
+    assert len(held) == 4 and not set(held) & set(compression["test_skies"])
+    stacks = list(every_stack(build))
+    assert ("ground", "I") in stacks and ("ground", "d") in stacks
+    for atlas, name in stacks:
+        compact = build._entry(atlas)["stacks"][name]["compact"]
+        assert compact["selected_lights"] == 0
+        assert all(s is None for s in compact["lights"]["scale"])
+        assert not any(f.startswith(f"ktx2/{atlas}.{name}.L") for f in files)
+        valid = _valid(build, atlas, name)
+        for sky_name, r in held.items():
+            master = build.composite(atlas, name, r, "master")[valid]
+            decoded = build.composite(atlas, name, r, "compact")[valid]
+            error = np.sqrt(((decoded - master) ** 2).mean()) / master.mean()
+            assert error <= budget, (sky_name, atlas, name, error)
+    for sky_name, r in held.items():
+        d_master = build.composite("ground", "d", r, "master")
+        ratio_master = build.composite("ground", "I", r, "master") / np.maximum(d_master, 1e-9)
+        d_compact = build.composite("ground", "d", r, "compact")
+        ratio_compact = build.composite("ground", "I", r, "compact") / np.maximum(d_compact, 1e-9)
+        lit = d_master > 0.05 * d_master[d_master > 0].mean()
+        assert np.abs(ratio_compact - ratio_master)[lit].max() <= 0.02, sky_name

@@ -65,12 +65,15 @@ def test_download_bytes_sums_what_each_client_fetches(tmp_path):
 
 
 def test_a_visit_selects_the_suns_patches_and_a_day_more(demo_draft_build):
-    """Every 10 minutes of the visit the sun's patch is among the lights selected (a clear
-    sky), all of them selectable; a whole day selects at least as many."""
+    """With the sun in its patch (the kiosk's views, one selected light) every 10 minutes of
+    the visit the sun's patch is among the lights selected (a clear sky), all of them
+    selectable; a whole day selects at least as many. The atlases select none."""
     build = Build(demo_draft_build)
     manifest = build.manifest
-    visit = downloads.lights_selected_over(manifest, *downloads.VISIT)
-    day = downloads.lights_selected_over(manifest, *downloads.KIOSK_DAY)
+    assert downloads.lights_selected_over(manifest, *downloads.VISIT) == []
+    m = manifest["compression"]["view_selected_lights"]
+    visit = downloads.lights_selected_over(manifest, *downloads.VISIT, m=m)
+    day = downloads.lights_selected_over(manifest, *downloads.KIOSK_DAY, m=m)
     assert set(visit) <= set(day) <= set(build.selection.selectable.tolist())
     assert len(day) > len(visit) >= 1
     site = manifest["scene"]
@@ -120,3 +123,52 @@ def test_the_suns_bounce_is_one_lights_images_per_stack_per_patch(tmp_path):
     assert got["sun_bounce_day"] == one[0] + one[1]  # light 2 has no files
     assert got["sun_bounce_hull_visit"] == (300 * 2 + 5) + (310 * 2 + 5)
     assert (got["visit_sun_patches"], got["day_sun_patches"]) == (2, 3)
+
+
+def test_stacks_that_select_no_light_cost_only_their_base(tmp_path):
+    """Since the sun is drawn apart, the atlases select no light (their entries say
+    ``selected_lights`` 0) and the views one: a phone fetches the atlases' base, gain and V
+    and nothing more, however long its visit; the kiosk still fetches its light images. The
+    number of lights a visit selects is 0."""
+    sizes = {
+        "site.glb": 1000,
+        "ktx2/ground.I.base.ktx2": 200, "v/ground.I.V.bin": 10,
+        "ktx2/ground.d.base.ktx2": 100, "v/ground.d.V.bin": 10,
+        "ktx2/ground.d.gain.ktx2": 50,
+        "ktx2/hull.I.base.ktx2": 300, "v/hull.I.V.bin": 20,
+        "ktx2/kiosk.O.base.ktx2": 70, "v/kiosk.O.V.bin": 1,
+    }
+    per_light = {"ground.I": 7, "ground.d": 3, "hull.I": 11, "kiosk.O": 5}
+
+    def stack(name, m, gain=False):
+        entry = _stack(name, gain)
+        entry["compact"]["selected_lights"] = m
+        return entry
+
+    manifest = {
+        "model": {"path": "site.glb"},
+        "files": [{"path": p, "bytes": b} for p, b in sizes.items()],
+        "compression": {
+            "selected_lights": 0,
+            "report": [{"stack": s, "light_bytes_per_light": b} for s, b in per_light.items()],
+        },
+        "atlases": [
+            {"id": "ground", "stacks": {"I": stack("ground.I", 0, True),
+                                        "d": stack("ground.d", 0, True)}},
+            {"id": "hull", "stacks": {"I": stack("hull.I", 0)}},
+        ],
+        "views": [{"id": "kiosk", "stacks": {"O": stack("kiosk.O", 1)}}],
+    }
+    (tmp_path / "manifest.json").write_text(json.dumps(manifest))
+    sent = len(gzip.compress((tmp_path / "manifest.json").read_bytes(), 6))
+    # The visit's count is not given: with no atlas selecting a light it is 0, uncomputed
+    # (this manifest has no dome to compute it from).
+    got = downloads.download_bytes(manifest, tmp_path, day_lights=30, visit_sun=[], day_sun=[])
+    ground = 200 + 10 + 100 + 10 + 50
+    assert got["phone"] == got["phone_visit"] == sent + 1000 + ground
+    assert got["visit_lights"] == 0
+    assert got["phone_hull"] == got["phone"] + 300 + 20
+    assert got["kiosk"] == sent + 70 + 1 + 1 * 5
+    assert got["kiosk_day"] == sent + 70 + 1 + 30 * 5
+    assert got["day_lights"] == 30
+

@@ -8,6 +8,11 @@
 // For a shadowing atlas the `I` entry encodes Delta = d - I: its target holds X = sum r Delta
 // and the `d` target D = sum r d, so alpha = X / D and I = D - X (materials.js).
 //
+// A stack's own number of selected lights is its manifest entry's `selected_lights` (absent:
+// the build's). Since 2026-11-24 the atlases select none (they are relit with the sky
+// without the sun's disc; the sun is drawn apart, sun.js): a base and V, nothing on demand.
+// The fixed views keep one, the sun's patch (the kiosk folds the sun back into it).
+//
 // Selected lights' own images are fetched on demand and kept in a small cache. When a newly
 // selected light's images have not arrived yet, the previous exact result stays on screen
 // (the relight of this vector waits for them); only before the very first picture does the
@@ -19,7 +24,7 @@ import {
   domeSkyFragment, relightFragment, relightVertex, viewSkyFragment,
 } from './relight.glsl.js';
 
-const LIGHT_CACHE_PER_STACK = 12; // selected_lights per vector (1 by default); the sun moves one patch in tens of minutes
+const LIGHT_CACHE_PER_STACK = 12; // selected_lights per vector (0 or 1); the sun moves one patch in tens of minutes
 
 /** Render-target format: half float where the GPU can render to it, else RGBE in RGBA8. */
 export function targetFormat(renderer) {
@@ -86,7 +91,8 @@ class RelightStack {
     this.height = height;
     this.format = format;
     this.levels = compact.lights.ktx2.length;
-    this.slots = selectedCount * this.levels;
+    this.m = compact.selected_lights ?? selectedCount; // this stack's selected lights
+    this.slots = this.m * this.levels;
     this.k = compact.v.shape[1];
     this.lights = new Map(); // light index -> [texture per level]
     this.pending = new Map(); // light index -> Promise
@@ -301,34 +307,39 @@ export class Relighter {
   update(r, sequence = 0, force = false) {
     if (r.length !== 3 * this.n) throw new Error(`light vector of ${r.length / 3} lights, the build has ${this.n}`);
     const selected = selectLights(r, this.selectionWeights, this.m);
-    this.latest = { r: Float64Array.from(r), sequence, selected };
+    const perStack = new Map(); // stack key -> the lights it selects (its own m)
+    for (const s of this.stacks.values()) {
+      perStack.set(s.key, s.m === this.m ? selected : selectLights(r, this.selectionWeights, s.m));
+    }
+    this.latest = { r: Float64Array.from(r), sequence, selected, perStack };
+    const loaded = (s, v) => v.perStack.get(s.key).every((i) => s.lights.has(i));
     const stacks = this.active();
-    const ready = stacks.every((s) => selected.every((i) => s.lights.has(i)));
+    const ready = stacks.every((s) => loaded(s, this.latest));
     if (ready || this.applied === null) this._render(this.latest);
     if (ready) return Promise.resolve(this.applied);
     this.waitingForLights += 1;
     const want = this.latest;
-    return Promise.all(stacks.map((s) => s.fetchLights(selected))).then(() => {
+    return Promise.all(stacks.map((s) => s.fetchLights(perStack.get(s.key)))).then(() => {
       // Newer vectors may have come meanwhile: draw the newest whose lights are all here.
       const newest = this.latest;
-      const newestReady = stacks.every((s) => newest.selected.every((i) => s.lights.has(i)));
+      const newestReady = stacks.every((s) => loaded(s, newest));
       if (newestReady && (force || this.applied === null || !this.applied.exact || this.applied.sequence !== newest.sequence)) {
         this._render(newest);
       } else if (this.applied?.sequence !== want.sequence) {
         this._render(want);
       }
-      for (const s of stacks) s.trimCache(newest.selected);
+      for (const s of stacks) s.trimCache(newest.perStack.get(s.key));
       return this.applied;
     });
   }
 
-  _render({ r, sequence, selected }) {
+  _render({ r, sequence, selected, perStack }) {
     const t0 = performance.now();
     const renderer = this.renderer;
     const autoClear = renderer.autoClear;
     renderer.autoClear = false;
     let exact = true;
-    for (const s of this.active()) exact = s.render(renderer, r, selected) && exact;
+    for (const s of this.active()) exact = s.render(renderer, r, perStack.get(s.key)) && exact;
     if (this.lightTex) {
       for (let i = 0; i < this.n; i++) this.lightData.set([r[3 * i], r[3 * i + 1], r[3 * i + 2], 1], 4 * i);
       this.lightTex.needsUpdate = true;
