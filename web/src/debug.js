@@ -182,7 +182,8 @@ export function debugApi(app) {
      */
     timeRelightStack(key, n = 5) {
       const stack = app.relighter.stacks.get(key);
-      const { r, selected } = app.relighter.applied;
+      const { r, perStack } = app.relighter.applied;
+      const selected = perStack.get(key);
       const gl = app.renderer.getContext();
       const px = new Float32Array(4);
       const passes = (count) => {

@@ -245,7 +245,7 @@ export class Relighter {
     if (this.wantDome) this.targets.dome = makeTarget(256, 64, this.format);
     this.lightTex = null;
     this.latest = null; // {r, sequence}: the newest vector asked for
-    this.applied = null; // {sequence, exact, selected}
+    this.applied = null; // {sequence, exact, selected, perStack, r}
     this.relights = 0;
     this.lastRelightMs = 0;
     this.waitingForLights = 0;
@@ -349,7 +349,7 @@ export class Relighter {
     renderer.autoClear = autoClear;
     this.relights += 1;
     this.lastRelightMs = performance.now() - t0; // CPU side only; the GPU runs on
-    this.applied = { sequence, exact, selected, r };
+    this.applied = { sequence, exact, selected, perStack, r };
     this.onApplied?.(this.applied);
   }
 
