@@ -10,8 +10,8 @@ DEMO_BUILD := build/demo
 
 .PHONY: demo test setup python-deps node-deps chromium lint clean
 
-# The demo is baked at draft quality (about 2 minutes on two cores, 1.7 GB): the final quality
-# takes about 2 minutes and 5.0 GB (README.md says how to bake it).
+# The demo is baked at draft quality (about 3 minutes on two cores, 1.7 GB): the final quality
+# takes tens of minutes and 5.0 GB (README.md says how to bake it).
 demo: setup
 	@if [ ! -f $(DEMO_BUILD)/manifest.json ]; then \
 		echo "Baking the demo site into $(DEMO_BUILD) at draft quality (first run only)..."; \
