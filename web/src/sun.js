@@ -215,9 +215,10 @@ float ${name}(sampler2D map, sampler2D coarse, mat4 M, vec4 info, vec3 position,
  * sunIrradiance (RGB normal irradiance, W/m^2), sunDirection (unit, toward the sun), and per
  * caster set X in {A (all), R (real)}: sunMapX (depth), sunMatrixX (world -> the sun camera's
  * clip space), sunInfoX = (metres per texel, near m, far - near m, 1 when the map holds
- * casters). Compiled with SUN 0 (materials' define) it draws no sun and costs nothing.
- * Cost: a lit or umbral pixel reads BLOCKER_SAMPLES texels per map; only penumbrae (where the
- * blocker search finds some but not all samples blocked) read FILTER_SAMPLES more.
+ * casters), sunCoarseX (its coarse map), sunVisibilityX (its visibility map). Compiled with
+ * SUN 0 (materials' define) it draws no sun and costs nothing. Per frame a surface reads its
+ * visibility map once (sunVisibilityOnGround, sunVisibilityOnSurface); sunVisibilityIn, the
+ * full filter, runs in the visibility pass and where a view pass runs once per sun move.
  */
 export const sunShadowChunk = /* glsl */ `
 uniform vec3 sunIrradiance;
