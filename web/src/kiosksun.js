@@ -125,7 +125,8 @@ export class KioskSun {
       }
       const c = mesh.material?.color;
       const albedo = c ? new THREE.Vector3(c.r, c.g, c.b) : new THREE.Vector3(0.5, 0.5, 0.5);
-      mesh.material = this._material(viewVertex, viewFragment(format.rgbe), { ...shared, albedo: { value: albedo } });
+      mesh.material = this._material(viewVertex, viewFragment(format.rgbe), { ...shared, albedo: { value: albedo } },
+        role === 'ground');
       mesh.material.side = THREE.DoubleSide;
       box.expandByObject(mesh);
       if (role === 'ground') {
@@ -143,7 +144,7 @@ export class KioskSun {
       albedo: { value: new THREE.Vector3(...manifest.ground.albedo) },
       worldFromPixel: { value: worldFromPixel(view) },
       groundY: { value: groundY },
-    });
+    }, true);
     openMaterial.depthTest = false;
     openMaterial.depthWrite = false;
     this.openMesh = new THREE.Mesh(open, openMaterial);
@@ -177,8 +178,12 @@ export class KioskSun {
     this._mapsRendered = -1;
   }
 
-  _material(vertexShader, fragmentShader, uniforms) {
-    const m = new THREE.ShaderMaterial({ uniforms, vertexShader, fragmentShader, defines: { ...SUN_DEFINES } });
+  /** A view-pass material; `ground` for the flat ground, which reads the sun's visibility
+   * maps' ground channel (full filter quality, bilinear) as the visit's ground does. */
+  _material(vertexShader, fragmentShader, uniforms, ground = false) {
+    const m = new THREE.ShaderMaterial({
+      uniforms, vertexShader, fragmentShader, defines: { ...SUN_DEFINES, SUN_GROUND: ground ? 1 : 0 },
+    });
     this.materials.push(m);
     return m;
   }
