@@ -25,6 +25,7 @@ from tests.server.test_sunmeter import (
     SITE,
     WHEN,
     angle_deg,
+    assert_replayed_true_sun,
     clear_sky_dni,
     render,
     true_sun,
@@ -183,7 +184,6 @@ async def test_a_replayed_bracket_streams_the_measured_sun(aiohttp_client, build
                                                           sky):
     """The whole chain: a replay folder with a bracket folder (and a broken one, skipped) ->
     the server -> a version-2 client. (The test build's site is Nara, as here.)"""
-    from server import protocol
     from server.app import create_app
     from tests.server.helpers import first_light_v2, settings_for
 
@@ -194,10 +194,7 @@ async def test_a_replayed_bracket_streams_the_measured_sun(aiohttp_client, build
                                              sky__response="gamma:2.2", sky__exposure=K))
     client = await aiohttp_client(app)
     ws, m = await first_light_v2(client)
-    assert m.sun.source_name == "measured" and not m.sun.estimated
-    assert m.flags & protocol.Flags.REPLAY and not m.saturated.any()
-    np.testing.assert_allclose(m.sun.normal_irradiance_w_m2, DNI_TRUE, rtol=0.03)
-    assert angle_deg(m.sun.direction, true_sun()) < 0.5
+    assert_replayed_true_sun(m)
     for _ in range(100):
         status = await (await client.get("/api/status")).json()
         if status["skipped_frames"]:

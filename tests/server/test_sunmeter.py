@@ -223,10 +223,20 @@ def test_no_sun_at_night(dome):
     assert not np.any(m.sun.normal_irradiance_w_m2) and not np.any(m.sun.direction)
 
 
+def assert_replayed_true_sun(m):
+    """A version-2 LIGHT message from a replay carries the test sky's sun, measured: its DNI
+    within 3 % and its direction within 0.5 degrees (issue 15's goals)."""
+    from server import protocol
+
+    assert m.sun.source_name == "measured" and not m.sun.estimated
+    assert m.flags & protocol.Flags.REPLAY and not m.saturated.any()
+    np.testing.assert_allclose(m.sun.normal_irradiance_w_m2, DNI_TRUE, rtol=0.03)
+    assert angle_deg(m.sun.direction, true_sun()) < 0.5
+
+
 async def test_an_exr_replay_streams_the_measured_sun(aiohttp_client, build_dir, tmp_path):
     """The whole chain: EXR files in a replay folder -> the server -> a version-2 client.
     (The test build's site is Nara, as here.)"""
-    from server import protocol
     from server.app import create_app
     from tests.server.helpers import first_light_v2, settings_for
 
@@ -236,10 +246,7 @@ async def test_an_exr_replay_streams_the_measured_sun(aiohttp_client, build_dir,
     app = create_app(build_dir, settings_for(tmp_path, sky__source=f"replay:{folder}"))
     client = await aiohttp_client(app)
     ws, m = await first_light_v2(client)
-    assert m.sun.source_name == "measured" and not m.sun.estimated
-    assert m.flags & protocol.Flags.REPLAY and not m.saturated.any()
-    np.testing.assert_allclose(m.sun.normal_irradiance_w_m2, DNI_TRUE, rtol=0.03)
-    assert angle_deg(m.sun.direction, true_sun()) < 0.5
+    assert_replayed_true_sun(m)
     await ws.close()
 
 
