@@ -16,6 +16,7 @@ import * as THREE from 'three';
 import { plainVertex as viewVertex, sunCommon } from './materials.glsl.js';
 import { RGBE_ENCODE } from './relight.glsl.js';
 import { worldFromPixel } from './relight.js';
+import { findDaylit, meshAlbedo } from './site.js';
 import { LAYER, SUN_DEFINES, SunShadows, sunUniforms } from './sun.js';
 
 const GROUND_LAYER = 3; // the site's ground in the view pass (not a caster)
@@ -117,15 +118,13 @@ export class KioskSun {
     const box = new THREE.Box3();
     let groundY = 0;
     for (const mesh of meshes) {
-      const role = findRole(mesh);
+      const role = findDaylit(mesh)?.role;
       mesh.frustumCulled = false;
       if (role !== 'virtual' && role !== 'real' && role !== 'ground') {
         mesh.visible = false; // shadowing planes: not surfaces of the view
         continue;
       }
-      const c = mesh.material?.color;
-      const albedo = c ? new THREE.Vector3(c.r, c.g, c.b) : new THREE.Vector3(0.5, 0.5, 0.5);
-      mesh.material = this._material(viewVertex, viewFragment(format.rgbe), { ...shared, albedo: { value: albedo } },
+      mesh.material = this._material(viewVertex, viewFragment(format.rgbe), { ...shared, albedo: { value: meshAlbedo(mesh) } },
         role === 'ground');
       mesh.material.side = THREE.DoubleSide;
       box.expandByObject(mesh);
@@ -235,12 +234,4 @@ export class KioskSun {
     this.openMesh.geometry.dispose();
     this.root.traverse((o) => { if (o.isMesh) o.geometry.dispose(); });
   }
-}
-
-function findRole(object) {
-  for (let o = object; o; o = o.parent) {
-    const d = o.userData?.daylit;
-    if (d) return d.role;
-  }
-  return null;
 }

@@ -54,7 +54,7 @@ export class Site {
     for (const mesh of meshes) {
       const info = findDaylit(mesh);
       if (!info) continue;
-      const albedo = mesh.material?.color ? new THREE.Vector3(mesh.material.color.r, mesh.material.color.g, mesh.material.color.b) : new THREE.Vector3(0.5, 0.5, 0.5);
+      const albedo = meshAlbedo(mesh);
       mesh.userData.daylit = info;
       mesh.userData.albedo = albedo;
       if (info.role === 'virtual' || info.role === 'real') {
@@ -260,7 +260,15 @@ function isFlatGround(mesh, groundY) {
   return Math.abs(box.min.y - groundY) < 1e-3 && Math.abs(box.max.y - groundY) < 1e-3;
 }
 
-function findDaylit(object) {
+/** A site.glb mesh's albedo: its material's colour (linear RGB), 0.5 grey without one. */
+export function meshAlbedo(mesh) {
+  const c = mesh.material?.color;
+  return c ? new THREE.Vector3(c.r, c.g, c.b) : new THREE.Vector3(0.5, 0.5, 0.5);
+}
+
+/** A site.glb node's `extras.daylit` (role, atlas, object), from it or the nearest ancestor
+ * that has one; null for none. */
+export function findDaylit(object) {
   for (let o = object; o; o = o.parent) {
     const d = o.userData?.daylit;
     if (d) return d;

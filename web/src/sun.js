@@ -345,7 +345,6 @@ class ShadowMap {
       fragmentShader: coarseFragment(pass),
       uniforms: { source: { value: pass === 0 ? depth : this.rows.texture } },
     }));
-    this.target.texture.minFilter = this.target.texture.magFilter = THREE.NearestFilter;
     this.groundY = groundY;
     this.visibility = new THREE.WebGLRenderTarget(MAP_SIZE, MAP_SIZE, {
       type: THREE.UnsignedByteType, depthBuffer: false,
