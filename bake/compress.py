@@ -27,8 +27,10 @@ its few brightest patches is smooth and very low rank. So each stack is stored a
 Since the client draws the sun itself (protocol version 2, docs/sun.md) the atlases are relit
 with the sky *without* the sun's disc, and so are their test skies (:func:`test_skies`): that
 sky has no point-like light, and no light is selected (``m = 0``, no light images; the base
-alone). The fixed views keep the sun in its patch and one selected light, because the kiosk
-folds the sun back into its patch (``sun_in_patch``; docs/compact-assets.md, "The sun apart").
+alone). The fixed views are still fitted with the sun in its patch and one selected light
+(``sun_in_patch``; docs/compact-assets.md, "The sun apart"), chosen when the kiosk folded the
+sun back into its patch; it now draws the sun itself (web/src/kiosksun.js), so fitting the
+views without the disc is the next step (docs/sun.md, "Not done yet").
 
 Each of the k base layers and each light image is quantized to 8 bits per channel with its own
 scale and offset (``value = texel * scale + offset``, texel in [0, 1]) and encoded with the
@@ -275,8 +277,8 @@ def test_skies(site, dome_vertices, sun_in_patch: bool = False) -> list[TestSky]
     Without ``sun_in_patch`` (the default) the skies are what a client relights the basis
     stacks with now that it draws the sun itself (protocol version 2, docs/sun.md): the sky
     *without* the sun's disc (the circumsolar glow stays), named ``"clear 94,50 sky"``. With
-    it, the sun's disc is in its patch, as a version-1 light vector carries it and as the
-    kiosk folds it back (``"clear 94,50"``)."""
+    it, the sun's disc is in its patch, as a version-1 light vector carries it (the fixed
+    views' skies: ``"clear 94,50"``)."""
     from daylit import sky as skies
 
     def sky(name, model):

@@ -718,10 +718,11 @@ class _Compressor:
             "longitude_deg": site.longitude_deg,
             "elevation_m": site.elevation_m,
         }
-        # The fixed views keep the sun in its patch: the kiosk folds it back there and sums
-        # it from the views' stacks (docs/sun.md, item 6 open), as a version-1 light vector
-        # carries it. Their selection also fixes the selectable lights (the sun's path and
-        # the brightest patches), which the sun-bounce stacks have columns for.
+        # The fixed views keep the sun in its patch, as a version-1 light vector carries it
+        # (chosen while the kiosk folded the sun there; it now draws the sun itself, and
+        # fitting the views without the disc is open: docs/sun.md). Their selection also
+        # fixes the selectable lights (the sun's path and the brightest patches), which the
+        # sun-bounce stacks have columns for.
         m_views = max(VIEW_SELECTED_LIGHTS, self.settings.selected_lights)
         self.view_context = compress.prepare(
             scene, dome.vertices, dome.solid_angles_sr, m_views, sun_in_patch=True

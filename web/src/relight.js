@@ -11,7 +11,8 @@
 // A stack's own number of selected lights is its manifest entry's `selected_lights` (absent:
 // the build's). Since 2026-11-24 the atlases select none (they are relit with the sky
 // without the sun's disc; the sun is drawn apart, sun.js): a base and V, nothing on demand.
-// The fixed views keep one, the sun's patch (the kiosk folds the sun back into it).
+// The fixed views keep one, the sun's patch: their bases are still fitted with the sun in its
+// patch, though the kiosk now draws the sun itself (kiosksun.js; docs/sun.md, "Not done yet").
 //
 // Selected lights' own images are fetched on demand and kept in a small cache. When a newly
 // selected light's images have not arrived yet, the previous exact result stays on screen
