@@ -168,6 +168,7 @@ export class App {
     this.sunShadows = null;
     this.sunBounce?.dispose();
     this.sunBounce = null;
+    this.sunBounceDrawn = null;
     this.kiosk?.dispose();
     this.kiosk = null;
     this.relighter?.dispose();
@@ -301,7 +302,8 @@ export class App {
     const open = openSkyIrradiance(r, this.assets.manifest.dome.lights.map((l) => l.cosine_weighted_sr));
     const sun = this._pendingSun;
     this.sunShadows?.setSun(sun?.direction ?? [0, 0, 0], sun?.normalIrradiance ?? [0, 0, 0]);
-    this.sunBounce?.update(sun).catch((err) => {
+    // Kept so that whoever waits for a drawn light (debug.relight) can wait for it too.
+    this.sunBounceDrawn = this.sunBounce?.update(sun).catch((err) => {
       this.hud.setMessage(`${err.message}. The sun's bounce follows with the next light.`, 'warn');
       setTimeout(() => this.hud.setMessage(null), 5000);
     });

@@ -27,6 +27,7 @@ export function debugApi(app) {
       app._pendingSun = drawn;
       let applied = await app.relighter.update(sky, sequence);
       if (!applied.exact) applied = await app.relighter.update(sky, sequence);
+      await app.sunBounceDrawn; // the sun's bounce images are fetched when the sun enters a patch
       return { sequence: applied.sequence, exact: applied.exact, selected: applied.selected };
     },
     /**
