@@ -4,6 +4,7 @@ import * as THREE from 'three';
 import { AssetError, Assets } from './assets.js';
 import { CameraView } from './camera-view.js';
 import { Hud } from './hud.js';
+import { IrradianceTargets } from './irradiance.js';
 import { Kiosk } from './kiosk.js';
 import { KioskSun } from './kiosksun.js';
 import { LightSmoother, openSkyIrradiance, skySH9 } from './lightmath.js';
@@ -131,7 +132,8 @@ export class App {
           new KioskSun(this.renderer, gltf, manifest, view, this.relighter.format));
       } else {
         this.sunBounce = new SunBounce(this.renderer, this.assets, this.relighter.format);
-        this.site = new Site(gltf, manifest, this.relighter, this.sunBounce);
+        this.irradiance = new IrradianceTargets(this.renderer, this.relighter, this.sunBounce);
+        this.site = new Site(gltf, manifest, this.relighter, this.irradiance);
         this.scene.add(this.site.root);
         if (this.site.sky) this.scene.add(this.site.sky);
         this.sunShadows = new SunShadows(this.renderer, this.scene,
@@ -169,6 +171,8 @@ export class App {
     this.sunBounce?.dispose();
     this.sunBounce = null;
     this.sunBounceDrawn = null;
+    this.irradiance?.dispose();
+    this.irradiance = null;
     this.kiosk?.dispose();
     this.kiosk = null;
     this.relighter?.dispose();
@@ -302,8 +306,11 @@ export class App {
     const open = openSkyIrradiance(r, this.assets.manifest.dome.lights.map((l) => l.cosine_weighted_sr));
     const sun = this._pendingSun;
     this.sunShadows?.setSun(sun?.direction ?? [0, 0, 0], sun?.normalIrradiance ?? [0, 0, 0]);
-    // Kept so that whoever waits for a drawn light (debug.relight) can wait for it too.
-    this.sunBounceDrawn = this.sunBounce?.update(sun).catch((err) => {
+    // The surfaces read the relit sky and the sun's bounce summed (irradiance.js): now with the
+    // new sky, again when the bounce of a new sun is drawn. Kept so that whoever waits for a
+    // drawn light (debug.relight) can wait for the bounce too.
+    this.irradiance?.update();
+    this.sunBounceDrawn = this.sunBounce?.update(sun).then(() => this.irradiance?.update(), (err) => {
       this.hud.setMessage(`${err.message}. The sun's bounce follows with the next light.`, 'warn');
       setTimeout(() => this.hud.setMessage(null), 5000);
     });

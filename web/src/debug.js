@@ -88,6 +88,7 @@ export function debugApi(app) {
     async sunBounce() {
       const sun = app._pendingSun;
       if (app.sunBounce) await app.sunBounce.update(sun);
+      app.irradiance?.update();
       return app.sunBounce?.patch ?? -1;
     },
     /** The sun's bounce target of an atlas stack ('ground.I') as base64 float32 RGBA. */

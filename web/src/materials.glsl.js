@@ -59,18 +59,18 @@ function output(expr) {
 }
 
 /**
- * A surface lit from its lightmap (the sky) and the sun: albedo / pi x (E_sky + E_sun cos V +
- * the sun's bounce), V the sun's visibility past the virtual and the real casters. With shading off (the A/B
- * switch) it shows albedo / pi x flatIrradiance: no shading, no shadows.
+ * A surface lit from its lightmap and the sun: albedo / pi x (E + E_sun cos V), E the sky's
+ * irradiance plus the sun's bounce (irradiance.js: one read), V the sun's visibility past the
+ * virtual and the real casters. With shading off (the A/B switch) it shows albedo / pi x
+ * flatIrradiance: no shading, no shadows.
  */
 export const lightmapFragment = (decode) => /* glsl */ `
 ${common}
 ${decode}
-uniform sampler2D irradianceTex;
+uniform sampler2D irradianceTex; // the atlas's 'lit' target (irradiance.js)
 uniform vec3 albedo;
 uniform vec3 flatIrradiance;
 uniform float shading; // 1 shaded from the lightmap, 0 flat
-uniform sampler2D sunBounceTex; // the sun's bounce (sunbounce.js), black without one
 varying vec2 vUv;
 varying vec3 vNormalW;
 varying vec3 vPositionW;
@@ -79,7 +79,6 @@ void main() {
   vec3 n = facingNormal();
   vec3 sun = sunOnSurface(n);
   sun *= sunVisibilityAll(vPositionW, n);
-  sun += decodeTarget(texture2D(sunBounceTex, vUv));
   vec3 e = mix(flatIrradiance, decodeTarget(texture2D(irradianceTex, vUv)) + sun, shading);
   ${output('albedo / 3.14159265 * e * exposure')}
 }
@@ -121,13 +120,14 @@ void main() {
 /**
  * A shadowing plane (Kakuta Eq. 2, 4, with the sun apart as in Jensen 2006), per channel in
  * linear light:
- *   ratio = (D - X + S V + B_I) / (D + S Vd + B_d)
- * with D = sum r d and X = sum r (d - I) the sky's part from the basis, S the sun's
- * irradiance on the plane unshadowed, V its visibility past every caster and Vr past the real
- * ones, and Vd = Vr where `d` holds the real proxies (ground and wall planes), 1 where it
- * holds nothing (hull planes), B the sun's bounce with and without the virtual objects
- * (sunbounce.js; black where the build has none). Inside a real shadow the ratio is the sky's alone: a virtual
- * shadow never darkens what the real scene already shadows.
+ *   ratio = (E_with + S V) / (E_without + S Vd)
+ * with E_with and E_without the irradiance without the sun's direct term with and without the
+ * virtual objects (the sky's part from the basis, D - X and D, plus the sun's bounce with and
+ * without them: irradiance.js), S the sun's irradiance on the plane unshadowed, V its
+ * visibility past every caster and Vr past the real ones, and Vd = Vr where `d` holds the
+ * real proxies (ground and wall planes), 1 where it holds nothing (hull planes). Inside a real
+ * shadow the ratio is the sky's alone: a virtual shadow never darkens what the real scene
+ * already shadows.
  * Over a camera picture drawn into the frame (camera mode) the plane multiplies it by
  * ratio^(1/2.2) per channel (blending DstColor, Zero, on sRGB-encoded colour); over a
  * passthrough (AR, transparent frame) it can only be black with alpha 1 - luminance ratio.
@@ -136,27 +136,23 @@ void main() {
  */
 export const shadowPlaneFragment = (decode) => /* glsl */ `
 ${decode}
-uniform sampler2D dTex;      // D = sum r d
-uniform sampler2D deltaTex;  // X = sum r (d - I)
+uniform sampler2D withTex;    // E_with (irradiance.js)
+uniform sampler2D withoutTex; // E_without
 uniform float strength;      // 1 shown, 0 hidden (the A/B switch)
 uniform float brighten;      // 0: the darkening draw, 1: the brightening draw
 uniform float alphaOut;      // 1: black with alpha (AR), 0: a factor to multiply by
 uniform float dHasReal;      // 1: d holds the real proxies (ground, walls); 0: nothing (hull)
-uniform sampler2D sunBounceTex;  // the sun's bounce with everything (I)
-uniform sampler2D sunBounceDTex; // and as d sees it
 varying vec2 vUv;
 varying vec3 vNormalW;
 varying vec3 vPositionW;
 ${sunCommon}
 void main() {
-  vec3 D = decodeTarget(texture2D(dTex, vUv));
-  vec3 X = decodeTarget(texture2D(deltaTex, vUv));
   vec3 n = facingNormal();
   vec3 S = sunOnSurface(n);
   float all = sunVisibilityAll(vPositionW, n);
   float vr = sunVisibilityReal(vPositionW, n);
-  vec3 present = D - X + S * all + decodeTarget(texture2D(sunBounceTex, vUv));
-  vec3 absent = D + S * mix(1.0, vr, dHasReal) + decodeTarget(texture2D(sunBounceDTex, vUv));
+  vec3 present = decodeTarget(texture2D(withTex, vUv)) + S * all;
+  vec3 absent = decodeTarget(texture2D(withoutTex, vUv)) + S * mix(1.0, vr, dHasReal);
   vec3 ratio = mix(vec3(1.0), present / max(absent, vec3(1e-6)), step(vec3(1e-6), absent));
   ratio = mix(vec3(1.0), clamp(ratio, 0.0, 4.0), strength);
   vec3 encoded = pow(ratio, vec3(1.0 / 2.2));
@@ -172,35 +168,28 @@ void main() {
 
 /**
  * A real receiving surface in the virtual visit (no camera view to blend over): the
- * synthesized real scene under the same sky and sun, albedo / pi x (D - X + S V + B_I) (the
- * virtual objects' part left out when their shadows are switched off: X, V for Vr (compiled
- * with VIRTUAL_SHADOWS 0), B_I for B_d).
+ * synthesized real scene under the same sky and sun, albedo / pi x (E_with + S V); with the
+ * virtual objects' shading switched off (compiled with VIRTUAL_SHADOWS 0, and given
+ * E_without: Site.setShading) albedo / pi x (E_without + S Vr).
  */
 export const receiverFragment = (decode) => /* glsl */ `
 ${common}
 ${decode}
-uniform sampler2D dTex;
-uniform sampler2D deltaTex;
+uniform sampler2D irradianceTex; // E_with, or E_without with the switch off (irradiance.js)
 uniform vec3 albedo;
-uniform float strength;
-uniform sampler2D sunBounceTex;
-uniform sampler2D sunBounceDTex;
 varying vec2 vUv;
 varying vec3 vNormalW;
 varying vec3 vPositionW;
 ${sunCommon}
 void main() {
-  vec3 D = decodeTarget(texture2D(dTex, vUv));
-  vec3 X = decodeTarget(texture2D(deltaTex, vUv));
   vec3 n = facingNormal();
-  vec3 bounce = mix(decodeTarget(texture2D(sunBounceDTex, vUv)), decodeTarget(texture2D(sunBounceTex, vUv)), strength);
   vec3 sun = sunOnSurface(n);
 #if VIRTUAL_SHADOWS == 1
   sun *= sunVisibilityAll(vPositionW, n);
 #else
   sun *= sunVisibilityReal(vPositionW, n); // the A/B switch's "off": the real shadows only
 #endif
-  vec3 e = max(D - strength * X, vec3(0.0)) + sun + bounce;
+  vec3 e = decodeTarget(texture2D(irradianceTex, vUv)) + sun;
   ${output('albedo / 3.14159265 * e * exposure')}
 }
 `;

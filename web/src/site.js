@@ -19,9 +19,10 @@ export class Site {
    * @param {object} gltf from GLTFLoader
    * @param {object} manifest
    * @param {import('./relight.js').Relighter} relighter
-   * @param {import('./sunbounce.js').SunBounce} [sunBounce] the sun's bounce targets
+   * @param {import('./irradiance.js').IrradianceTargets} irradiance what the surfaces read:
+   *   the relit sky plus the sun's bounce, per atlas
    */
-  constructor(gltf, manifest, relighter, sunBounce = null) {
+  constructor(gltf, manifest, relighter, irradiance) {
     this.root = gltf.scene;
     this.manifest = manifest;
     this.relighter = relighter;
@@ -38,10 +39,7 @@ export class Site {
     };
     // The sun (sun.js): direction, irradiance and shadow maps, shared by every material.
     this.sun = sunUniforms();
-    this.black = new THREE.DataTexture(new Uint8Array(4), 1, 1);
-    this.black.needsUpdate = true;
-    // The sun's bounce of an atlas stack ('ground.I'), black where the build has none.
-    const bounce = (key) => ({ value: sunBounce?.texture(key) ?? this.black });
+    this.irradiance = irradiance;
     this.nodes = { virtual: [], real: [], ground: [], plane: [], hull: [], brighten: [] };
     this.groundAlbedo = new THREE.Vector3(...manifest.ground.albedo);
     const meshes = [];
@@ -58,7 +56,7 @@ export class Site {
       mesh.userData.daylit = info;
       mesh.userData.albedo = albedo;
       if (info.role === 'virtual' || info.role === 'real') {
-        mesh.userData.lightmapMaterial = this._lightmap(albedo, decode, t[`${info.atlas}.I`], bounce(`${info.atlas}.I`));
+        mesh.userData.lightmapMaterial = this._lightmap(albedo, decode, irradiance.texture(`${info.atlas}.lit`));
         if (info.role === 'virtual') {
           mesh.userData.sh9Material = this._sh9(albedo);
           this.nodes.virtual.push(mesh);
@@ -77,14 +75,14 @@ export class Site {
         mesh.renderOrder = 4;
         this.nodes.ground.push(mesh);
       } else if (info.role === 'shadowing-plane') {
-        const D = t[`${info.atlas}.d`]?.texture;
-        const X = t[`${info.atlas}.I`]?.texture;
-        if (!D || !X) continue;
+        const withTex = irradiance.texture(`${info.atlas}.with`);
+        const withoutTex = irradiance.texture(`${info.atlas}.without`);
+        if (!withTex || !withoutTex) continue;
         const dHasReal = info.atlas === 'hull' ? 0 : 1; // hull d: nothing; ground d: real proxies
-        const b = { bI: bounce(`${info.atlas}.I`), bD: bounce(`${info.atlas}.d`), defines: sunDefines(mesh) };
-        mesh.userData.shadowMaterial = this._shadow(decode, D, X, { dHasReal, ...b });
-        mesh.userData.shadowAlphaMaterial = this._shadow(decode, D, X, { dHasReal, alphaOut: 1, ...b });
-        const bright = new THREE.Mesh(mesh.geometry, this._shadow(decode, D, X, { dHasReal, brighten: 1, ...b }));
+        const e = { withTex, withoutTex, dHasReal, defines: sunDefines(mesh) };
+        mesh.userData.shadowMaterial = this._shadow(decode, e);
+        mesh.userData.shadowAlphaMaterial = this._shadow(decode, { ...e, alphaOut: 1 });
+        const bright = new THREE.Mesh(mesh.geometry, this._shadow(decode, { ...e, brighten: 1 }));
         bright.renderOrder = 3;
         mesh.add(bright);
         mesh.userData.brightMesh = bright;
@@ -95,12 +93,14 @@ export class Site {
         } else {
           mesh.userData.receiverMaterial = new THREE.ShaderMaterial({
             uniforms: {
-              ...this.sun, exposure: this.shared.exposure, strength: this.shared.strength, albedo: { value: this._receiverAlbedo(info) },
-              dTex: { value: D }, deltaTex: { value: X }, sunBounceTex: b.bI, sunBounceDTex: b.bD,
+              ...this.sun, exposure: this.shared.exposure, albedo: { value: this._receiverAlbedo(info) },
+              irradianceTex: { value: withTex },
             },
             vertexShader: uvVertex, fragmentShader: receiverFragment(decode), side: THREE.DoubleSide,
-            defines: { ...b.defines, VIRTUAL_SHADOWS: 1 },
+            defines: { ...e.defines, VIRTUAL_SHADOWS: 1 },
           });
+          // The A/B switch: with or without the virtual objects (setShading).
+          mesh.userData.receiverIrradiance = { with: withTex, without: withoutTex };
           this.nodes.plane.push(mesh);
         }
       }
@@ -115,12 +115,12 @@ export class Site {
     return real ? real.userData.albedo : this.groundAlbedo;
   }
 
-  _lightmap(albedo, decode, target, sunBounceTex) {
+  _lightmap(albedo, decode, texture) {
     return new THREE.ShaderMaterial({
       uniforms: {
         ...this.sun, exposure: this.shared.exposure, shading: this.shared.shading,
         flatIrradiance: this.shared.flatIrradiance, albedo: { value: albedo },
-        irradianceTex: { value: target.texture }, sunBounceTex,
+        irradianceTex: { value: texture },
       },
       vertexShader: uvVertex, fragmentShader: lightmapFragment(decode),
       side: THREE.DoubleSide, defines: { ...SUN_DEFINES },
@@ -144,15 +144,14 @@ export class Site {
    * channel (alphaOut: black with alpha, for a transparent frame over a passthrough), the
    * brightening draw adds the excess where the ratio is above 1.
    */
-  _shadow(decode, D, X, { dHasReal, bI, bD, defines, brighten = 0, alphaOut = 0 }) {
+  _shadow(decode, { withTex, withoutTex, dHasReal, defines, brighten = 0, alphaOut = 0 }) {
     const blend = brighten ? { blendSrc: THREE.DstColorFactor, blendDst: THREE.OneFactor }
       : alphaOut ? { blendSrc: THREE.SrcAlphaFactor, blendDst: THREE.OneMinusSrcAlphaFactor }
         : { blendSrc: THREE.DstColorFactor, blendDst: THREE.ZeroFactor };
     return new THREE.ShaderMaterial({
       uniforms: {
-        ...this.sun, dTex: { value: D }, deltaTex: { value: X }, strength: this.shared.strength,
+        ...this.sun, withTex: { value: withTex }, withoutTex: { value: withoutTex }, strength: this.shared.strength,
         brighten: { value: brighten }, alphaOut: { value: alphaOut }, dHasReal: { value: dHasReal },
-        sunBounceTex: bI, sunBounceDTex: bD,
       },
       vertexShader: uvVertex, fragmentShader: shadowPlaneFragment(decode), defines: { ...defines },
       transparent: true, depthWrite: false, side: THREE.DoubleSide,
@@ -228,7 +227,10 @@ export class Site {
     this.shared.strength.value = on ? 1 : 0;
     for (const m of this.nodes.plane) {
       const material = m.userData.receiverMaterial;
-      if (!material || material.defines.VIRTUAL_SHADOWS === (on ? 1 : 0)) continue;
+      if (!material) continue;
+      const e = m.userData.receiverIrradiance;
+      material.uniforms.irradianceTex.value = on ? e.with : e.without;
+      if (material.defines.VIRTUAL_SHADOWS === (on ? 1 : 0)) continue;
       material.defines = { ...material.defines, VIRTUAL_SHADOWS: on ? 1 : 0 };
       material.needsUpdate = true;
     }
