@@ -304,7 +304,7 @@ async def background_tasks(app: web.Application):
     """``cleanup_ctx``: start the supervised tasks, and stop them (and the clients) at exit."""
     supervisor: Supervisor = app[SUPERVISOR]
     pipeline = app[PIPELINE]
-    supervisor.start("sky source", lambda: pipeline.source.run(pipeline.deliver))
+    supervisor.start("sky source", pipeline.run_source)
     supervisor.start("measuring", pipeline.measure_forever)
     supervisor.start("stale watchdog", pipeline.watch_forever)
     feed = app[SITE_CAMERA]
