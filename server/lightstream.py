@@ -106,6 +106,7 @@ class LightHub:
         self.client_rate = client_max_messages_per_s
         self.heartbeat_s = heartbeat_s
         self.closing = False  # the server is stopping: new clients are closed with 1001
+        self._all_closed = asyncio.Event()  # close_all is done
         self.dropped_heartbeat = 0
         self.dropped_slow = 0
         self.site_camera_available = site_camera_available
@@ -244,6 +245,11 @@ class LightHub:
         sender = asyncio.create_task(self._send_loop(client), name=f"send {remote}")
         try:
             await self._read_loop(client)
+            if self.closing:
+                # close_all's close is waiting for the client's close frame: returning now
+                # would close the connection before it comes (the client would see 1006).
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(self._all_closed.wait(), CLOSE_CLIENTS_S + 1.0)
         finally:
             self.clients.discard(client)
             sender.cancel()
@@ -367,6 +373,7 @@ class LightHub:
         if clients:
             log.info("closing %d light streams (1001, server shutting down)", len(clients))
         await asyncio.gather(*(close(c) for c in clients), return_exceptions=True)
+        self._all_closed.set()
 
     def status(self) -> dict:
         return {
