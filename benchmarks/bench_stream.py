@@ -66,6 +66,8 @@ def start_server(build: Path, frames: Path, port: int) -> subprocess.Popen:
         "--set", f"sky.rate_hz={RATE_HZ}", "--set", "stream.smoothing_s=0",
         "--set", "stream.change_threshold=0", "--set", "server.max_clients=5000",
         "--set", "sky.stale_after_s=60",
+        # Every benchmark client comes from 127.0.0.1.
+        "--set", "server.max_connections_per_address=10000",
     ]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, cwd=ROOT,
                             env=dict(os.environ, PYTHONUNBUFFERED="1"))

@@ -9,6 +9,10 @@ fail, with a pause that doubles up to 30 s, so the server keeps going for days:
 - measuring (newest frame -> vector -> hub), and the stale-light watchdog;
 - the site camera, when configured, with occlusion by visitors on its frames
   (:mod:`server.occlusionfeed`: a worker process, started with the site camera).
+
+When the server stops (SIGTERM, Ctrl-C), ``on_shutdown`` closes every light stream with 1001
+and stops the background tasks before aiohttp closes the remaining connections, so the
+process exits within a few seconds and no client sees 1006.
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ from daylit import __version__
 from daylit import manifest as manifest_io
 from server import protocol
 from server.config import ConfigError, Settings, SourceSpec, load_settings
+from server.connections import install_refused_request_log
 from server.fisheye import FisheyeCamera, load_calibration
 from server.lightstream import LightHub
 from server.measure import Photometry, SkyMeter, TemporalFilter, inverse_response_table
@@ -265,6 +270,7 @@ def create_app(
         client_max_messages_per_s=srv.client_max_messages_per_s,
         site_camera_available=site_source is not None,
         occlusion_available=occlusion is not None,
+        heartbeat_s=srv.heartbeat_s,
     )
     if site_source is not None:
         site_feed = SiteCameraFeed(site_source, hub, settings.site_camera.jpeg_quality,
@@ -284,6 +290,8 @@ def create_app(
     app[OCCLUSION_OFF] = occlusion_off
     app[SUPERVISOR] = Supervisor(settings.sky.reconnect_min_s, settings.sky.reconnect_max_s)
     app.cleanup_ctx.append(background_tasks)
+    app.on_shutdown.append(close_streams)
+    install_refused_request_log()
     app.router.add_get("/ws/light", hub.handle, name="light")
     app.router.add_get("/api/status", status, name="status")
     app.router.add_get("/api/sky.jpg", sky_jpeg, name="sky")
@@ -296,7 +304,7 @@ async def background_tasks(app: web.Application):
     """``cleanup_ctx``: start the supervised tasks, and stop them (and the clients) at exit."""
     supervisor: Supervisor = app[SUPERVISOR]
     pipeline = app[PIPELINE]
-    supervisor.start("sky source", lambda: pipeline.source.run(pipeline.deliver))
+    supervisor.start("sky source", pipeline.run_source)
     supervisor.start("measuring", pipeline.measure_forever)
     supervisor.start("stale watchdog", pipeline.watch_forever)
     feed = app[SITE_CAMERA]
@@ -305,9 +313,15 @@ async def background_tasks(app: web.Application):
         supervisor.start("site camera encoder", feed.run_forever)
     yield
     await supervisor.stop()
-    await app[HUB].close_all()
+    await app[HUB].close_all()  # already done by close_streams when the server shuts down
     if app[OCCLUSION] is not None:
         await app[OCCLUSION].close()
+
+
+async def close_streams(app: web.Application) -> None:
+    """``on_shutdown``: close the light streams with 1001 and stop measuring and publishing,
+    before aiohttp waits for the remaining requests (a light stream would hold it 60 s)."""
+    await asyncio.gather(app[HUB].close_all(), app[SUPERVISOR].stop())
 
 
 def relearn_occlusion(app: web.Application) -> bool:

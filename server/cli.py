@@ -33,6 +33,11 @@ every key. Logs go to standard error.
 """
 
 
+# After SIGTERM or Ctrl-C: the light stream's clients are closed with 1001 first (at most
+# 2 s, server.app.CLOSE_CLIENTS_S), then aiohttp waits at most this long for other requests.
+SHUTDOWN_TIMEOUT_S = 2.0
+
+
 def add_subcommands(subparsers) -> None:
     serve = subparsers.add_parser(
         "serve",
@@ -145,11 +150,16 @@ async def _serve(app, settings, log) -> int:
     from aiohttp import web
 
     from server.app import MANIFEST, OCCLUSION, PIPELINE, relearn_occlusion
+    from server.connections import GuardedSite
 
     host, port = settings.server.host, settings.server.port
-    runner = web.AppRunner(app, handle_signals=False, access_log=None)
+    # keepalive_timeout is also how long a new connection may take to send its headers.
+    runner = web.AppRunner(app, handle_signals=False, access_log=None,
+                           keepalive_timeout=settings.server.header_timeout_s,
+                           shutdown_timeout=SHUTDOWN_TIMEOUT_S)
     await runner.setup()
-    site = web.TCPSite(runner, host, port, reuse_address=True)
+    site = GuardedSite(runner, host, port,
+                       max_connections_per_address=settings.server.max_connections_per_address)
     try:
         await site.start()
     except OSError:

@@ -45,6 +45,15 @@ SCHEMA: dict[str, dict[str, Key]] = {
                                          "second (averaged over 5 s) before it is closed", 0.1),
         "slow_client_timeout_s": Key(30.0, "float", "a client whose connection accepts no "
                                      "data for this long is dropped", 1.0),
+        "header_timeout_s": Key(10.0, "float", "a connection must send a request's headers "
+                                "within this long of opening (or of its last answer), else it "
+                                "is closed (slowloris)", 0.5, 3600.0),
+        "max_connections_per_address": Key(256, "int", "open connections from one client "
+                                           "address (all kinds: pages, files, light streams); "
+                                           "more are closed at once", 1, 100000),
+        "heartbeat_s": Key(30.0, "float", "the light stream pings each client this often; "
+                           "one that does not answer within half of it is dropped (logged)",
+                           0.1, 3600.0),
         "web_root": Key(str(REPO_ROOT / "web"), "str", "folder served at /"),
         "three_root": Key(str(REPO_ROOT / "node_modules" / "three"), "str",
                           "the three package, served at /vendor/three/"),

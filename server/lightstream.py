@@ -21,7 +21,11 @@ Per connection (``GET /ws/light``):
 - the client may send small JSON messages (subscribe, ping); anything else closes that client
   alone: 1003 for binary data, 1008 for text outside the protocol or too many messages,
   1009 for a message over the size limit;
-- a client whose connection has accepted nothing for ``slow_client_timeout_s`` is dropped.
+- a client whose connection has accepted nothing for ``slow_client_timeout_s`` is dropped,
+  and one that does not answer the WebSocket ping (every ``heartbeat_s``) within half of it
+  too; both are logged;
+- when the server stops, :meth:`LightHub.close_all` closes every client with 1001 and aborts
+  the connections that do not take the close frame within ``CLOSE_CLIENTS_S``.
 """
 
 from __future__ import annotations
@@ -45,6 +49,7 @@ LIGHT = "light"
 SITE_CAMERA = "site-camera"
 OCCLUSION = "occlusion"
 FRAME_STREAMS = (SITE_CAMERA, OCCLUSION)  # the parts of a frame bundle, in wire order
+CLOSE_CLIENTS_S = 2.0  # at shutdown, the longest wait for clients to take the 1001 close
 
 
 @dataclass(eq=False)  # identity: each connection is its own client
@@ -79,6 +84,8 @@ class LightHub:
         Extra allowed ``Origin`` values, or ``["*"]``.
     slow_client_timeout_s : float
     client_max_messages_per_s : float
+    heartbeat_s : float
+        WebSocket ping period; a client that does not answer within half of it is dropped.
     """
 
     def __init__(
@@ -90,12 +97,18 @@ class LightHub:
         client_max_messages_per_s: float = 10.0,
         site_camera_available: bool = False,
         occlusion_available: bool = False,
+        heartbeat_s: float = 30.0,
     ):
         self.hello = hello
         self.max_clients = max_clients
         self.allowed_origins = {o.rstrip("/") for o in (allowed_origins or [])}
         self.slow_client_timeout_s = slow_client_timeout_s
         self.client_rate = client_max_messages_per_s
+        self.heartbeat_s = heartbeat_s
+        self.closing = False  # the server is stopping: new clients are closed with 1001
+        self._all_closed = asyncio.Event()  # close_all is done
+        self.dropped_heartbeat = 0
+        self.dropped_slow = 0
         self.site_camera_available = site_camera_available
         self.occlusion_available = occlusion_available and site_camera_available
         self.clients: set[Client] = set()
@@ -207,11 +220,16 @@ class LightHub:
         except ProtocolError as exc:
             raise web.HTTPBadRequest(text=f"{exc}\n") from None
         ws = web.WebSocketResponse(
-            max_msg_size=protocol.MAX_CLIENT_MESSAGE_BYTES,
+            # aiohttp refuses a message of max_msg_size bytes or more; the protocol allows
+            # MAX_CLIENT_MESSAGE_BYTES (parse_client_message checks it exactly).
+            max_msg_size=protocol.MAX_CLIENT_MESSAGE_BYTES + 1,
             compress=False,  # float vectors and JPEG do not deflate; spare the CPU
-            heartbeat=30.0,
+            heartbeat=self.heartbeat_s,
         )
         await ws.prepare(request)
+        if self.closing:
+            await ws.close(code=WSCloseCode.GOING_AWAY, message=b"server shutting down")
+            return ws
         if len(self.clients) >= self.max_clients:
             self.refused += 1
             log.warning("refused light stream from %s: %d clients already (max_clients)",
@@ -227,9 +245,20 @@ class LightHub:
         sender = asyncio.create_task(self._send_loop(client), name=f"send {remote}")
         try:
             await self._read_loop(client)
+            if self.closing:
+                # close_all's close is waiting for the client's close frame: returning now
+                # would close the connection before it comes (the client would see 1006).
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(self._all_closed.wait(), CLOSE_CLIENTS_S + 1.0)
         finally:
             self.clients.discard(client)
             sender.cancel()
+            # aiohttp's "No PONG received": it closes the connection, which cancels this
+            # handler, so this is said here.
+            if isinstance(ws.exception(), TimeoutError):
+                self.dropped_heartbeat += 1
+                log.warning("dropped light stream of %s: no answer to the heartbeat ping "
+                            "within %.1f s", remote, self.heartbeat_s / 2)
             with contextlib.suppress(asyncio.CancelledError):
                 await sender
         return ws
@@ -316,6 +345,7 @@ class LightHub:
                             client.messages_sent += 1
                     client.sent_frame = number
         except TimeoutError:
+            self.dropped_slow += 1
             log.warning("dropping light stream of %s: nothing accepted for %.0f s",
                         client.remote, self.slow_client_timeout_s)
             if client.transport is not None:
@@ -323,15 +353,27 @@ class LightHub:
         except (ConnectionError, RuntimeError):
             pass  # the client went away; the read loop ends the connection
 
-    async def close_all(self) -> None:
-        """Close every client with 1001 (server shutting down)."""
+    async def close_all(self, timeout_s: float = CLOSE_CLIENTS_S) -> None:
+        """Close every client with 1001 (server shutting down), and refuse new ones so.
+
+        Waits at most ``timeout_s`` for the clients' closing handshakes; connections still
+        open then (a client that never reads) are aborted.
+        """
+        self.closing = True
+
+        async def close(client: Client) -> None:
+            with contextlib.suppress(TimeoutError, ConnectionError, RuntimeError):
+                await asyncio.wait_for(client.ws.close(code=WSCloseCode.GOING_AWAY,
+                                                       message=b"server shutting down"),
+                                       timeout_s)
+            if not client.ws.closed and client.transport is not None:
+                client.transport.abort()
+
         clients = list(self.clients)
-        await asyncio.gather(
-            *(asyncio.wait_for(c.ws.close(code=WSCloseCode.GOING_AWAY,
-                                          message=b"server shutting down"), 5.0)
-              for c in clients),
-            return_exceptions=True,
-        )
+        if clients:
+            log.info("closing %d light streams (1001, server shutting down)", len(clients))
+        await asyncio.gather(*(close(c) for c in clients), return_exceptions=True)
+        self._all_closed.set()
 
     def status(self) -> dict:
         return {
@@ -341,4 +383,6 @@ class LightHub:
             "clients_occlusion": sum(OCCLUSION in c.streams for c in self.clients),
             "clients_refused": self.refused,
             "clients_closed_for_protocol": self.closed_for_protocol,
+            "clients_dropped_heartbeat": self.dropped_heartbeat,
+            "clients_dropped_slow": self.dropped_slow,
         }

@@ -33,7 +33,10 @@ DESIGN.md including the photometric factor of Sato Sec. 5.
 
 from __future__ import annotations
 
+import collections
+import logging
 import math
+import threading
 import time
 from dataclasses import dataclass, replace
 
@@ -45,6 +48,8 @@ from scipy.spatial import cKDTree
 from daylit.spherical import PatchLookup, centroid_direction
 from server.fisheye import FisheyeCamera
 from server.sunmeter import SunMeasurement, SunMeter
+
+log = logging.getLogger("daylit.measure")
 
 # Frames are binned (after linearising, by a power of two) to at most this many pixels of the
 # image circle's bounding box: at 1 megapixel 320 x 240, a hundred or more pixels per light of
@@ -545,9 +550,13 @@ class FrameError(ValueError):
 class SkyMeter:
     """Turns frames into :class:`Measurement` s for one lens, dome and photometry.
 
-    The matrix is built for the first frame's size (or the calibration's) and rebuilt when
-    the size changes.
+    A matrix is built for each frame size met (logged once per size) and kept: up to
+    ``MATRIX_SIZES`` sizes, the least recently used dropped beyond. :meth:`has_matrix` tells
+    the pipeline whether a frame's size is new, so it can build that size's matrix on a
+    worker thread while it goes on measuring frames of the known sizes.
     """
+
+    MATRIX_SIZES = 4
 
     def __init__(
         self,
@@ -569,9 +578,14 @@ class SkyMeter:
         self.supersample = supersample
         self.max_working_pixels = max_working_pixels
         self.sky_mask = sky_mask
-        self.matrix: PatchMatrix | None = None
+        self.matrix: PatchMatrix | None = None  # the one used last
+        self._matrices: collections.OrderedDict[tuple[int, int], PatchMatrix] = \
+            collections.OrderedDict()  # (width, height) px -> matrix, least recent first
+        self._matrices_lock = threading.Lock()
+        self.matrix_builds = 0
         self._luts: dict[object, np.ndarray] = {}
         self._binned_codes: np.ndarray | None = None
+        self._binned_for: PatchMatrix | None = None  # the matrix _binned_codes is for
         self._factor = np.asarray(self.photometry.photometric_factor, dtype=np.float64)
 
     def camera_for(self, width: int, height: int) -> FisheyeCamera:
@@ -594,21 +608,46 @@ class SkyMeter:
             f"{self.camera.width}x{self.camera.height}"
         )
 
-    def prepare(self, width: int, height: int) -> PatchMatrix:
-        """Build (or reuse) the matrix for frames of this size."""
-        if self.matrix is None or self._full_size != (width, height):
-            self.matrix = PatchMatrix.build(
-                self.camera_for(width, height),
-                self.dome_vertices,
-                supersample=self.supersample,
-                vignetting=self.photometry,
-                max_working_pixels=self.max_working_pixels,
-                sky_mask=self.sky_mask,
-            )
-            self._full_size = (width, height)
-        return self.matrix
+    def has_matrix(self, width: int, height: int) -> bool:
+        """True if frames of this size (px) are measured without building a matrix first."""
+        return (width, height) in self._matrices
 
-    _full_size: tuple[int, int] = (0, 0)
+    @property
+    def matrix_count(self) -> int:
+        return len(self._matrices)
+
+    def prepare(self, width: int, height: int) -> PatchMatrix:
+        """The matrix for frames of this size (px), built (seconds for large frames) and kept
+        the first time. Thread-safe; raises :class:`FrameError` for a size the calibration
+        does not fit."""
+        key = (width, height)
+        with self._matrices_lock:
+            m = self._matrices.get(key)
+            if m is not None:
+                self._matrices.move_to_end(key)
+                self.matrix = m
+                return m
+        camera = self.camera_for(width, height)
+        log.info("building the measuring matrix for %dx%d frames (%d other sizes kept)",
+                 width, height, len(self._matrices))
+        m = PatchMatrix.build(
+            camera,
+            self.dome_vertices,
+            supersample=self.supersample,
+            vignetting=self.photometry,
+            max_working_pixels=self.max_working_pixels,
+            sky_mask=self.sky_mask,
+        )
+        log.info("measuring matrix for %dx%d frames built in %.1f s (measured at %dx%d, %d "
+                 "pixels)", width, height, m.build_s, m.camera.width, m.camera.height,
+                 m.pixels_used)
+        with self._matrices_lock:
+            self.matrix_builds += 1
+            self._matrices[key] = m
+            while len(self._matrices) > self.MATRIX_SIZES:
+                self._matrices.popitem(last=False)
+            self.matrix = m
+        return m
 
     def _lut(self, levels: int) -> np.ndarray:
         if levels not in self._luts:
@@ -723,8 +762,10 @@ class SkyMeter:
         b = m.binning
         h, w = crop.shape[:2]
         out = self._binned_codes
-        if out is None or out.shape != (h // b, w // b, 3):
+        if out is None or out.shape != (h // b, w // b, 3) or self._binned_for is not m:
+            # Zero outside m's bands: a buffer of another frame size may have other bands.
             out = self._binned_codes = np.zeros((h // b, w // b, 3), np.uint16)
+            self._binned_for = m
         rows = crop.reshape(h, w * 3)
         for r0, r1, c0, c1 in m.strips:
             if lut.ndim == 2:  # one curve for all channels: a 1-channel look-up

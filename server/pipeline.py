@@ -4,7 +4,14 @@ A source hands frames to :meth:`LightPipeline.deliver`, which keeps only the new
 measuring task measures it off the event loop, folds it into the temporal filter and publishes
 when the change threshold says so. A watchdog marks the light stale when frames stop coming,
 keeps re-sending the last good vector with the STALE flag (so clients know), and the stale flag
-clears with the next good frame. Frames that cannot be measured are skipped with a log line.
+clears with the next good frame. A source that has not delivered a frame within
+``stale_after_s`` of the start is stale too, with the source's last error in the status. Frames
+that cannot be measured are skipped with a log line.
+
+A frame of a size the meter has no matrix for yet (a replay folder of mixed sizes, a camera
+switching resolution) is skipped while that size's matrix is built on a worker thread (seconds
+for large frames); frames of the sizes already known are measured meanwhile, and the new
+size's frames from when the matrix is ready. The very first frame's matrix is built in line.
 
 With a sun meter, each vector is published with the sun (docs/sun.md): version-2 clients get
 the sky without the disc and the sun apart (direction, smoothed normal irradiance, source;
@@ -80,6 +87,11 @@ class LightPipeline:
         self._lookup: PatchLookup | None = None
         self._solid_angles_sr = solid_angles_sr
         self._last_skip_log_s = -1e9
+        self._building: set[tuple[int, int]] = set()  # sizes (px) whose matrix is being built
+        self._build_tasks: set[asyncio.Task] = set()
+        self._unusable: dict[tuple[int, int], str] = {}  # sizes (px) with no matrix: why
+        self.source_error = ""  # why the source's task last failed ("" if it has not)
+        self._source_failed_s: float | None = None
         self.started_s = time.time()
 
     # ------------------------------------------------------------------------------- input
@@ -94,12 +106,53 @@ class LightPipeline:
 
     # ---------------------------------------------------------------------------- tasks
 
+    async def run_source(self) -> None:
+        """The source's task (supervised): its failure is kept for the status."""
+        try:
+            await self.source.run(self.deliver)
+        except Exception as exc:
+            self.source_error = f"{exc}"
+            self._source_failed_s = time.time()
+            raise
+
+    def _new_size(self, frame: Frame) -> bool:
+        """True (and the size's matrix building off the event loop) if the frame is of a
+        size the meter has no matrix for while it has one for another size."""
+        image = frame.image
+        if not isinstance(image, np.ndarray) or image.ndim != 3:
+            return False  # measure() says what is wrong with it
+        size = (image.shape[1], image.shape[0])
+        if self.meter.matrix_count == 0 or self.meter.has_matrix(*size):
+            return False
+        if size in self._unusable:  # e.g. a size the calibration does not fit
+            self._skip(f"skipping a frame from {self.source.name}: {self._unusable[size]}")
+            return True
+        if size not in self._building:
+            self._building.add(size)
+            log.info("%s: frames of a new size, %dx%d: building its measuring matrix on a "
+                     "worker thread; frames of that size are skipped until it is ready",
+                     self.source.name, *size)
+            task = asyncio.create_task(self._build(size), name=f"matrix {size}")
+            self._build_tasks.add(task)
+            task.add_done_callback(self._build_tasks.discard)
+        self.frames_skipped += 1
+        return True
+
+    async def _build(self, size: tuple[int, int]) -> None:
+        try:
+            await asyncio.to_thread(self.meter.prepare, *size)
+        except Exception as exc:  # e.g. a size the calibration does not fit: not again
+            self._unusable[size] = f"no measuring matrix for {size[0]}x{size[1]} frames: {exc}"
+            log.warning("%s: %s", self.source.name, self._unusable[size])
+        finally:
+            self._building.discard(size)
+
     async def measure_forever(self) -> None:
         while True:
             await self._new.wait()
             self._new.clear()
             frame, self._pending = self._pending, None
-            if frame is None:
+            if frame is None or self._new_size(frame):
                 continue
             t0 = time.perf_counter()
             try:
@@ -135,6 +188,7 @@ class LightPipeline:
                      "matrix built in %.1f s)", self.source.name, frame.image.shape[1],
                      frame.image.shape[0], mat.camera.width, mat.camera.height,
                      mat.pixels_used, mat.count, mat.build_s)
+        self.source_error = ""
         if self.stale:
             log.info("%s: frames again; light no longer stale", self.source.name)
             self.stale = False
@@ -198,14 +252,19 @@ class LightPipeline:
         """Stale detection and keep-alive re-sends."""
         while True:
             await asyncio.sleep(period_s)
-            if self.temporal.value is None:
-                continue
             now = time.time()
             idle_s = now - (self.last_frame_wall_s or self.started_s)
             if not self.stale and idle_s > self.stale_after_s:
                 self.stale = True
-                log.warning("%s: no frame for %.1f s; light marked stale, serving the last "
-                            "good vector", self.source.name, idle_s)
+                if self.temporal.value is None:
+                    log.warning("%s: no frame measured in %.1f s since the start; light "
+                                "marked stale (%s)", self.source.name, idle_s,
+                                self.last_error() or "no error reported")
+                else:
+                    log.warning("%s: no frame for %.1f s; light marked stale, serving the "
+                                "last good vector", self.source.name, idle_s)
+            if self.temporal.value is None:
+                continue
             capture = self.latest_measurement.capture_time_s if self.latest_measurement else now
             self._maybe_publish(now, capture)
 
@@ -218,13 +277,20 @@ class LightPipeline:
             return 0.0
         return (len(times) - 1) / max(times[-1] - times[0], 1e-9)
 
+    def last_error(self) -> str:
+        """The source's own last error, else why its task last failed ("" if neither)."""
+        return str(self.source.status().get("last_error") or self.source_error)
+
     def status(self) -> dict:
         m = self.latest_measurement
         last = self.last_frame_wall_s
+        failed = self._source_failed_s
+        # A source whose task failed after its last frame is not delivering, whatever it says.
+        connected = bool(self.source.connected) and (
+            failed is None or (last is not None and last > failed))
         return {
             "source": self.source.name,
             "simulated": bool(self.source.flags & Flags.SIMULATED),
-            "connected": bool(self.source.connected),
             "fps": round(self.fps, 3),
             "last_frame_time": (None if last is None else time.strftime(
                 "%Y-%m-%dT%H:%M:%SZ", time.gmtime(last))),
@@ -239,6 +305,8 @@ class LightPipeline:
             else None,
             "sun": self.sun_status(),
             **self.source.status(),
+            "connected": connected and bool(self.source.status().get("connected", True)),
+            "last_error": self.last_error() or None,
         }
 
     def sun_status(self) -> dict | None:
