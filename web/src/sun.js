@@ -261,27 +261,32 @@ float sunVisibilityOnSurface(sampler2D map, sampler2D coarse, sampler2D visibili
 #if SUN == 0
   return 1.0;
 #else
-  float texel = info.x;
   float cosSun = dot(n, sunDirection);
-  vec3 q = (M * vec4(position + n * (1.5 * texel), 1.0)).xyz * 0.5 + 0.5;
-  bool inMap = info.w > 0.5 && q.x > 0.0 && q.y > 0.0 && q.x < 1.0 && q.y < 1.0 && q.z < 1.0;
-  ivec2 t = ivec2(clamp(q.xy * ${MAP_SIZE}.0, vec2(0.0), vec2(${MAP_SIZE - 1}.0)));
-  // Metres from the surface the texel sees to this point. On that surface, moved 1.5 texels
-  // along its normal, the point is 1.5 texels / cos nearer the sun than the surface's depth
-  // there, within its slope (tan) times the 0.71 texel from a texel's centre to its corner.
-  vec4 v = texelFetch(visibility, t, 0);
-  float behind = (q.z - unpack16(v.ba)) * info.z;
-  float c = max(cosSun, 0.125);
-  float slope = sqrt(1.0 - c * c) / c;
-  bool seen = abs(behind + 1.5 * texel / c) < texel * (1.0 + 0.75 * slope);
-  float visible = inMap ? v.r : 1.0;
-  bool refilter = inMap && !seen && cosSun > 0.0;
-  // Behind casters all around (the coarse map's greatest depth nearer than the point): umbra.
-  for (int k = 0; k < (refilter ? 1 : 0); k++) {
-    float deepest = unpack16(texelFetch(coarse, ivec2(q.xy * ${COARSE}.0), 0).ba);
-    if ((q.z - deepest) * info.z > 1.5 * texel) { visible = 0.0; refilter = false; }
+  float visible = 1.0;
+  // Facing away from the sun its cosine is 0: nothing to read (a loop run 0 times costs
+  // nothing on a software GPU, a branch not taken does).
+  for (int face = 0; face < (cosSun > 0.0 ? 1 : 0); face++) {
+    float texel = info.x;
+    vec3 q = (M * vec4(position + n * (1.5 * texel), 1.0)).xyz * 0.5 + 0.5;
+    bool inMap = info.w > 0.5 && q.x > 0.0 && q.y > 0.0 && q.x < 1.0 && q.y < 1.0 && q.z < 1.0;
+    ivec2 t = ivec2(clamp(q.xy * ${MAP_SIZE}.0, vec2(0.0), vec2(${MAP_SIZE - 1}.0)));
+    // Metres from the surface the texel sees to this point. On that surface, moved 1.5 texels
+    // along its normal, the point is 1.5 texels / cos nearer the sun than the surface's depth
+    // there, within its slope (tan) times the 0.71 texel from a texel's centre to its corner.
+    vec4 v = texelFetch(visibility, t, 0);
+    float behind = (q.z - unpack16(v.ba)) * info.z;
+    float c = max(cosSun, 0.125);
+    float slope = sqrt(1.0 - c * c) / c;
+    bool seen = abs(behind + 1.5 * texel / c) < texel * (1.0 + 0.75 * slope);
+    visible = inMap ? v.r : 1.0;
+    bool refilter = inMap && !seen;
+    // Behind casters all around (the coarse map's greatest depth nearer than the point): umbra.
+    for (int k = 0; k < (refilter ? 1 : 0); k++) {
+      float deepest = unpack16(texelFetch(coarse, ivec2(q.xy * ${COARSE}.0), 0).ba);
+      if ((q.z - deepest) * info.z > 1.5 * texel) { visible = 0.0; refilter = false; }
+    }
+    for (int k = 0; k < (refilter ? 1 : 0); k++) visible = sunVisibilityQuick(map, coarse, M, info, position, n);
   }
-  for (int k = 0; k < (refilter ? 1 : 0); k++) visible = sunVisibilityQuick(map, coarse, M, info, position, n);
   return visible;
 #endif
 }
@@ -348,7 +353,7 @@ class ShadowMap {
     this.groundY = groundY;
     this.visibility = new THREE.WebGLRenderTarget(MAP_SIZE, MAP_SIZE, {
       type: THREE.UnsignedByteType, depthBuffer: false,
-      minFilter: THREE.LinearFilter, magFilter: THREE.LinearFilter, generateMipmaps: false,
+      minFilter: THREE.LinearMipmapNearestFilter, magFilter: THREE.LinearFilter, generateMipmaps: true,
     });
     // World points of a texel (visibilityFragment), set by fit().
     this.axes = Object.fromEntries(['nearOrigin', 'axisU', 'axisV', 'axisDepth', 'groundOrigin',
