@@ -25,10 +25,10 @@ void main() {
 export const sunCommon = /* glsl */ `
 ${sunShadowChunk}
 // Past every caster (virtual and real), and past the real ones alone: on the flat ground
-// (SUN_GROUND 1) and on any other surface from the visibility maps (sun.js).
-#if SUN_GROUND == 1
-float sunVisibilityAll(vec3 p, vec3 n) { return sunVisibilityOnGround(sunVisibilityA, sunMatrixA, sunInfoA, p); }
-float sunVisibilityReal(vec3 p, vec3 n) { return sunVisibilityOnGround(sunVisibilityR, sunMatrixR, sunInfoR, p); }
+// (SUN_GROUND 1, 2: prefiltered) and on any other surface from the visibility maps (sun.js).
+#if SUN_GROUND >= 1
+float sunVisibilityAll(vec3 p, vec3 n) { return sunVisibilityOnGround(sunGroundA, sunMatrixA, sunInfoA, p, SUN_GROUND == 2); }
+float sunVisibilityReal(vec3 p, vec3 n) { return sunVisibilityOnGround(sunGroundR, sunMatrixR, sunInfoR, p, SUN_GROUND == 2); }
 #else
 float sunVisibilityAll(vec3 p, vec3 n) { return sunVisibilityOnSurface(sunMapA, sunCoarseA, sunVisibilityA, sunMatrixA, sunInfoA, p, n); }
 float sunVisibilityReal(vec3 p, vec3 n) { return sunVisibilityOnSurface(sunMapR, sunCoarseR, sunVisibilityR, sunMatrixR, sunInfoR, p, n); }

@@ -48,7 +48,8 @@ export class Site {
     this.root.updateMatrixWorld(true);
     const open = meshes.find((m) => findDaylit(m)?.role === 'ground');
     this.groundY = open ? new THREE.Box3().setFromObject(open).max.y : 0;
-    const sunDefines = (mesh) => ({ ...SUN_DEFINES, SUN_GROUND: isFlatGround(mesh, this.groundY) ? 1 : 0 });
+    // The flat ground reads its visibility prefiltered to the pixel (sun.js).
+    const sunDefines = (mesh) => ({ ...SUN_DEFINES, SUN_GROUND: isFlatGround(mesh, this.groundY) ? 2 : 0 });
     for (const mesh of meshes) {
       const info = findDaylit(mesh);
       if (!info) continue;
@@ -67,7 +68,7 @@ export class Site {
       } else if (info.role === 'ground') {
         mesh.userData.visitMaterial = new THREE.ShaderMaterial({
           uniforms: { ...this.sun, exposure: this.shared.exposure, albedo: { value: albedo }, openIrradiance: this.shared.openIrradiance },
-          vertexShader: plainVertex, fragmentShader: openGroundFragment, defines: { ...SUN_DEFINES, SUN_GROUND: 1 },
+          vertexShader: plainVertex, fragmentShader: openGroundFragment, defines: { ...SUN_DEFINES, SUN_GROUND: 2 },
           polygonOffset: true, polygonOffsetFactor: 1, polygonOffsetUnits: 4,
         });
         // After the ground and wall planes (2), which cover most of it: the depth test then

@@ -84,16 +84,18 @@ void main() {
 `;
 }
 
-/** The visibility map's pass: per texel of a depth map, the sun's visibility of the surface
- * the texel sees (R) and of the flat ground under it (G), with the same filter as
- * sunVisibilityIn, and the texel's depth (0..1 of near..far, 16 bits in B and A), into an
- * RGBA8 target: a surface needs one read of it. The surface's point comes from the depth, its normal
- * from the colour the depth pass wrote (NORMAL_PASS). */
-function visibilityFragment() {
+/** The visibility maps' passes: per texel of a depth map, with the same filter as
+ * sunVisibilityIn, `part` 'surface': the sun's visibility of the surface the texel sees (R)
+ * and the texel's depth (0..1 of near..far, 16 bits in B and A) into an RGBA8 target, a
+ * surface needs one read of it (its point from the depth, its normal from the colour the depth
+ * pass wrote, NORMAL_FRAGMENT); 'ground': the visibility of the flat ground under the texel
+ * into an R8 target (a quarter of the bytes to read per ground pixel, mipmapped). */
+function visibilityFragment(part) {
   return /* glsl */ `
 precision highp float;
 precision highp int;
 #define SUN 1
+#define PART_GROUND ${part === 'ground' ? 1 : 0}
 #define texture2D texture
 ${sunShadowChunk}
 uniform sampler2D depthMap;
@@ -114,8 +116,10 @@ out vec4 outColor;
 void main() {
   vec2 uv = gl_FragCoord.xy / ${MAP_SIZE}.0;
   ivec2 t = ivec2(gl_FragCoord.xy);
+#if PART_GROUND == 1
   vec3 g = groundOrigin + uv.x * groundAxisU + uv.y * groundAxisV;
-  float ground = sunVisibilityIn(depthMap, coarseMap, worldToMap, mapInfo, g, vec3(0.0, 1.0, 0.0));
+  outColor = vec4(sunVisibilityIn(depthMap, coarseMap, worldToMap, mapInfo, g, vec3(0.0, 1.0, 0.0)), 0.0, 0.0, 1.0);
+#else
   float depth01 = texelFetch(depthMap, t, 0).r;
   vec3 n = texelFetch(normalMap, t, 0).xyz * 2.0 - 1.0;
   vec3 p = nearOrigin + uv.x * axisU + uv.y * axisV + depth01 * axisDepth;
@@ -123,7 +127,8 @@ void main() {
   for (int k = 0; k < (depth01 < 1.0 ? 1 : 0); k++) {  // a texel that sees a surface
     surface = sunVisibilityIn(depthMap, coarseMap, worldToMap, mapInfo, p, normalize(n));
   }
-  outColor = vec4(surface, ground, pack16(floor(depth01 * 65535.0 + 0.5)));
+  outColor = vec4(surface, 0.0, pack16(floor(depth01 * 65535.0 + 0.5)));
+#endif
 }
 `;
 }
@@ -233,6 +238,8 @@ uniform sampler2D sunCoarseA;
 uniform sampler2D sunCoarseR;
 uniform sampler2D sunVisibilityA;
 uniform sampler2D sunVisibilityR;
+uniform sampler2D sunGroundA;
+uniform sampler2D sunGroundR;
 const float TAN_SUN = ${TAN_SUN.toFixed(9)};
 ${PACK16}
 
@@ -240,15 +247,20 @@ ${penumbraFilter('sunVisibilityIn', BLOCKER_SAMPLES, FILTER_SAMPLES)}
 ${penumbraFilter('sunVisibilityQuick', QUICK_BLOCKER_SAMPLES, QUICK_FILTER_SAMPLES)}
 
 // Fraction of the sun's disc seen past one caster set from a point of the flat ground: the
-// visibility map's G (the filter run once per texel when the maps were rendered), one
-// bilinear read.
-float sunVisibilityOnGround(sampler2D visibility, mat4 M, vec4 info, vec3 position) {
+// ground visibility map (the filter run once per texel when the maps were rendered), one
+// bilinear read; prefiltered: of the mipmap level of the pixel's footprint (a frame), else
+// of the full-resolution level (the kiosk's passes: the value at the pixel's centre ray, as
+// the bake's views are).
+float sunVisibilityOnGround(sampler2D visibility, mat4 M, vec4 info, vec3 position, bool prefiltered) {
 #if SUN == 0
   return 1.0;
 #else
   vec2 q = (M * vec4(position, 1.0)).xy * 0.5 + 0.5;
   bool inMap = info.w > 0.5 && q.x > 0.0 && q.y > 0.0 && q.x < 1.0 && q.y < 1.0;
-  return inMap ? texture2D(visibility, q).g : 1.0;
+  // Read outside any condition that varies between pixels: a mipmap level needs the
+  // neighbouring pixels' coordinates.
+  float visible = prefiltered ? texture2D(visibility, q).r : textureLod(visibility, q, 0.0).r;
+  return inMap ? visible : 1.0;
 #endif
 }
 
@@ -303,7 +315,8 @@ vec3 sunOnSurface(vec3 n) {
 
 /** The defines every material with sunShadowChunk starts with: no sun until SunShadows.setSun
  * brings one (SunShadows.setMaterials). SUN_GROUND 1 marks a material drawn only on the flat
- * ground, which reads its visibility bilinearly (sunVisibilityOnGround). */
+ * ground, which reads the ground's visibility map (sunVisibilityOnGround); 2 the same
+ * prefiltered to each pixel's footprint (the frames' materials). */
 export const SUN_DEFINES = { SUN: 0, SUN_GROUND: 0 };
 
 /** Uniforms of sunShadowChunk, shared by every material (one update reaches them all). */
@@ -321,6 +334,8 @@ export function sunUniforms() {
     sunCoarseR: { value: null },
     sunVisibilityA: { value: null },
     sunVisibilityR: { value: null },
+    sunGroundA: { value: null },
+    sunGroundR: { value: null },
   };
 }
 
@@ -353,6 +368,11 @@ class ShadowMap {
     this.groundY = groundY;
     this.visibility = new THREE.WebGLRenderTarget(MAP_SIZE, MAP_SIZE, {
       type: THREE.UnsignedByteType, depthBuffer: false,
+      minFilter: THREE.NearestFilter, magFilter: THREE.NearestFilter, generateMipmaps: false,
+    });
+    // Mipmapped: the distant ground reads a prefiltered level (fewer texels far apart to fetch).
+    this.groundVisibility = new THREE.WebGLRenderTarget(MAP_SIZE, MAP_SIZE, {
+      type: THREE.UnsignedByteType, format: THREE.RedFormat, depthBuffer: false,
       minFilter: THREE.LinearMipmapNearestFilter, magFilter: THREE.LinearFilter, generateMipmaps: true,
     });
     // World points of a texel (visibilityFragment), set by fit().
@@ -360,15 +380,14 @@ class ShadowMap {
       'groundAxisU', 'groundAxisV'].map((k) => [k, new THREE.Vector3()]));
     this.matrix = new THREE.Matrix4();
     this.info = new THREE.Vector4(1, 0, 1, 0);
-    this.visibilityPass = new FullscreenPass({
-      fragmentShader: visibilityFragment(),
-      uniforms: {
-        depthMap: { value: depth }, normalMap: { value: this.target.texture },
-        coarseMap: { value: this.coarse.texture }, worldToMap: { value: this.matrix },
-        mapInfo: { value: this.info },
-        ...Object.fromEntries(Object.entries(this.axes).map(([k, v]) => [k, { value: v }])),
-      },
-    });
+    const uniforms = {
+      depthMap: { value: depth }, normalMap: { value: this.target.texture },
+      coarseMap: { value: this.coarse.texture }, worldToMap: { value: this.matrix },
+      mapInfo: { value: this.info },
+      ...Object.fromEntries(Object.entries(this.axes).map(([k, v]) => [k, { value: v }])),
+    };
+    this.visibilityPass = new FullscreenPass({ fragmentShader: visibilityFragment('surface'), uniforms });
+    this.groundPass = new FullscreenPass({ fragmentShader: visibilityFragment('ground'), uniforms });
     this.camera = new THREE.OrthographicCamera(-1, 1, 1, -1, 0.1, 10);
     this.camera.layers.disableAll();
     for (const layer of layers) this.camera.layers.enable(layer);
@@ -445,6 +464,7 @@ class ShadowMap {
     this.reduce[0].render(renderer, this.rows);
     this.reduce[1].render(renderer, this.coarse);
     this.visibilityPass.render(renderer, this.visibility);
+    this.groundPass.render(renderer, this.groundVisibility);
   }
 
   dispose() {
@@ -455,6 +475,8 @@ class ShadowMap {
     for (const pass of this.reduce) pass.dispose();
     this.visibility.dispose();
     this.visibilityPass.dispose();
+    this.groundVisibility.dispose();
+    this.groundPass.dispose();
   }
 }
 
@@ -542,6 +564,7 @@ export class SunShadows {
       uniforms[`sunMap${key}`].value = map.target.depthTexture;
       uniforms[`sunCoarse${key}`].value = map.coarse.texture;
       uniforms[`sunVisibility${key}`].value = map.visibility.texture;
+      uniforms[`sunGround${key}`].value = map.groundVisibility.texture;
       uniforms[`sunMatrix${key}`].value.copy(map.matrix);
       uniforms[`sunInfo${key}`].value.copy(map.info);
     }
@@ -550,10 +573,12 @@ export class SunShadows {
     this.renders += 1;
   }
 
-  /** Bytes of GPU memory the maps hold: depth float32 and the RGBA8 colour three.js attaches,
-   * (the normals), the coarse maps (RGBA8) and the visibility maps (RGBA8). */
+  /** Bytes of GPU memory the maps hold: depth float32 and the RGBA8 colour target three.js
+   * attaches (the normals), the coarse maps (RGBA8), the surfaces' visibility maps (RGBA8) and
+   * the ground's (R8 with its mipmaps, a third more). */
   get gpuBytes() {
-    return Object.keys(this.maps).length * (MAP_SIZE * MAP_SIZE * (8 + 4) + (COARSE * MAP_SIZE + COARSE * COARSE) * 4);
+    const texels = MAP_SIZE * MAP_SIZE;
+    return Object.keys(this.maps).length * (texels * (8 + 4) + Math.round(texels * 4 / 3) + (COARSE * MAP_SIZE + COARSE * COARSE) * 4);
   }
 
   dispose() {
