@@ -16,11 +16,12 @@ under the same skies, and ``daylit probe`` answers the same points:
   AZ,EL,DNI`` with gendaylit's direction and DNI = the sun's radiance times its disc's solid
   angle.
 - **Points**: a grid over the ground atlas's ground receivers, a grid on the real proxies'
-  wall receivers, points on the models' own faces (virtual and real; faces of at least 0.5
-  m^2, in the middle of their triangle, none buried inside another part), and for
-  each sky with a sun, lines of closely spaced ground points across the sun's shadow edges of
-  the hall, the fence and the visitor centre (found by projecting each object's vertices along
-  the sun onto the ground: the far edge of the projected outline).
+  wall receivers (neither buried inside a part), points on the models' own faces (virtual
+  and real; faces of at least 0.5 m^2, in the middle of their triangle, none buried inside
+  another part), and for each sky with a sun, lines of closely spaced ground points across
+  the sun's shadow edges of the hall, the fence and the visitor centre (found by projecting
+  each object's vertices along the sun onto the ground: the far edge of the projected
+  outline).
 - **Radiance's answer**: ``rtrace -I`` (irradiance at the point with its normal, 2 mm off the
   surface), sky and sun rendered apart (Radiance is linear in its sources): the sky with
   ``-ab 1`` (direct) and ``-ab 2`` (plus one bounce); the sun's direct term with ``-ab 0 -dj
@@ -465,6 +466,11 @@ def site_points(build, nodes: dict, ground_step_m: float, wall_step_m: float,
         ok = np.flatnonzero(ok)[:model_points]
         ps.extend(points[ok], normals[ok], "model", [labels[k] for k in ok])
     ok = locatable(build, ps.points, ps.normals)
+    # Grid points buried inside a part (the ground under the podium and the visitor centre):
+    # nobody sees them, Radiance gives them nothing, and the bake gives their texels the
+    # bounce of the nearest open texel (so that filtering at a wall's foot reads open values).
+    flat = np.isin(ps.group, ("ground", "wall"))
+    ok[flat] &= ~buried(nodes, ps.points[flat], ps.normals[flat])
     return PointSet(ps.points[ok], ps.normals[ok], [g for g, k in zip(ps.group, ok, strict=True)
                                                     if k],
                     [g for g, k in zip(ps.label, ok, strict=True) if k])
