@@ -43,7 +43,7 @@ from tqdm import tqdm
 
 from bake import chunkio, compress
 from bake import receivers as rx
-from bake.denoise import smooth_within_labels, surface_labels
+from bake.denoise import fill_from_nearest, smooth_within_labels, surface_labels
 from bake.dome import Dome
 from bake.downloads import download_bytes
 from bake.gltf import write_site_glb
@@ -58,6 +58,9 @@ from daylit.stackio import CHANNEL_PATTERN, write_exr, write_stack_exr
 # Bump when the meaning of saved chunks changes, so stale partial bakes are not reused.
 CHUNK_FORMAT = 3  # 3: .chunk files of .npy records, traced direct light grey (P, n)
 BOUNCE_SIGMA_TEXELS = 1.5  # smoothing of the indirect bounce within a surface (texels, pixels)
+# An atlas's bounce is smoothed with a local linear fit (bake.denoise: no bias at a surface's
+# edges, where the bounce beside a sunlit wall changes fastest); views keep the plain mean.
+BOUNCE_ORDER = 1
 RAYS_PER_CHUNK = 3_000_000
 STAGE_CODES = {"cache": 1, "atlas": 2, "view": 3}
 
@@ -513,9 +516,7 @@ class _SunBounce:
                 ).astype(np.float32)
             )
         else:
-            part = smooth_within_labels(
-                a.to_image(np.ascontiguousarray(bounce[:, lights])), labels, BOUNCE_SIGMA_TEXELS
-            )
+            part = smooth_bounce(a.to_image(np.ascontiguousarray(bounce[:, lights])), labels)
         part = _dilate(part, coverage, rings=3)
         image = np.zeros((a.height, a.width, len(self.up), 3), dtype=np.float32)
         image[:, :, lights] = part
@@ -543,7 +544,9 @@ def _write_atlas(a, traced: _TracedResults, staging: Path, compressor, sun_bounc
     images, sun_images = {}, {}
     for stack, config in a.stacks.items():
         direct, bounce = _lookup_result(results, f"{a.id}.{stack}", config)
-        images[stack] = _atlas_image(a, config, direct, bounce, coverage, labels)
+        images[stack] = _atlas_image(
+            a, config, direct, bounce, coverage, _open_labels(a, labels, direct, config)
+        )
         rel = f"exr/{a.id}.{stack}.exr"
         write_stack_exr(staging / rel, images[stack])
         entry["stacks"][stack] = {
@@ -552,7 +555,9 @@ def _write_atlas(a, traced: _TracedResults, staging: Path, compressor, sun_bounc
             "channels": CHANNEL_PATTERN,
         }
         if sun_bounce.enabled and (bounce is not None or config == "none"):
-            sun_images[stack] = sun_bounce.image(a, config, bounce, coverage, labels)
+            sun_images[stack] = sun_bounce.image(
+                a, config, bounce, coverage, _open_labels(a, labels, direct, config)
+            )
     del results, direct, bounce  # the images hold what compression needs
     # Shadowing atlases show I / d: their two stacks are compressed together for it.
     for stack, compact in compressor.run(images, a.id, staging).items():
@@ -577,11 +582,35 @@ def _write_atlas(a, traced: _TracedResults, staging: Path, compressor, sun_bounc
 
 
 def _atlas_image(a, config, direct, bounce, coverage, labels) -> np.ndarray:
-    """An atlas stack (H, W, n, 3): direct plus smoothed bounce, gutters filled."""
+    """An atlas stack (H, W, n, 3): direct plus smoothed bounce, gutters filled. ``labels``
+    from :func:`_open_labels` (buried texels -2)."""
     image = _rgb(a.to_image(direct), config)
     if bounce is not None:
-        image += smooth_within_labels(a.to_image(bounce), labels, BOUNCE_SIGMA_TEXELS)
+        image += smooth_bounce(a.to_image(bounce), labels)
     return _dilate(image, coverage, rings=3)
+
+
+def _open_labels(a, labels: np.ndarray, direct, config: str) -> np.ndarray:
+    """The atlas's surface labels (H, W) with its *buried* texels (inside another solid: no
+    light from any patch of the dome reaches them, e.g. the ground under a building) marked
+    ``-2 - label``: the bounce's smoothing leaves them out (:func:`smooth_bounce`)."""
+    if config == "none":
+        return labels  # nothing casts: nothing is buried
+    seen = a.to_image(np.asarray(direct).reshape(len(direct), -1).max(axis=1) > 0.0)
+    out = labels.copy()
+    buried = (labels >= 0) & ~seen
+    out[buried] = -2 - labels[buried]
+    return out
+
+
+def smooth_bounce(image: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """An atlas's traced bounce (H, W, ...) smoothed within each surface by a local linear
+    fit (:data:`BOUNCE_ORDER`) over its open texels; each buried texel (label ``-2 - label``,
+    :func:`_open_labels`) takes the smoothed bounce of the nearest open texel of its surface,
+    so bilinear filtering at a wall's foot reads open values only (bake.denoise)."""
+    smoothed = smooth_within_labels(image, labels, BOUNCE_SIGMA_TEXELS, order=BOUNCE_ORDER)
+    surface = np.where(labels <= -2, -2 - labels, labels)
+    return fill_from_nearest(smoothed, surface, labels >= 0)
 
 
 def _rgb(direct: np.ndarray, config: str) -> np.ndarray:

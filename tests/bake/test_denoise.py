@@ -1,0 +1,78 @@
+"""The bounce's smoothing within a surface (bake/denoise.py), against known answers: a plane
+(a linear ramp of the bounce) must come back exactly from the local linear fit, at the
+surface's edges too, where the plain normalised Gaussian is biased inward; buried texels
+take their nearest open neighbour's value."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bake.denoise import fill_from_nearest, smooth_within_labels
+
+SIGMA = 1.5
+
+
+def ramp_surface(h=20, w=30):
+    """A rectangle (label 0) inside an empty border (-1) and a second surface (label 1) next
+    to it with a different ramp; values (H, W, 2): two channels, two slopes."""
+    labels = np.full((h, w), -1)
+    labels[2:h - 2, 2:18] = 0
+    labels[2:h - 2, 18:w - 2] = 1
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    values = np.stack([10.0 + 2.0 * xx - 0.5 * yy, 50.0 + 0.25 * xx + 1.0 * yy], -1)
+    values[labels == 1] += 100.0  # a step between the two surfaces: never blended
+    values[labels < 0] = 0.0
+    return labels, values.astype(np.float32)
+
+
+def test_a_linear_bounce_comes_back_exactly_with_the_linear_fit_at_the_edges_too():
+    labels, values = ramp_surface()
+    out = smooth_within_labels(values, labels, SIGMA, order=1)
+    inside = labels >= 0
+    assert np.allclose(out[inside], values[inside], rtol=1e-5, atol=1e-3)
+    assert np.all(out[~inside] == 0.0)  # untouched
+
+
+def test_the_plain_mean_is_biased_at_an_edge_and_exact_inside():
+    labels, values = ramp_surface()
+    out = smooth_within_labels(values, labels, SIGMA, order=0)
+    # Deep inside (3 sigma from every edge) a symmetric kernel returns a plane exactly.
+    assert np.allclose(out[8:12, 7:13], values[8:12, 7:13], atol=2e-3)
+    # At the left edge of surface 0 (slope +2 per texel in x) it returns more: the mean of
+    # the inward values, slope times the mean offset of a half Gaussian sampled at texels
+    # 0, 1, 2, ... (1.82; 2 sigma sqrt(2 / pi) = 2.39 for a continuous one).
+    k = np.arange(0, 20)
+    g = np.exp(-(k**2) / (2 * SIGMA**2))
+    bias = out[10, 2, 0] - values[10, 2, 0]
+    assert bias == pytest.approx(2.0 * (k * g).sum() / g.sum(), rel=0.02)
+
+
+def test_a_one_texel_strip_falls_back_to_its_own_mean_across():
+    labels = np.full((9, 40), -1)
+    labels[4, 2:38] = 0
+    values = np.zeros((9, 40, 1), np.float32)
+    values[4, 2:38, 0] = 5.0 + 0.5 * np.arange(36)
+    out = smooth_within_labels(values, labels, SIGMA, order=1)
+    assert np.all(np.isfinite(out))
+    assert np.allclose(out[4, 2:38, 0], values[4, 2:38, 0], rtol=1e-5, atol=1e-3)
+
+
+def test_the_linear_fit_never_goes_below_zero():
+    labels = np.zeros((12, 12), int)
+    values = np.zeros((12, 12, 1), np.float32)
+    values[:, :3, 0] = 100.0  # a cliff: a plane through it undershoots on the far side
+    out = smooth_within_labels(values, labels, SIGMA, order=1)
+    assert out.min() >= 0.0
+
+
+def test_buried_texels_take_the_nearest_open_value_of_their_own_surface():
+    labels = np.zeros((6, 8), int)
+    labels[:, 6:] = 1
+    keep = np.ones((6, 8), bool)
+    keep[:, 2:6] = False  # surface 0's texels at x 2..5 buried
+    image = np.arange(48, dtype=np.float32).reshape(6, 8, 1) * 1.0
+    expected = image.copy()
+    expected[:, 2:6, 0] = image[:, 1:2, 0]  # x = 1 is nearest for every buried texel
+    out = fill_from_nearest(image.copy(), labels, keep)
+    assert np.array_equal(out, expected)  # surface 1 (x >= 6) never lends its values
