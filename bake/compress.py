@@ -24,13 +24,12 @@ its few brightest patches is smooth and very low rank. So each stack is stored a
   (uniform, CIE overcast, clear skies along the site's real sun path); after encoding, the
   decoded composite is checked against the EXR masters on the same skies.
 
-Since the client draws the sun itself (protocol version 2, docs/sun.md) the atlases are relit
-with the sky *without* the sun's disc, and so are their test skies (:func:`test_skies`): that
-sky has no point-like light, and no light is selected (``m = 0``, no light images; the base
-alone). The fixed views are still fitted with the sun in its patch and one selected light
-(``sun_in_patch``; docs/compact-assets.md, "The sun apart"), chosen when the kiosk folded the
-sun back into its patch; it now draws the sun itself (web/src/kiosksun.js), so fitting the
-views without the disc is the next step (docs/sun.md, "Not done yet").
+Since the client draws the sun itself (protocol version 2, docs/sun.md; the kiosk too,
+web/src/kiosksun.js) every stack, the atlases' and the fixed views', is relit with the sky
+*without* the sun's disc, and so are the test skies (:func:`test_skies`): that sky has no
+point-like light, and no light is selected (``m = 0``, no light images; the base alone).
+``sun_in_patch`` skies (a version-1 light vector) remain for measuring older builds and for
+:func:`sun_path_selectable`.
 
 Each of the k base layers and each light image is quantized to 8 bits per channel with its own
 scale and offset (``value = texel * scale + offset``, texel in [0, 1]) and encoded with the
@@ -217,6 +216,24 @@ def selectable_lights(site, dome_vertices, solid_angles, m, skies) -> np.ndarray
     for r in skies:
         chosen |= set(select_lights(r, solid_angles, m).tolist())
     return np.array(sorted(int(i) for i in chosen), dtype=int)
+
+
+SUN_PATH_SELECTED_LIGHTS = 1  # the sun's patch: what fixes the selectable lights
+
+
+def sun_path_selectable(site, dome_vertices, solid_angles) -> np.ndarray:
+    """The lights the sun-bounce stacks have columns for (``compression.selectable_lights``):
+    :func:`selectable_lights` with one selected light on the site's skies with the sun in its
+    patch (every patch the sun passes through in a year, and the brightest patch of each
+    prior and test sky). The same set the views' selection fixed while they selected the
+    sun's patch (builds of 2026-11-24 before the views were fitted without the disc).
+    Sorted indices."""
+    training = prior_skies(site, dome_vertices, sun_in_patch=True) + [
+        s.r for s in test_skies(site, dome_vertices, sun_in_patch=True)
+    ]
+    return selectable_lights(
+        site, dome_vertices, solid_angles, SUN_PATH_SELECTED_LIGHTS, training
+    )
 
 
 def _sun_path(site) -> list[tuple[float, float]]:

@@ -30,7 +30,8 @@ def lights_selected_over(manifest: dict, start: str, end: str, step: str = STEP,
     """Every light a client selects under a clear sky at the site between ``start`` and
     ``end`` (local times, sampled every ``step`` while the sun is up), sorted; ``m`` selected
     lights per vector (default: the build's ``selected_lights``). The sun is in its patch:
-    the light vector of a version-1 client, and what the kiosk relights its views with."""
+    the light vector of a version-1 client (since 2026-11-24 no stack of a build selects
+    lights, so a build's own count is zero: see ``m``)."""
     import pandas as pd
 
     from bake.compress import Selection
