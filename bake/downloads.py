@@ -149,6 +149,8 @@ def download_bytes(manifest: dict, build_dir: Path, visit_lights: int | None = N
             for name, stack in owner["stacks"].items():
                 compact = stack["compact"]
                 files |= {compact["ktx2"], compact["v"]["path"]}
+                if "etc1s" in compact:  # base layers past the first few, ETC1S
+                    files.add(compact["etc1s"]["ktx2"])
                 if compact.get("gain"):
                     files.add(compact["gain"]["ktx2"])
                 m = stack_selected_lights(manifest, compact)

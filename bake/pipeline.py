@@ -630,7 +630,9 @@ def _write_view(
 def _manifest(site, dome, nodes, atlases, views, compressor, bake_info) -> dict:
     return {
         "format": "daylit-build",
-        "version": 1,
+        # 2 since a stack's base layers may be split into a UASTC and an ETC1S array
+        # (compact.etc1s), which a version-1 client would not sum (docs/manifest.md).
+        "version": 2,
         "scene": {
             "id": site.scene_id,
             "name": site.name,
