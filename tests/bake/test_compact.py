@@ -136,20 +136,33 @@ def test_light_images_are_in_dome_order(build, tmp_path):
         assert error.max() <= 32.0 * span / 255.0
 
 
+UASTC, ETC1S = 166, 163  # KHR_DF_MODEL_UASTC, KHR_DF_MODEL_ETC1S
+
+
 def test_ktx2_files_parse_with_an_independent_reader(build):
+    """Every base array (UASTC, and the ETC1S array of the layers past the first
+    ``Settings.etc1s_from_layer``, which every stack of k above it has) and a sun-bounce
+    image parse with ktx-parse: size, layer count, colour model, linear, Zstandard (UASTC)."""
     files, expected = [], []
+    etc1s_from = compress.Settings().etc1s_from_layer
     for atlas, name in every_stack(build):
         entry = build._entry(atlas)
         compact = entry["stacks"][name]["compact"]
+        tail = compact["etc1s"]["layers"] if "etc1s" in compact else 0
+        # At least two layers (a one-layer array would be a plain 2D texture).
+        assert tail == (compact["k"] - etc1s_from if compact["k"] - etc1s_from >= 2 else 0)
         files.append(build.dir / compact["ktx2"])
-        expected.append((entry["width"], entry["height"], len(compact["layers"])))
+        expected.append((entry["width"], entry["height"], len(compact["layers"]) - tail, UASTC))
+        if tail:
+            files.append(build.dir / compact["etc1s"]["ktx2"])
+            expected.append((entry["width"], entry["height"], tail, ETC1S))
         assert compact["selected_lights"] == 0  # no stack has light images
     # The sun's bounce has one image per sun-path light: one of them.
     ground = build.atlases["ground"]
     lit = build.selection.selectable[len(build.selection.selectable) // 2]
     for level in build.sun_bounce_compact("ground", "I").entry["lights"]["ktx2"]:
         files.append(build.dir / level.format(index=lit))
-        expected.append((ground["width"], ground["height"], 0))
+        expected.append((ground["width"], ground["height"], 0, UASTC))
     result = subprocess.run(
         ["node", str(REPO / "tools" / "inspect_ktx2.mjs"), *map(str, files)],
         capture_output=True,
@@ -158,13 +171,16 @@ def test_ktx2_files_parse_with_an_independent_reader(build):
         timeout=120,
     )
     assert result.returncode == 0, result.stderr
-    for info, (width, height, layers) in zip(json.loads(result.stdout), expected, strict=True):
+    assert ETC1S in [e[3] for e in expected]
+    infos = json.loads(result.stdout)
+    for info, (width, height, layers, model) in zip(infos, expected, strict=True):
         assert (info["pixelWidth"], info["pixelHeight"]) == (width, height)
         assert info["layerCount"] == layers  # 0: a plain 2D texture
         assert info["levelCount"] == 1 and info["faceCount"] == 1
-        assert info["colorModel"] == 166  # KHR_DF_MODEL_UASTC
+        assert info["colorModel"] == model
         assert info["transferFunction"] == 1  # linear: these are data, not colours
-        assert info["supercompressionScheme"] == 2  # Zstandard
+        # Zstandard for UASTC; ETC1S is supercompressed by its own scheme (BasisLZ, 1).
+        assert info["supercompressionScheme"] == (2 if model == UASTC else 1)
 
 
 def test_base_layers_decode_to_u_within_the_stated_error(build, tmp_path):
@@ -186,7 +202,7 @@ def test_base_layers_decode_to_u_within_the_stated_error(build, tmp_path):
         S,
         S_inv,
         selection,
-        compress.Settings(),
+        compress.Settings(etc1s_from_layer=None),  # every layer UASTC: its stated error
         refine_all=True,
     )
     valid = _valid(build, "ground", "d")
