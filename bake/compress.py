@@ -99,6 +99,11 @@ class Settings:
     # ground's shadow ratio): docs/benchmarks.md, "Downloads with the sun apart". None:
     # every layer UASTC.
     etc1s_from_layer: int | None = 8
+    # The same for stacks judged by their RMS error alone (lightmap, views: no shadow ratio
+    # to keep), tried first; if the decoded composite is then over the budget on a test sky,
+    # the stack is encoded again from ``etc1s_from_layer``, then with no ETC1S layer
+    # (:func:`compress_rms_stack`). Measured: docs/benchmarks.md, "Downloads with the sun apart".
+    rms_etc1s_from_layer: int | None = 4
     # No rate-distortion optimization (basisu -uastc_rdo_l): measured at 400 lights, RDO
     # (lambda 0.5) cut coarse light images by 28 % but took 4.4x the time (40 lightmap
     # images); over a whole bake it saved 14 % of the light bytes (114 MB against 132 MB;
@@ -1095,11 +1100,41 @@ def compress_stacks(images, prefix, out_dir, skies, S, S_inv, selection, setting
     else:
         rms_settings = replace(settings, refine_level=settings.rms_refine_level)
         results = [
-            compress_stack(images[name], f"{prefix}.{name}", out_dir, skies, S, S_inv,
-                           selection, rms_settings)
+            compress_rms_stack(images[name], f"{prefix}.{name}", out_dir, skies, S, S_inv,
+                               selection, rms_settings)
             for name in names
         ]
     return list(zip(names, results, strict=True))
+
+
+def compress_rms_stack(image, name, out_dir, skies, S, S_inv, selection, settings):
+    """:func:`compress_stack` for a stack judged by its RMS error alone (lightmap, views):
+    ETC1S from ``settings.rms_etc1s_from_layer`` on; if the decoded composite is then over the
+    budget on a test sky, again from ``settings.etc1s_from_layer``, then with every layer
+    UASTC (same rank and factors; the last try is kept whatever its error, as before)."""
+    tries = [settings.rms_etc1s_from_layer, settings.etc1s_from_layer, None]
+    if settings.etc1s_from_layer is None:
+        tries = [None]
+    tries = list(dict.fromkeys(tries))  # in order, once each
+    valid = np.any(image != 0.0, axis=(2, 3))
+    spectrum = Spectrum.of(image[valid], np.ones(int(valid.sum()), np.float32), S)
+    first = None
+    for j0 in tries:
+        result = compress_stack(
+            image, name, out_dir, skies, S, S_inv, selection,
+            replace(settings, etc1s_from_layer=j0), valid=valid, spectrum=spectrum,
+            rank=None if first is None else first.entry["k"],
+        )
+        if first is None:
+            first = result
+        else:  # the rank was fixed: keep the first try's truncation errors
+            result.entry["error"]["truncation"] = first.entry["error"]["truncation"]
+            result.factors.truncation_error = first.factors.truncation_error
+        if result.entry["error"]["max"] <= settings.budget or j0 is None:
+            break
+    if "etc1s" not in result.entry:  # an earlier try's ETC1S array
+        (out_dir / "ktx2" / f"{name}.etc1s.ktx2").unlink(missing_ok=True)
+    return result
 
 
 # --------------------------------------------------------------------------------------------
