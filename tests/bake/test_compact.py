@@ -6,6 +6,7 @@ compares with the EXR masters, on skies that did *not* choose k.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -144,13 +145,21 @@ def test_ktx2_files_parse_with_an_independent_reader(build):
     ``Settings.etc1s_from_layer``, which every stack of k above it has) and a sun-bounce
     image parse with ktx-parse: size, layer count, colour model, linear, Zstandard (UASTC)."""
     files, expected = [], []
-    etc1s_from = compress.Settings().etc1s_from_layer
+    settings = compress.Settings()
+
+    def tail_from(j0, k):  # at least two layers: a one-layer array is a plain 2D texture
+        return k - compress._etc1s_split(k, dataclasses.replace(settings, etc1s_from_layer=j0))
+
     for atlas, name in every_stack(build):
         entry = build._entry(atlas)
         compact = entry["stacks"][name]["compact"]
+        k = compact["k"]
         tail = compact["etc1s"]["layers"] if "etc1s" in compact else 0
-        # At least two layers (a one-layer array would be a plain 2D texture).
-        assert tail == (compact["k"] - etc1s_from if compact["k"] - etc1s_from >= 2 else 0)
+        if "d" in entry["stacks"]:  # a shadowing pair: ETC1S from layer 8
+            assert tail == tail_from(settings.etc1s_from_layer, k), (atlas, name)
+        else:  # judged by RMS: from layer 4, or 8, or none if over the budget
+            tries = (settings.rms_etc1s_from_layer, settings.etc1s_from_layer, None)
+            assert tail in {tail_from(j0, k) for j0 in tries}, (atlas, name)
         files.append(build.dir / compact["ktx2"])
         expected.append((entry["width"], entry["height"], len(compact["layers"]) - tail, UASTC))
         if tail:
@@ -545,3 +554,27 @@ def test_the_sky_without_the_sun_is_within_budget_without_light_images(sun_site_
         ratio_compact = build.composite("ground", "I", r, "compact") / np.maximum(d_compact, 1e-9)
         lit = d_master > 0.05 * d_master[d_master > 0].mean()
         assert np.abs(ratio_compact - ratio_master)[lit].max() <= 0.02, sky_name
+
+
+def test_a_stack_judged_by_rms_falls_back_to_uastc_when_etc1s_is_over_budget(build, tmp_path):
+    """The lightmap with a budget no encoding can keep: ETC1S from layer 4, then 8, are over
+    it, so the stack is encoded with every layer UASTC (same rank), and no ETC1S array is
+    left behind; with the default budget it keeps an ETC1S array (from layer 4, or 8)."""
+    m = build.manifest
+    skies, S, S_inv, selection = compress.prepare(
+        m["scene"], build.dome_vertices, build.solid_angles, 0,
+        selectable=build.selection.selectable,
+    )
+    image = build.stack("lightmap", "I")
+    strict = compress.Settings(selected_lights=0, budget=1e-5)
+    result = compress.compress_rms_stack(
+        image, "strict.I", tmp_path, skies, S, S_inv, selection, strict)
+    assert "etc1s" not in result.entry and result.entry["error"]["max"] > 1e-5
+    assert not (tmp_path / "ktx2" / "strict.I.etc1s.ktx2").exists()
+    assert len(result.entry["layers"]) >= result.entry["k"]
+    loose = compress.compress_rms_stack(
+        image, "loose.I", tmp_path, skies, S, S_inv, selection,
+        compress.Settings(selected_lights=0))
+    assert loose.entry["etc1s"]["layers"] in (loose.entry["k"] - 4, loose.entry["k"] - 8)
+    assert loose.entry["error"]["max"] <= 0.01
+    assert (tmp_path / "ktx2" / "loose.I.etc1s.ktx2").is_file()
