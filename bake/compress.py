@@ -24,13 +24,12 @@ its few brightest patches is smooth and very low rank. So each stack is stored a
   (uniform, CIE overcast, clear skies along the site's real sun path); after encoding, the
   decoded composite is checked against the EXR masters on the same skies.
 
-Since the client draws the sun itself (protocol version 2, docs/sun.md) the atlases are relit
-with the sky *without* the sun's disc, and so are their test skies (:func:`test_skies`): that
-sky has no point-like light, and no light is selected (``m = 0``, no light images; the base
-alone). The fixed views are still fitted with the sun in its patch and one selected light
-(``sun_in_patch``; docs/compact-assets.md, "The sun apart"), chosen when the kiosk folded the
-sun back into its patch; it now draws the sun itself (web/src/kiosksun.js), so fitting the
-views without the disc is the next step (docs/sun.md, "Not done yet").
+Since the client draws the sun itself (protocol version 2, docs/sun.md; the kiosk too,
+web/src/kiosksun.js) every stack, the atlases' and the fixed views', is relit with the sky
+*without* the sun's disc, and so are the test skies (:func:`test_skies`): that sky has no
+point-like light, and no light is selected (``m = 0``, no light images; the base alone).
+``sun_in_patch`` skies (a version-1 light vector) remain for measuring older builds and for
+:func:`sun_path_selectable`.
 
 Each of the k base layers and each light image is quantized to 8 bits per channel with its own
 scale and offset (``value = texel * scale + offset``, texel in [0, 1]) and encoded with the
@@ -94,6 +93,17 @@ class Settings:
     # time at UASTC level 0, 7 % at level 1, for 0.5 % more bytes; 0.3 % over a bake).
     zstd_level: int = 19
     image_zstd_level: int = 15
+    # Base layers from this coefficient on (with UASTC) go into a second array encoded with
+    # ETC1S (quality 255), unrefined: their coefficients are small, so ETC1S's coarser blocks
+    # weigh little, and an ETC1S layer is several times smaller. Why 8 and not fewer (the
+    # ground's shadow ratio): docs/benchmarks.md, "Downloads with the sun apart". None:
+    # every layer UASTC.
+    etc1s_from_layer: int | None = 8
+    # The same for stacks judged by their RMS error alone (lightmap, views: no shadow ratio
+    # to keep), tried first; if the decoded composite is then over the budget on a test sky,
+    # the stack is encoded again from ``etc1s_from_layer``, then with no ETC1S layer
+    # (:func:`compress_rms_stack`). Measured: docs/benchmarks.md, "Downloads with the sun apart".
+    rms_etc1s_from_layer: int | None = 4
     # No rate-distortion optimization (basisu -uastc_rdo_l): measured at 400 lights, RDO
     # (lambda 0.5) cut coarse light images by 28 % but took 4.4x the time (40 lightmap
     # images); over a whole bake it saved 14 % of the light bytes (114 MB against 132 MB;
@@ -217,6 +227,24 @@ def selectable_lights(site, dome_vertices, solid_angles, m, skies) -> np.ndarray
     for r in skies:
         chosen |= set(select_lights(r, solid_angles, m).tolist())
     return np.array(sorted(int(i) for i in chosen), dtype=int)
+
+
+SUN_PATH_SELECTED_LIGHTS = 1  # the sun's patch: what fixes the selectable lights
+
+
+def sun_path_selectable(site, dome_vertices, solid_angles) -> np.ndarray:
+    """The lights the sun-bounce stacks have columns for (``compression.selectable_lights``):
+    :func:`selectable_lights` with one selected light on the site's skies with the sun in its
+    patch (every patch the sun passes through in a year, and the brightest patch of each
+    prior and test sky). The same set the views' selection fixed while they selected the
+    sun's patch (builds of 2026-11-24 before the views were fitted without the disc).
+    Sorted indices."""
+    training = prior_skies(site, dome_vertices, sun_in_patch=True) + [
+        s.r for s in test_skies(site, dome_vertices, sun_in_patch=True)
+    ]
+    return selectable_lights(
+        site, dome_vertices, solid_angles, SUN_PATH_SELECTED_LIGHTS, training
+    )
 
 
 def _sun_path(site) -> list[tuple[float, float]]:
@@ -871,7 +899,10 @@ def compress_stack(
 
     - ``ktx2/<name>.gain.ktx2``: the gain, coarse and refinement layers (if any, and unless
       shared);
-    - ``ktx2/<name>.base.ktx2``: a 2D array of the k base layers, then refinement layers;
+    - ``ktx2/<name>.base.ktx2``: a 2D array of the first base layers (all k with
+      ``settings.etc1s_from_layer`` None or ETC1S encoding), then refinement layers;
+    - ``ktx2/<name>.etc1s.ktx2``: the other base layers, an ETC1S array (its entry's
+      ``etc1s``; its layers follow the first array's in ``layers``);
     - ``ktx2/<name>.L<i>.ktx2`` and ``ktx2/<name>.L<i>r.ktx2``: light ``i``'s own
       (normalized) image and its refinement, for each selectable light ``i``;
     - ``v/<name>.V.bin``: V, n x k float32, little-endian, row-major.
@@ -921,9 +952,16 @@ def compress_stack(
         encode_array([gain_q.path], tmp / "gain-coarse.ktx2")
         base = [full(f.U[:, :, layer]) for layer in range(f.k)]
         base_q = [_quantized_png(x, tmp / f"base{j:04d}.png") for j, x in enumerate(base)]
+        # Layers from ``head`` on go to the ETC1S array (``settings.etc1s_from_layer``),
+        # encoded once, where it is written; the others to the UASTC array.
+        head = _etc1s_split(f.k, settings)
+        tail_file = out_dir / "ktx2" / f"{name}.etc1s.ktx2"
+        if head < f.k:
+            encode([q.path for q in base_q[head:]], tail_file,
+                   replace(settings, encoding="etc1s"), array=True)
         # Arrays are encoded twice (coarse, then with refinements), at one level: UASTC is
         # deterministic, so the coarse layers come out the same both times.
-        encode_array([q.path for q in base_q], tmp / "coarse.ktx2")
+        encode_array([q.path for q in base_q[:head]], tmp / "coarse.ktx2")
         coarse_dir = tmp / "coarse"
         coarse_dir.mkdir()
         light_q = [
@@ -932,11 +970,14 @@ def compress_stack(
         encode([q.path for q in light_q], coarse_dir, settings, array=False)
         decoded = decode(
             [tmp / "gain-coarse.ktx2", tmp / "coarse.ktx2"]
+            + ([tail_file] if head < f.k else [])
             + [coarse_dir / f"{name}.L{i:04d}.ktx2" for i in lit]
         )
         coarse_gain = gain_q.value(decoded[0][0])
-        coarse_base = [q.value(decoded[1][j]) for j, q in enumerate(base_q)]
-        coarse_lights = [q.value(decoded[2 + i][0]) for i, q in enumerate(light_q)]
+        arrays = np.concatenate(decoded[1:3] if head < f.k else decoded[1:2])
+        coarse_base = [q.value(arrays[j]) for j, q in enumerate(base_q)]
+        first_light = 3 if head < f.k else 2
+        coarse_lights = [q.value(decoded[first_light + i][0]) for i, q in enumerate(light_q)]
 
         # Stage 2: refinements of the gain, the base layers that matter and every light image.
         lost = [b - c for b, c in zip(base, coarse_base, strict=True)]  # (H, W, 3) each
@@ -949,11 +990,16 @@ def compress_stack(
             )
             if ratio is not None:
                 refine = sorted(set(refine) | set(ratio.layers(losses, f)))
+            # The ETC1S layers are never refined: both rules above are per-layer bounds
+            # that their ETC1S loss trips, and refining them (in UASTC) cost about what
+            # ETC1S saved, where unrefined they keep the stacks within the budget and the
+            # ground's ratio within 0.02 (docs/benchmarks.md, "Downloads with the sun apart").
+            refine = [j for j in refine if j < head]
         refine_q = [
             _refinement_png(lost[j], tmp / f"refine{j:04d}.png", refine_mask) for j in refine
         ]
         base_file = out_dir / "ktx2" / f"{name}.base.ktx2"
-        encode_array([q.path for q in base_q + refine_q], base_file)
+        encode_array([q.path for q in base_q[:head] + refine_q], base_file)
         gain_refine_q = _refinement_png(gain_image - coarse_gain, tmp / "gain-refine.png", None)
         written_gain = out_dir / "ktx2" / f"{name}.gain.ktx2"
         write_gain = normalized_gain and gain_file is None
@@ -984,8 +1030,10 @@ def compress_stack(
     f.V.astype("<f4").tofile(v_file)
     encode_s = time.perf_counter() - started
 
-    layers = [q.entry(coefficient=j) for j, q in enumerate(base_q)]
+    # The UASTC array's layers (coarse, then refinements), then the ETC1S array's.
+    layers = [q.entry(coefficient=j) for j, q in enumerate(base_q[:head])]
     layers += [q.entry(coefficient=j) for j, q in zip(refine, refine_q, strict=True)]
+    layers += [q.entry(coefficient=j) for j, q in enumerate(base_q) if j >= head]
     # [light][level], null for the lights that cannot be selected (they have no images).
     scales: list = [None] * n
     offsets: list = [None] * n
@@ -1008,6 +1056,9 @@ def compress_stack(
         },
         "error": {"truncation": {k: round(v, 6) for k, v in f.truncation_error.items()}},
     }
+    if head < f.k:
+        entry["etc1s"] = {"ktx2": tail_file.relative_to(out_dir).as_posix(),
+                          "layers": f.k - head}
     if write_gain:
         entry["gain"] = {
             "ktx2": written_gain.relative_to(out_dir).as_posix(),
@@ -1016,6 +1067,7 @@ def compress_stack(
     elif gain_file is not None:
         entry["gain"] = gain_file
     files = [base_file, v_file, *light_files] + ([written_gain] if write_gain else [])
+    files += [tail_file] if head < f.k else []
     compact = CompactStack(entry, files, encode_s=encode_s, factors=f)
     compact.base_bytes = sum(p.stat().st_size for p in files if p not in light_files)
     compact.light_bytes = sum(p.stat().st_size for p in light_files)
@@ -1048,11 +1100,41 @@ def compress_stacks(images, prefix, out_dir, skies, S, S_inv, selection, setting
     else:
         rms_settings = replace(settings, refine_level=settings.rms_refine_level)
         results = [
-            compress_stack(images[name], f"{prefix}.{name}", out_dir, skies, S, S_inv,
-                           selection, rms_settings)
+            compress_rms_stack(images[name], f"{prefix}.{name}", out_dir, skies, S, S_inv,
+                               selection, rms_settings)
             for name in names
         ]
     return list(zip(names, results, strict=True))
+
+
+def compress_rms_stack(image, name, out_dir, skies, S, S_inv, selection, settings):
+    """:func:`compress_stack` for a stack judged by its RMS error alone (lightmap, views):
+    ETC1S from ``settings.rms_etc1s_from_layer`` on; if the decoded composite is then over the
+    budget on a test sky, again from ``settings.etc1s_from_layer``, then with every layer
+    UASTC (same rank and factors; the last try is kept whatever its error, as before)."""
+    tries = [settings.rms_etc1s_from_layer, settings.etc1s_from_layer, None]
+    if settings.etc1s_from_layer is None:
+        tries = [None]
+    tries = list(dict.fromkeys(tries))  # in order, once each
+    valid = np.any(image != 0.0, axis=(2, 3))
+    spectrum = Spectrum.of(image[valid], np.ones(int(valid.sum()), np.float32), S)
+    first = None
+    for j0 in tries:
+        result = compress_stack(
+            image, name, out_dir, skies, S, S_inv, selection,
+            replace(settings, etc1s_from_layer=j0), valid=valid, spectrum=spectrum,
+            rank=None if first is None else first.entry["k"],
+        )
+        if first is None:
+            first = result
+        else:  # the rank was fixed: keep the first try's truncation errors
+            result.entry["error"]["truncation"] = first.entry["error"]["truncation"]
+            result.factors.truncation_error = first.factors.truncation_error
+        if result.entry["error"]["max"] <= settings.budget or j0 is None:
+            break
+    if "etc1s" not in result.entry:  # an earlier try's ETC1S array
+        (out_dir / "ktx2" / f"{name}.etc1s.ktx2").unlink(missing_ok=True)
+    return result
 
 
 # --------------------------------------------------------------------------------------------
@@ -1390,6 +1472,16 @@ class RatioRefinement:
         return sorted(refine)
 
 
+def _etc1s_split(k: int, settings: Settings) -> int:
+    """How many of k base layers go to the UASTC array; the rest go to the ETC1S one, which
+    holds two layers or more: basisu writes a one-layer "array" as a plain 2D texture, which
+    the client's ``sampler2DArray`` cannot read (a lone last layer stays UASTC)."""
+    if settings.encoding != "uastc" or settings.etc1s_from_layer is None:
+        return k
+    head = min(k, max(1, settings.etc1s_from_layer))
+    return k if k - head < 2 else head
+
+
 def _write_png(path: Path, rgb: np.ndarray) -> None:
     # Stored, not deflated: these are read once by the encoder a moment later.
     if not cv2.imwrite(str(path), rgb[:, :, ::-1], [cv2.IMWRITE_PNG_COMPRESSION, 0]):
@@ -1435,7 +1527,10 @@ class CompactReader:
         if self._base is None and "ktx2" not in self.entry:
             self._base = np.zeros((0,) + self.shape + (3,), dtype=np.float32)
         if self._base is None:
-            raw = decode([self.dir / self.entry["ktx2"]])[0][..., :3].astype(np.float32) / 255.0
+            files = [self.dir / self.entry["ktx2"]]
+            if "etc1s" in self.entry:  # its layers follow the UASTC array's in ``layers``
+                files.append(self.dir / self.entry["etc1s"]["ktx2"])
+            raw = np.concatenate(decode(files))[..., :3].astype(np.float32) / 255.0
             n, k = self.entry["v"]["shape"]
             self._base = np.zeros((k,) + raw.shape[1:], dtype=np.float32)
             for layer, texel in zip(self.entry["layers"], raw, strict=True):

@@ -30,7 +30,8 @@ def lights_selected_over(manifest: dict, start: str, end: str, step: str = STEP,
     """Every light a client selects under a clear sky at the site between ``start`` and
     ``end`` (local times, sampled every ``step`` while the sun is up), sorted; ``m`` selected
     lights per vector (default: the build's ``selected_lights``). The sun is in its patch:
-    the light vector of a version-1 client, and what the kiosk relights its views with."""
+    the light vector of a version-1 client (since 2026-11-24 no stack of a build selects
+    lights, so a build's own count is zero: see ``m``)."""
     import pandas as pd
 
     from bake.compress import Selection
@@ -148,6 +149,8 @@ def download_bytes(manifest: dict, build_dir: Path, visit_lights: int | None = N
             for name, stack in owner["stacks"].items():
                 compact = stack["compact"]
                 files |= {compact["ktx2"], compact["v"]["path"]}
+                if "etc1s" in compact:  # base layers past the first few, ETC1S
+                    files.add(compact["etc1s"]["ktx2"])
                 if compact.get("gain"):
                     files.add(compact["gain"]["ktx2"])
                 m = stack_selected_lights(manifest, compact)

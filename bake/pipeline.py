@@ -647,7 +647,7 @@ def _write_view(
             "master": rel,
             "quantity": "radiance",
             "channels": CHANNEL_PATTERN,
-            "compact": compressor.run({stack: image}, view.name, staging, view=True)[stack],
+            "compact": compressor.run({stack: image}, view.name, staging)[stack],
         }
     entry["mask"] = f"views/{view.name}.mask.png"
     _write_png(staging / entry["mask"], mask_image(view, hits["O"]))
@@ -659,7 +659,9 @@ def _write_view(
 def _manifest(site, dome, nodes, atlases, views, compressor, bake_info) -> dict:
     return {
         "format": "daylit-build",
-        "version": 1,
+        # 2 since a stack's base layers may be split into a UASTC and an ETC1S array
+        # (compact.etc1s), which a version-1 client would not sum (docs/manifest.md).
+        "version": 2,
         "scene": {
             "id": site.scene_id,
             "name": site.name,
@@ -710,10 +712,6 @@ def write_manifest(build_dir: Path, manifest: dict) -> None:
     os.replace(tmp, build_dir / "manifest.json")
 
 
-# Selected lights of the fixed views' stacks, which the kiosk relights with the sun folded
-# into its patch (docs/compact-assets.md, "The sun apart").
-VIEW_SELECTED_LIGHTS = 1
-
 SELECTION_RULE = (
     "top selected_lights of the selectable_lights (every light when absent) by "
     "max(r_i.R, r_i.G, r_i.B) * solid_angle_sr_i, ties to the lower index, zero scores never"
@@ -747,17 +745,11 @@ class _Compressor:
             "longitude_deg": site.longitude_deg,
             "elevation_m": site.elevation_m,
         }
-        # The fixed views keep the sun in its patch, as a version-1 light vector carries it
-        # (chosen while the kiosk folded the sun there; it now draws the sun itself, and
-        # fitting the views without the disc is open: docs/sun.md). Their selection also
-        # fixes the selectable lights (the sun's path and the brightest patches), which the
-        # sun-bounce stacks have columns for.
-        m_views = max(VIEW_SELECTED_LIGHTS, self.settings.selected_lights)
-        self.view_context = compress.prepare(
-            scene, dome.vertices, dome.solid_angles_sr, m_views, sun_in_patch=True
-        )
-        selectable = self.view_context[3].selectable
-        # Everything else is relit with the sky without the sun's disc (protocol version 2).
+        # The lights the sun can be in (and the brightest patches of the site's skies with
+        # the sun in its patch): the sun-bounce stacks have columns for them.
+        selectable = compress.sun_path_selectable(scene, dome.vertices, dome.solid_angles_sr)
+        # Every stack, the fixed views' too, is relit with the sky without the sun's disc
+        # (protocol version 2; the kiosk draws the sun itself: web/src/kiosksun.js).
         self.skies, self.S, self.S_inv, self.selection = compress.prepare(
             scene, dome.vertices, dome.solid_angles_sr, self.settings.selected_lights,
             selectable=selectable, sun_in_patch=False,
@@ -765,7 +757,7 @@ class _Compressor:
         self.log(
             f"  {len(self.selection.selectable)} of {dome.count} lights can be selected "
             "(the sun's path and the brightest patches of the site's skies): only they get "
-            "their own images, in the stacks that select lights and the sun's bounce"
+            "their own images, in the sun's bounce and the stacks that select lights"
         )
         self.bar = tqdm(
             total=len(self.stack_names),
@@ -776,16 +768,14 @@ class _Compressor:
             dynamic_ncols=True,
         )
 
-    def run(self, images: dict, prefix: str, staging: Path, view: bool = False) -> dict:
-        """Compress the stacks ``images`` ({name: (H, W, n, 3)}) of one atlas or (``view``)
-        fixed view; ``I`` and ``d`` together (shadow ratio). Returns {name: compact manifest
-        entry}. Safe to call from several threads at once (each with its own stacks)."""
-        skies, S, S_inv, selection = (
-            self.view_context if view else (self.skies, self.S, self.S_inv, self.selection)
-        )
+    def run(self, images: dict, prefix: str, staging: Path) -> dict:
+        """Compress the stacks ``images`` ({name: (H, W, n, 3)}) of one atlas or fixed view;
+        ``I`` and ``d`` together (shadow ratio). Returns {name: compact manifest entry}. Safe
+        to call from several threads at once (each with its own stacks)."""
         try:
             results = compress.compress_stacks(
-                images, prefix, staging, skies, S, S_inv, selection, self.settings,
+                images, prefix, staging, self.skies, self.S, self.S_inv, self.selection,
+                self.settings,
             )
         except compress.CompressionError as exc:
             raise BakeError(str(exc)) from None
@@ -844,8 +834,6 @@ class _Compressor:
             "selectable_lights": self.selection.selectable.tolist(),
             "selection": SELECTION_RULE,
             "test_skies": [s.name for s in self.skies],
-            "view_selected_lights": self.view_context[3].m,
-            "view_test_skies": [s.name for s in self.view_context[0]],
             "report": self.report(),
         }
 

@@ -109,14 +109,16 @@ def etc1s_comparison(build_dir: Path) -> list[dict]:
     """Recompress every stack of a build with ETC1S and compare with its UASTC report."""
     build = Build(build_dir)
     m = build.manifest
-    # The atlases with the sky without the sun's disc, the views with the sun in its patch
-    # and their own selected lights, as the bake compresses them.
+    # As the bake compressed them: every stack with the sky without the sun's disc; in builds
+    # that record view_selected_lights (2026-11-24, before the views were fitted without the
+    # disc) the views with the sun in its patch and their own selected lights.
+    old_views = "view_selected_lights" in m["compression"]
     contexts = {
         view: compress.prepare(
             m["scene"], build.dome_vertices, build.solid_angles,
-            m["compression"].get("view_selected_lights", m["compression"]["selected_lights"])
-            if view else m["compression"]["selected_lights"],
-            selectable=build.selection.selectable, sun_in_patch=view,
+            m["compression"]["view_selected_lights"] if view and old_views
+            else m["compression"]["selected_lights"],
+            selectable=build.selection.selectable, sun_in_patch=view and old_views,
         )
         for view in (False, True)
     }

@@ -6,6 +6,7 @@ compares with the EXR masters, on skies that did *not* choose k.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -26,22 +27,14 @@ def held_out_skies(build: Build, sun_in_patch: bool = False) -> dict:
     """Skies that chose no k (``bake.compress.held_out_skies``): the sun where it really is at
     the site at a time no test sky used (10 May, 10:40) under a clear, an intermediate and a
     turbid sky, and a partly cloudy sky (CIE type 7, the sun of a January afternoon).
-    Without the sun's disc (what the atlases are relit with, protocol version 2) or, with
-    ``sun_in_patch``, with it in its patch (what the kiosk relights its views with).
-
-    (A sun the site never sees has no selectable patch: at 400 lights the views' base would
-    have to carry it, which their compact data is not built for.)"""
+    Without the sun's disc (what every stack is relit with, protocol version 2: the client
+    and the kiosk draw the sun apart) or, with ``sun_in_patch``, with it in its patch (a
+    version-1 light vector)."""
     site = build.manifest["scene"]
     return {
         sky.name: sky.r
         for sky in compress.held_out_skies(site, build.dome_vertices, sun_in_patch)
     }
-
-
-def stack_skies(build: Build, atlas: str) -> dict:
-    """The held-out skies a stack is relit with: the views' with the sun in its patch."""
-    views = {view["id"] for view in build.manifest["views"]}
-    return held_out_skies(build, sun_in_patch=atlas in views)
 
 
 def every_stack(build: Build):
@@ -67,7 +60,7 @@ def test_composite_stays_within_budget_on_held_out_skies(build):
     assert {"uniform", "overcast"} <= set(build.manifest["compression"]["test_skies"])
     for atlas, name in every_stack(build):
         valid = _valid(build, atlas, name)
-        for sky_name, r in stack_skies(build, atlas).items():
+        for sky_name, r in held_out_skies(build).items():
             master = build.composite(atlas, name, r, "master")[valid]
             compact = build.composite(atlas, name, r, "compact")[valid]
             error = np.sqrt(((compact - master) ** 2).mean()) / master.mean()
@@ -106,11 +99,26 @@ def test_shuffled_v_breaks_the_composite(build):
     assert relative(bad) > 5 * relative(good)
 
 
-def test_light_images_are_in_dome_order(build):
-    """File L<i> of a stack decodes to the master's light i and to no other light."""
-    view = build.manifest["views"][0]["id"]  # the atlases have no light images
-    reader = build.compact(view, "O")  # no gain: its images are the master's as they are
+def test_light_images_are_in_dome_order(build, tmp_path):
+    """File L<i> of a stack decodes to the master's light i and to no other light. No stack
+    of a build selects lights any more (every one is relit with the sky without the sun's
+    disc), so the view's ``O`` is compressed here as ``[compression] selected_lights = 1``
+    (still an option) would, fitted with the sun in its patch."""
+    m = build.manifest
+    view = m["views"][0]["id"]
+    assert build.compact(view, "O").entry["selected_lights"] == 0
+    skies, S, S_inv, selection = compress.prepare(
+        m["scene"], build.dome_vertices, build.solid_angles, 1,
+        selectable=build.selection.selectable, sun_in_patch=True,
+    )
     master = build.stack(view, "O")
+    [(_, result)] = compress.compress_stacks(
+        {"O": master}, "check", tmp_path, skies, S, S_inv, selection,
+        compress.Settings(selected_lights=1),
+    )
+    assert result.entry["selected_lights"] == 1 and result.light_bytes > 0
+    # No gain: its images are the master's as they are.
+    reader = compress.CompactReader(tmp_path, result.entry, master.shape[:2])
     lit = build.selection.selectable
     for i in (lit[0], lit[len(lit) // 3], lit[-1]):
         decoded = reader.lights([i])[i]
@@ -129,17 +137,41 @@ def test_light_images_are_in_dome_order(build):
         assert error.max() <= 32.0 * span / 255.0
 
 
+UASTC, ETC1S = 166, 163  # KHR_DF_MODEL_UASTC, KHR_DF_MODEL_ETC1S
+
+
 def test_ktx2_files_parse_with_an_independent_reader(build):
+    """Every base array (UASTC, and the ETC1S array of the layers past the first
+    ``Settings.etc1s_from_layer``, which every stack of k above it has) and a sun-bounce
+    image parse with ktx-parse: size, layer count, colour model, linear, Zstandard (UASTC)."""
     files, expected = [], []
+    settings = compress.Settings()
+
+    def tail_from(j0, k):  # at least two layers: a one-layer array is a plain 2D texture
+        return k - compress._etc1s_split(k, dataclasses.replace(settings, etc1s_from_layer=j0))
+
     for atlas, name in every_stack(build):
         entry = build._entry(atlas)
         compact = entry["stacks"][name]["compact"]
+        k = compact["k"]
+        tail = compact["etc1s"]["layers"] if "etc1s" in compact else 0
+        if "d" in entry["stacks"]:  # a shadowing pair: ETC1S from layer 8
+            assert tail == tail_from(settings.etc1s_from_layer, k), (atlas, name)
+        else:  # judged by RMS: from layer 4, or 8, or none if over the budget
+            tries = (settings.rms_etc1s_from_layer, settings.etc1s_from_layer, None)
+            assert tail in {tail_from(j0, k) for j0 in tries}, (atlas, name)
         files.append(build.dir / compact["ktx2"])
-        expected.append((entry["width"], entry["height"], len(compact["layers"])))
-        if compact["selected_lights"]:  # only the views' stacks have light images
-            lit = build.selection.selectable[len(build.selection.selectable) // 2]
-            files.append(build.dir / compact["lights"]["ktx2"][0].format(index=lit))
-            expected.append((entry["width"], entry["height"], 0))
+        expected.append((entry["width"], entry["height"], len(compact["layers"]) - tail, UASTC))
+        if tail:
+            files.append(build.dir / compact["etc1s"]["ktx2"])
+            expected.append((entry["width"], entry["height"], tail, ETC1S))
+        assert compact["selected_lights"] == 0  # no stack has light images
+    # The sun's bounce has one image per sun-path light: one of them.
+    ground = build.atlases["ground"]
+    lit = build.selection.selectable[len(build.selection.selectable) // 2]
+    for level in build.sun_bounce_compact("ground", "I").entry["lights"]["ktx2"]:
+        files.append(build.dir / level.format(index=lit))
+        expected.append((ground["width"], ground["height"], 0, UASTC))
     result = subprocess.run(
         ["node", str(REPO / "tools" / "inspect_ktx2.mjs"), *map(str, files)],
         capture_output=True,
@@ -148,13 +180,16 @@ def test_ktx2_files_parse_with_an_independent_reader(build):
         timeout=120,
     )
     assert result.returncode == 0, result.stderr
-    for info, (width, height, layers) in zip(json.loads(result.stdout), expected, strict=True):
+    assert ETC1S in [e[3] for e in expected]
+    infos = json.loads(result.stdout)
+    for info, (width, height, layers, model) in zip(infos, expected, strict=True):
         assert (info["pixelWidth"], info["pixelHeight"]) == (width, height)
         assert info["layerCount"] == layers  # 0: a plain 2D texture
         assert info["levelCount"] == 1 and info["faceCount"] == 1
-        assert info["colorModel"] == 166  # KHR_DF_MODEL_UASTC
+        assert info["colorModel"] == model
         assert info["transferFunction"] == 1  # linear: these are data, not colours
-        assert info["supercompressionScheme"] == 2  # Zstandard
+        # Zstandard for UASTC; ETC1S is supercompressed by its own scheme (BasisLZ, 1).
+        assert info["supercompressionScheme"] == (2 if model == UASTC else 1)
 
 
 def test_base_layers_decode_to_u_within_the_stated_error(build, tmp_path):
@@ -176,7 +211,7 @@ def test_base_layers_decode_to_u_within_the_stated_error(build, tmp_path):
         S,
         S_inv,
         selection,
-        compress.Settings(),
+        compress.Settings(etc1s_from_layer=None),  # every layer UASTC: its stated error
         refine_all=True,
     )
     valid = _valid(build, "ground", "d")
@@ -204,9 +239,10 @@ def test_probe_answers_from_compact_data_too(build):
 
 
 def test_only_selectable_lights_have_images(build):
-    """Every stack that selects lights (the views') has the two images of each selectable
-    light and none of the others, whose scale and offset are null; the set is a real subset
-    of the dome. A stack that selects none (the atlases') has no light images at all."""
+    """A stack that selects lights would have the two images of each selectable light and
+    none of the others, whose scale and offset are null; the set is a real subset of the
+    dome. Since the views too are relit without the sun's disc no stack selects one, and no
+    stack has light images at all (the sun's bounce has: tests/bake/test_sun_bounce.py)."""
     n = build.light_count
     lit = build.manifest["compression"]["selectable_lights"]
     assert lit == sorted(set(lit)) and 0 < len(lit) < n
@@ -226,13 +262,14 @@ def test_only_selectable_lights_have_images(build):
             else:
                 assert not any(p in listed or (build.dir / p).exists() for p in paths)
                 assert lights["scale"][i] is None and lights["offset"][i] is None
-    assert selecting == {view["id"] for view in build.manifest["views"]}
+    assert selecting == set()
 
 
 def test_the_sun_patch_is_selected_under_a_clear_sky_all_year(build):
-    """Wherever the sun is at the site, at any time of year, its patch can be selected and,
-    with the sun in it (the kiosk's views), is selected under a clear sky (it holds most of
-    the light). The atlases select none: they are relit with the sky without the sun."""
+    """Wherever the sun is at the site, at any time of year, its patch is selectable (the
+    sun's bounce has its column) and, with the sun in it (a version-1 light vector), is the
+    one light selected under a clear sky (it holds most of the light): the rule that fixes
+    the set. No stack selects any: every one is relit with the sky without the sun."""
     import pandas as pd
 
     from daylit.spherical import PatchLookup
@@ -250,12 +287,16 @@ def test_the_sun_patch_is_selected_under_a_clear_sky_all_year(build):
     sun_patch = lookup(skies.direction_from_azimuth_elevation(az[up], el[up]))
     assert set(sun_patch.tolist()) <= set(build.selection.selectable.tolist())
     compression = build.manifest["compression"]
-    views = compress.Selection(build.selection.weights_sr, compression["view_selected_lights"])
-    assert compression["selected_lights"] == 0 and views.m == 1
+    version_1 = compress.Selection(
+        build.selection.weights_sr, compress.SUN_PATH_SELECTED_LIGHTS)
+    assert compression["selected_lights"] == 0 and version_1.m == 1
+    assert "view_selected_lights" not in compression
+    for atlas, name in every_stack(build):
+        assert build._entry(atlas)["stacks"][name]["compact"]["selected_lights"] == 0
     for j in up[:40]:
         r = build.light_vector(skies.clear_sky(az[j], el[j]))
         patch = lookup(skies.direction_from_azimuth_elevation(az[j], el[j])[None])[0]
-        assert patch in views(r)
+        assert list(version_1(r)) == [patch]
         assert list(build.selection(r)) == []
 
 
@@ -513,3 +554,27 @@ def test_the_sky_without_the_sun_is_within_budget_without_light_images(sun_site_
         ratio_compact = build.composite("ground", "I", r, "compact") / np.maximum(d_compact, 1e-9)
         lit = d_master > 0.05 * d_master[d_master > 0].mean()
         assert np.abs(ratio_compact - ratio_master)[lit].max() <= 0.02, sky_name
+
+
+def test_a_stack_judged_by_rms_falls_back_to_uastc_when_etc1s_is_over_budget(build, tmp_path):
+    """The lightmap with a budget no encoding can keep: ETC1S from layer 4, then 8, are over
+    it, so the stack is encoded with every layer UASTC (same rank), and no ETC1S array is
+    left behind; with the default budget it keeps an ETC1S array (from layer 4, or 8)."""
+    m = build.manifest
+    skies, S, S_inv, selection = compress.prepare(
+        m["scene"], build.dome_vertices, build.solid_angles, 0,
+        selectable=build.selection.selectable,
+    )
+    image = build.stack("lightmap", "I")
+    strict = compress.Settings(selected_lights=0, budget=1e-5)
+    result = compress.compress_rms_stack(
+        image, "strict.I", tmp_path, skies, S, S_inv, selection, strict)
+    assert "etc1s" not in result.entry and result.entry["error"]["max"] > 1e-5
+    assert not (tmp_path / "ktx2" / "strict.I.etc1s.ktx2").exists()
+    assert len(result.entry["layers"]) >= result.entry["k"]
+    loose = compress.compress_rms_stack(
+        image, "loose.I", tmp_path, skies, S, S_inv, selection,
+        compress.Settings(selected_lights=0))
+    assert loose.entry["etc1s"]["layers"] in (loose.entry["k"] - 4, loose.entry["k"] - 8)
+    assert loose.entry["error"]["max"] <= 0.01
+    assert (tmp_path / "ktx2" / "loose.I.etc1s.ktx2").is_file()

@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pandas as pd
 
-from bake import downloads
+from bake import compress, downloads
 from bake.evaluate import Build
 from daylit import sky as skies
 from daylit.spherical import PatchLookup
@@ -65,13 +65,14 @@ def test_download_bytes_sums_what_each_client_fetches(tmp_path):
 
 
 def test_a_visit_selects_the_suns_patches_and_a_day_more(demo_draft_build):
-    """With the sun in its patch (the kiosk's views, one selected light) every 10 minutes of
-    the visit the sun's patch is among the lights selected (a clear sky), all of them
-    selectable; a whole day selects at least as many. The atlases select none."""
+    """With the sun in its patch and one selected light (a version-1 light vector; what
+    ``[compression] selected_lights = 1`` would fetch) every 10 minutes of the visit the
+    sun's patch is among the lights selected (a clear sky), all of them selectable; a whole
+    day selects at least as many. The build's stacks select none."""
     build = Build(demo_draft_build)
     manifest = build.manifest
     assert downloads.lights_selected_over(manifest, *downloads.VISIT) == []
-    m = manifest["compression"]["view_selected_lights"]
+    m = compress.SUN_PATH_SELECTED_LIGHTS
     visit = downloads.lights_selected_over(manifest, *downloads.VISIT, m=m)
     day = downloads.lights_selected_over(manifest, *downloads.KIOSK_DAY, m=m)
     assert set(visit) <= set(day) <= set(build.selection.selectable.tolist())

@@ -1,8 +1,7 @@
 """The relight pass in headless Chromium equals the numpy reference.
 
-For several light vectors (uniform, CIE overcast, clear, a random partly cloudy sky; for the
-visit without the sun's disc, which the client draws apart, for the kiosk with it in its
-patch, as the kiosk folds it) every
+For several light vectors (uniform, CIE overcast, clear, a random partly cloudy sky; without
+the sun's disc, which the client draws apart, in the visit and at the kiosk) every
 stack's render target is read back and compared with ``Build.composite`` on the compact data
 (the same KTX2 files decoded by the same Basis transcoder, summed as docs/compact-assets.md
 says) and, more loosely, with the EXR masters.
@@ -29,12 +28,12 @@ COMPACT_OF_MEAN = 2e-3
 MASTER_RMS = 0.02
 
 
-def skies(ref, sun_in_patch: bool):
+def skies(ref):
     from bake.evaluate import parse_sky
     from daylit.sky import patch_mean_radiance
 
     def vector(name):
-        return patch_mean_radiance(parse_sky(name), ref.dome_vertices, include_sun=sun_in_patch)
+        return patch_mean_radiance(parse_sky(name), ref.dome_vertices, include_sun=False)
 
     n = ref.light_count
     rng = np.random.default_rng(5)
@@ -82,7 +81,7 @@ def test_relight_targets_equal_the_numpy_reference(new_page, web_build, referenc
     with StubServer(web_build) as server:
         # shading=hull: the hull planes load at start, so every atlas is relit.
         page = new_page().open(f"{server.url}/?mode={mode}&test&shading=hull")
-        for seq, (sky, r) in enumerate(skies(ref, sun_in_patch=mode == "kiosk").items(), start=1):
+        for seq, (sky, r) in enumerate(skies(ref).items(), start=1):
             applied = relight(page, r, seq)
             assert applied["exact"] and applied["sequence"] == seq
             assert applied["selected"] == ref.selection(r).tolist()

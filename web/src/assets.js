@@ -49,8 +49,9 @@ export class Assets {
     } catch {
       throw new AssetError(this.manifestUrl, 'not JSON');
     }
-    if (manifest.format !== 'daylit-build' || manifest.version !== 1) {
-      throw new AssetError(this.manifestUrl, `not a daylit build of version 1 (${manifest.format} ${manifest.version})`);
+    // Version 2 (2026-11-24): a stack's base may also have an ETC1S array (compact.etc1s).
+    if (manifest.format !== 'daylit-build' || ![1, 2].includes(manifest.version)) {
+      throw new AssetError(this.manifestUrl, `not a daylit build of version 1 or 2 (${manifest.format} ${manifest.version})`);
     }
     this.manifest = manifest;
     this.files = new Map(manifest.files.map((f) => [f.path, f]));

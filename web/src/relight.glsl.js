@@ -11,8 +11,11 @@ void main() { gl_Position = vec4(position.xy, 0.0, 1.0); }
  * The fragment shader of one compact stack (docs/compact-assets.md):
  * E(x) = g(x) (sum_j c[coef_j] (tex_j(x) scale_j + offset_j) + sum_i r_i sum_lv (light_i_lv(x) scale + offset))
  * with the products and offsets folded into layerWeight, slotWeight and constant (lightmath.js).
+ * The last `etc1sLayers` of the `layers` are in a second array, etc1sTex (ETC1S; builds from
+ * 2026-11-24), the others in baseTex.
  */
-export function relightFragment({ layers, slots, gain, encodeRGBE }) {
+export function relightFragment({ layers, etc1sLayers = 0, slots, gain, encodeRGBE }) {
+  const head = layers - etc1sLayers;
   const slotUniforms = Array.from({ length: slots }, (_, s) => `uniform sampler2D slot${s};`).join('\n');
   const slotSum = Array.from({ length: slots },
     (_, s) => `  e += texelFetch(slot${s}, p, 0).rgb * slotWeight[${s}];`).join('\n');
@@ -21,6 +24,7 @@ precision highp float;
 precision highp int;
 precision highp sampler2DArray;
 uniform sampler2DArray baseTex;
+${etc1sLayers ? 'uniform sampler2DArray etc1sTex;' : ''}
 uniform vec3 layerWeight[${layers}];
 uniform vec3 constantTerm;
 ${slots ? `uniform vec3 slotWeight[${slots}];\n${slotUniforms}` : ''}
@@ -30,7 +34,8 @@ ${encodeRGBE ? RGBE_ENCODE : ''}
 void main() {
   ivec2 p = ivec2(gl_FragCoord.xy);
   vec3 e = constantTerm;
-  for (int j = 0; j < ${layers}; j++) e += texelFetch(baseTex, ivec3(p, j), 0).rgb * layerWeight[j];
+  for (int j = 0; j < ${head}; j++) e += texelFetch(baseTex, ivec3(p, j), 0).rgb * layerWeight[j];
+${etc1sLayers ? `  for (int j = 0; j < ${etc1sLayers}; j++) e += texelFetch(etc1sTex, ivec3(p, j), 0).rgb * layerWeight[${head} + j];` : ''}
 ${slotSum}
 ${gain ? `  vec3 g = texelFetch(gainTex, ivec3(p, 0), 0).rgb * gainScale[0] + gainOffset[0]
          + texelFetch(gainTex, ivec3(p, 1), 0).rgb * gainScale[1] + gainOffset[1];

@@ -104,18 +104,23 @@ class RelightStack {
 
   async load() {
     const loads = [this.assets.texture(this.compact.ktx2), this.assets.float32(this.compact.v.path)];
+    // Builds from 2026-11-24: base layers past the first few in a second, ETC1S array, whose
+    // layers follow the first array's in compact.layers (docs/compact-assets.md).
+    loads.push(this.compact.etc1s ? this.assets.texture(this.compact.etc1s.ktx2) : null);
     if (this.compact.gain) loads.push(this.assets.texture(this.compact.gain.ktx2));
-    const [base, V, gain] = await Promise.all(loads);
+    const [base, V, etc1s, gain] = await Promise.all(loads);
     const [n, k] = this.compact.v.shape;
     if (V.length !== n * k) throw new Error(`${this.compact.v.path}: ${V.length} values, expected ${n} x ${k}`);
     this.base = base;
     this.V = V;
+    this.etc1s = etc1s ?? null;
     this.gain = gain ?? null;
-    for (const t of [base, gain]) if (t) t.minFilter = t.magFilter = THREE.NearestFilter;
+    for (const t of [base, etc1s, gain]) if (t) t.minFilter = t.magFilter = THREE.NearestFilter;
     this.dummy = new THREE.DataTexture(new Uint8Array(4), 1, 1);
     this.dummy.needsUpdate = true;
     const uniforms = {
       baseTex: { value: base },
+      ...(etc1s ? { etc1sTex: { value: etc1s } } : {}),
       layerWeight: { value: Array.from({ length: this.compact.layers.length }, () => new THREE.Vector3()) },
       constantTerm: { value: new THREE.Vector3() },
     };
@@ -132,8 +137,8 @@ class RelightStack {
     this.pass = new FullscreenPass({
       uniforms,
       fragmentShader: relightFragment({
-        layers: this.compact.layers.length, slots: this.slots, gain: !!this.gain,
-        encodeRGBE: this.format.rgbe,
+        layers: this.compact.layers.length, etc1sLayers: this.compact.etc1s?.layers ?? 0,
+        slots: this.slots, gain: !!this.gain, encodeRGBE: this.format.rgbe,
       }),
     });
   }
@@ -191,7 +196,7 @@ class RelightStack {
   dispose() {
     this.target.dispose();
     this.pass?.dispose();
-    for (const t of [this.base, this.gain, this.dummy]) t?.dispose();
+    for (const t of [this.base, this.etc1s, this.gain, this.dummy]) t?.dispose();
     for (const textures of this.lights.values()) for (const t of textures) t.dispose();
   }
 }
