@@ -275,7 +275,12 @@ def test_sun_bounce_on_the_shaded_face(new_page, sun_build, sun_reference):
         share = sun.sum(axis=1) / (sun + sky).sum(axis=1)
         print(f"the shaded face: the sun's bounce is {100 * share.min():.0f}-"
               f"{100 * share.max():.0f} % of its light")
-        assert share.min() > 0.1, share
+        # A precondition, not a fidelity check (tests/bake/test_sun_bounce.py checks the
+        # baked bounce against a view-factor integral): the bounce is large enough here for
+        # the displayed codes to tell it from the sky alone. Lowest at the face's foot, which
+        # looks over the box's own shadow (0.095 there since the bake fits a plane when it
+        # smooths the bounce instead of averaging toward the face's middle).
+        assert share.min() > 0.08, share
         assert np.abs(shown - expected).max() <= 3.0, (shown, expected)
         assert (shown.mean(axis=1) > no_bounce.mean(axis=1) + 3.0).all(), (shown, no_bounce)
         assert not page.errors, page.errors

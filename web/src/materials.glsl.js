@@ -8,15 +8,32 @@ const common = /* glsl */ `
 uniform float exposure;
 `;
 
+// The flat ground's point in the sun's two maps (SUN_GROUND 2): affine in the world point, so
+// interpolated exactly from the vertices instead of a matrix product per pixel.
+const sunGroundVertex = /* glsl */ `
+#if SUN_GROUND == 2
+uniform mat4 sunMatrixA;
+uniform mat4 sunMatrixR;
+varying vec4 vSunGroundUv; // 0..1 in map A (xy) and map R (zw)
+#endif
+`;
+const sunGroundVertexMain = /* glsl */ `
+#if SUN_GROUND == 2
+  vSunGroundUv = vec4((sunMatrixA * world).xy, (sunMatrixR * world).xy) * 0.5 + 0.5;
+#endif
+`;
+
 export const uvVertex = /* glsl */ `
 varying vec2 vUv;
 varying vec3 vNormalW;
 varying vec3 vPositionW;
+${sunGroundVertex}
 void main() {
   vUv = uv;
   vNormalW = normalize(mat3(modelMatrix) * normal);
   vec4 world = modelMatrix * vec4(position, 1.0);
   vPositionW = world.xyz;
+  ${sunGroundVertexMain}
   gl_Position = projectionMatrix * viewMatrix * world;
 }
 `;
@@ -25,10 +42,15 @@ void main() {
 export const sunCommon = /* glsl */ `
 ${sunShadowChunk}
 // Past every caster (virtual and real), and past the real ones alone: on the flat ground
-// (SUN_GROUND 1, 2: prefiltered) and on any other surface from the visibility maps (sun.js).
-#if SUN_GROUND >= 1
-float sunVisibilityAll(vec3 p, vec3 n) { return sunVisibilityOnGround(sunGroundA, sunMatrixA, sunInfoA, p, SUN_GROUND == 2); }
-float sunVisibilityReal(vec3 p, vec3 n) { return sunVisibilityOnGround(sunGroundR, sunMatrixR, sunInfoR, p, SUN_GROUND == 2); }
+// (SUN_GROUND 1; 2: prefiltered, at the point the vertex shader found) and on any other
+// surface from the visibility maps (sun.js).
+#if SUN_GROUND == 2
+varying vec4 vSunGroundUv;
+float sunVisibilityAll(vec3 p, vec3 n) { return sunVisibilityOnGroundPrefiltered(sunGroundA, sunInfoA, vSunGroundUv.xy); }
+float sunVisibilityReal(vec3 p, vec3 n) { return sunVisibilityOnGroundPrefiltered(sunGroundR, sunInfoR, vSunGroundUv.zw); }
+#elif SUN_GROUND == 1
+float sunVisibilityAll(vec3 p, vec3 n) { return sunVisibilityOnGround(sunGroundA, sunMatrixA, sunInfoA, p); }
+float sunVisibilityReal(vec3 p, vec3 n) { return sunVisibilityOnGround(sunGroundR, sunMatrixR, sunInfoR, p); }
 #else
 float sunVisibilityAll(vec3 p, vec3 n) { return sunVisibilityOnSurface(sunMapA, sunCoarseA, sunVisibilityA, sunMatrixA, sunInfoA, p, n); }
 float sunVisibilityReal(vec3 p, vec3 n) { return sunVisibilityOnSurface(sunMapR, sunCoarseR, sunVisibilityR, sunMatrixR, sunInfoR, p, n); }
@@ -42,10 +64,12 @@ vec3 facingNormal() {
 export const plainVertex = /* glsl */ `
 varying vec3 vNormalW;
 varying vec3 vPositionW;
+${sunGroundVertex}
 void main() {
   vNormalW = normalize(mat3(modelMatrix) * normal);
   vec4 world = modelMatrix * vec4(position, 1.0);
   vPositionW = world.xyz;
+  ${sunGroundVertexMain}
   gl_Position = projectionMatrix * viewMatrix * world;
 }
 `;

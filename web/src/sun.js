@@ -248,18 +248,28 @@ ${penumbraFilter('sunVisibilityQuick', QUICK_BLOCKER_SAMPLES, QUICK_FILTER_SAMPL
 
 // Fraction of the sun's disc seen past one caster set from a point of the flat ground: the
 // ground visibility map (the filter run once per texel when the maps were rendered), one
-// bilinear read; prefiltered: of the mipmap level of the pixel's footprint (a frame), else
-// of the full-resolution level (the kiosk's passes: the value at the pixel's centre ray, as
-// the bake's views are).
-float sunVisibilityOnGround(sampler2D visibility, mat4 M, vec4 info, vec3 position, bool prefiltered) {
+// bilinear read at full resolution: the value at the pixel's centre ray (the kiosk's passes,
+// as the bake's views are).
+float sunVisibilityOnGround(sampler2D visibility, mat4 M, vec4 info, vec3 position) {
 #if SUN == 0
   return 1.0;
 #else
   vec2 q = (M * vec4(position, 1.0)).xy * 0.5 + 0.5;
   bool inMap = info.w > 0.5 && q.x > 0.0 && q.y > 0.0 && q.x < 1.0 && q.y < 1.0;
+  return inMap ? textureLod(visibility, q, 0.0).r : 1.0;
+#endif
+}
+
+// The same at the point q (0..1) of the map, prefiltered to the pixel's footprint (its
+// mipmap level): a frame's ground, where a distant pixel covers many texels.
+float sunVisibilityOnGroundPrefiltered(sampler2D visibility, vec4 info, vec2 q) {
+#if SUN == 0
+  return 1.0;
+#else
+  bool inMap = info.w > 0.5 && q.x > 0.0 && q.y > 0.0 && q.x < 1.0 && q.y < 1.0;
   // Read outside any condition that varies between pixels: a mipmap level needs the
   // neighbouring pixels' coordinates.
-  float visible = prefiltered ? texture2D(visibility, q).r : textureLod(visibility, q, 0.0).r;
+  float visible = texture2D(visibility, q).r;
   return inMap ? visible : 1.0;
 #endif
 }
