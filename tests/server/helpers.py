@@ -233,3 +233,13 @@ async def first_light_v2(client):
         m = protocol.decode(msg.data)
         if m.type == protocol.MessageType.LIGHT:
             return ws, m
+
+
+async def wait_for(predicate, timeout_s: float = 60.0, period_s: float = 0.05) -> None:
+    """Poll ``predicate()`` until it is true; fail after ``timeout_s`` (a bound for a loaded
+    machine, never a measured time)."""
+    loop = asyncio.get_running_loop()
+    end = loop.time() + timeout_s
+    while not predicate():
+        assert loop.time() < end, "condition not reached"
+        await asyncio.sleep(period_s)

@@ -13,7 +13,7 @@ from aiohttp import WSMsgType
 
 from server import protocol
 from server.app import PIPELINE, create_app
-from tests.server.helpers import settings_for
+from tests.server.helpers import settings_for, wait_for
 
 
 def srgb_to_linear(code: int) -> float:
@@ -21,12 +21,6 @@ def srgb_to_linear(code: int) -> float:
     c = code / 255.0
     return c / 12.92 if c <= 0.04045 else ((c + 0.055) / 1.055) ** 2.4
 
-
-async def wait_for(predicate, timeout_s: float = 30.0, period_s: float = 0.05):
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        assert time.monotonic() < deadline, "timed out"
-        await asyncio.sleep(period_s)
 
 
 async def test_frames_of_two_sizes_build_one_matrix_each_logged_once(

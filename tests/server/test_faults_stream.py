@@ -7,20 +7,12 @@ import asyncio
 import json
 import logging
 import socket
-import time
 
 from aiohttp import WSMsgType
 
 from server import protocol
 from server.app import create_app
-from tests.server.helpers import raw_websocket_that_never_reads, settings_for
-
-
-async def wait_for(predicate, timeout_s: float = 30.0, period_s: float = 0.05):
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        assert time.monotonic() < deadline, "timed out"
-        await asyncio.sleep(period_s)
+from tests.server.helpers import raw_websocket_that_never_reads, settings_for, wait_for
 
 
 async def test_refused_requests_are_warnings_without_a_traceback(

@@ -30,6 +30,7 @@ from tests.server.helpers import (
     interrupt_and_wait,
     raw_websocket_that_never_reads,
     settings_for,
+    wait_for,
 )
 
 EMPTY_FRAMES = 15  # the site is empty for 1.5 s; the first 10 frames are learned
@@ -74,13 +75,6 @@ async def frames_with_masks(ws, count, timeout=60.0):
         pairs.append((frame, mask))
     return pairs
 
-
-async def wait_for(predicate, timeout=60.0):
-    loop = asyncio.get_running_loop()
-    end = loop.time() + timeout
-    while not predicate():
-        assert loop.time() < end, "condition not reached"
-        await asyncio.sleep(0.05)
 
 
 @pytest.mark.slow

@@ -1,6 +1,5 @@
 """Sources through the whole chain: sim, restarts, a camera that stops, bad frames."""
 
-import asyncio
 import json
 import math
 
@@ -12,7 +11,7 @@ from server import protocol
 from server.app import PIPELINE, SUPERVISOR, create_app
 from server.protocol import Flags
 from server.sources import CameraSource, ReplaySource
-from tests.server.helpers import FakeCamera, ManualSource, settings_for, sky_frame
+from tests.server.helpers import FakeCamera, ManualSource, settings_for, sky_frame, wait_for
 
 
 async def light_messages(ws, count, timeout=20.0):
@@ -27,13 +26,6 @@ async def light_messages(ws, count, timeout=20.0):
             assert msg.type == WSMsgType.TEXT, msg
     return out
 
-
-async def wait_for(predicate, timeout=20.0):
-    loop = asyncio.get_running_loop()
-    end = loop.time() + timeout
-    while not predicate():
-        assert loop.time() < end, "condition not reached"
-        await asyncio.sleep(0.02)
 
 
 async def test_simulated_sky_streams_flagged_vectors(aiohttp_client, build_dir, tmp_path):
