@@ -53,7 +53,7 @@ export class IrradianceTargets {
     this.passes = [];
     const t = relighter.targets;
     const bounce = (key) => sunBounce?.texture(key) ?? black;
-    const atlases = new Set(Object.keys(relighter.targets).filter((k) => k.endsWith('.I')).map((k) => k.slice(0, -2)));
+    const atlases = new Set(Object.keys(t).filter((k) => k.endsWith('.I')).map((k) => k.slice(0, -2)));
     for (const atlas of atlases) {
       const { width, height } = t[`${atlas}.I`];
       const sum = (name, a, wa, b, wb, c) => {
@@ -79,7 +79,6 @@ export class IrradianceTargets {
         sum('lit', I, 1, null, 0, bounce(`${atlas}.I`));
       }
     }
-    this.updates = 0;
   }
 
   /** The target of an atlas ('ground.with'), or undefined. */
@@ -90,7 +89,6 @@ export class IrradianceTargets {
   /** Sum again: after a relight or a new sun's bounce. */
   update() {
     for (const { pass, target } of this.passes) pass.render(this.renderer, target);
-    this.updates += 1;
   }
 
   dispose() {

@@ -177,8 +177,9 @@ export class KioskSun {
     this._mapsRendered = -1;
   }
 
-  /** A view-pass material; `ground` for the flat ground, which reads the sun's visibility
-   * maps' ground channel (full filter quality, bilinear) as the visit's ground does. */
+  /** A view-pass material; `ground` for the flat ground, which reads the sun's ground
+   * visibility map at full resolution (SUN_GROUND 1: the value at each pixel's centre ray, as
+   * the bake's views are; the visit's frames read it prefiltered, SUN_GROUND 2). */
   _material(vertexShader, fragmentShader, uniforms, ground = false) {
     const m = new THREE.ShaderMaterial({
       uniforms, vertexShader, fragmentShader, defines: { ...SUN_DEFINES, SUN_GROUND: ground ? 1 : 0 },
