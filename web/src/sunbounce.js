@@ -39,6 +39,7 @@ class BounceStack {
     this.target = makeTarget(width, height, format);
     this.target.texture.name = `${key}.sun_bounce`;
     this.images = new Map(); // light -> Promise of [level textures]
+    this.loaded = new Map(); // light -> [level textures], once they arrived
     const dummy = new THREE.DataTexture(new Uint8Array(4), 1, 1);
     dummy.needsUpdate = true;
     this.dummy = dummy;
@@ -60,6 +61,7 @@ class BounceStack {
       const files = this.compact.lights.ktx2.map((pattern) => pattern.replace('{index:04d}', String(light).padStart(4, '0')));
       const promise = Promise.all(files.map((f) => this.assets.texture(f))).then((textures) => {
         for (const t of textures) t.minFilter = t.magFilter = THREE.NearestFilter;
+        if (this.images.get(light) === promise) this.loaded.set(light, textures);
         return textures;
       });
       promise.catch(() => this.images.delete(light)); // retried with the next sun
@@ -69,6 +71,7 @@ class BounceStack {
         if (old === light) continue;
         p.then((textures) => textures.forEach((t) => t.dispose()), () => {});
         this.images.delete(old);
+        this.loaded.delete(old);
       }
     }
     return this.images.get(light);
@@ -127,7 +130,6 @@ export class SunBounce {
       }
     }
     this.patch = null;
-    this.updates = 0;
     this._asked = 0;
   }
 
@@ -138,20 +140,29 @@ export class SunBounce {
 
   /**
    * A new sun ({direction, normalIrradiance} or null): every stack's target becomes the bounce
-   * of the patch that holds it. Resolves when drawn (after any image it needed arrived).
+   * of the patch that holds it. Draws at once and returns null when every image it needs is
+   * already here (the sun stays tens of minutes in a patch, so nearly always); otherwise
+   * returns a Promise that resolves when drawn, after the images arrived.
    */
-  async update(sun) {
+  update(sun) {
     const up = sun && sun.direction[1] > 0 && sun.normalIrradiance.some((e) => e > 0);
     const p = up ? patchContaining(this.lights, sun.direction) : -1;
     const weight = p >= 0 ? sun.normalIrradiance.map((e) => e / this.lights[p].solid_angle_sr) : null;
     const asked = ++this._asked;
     const stacks = [...this.stacks.values()];
     const lights = stacks.map((s) => (p >= 0 && s.has(p) ? p : null));
-    const images = await Promise.all(stacks.map((s, j) => (lights[j] === null ? null : s.fetch(lights[j]))));
-    if (asked !== this._asked) return; // a newer sun came meanwhile: it draws
-    stacks.forEach((s, j) => s.render(this.renderer, lights[j], images[j], weight));
-    this.patch = p;
-    this.updates += 1;
+    const draw = (images) => {
+      stacks.forEach((s, j) => s.render(this.renderer, lights[j], images[j], weight));
+      this.patch = p;
+    };
+    const here = stacks.map((s, j) => (lights[j] === null ? null : s.loaded.get(lights[j])));
+    if (here.every((images, j) => lights[j] === null || images)) {
+      draw(here);
+      return null;
+    }
+    return Promise.all(stacks.map((s, j) => (lights[j] === null ? null : s.fetch(lights[j])))).then((images) => {
+      if (asked === this._asked) draw(images); // else a newer sun came meanwhile: it draws
+    });
   }
 
   dispose() {
