@@ -3,7 +3,7 @@
 import * as THREE from 'three';
 import { AssetError, Assets } from './assets.js';
 import { CameraView } from './camera-view.js';
-import { Hud } from './hud.js';
+import { Hud, insecureReason } from './hud.js';
 import { IrradianceTargets } from './irradiance.js';
 import { Kiosk } from './kiosk.js';
 import { KioskSun } from './kiosksun.js';
@@ -101,14 +101,18 @@ export class App {
     this.renderer.setSize(w, h, false);
     this.camera.aspect = w / h;
     this.camera.updateProjectionMatrix();
+    this.view?.fit?.(); // a phone turned to landscape: the site fills the new shape
   }
 
   async _boot() {
-    this.hud.setMessage(this.mode === 'kiosk' ? null : 'Loading the reconstruction…');
+    const loading = (bytes) => this.hud.setMessage(this.mode === 'kiosk' ? null
+      : `Loading the reconstruction… ${formatMB(bytes)}`);
+    loading(0);
     try {
       this.assets = new Assets(this.params.get('manifest') ?? '/build/manifest.json',
-        { exactTextures: this.params.get('textures') !== 'gpu' });
+        { exactTextures: this.params.get('textures') !== 'gpu', onProgress: loading });
       const manifest = await this.assets.loadManifest();
+      document.title = `${manifest.scene.name} under the live sky · daylit`;
       this.assets.initTextures(this.renderer);
       const kiosk = this.mode === 'kiosk';
       const view = manifest.views.find((v) => v.id === (this.params.get('view') ?? manifest.views[0]?.id));
@@ -140,11 +144,14 @@ export class App {
           { virtual: this.site.nodes.virtual, real: this.site.nodes.real }, this.site.sun,
           { groundY: this.site.groundY });
         this.sunShadows.setMaterials(this.site.sunMaterials());
+        this.assets.onProgress = null;
+        this.hud.setMessage(null); // before the mode, whose note (no camera...) must stay
         await this._enterMode(this.mode);
       }
+      this.assets.onProgress = null;
       this.ready = true;
       this.error = null;
-      this.hud.setMessage(null);
+      if (kiosk) this.hud.setMessage(null);
       if (this.smoother.value) this._needRelight = true;
       const ar = !kiosk && await arSupported();
       this.hud.showModes({ ar, camera: !kiosk && !!navigator.mediaDevices?.getUserMedia, align: this.mode === 'camera' || this.mode === 'ar' });
@@ -201,8 +208,8 @@ export class App {
         this.mode = 'camera';
         return;
       } catch (err) {
-        this.hud.setMessage(`No camera (${err.message}): showing the virtual visit.`, 'warn');
-        setTimeout(() => this.hud.setMessage(null), 5000);
+        // Stays until tapped: the visitor asked for the camera and should know why not.
+        this.hud.setMessage(`No camera (${insecureReason() ?? err.message}): showing the virtual visit.`, 'warn');
       }
     }
     this.view = new VisitView(this.camera, this.canvas, this.site);
@@ -306,14 +313,16 @@ export class App {
     const open = openSkyIrradiance(r, this.assets.manifest.dome.lights.map((l) => l.cosine_weighted_sr));
     const sun = this._pendingSun;
     this.sunShadows?.setSun(sun?.direction ?? [0, 0, 0], sun?.normalIrradiance ?? [0, 0, 0]);
-    // The surfaces read the relit sky and the sun's bounce summed (irradiance.js): now with the
-    // new sky, again when the bounce of a new sun is drawn. Kept so that whoever waits for a
-    // drawn light (debug.relight) can wait for the bounce too.
+    // The surfaces read the relit sky and the sun's bounce summed (irradiance.js): once when the
+    // bounce is drawn at once (its images are here), else now with the new sky and again when
+    // the new sun's bounce is drawn. Kept so that whoever waits for a drawn light
+    // (debug.relight) can wait for the bounce too.
+    const drawing = this.sunBounce?.update(sun) ?? null;
     this.irradiance?.update();
-    this.sunBounceDrawn = this.sunBounce?.update(sun).then(() => this.irradiance?.update(), (err) => {
+    this.sunBounceDrawn = drawing?.then(() => this.irradiance?.update(), (err) => {
       this.hud.setMessage(`${err.message}. The sun's bounce follows with the next light.`, 'warn');
       setTimeout(() => this.hud.setMessage(null), 5000);
-    });
+    }) ?? Promise.resolve();
     // The open ground's irradiance with the sun (unshadowed): the exposure's reference.
     const sunUp = sun ? Math.max(0, sun.direction[1]) : 0;
     const ground = open.map((e, c) => e + (sun ? sun.normalIrradiance[c] * sunUp : 0));
@@ -377,4 +386,8 @@ export class App {
     renderer.setClearColor(0x000000, this.mode === 'ar' ? 0 : 1);
     renderer.render(this.scene, this.camera);
   }
+}
+
+function formatMB(bytes) {
+  return `${(bytes / 1e6).toFixed(bytes < 1e7 ? 1 : 0)} MB`;
 }

@@ -1,7 +1,8 @@
 // The build over HTTP: the manifest, then the files it lists, each requested as
 // /build/PATH?v=<first 16 hex of its sha256> so the server may let the browser cache it as
-// immutable (docs/server.md, HTTP). Counts the bytes it transfers (the HUD and the benchmark
-// show them) and turns every failure into an AssetError that names the file.
+// immutable (docs/server.md, HTTP). Counts the bytes it transfers as they arrive (the HUD shows
+// them while loading, the benchmark reports them) and turns every failure into an AssetError
+// that names the file.
 import { KTX2Loader } from 'three/addons/loaders/KTX2Loader.js';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
 
@@ -20,6 +21,8 @@ export class Assets {
    * @param {{exactTextures?: boolean}} options exactTextures (default true): transcode the
    *   UASTC data to plain RGBA8 so the GPU reads exactly the texels the numpy reference reads
    *   (docs/web.md, "Texture formats"); false lets KTX2Loader pick a compressed GPU format.
+   *   onProgress(bytesLoaded): called as the bytes of each file arrive (assignable later,
+   *   `assets.onProgress = null` to stop).
    */
   constructor(manifestUrl = '/build/manifest.json', options = {}) {
     this.manifestUrl = manifestUrl;
@@ -28,6 +31,7 @@ export class Assets {
     this.manifest = null;
     this.files = new Map(); // path -> {bytes, sha256}
     this.bytesLoaded = 0;
+    this.onProgress = options.onProgress ?? null;
     this.requests = 0;
     this.ktx2 = null;
   }
@@ -74,14 +78,48 @@ export class Assets {
       throw new AssetError(path, `network error (${err.message})`);
     }
     if (!response.ok) throw new AssetError(path, `HTTP ${response.status}`);
-    const buffer = await response.arrayBuffer();
+    const buffer = await this._read(response, path);
     const entry = this.files.get(path);
     if (entry && entry.bytes !== buffer.byteLength) {
       throw new AssetError(path, `${buffer.byteLength} bytes, the manifest says ${entry.bytes}`);
     }
-    this.bytesLoaded += buffer.byteLength;
     this.requests += 1;
     return buffer;
+  }
+
+  /** The body as an ArrayBuffer, counted into bytesLoaded chunk by chunk as it arrives. */
+  async _read(response, path) {
+    if (!response.body) {
+      const buffer = await response.arrayBuffer();
+      this._count(buffer.byteLength);
+      return buffer;
+    }
+    const chunks = [];
+    let length = 0;
+    const reader = response.body.getReader();
+    try {
+      for (;;) {
+        const { done, value } = await reader.read();
+        if (done) break;
+        chunks.push(value);
+        length += value.byteLength;
+        this._count(value.byteLength);
+      }
+    } catch (err) {
+      throw new AssetError(path, `network error (${err.message})`);
+    }
+    const bytes = new Uint8Array(length);
+    let at = 0;
+    for (const c of chunks) {
+      bytes.set(c, at);
+      at += c.byteLength;
+    }
+    return bytes.buffer;
+  }
+
+  _count(n) {
+    this.bytesLoaded += n;
+    this.onProgress?.(this.bytesLoaded);
   }
 
   /** Set up the Basis transcoder for this renderer (once). */

@@ -1,8 +1,17 @@
 // The HUD: connection state, age of the light vector, frames per second, a view of the dome
-// with each patch coloured by its measured radiance, and the visitor's controls. At the kiosk
-// only an unobtrusive status line is shown (press H to toggle the rest).
+// with each patch coloured by its measured radiance, and the visitor's controls. The panel
+// folds away with its button (or the H key); it starts folded on a small portrait screen,
+// where it would cover a fifth of the site. At the kiosk only an unobtrusive status line is
+// shown (H shows the dome and the smoothing: a kiosk has one fixed view, so no modes).
 
 const DOME_PX = 120;
+const SMALL_PORTRAIT = '(orientation: portrait) and (max-width: 600px)'; // as in style.css
+
+/** Why a mode cannot start on this page, or null: camera and AR need a secure context. */
+export function insecureReason() {
+  if (globalThis.isSecureContext !== false) return null;
+  return 'the camera and AR need a secure connection (https://): ask the site\'s staff for the https address';
+}
 
 export class Hud {
   constructor(root, app) {
@@ -12,16 +21,17 @@ export class Hud {
     root.classList.toggle('kiosk', this.kiosk);
     root.innerHTML = `
       <div class="statusline" role="status" aria-live="polite"></div>
-      <div class="panel">
+      <button class="paneltoggle" aria-controls="hud-panel" aria-expanded="true" title="Controls (H)">☰</button>
+      <div class="panel" id="hud-panel">
         <canvas class="dome" width="${DOME_PX}" height="${DOME_PX}" aria-label="measured sky, north up"></canvas>
         <div class="controls">
-          <div class="modes" role="group" aria-label="view">
+          <div class="modes" role="group" aria-label="view" ${this.kiosk ? 'hidden' : ''}>
             <button data-mode="visit">Visit</button>
             <button data-mode="camera">Camera</button>
             <button data-mode="ar" hidden>AR</button>
           </div>
-          <label><input type="checkbox" class="shading" checked> shading &amp; shadows</label>
-          <label>shading <select class="shadingmode">
+          <label class="visitonly"><input type="checkbox" class="shading" checked> shading &amp; shadows</label>
+          <label class="visitonly">shading <select class="shadingmode">
             <option value="lightmap">lightmap</option><option value="hull">hull planes</option>
           </select></label>
           <label>light follows sky in <output class="tauout"></output>
@@ -34,8 +44,17 @@ export class Hud {
     this.dome = root.querySelector('.dome');
     this.message = root.querySelector('.message');
     this.panel = root.querySelector('.panel');
-    this.panel.hidden = this.kiosk;
-    root.querySelectorAll('[data-mode]').forEach((b) => b.addEventListener('click', () => app.switchMode(b.dataset.mode)));
+    this.toggle = root.querySelector('.paneltoggle');
+    this.toggle.hidden = this.kiosk; // the kiosk's visitors should not fold its status away
+    root.querySelectorAll('.visitonly').forEach((e) => { e.hidden = this.kiosk; });
+    this.setPanel(!this.kiosk && !matchMedia(SMALL_PORTRAIT).matches);
+    this.toggle.addEventListener('click', () => this.setPanel(this.panel.hidden));
+    this.message.addEventListener('click', () => this.setMessage(null)); // a tap dismisses a note
+    root.querySelectorAll('[data-mode]').forEach((b) => b.addEventListener('click', () => {
+      const why = b.dataset.mode !== 'visit' && insecureReason();
+      if (why) this.setMessage(`Not available here: ${why}.`, 'warn');
+      else app.switchMode(b.dataset.mode);
+    }));
     root.querySelector('.shading').addEventListener('change', (e) => app.setShading(e.target.checked));
     root.querySelector('.shadingmode').value = app.shadingMode;
     root.querySelector('.shadingmode').addEventListener('change', (e) => app.setShadingMode(e.target.value));
@@ -48,18 +67,33 @@ export class Hud {
     });
     root.querySelector('.align').addEventListener('click', () => app.resetAlignment());
     addEventListener('keydown', (e) => {
-      if (e.key === 'h' || e.key === 'H') this.panel.hidden = !this.panel.hidden;
+      if (e.key === 'h' || e.key === 'H') this.setPanel(this.panel.hidden);
     });
     this._lastDomeSeq = -1;
+  }
+
+  /** Show (true) or fold away (false) the panel. */
+  setPanel(shown) {
+    this.panel.hidden = !shown;
+    this.toggle.setAttribute('aria-expanded', String(shown));
+    this.toggle.setAttribute('aria-label', shown ? 'Hide the controls' : 'Show the controls');
+    this.toggle.textContent = shown ? '×' : '☰';
   }
 
   setShadingMode(mode) {
     this.root.querySelector('.shadingmode').value = mode;
   }
 
+  /** Which mode buttons to offer. Without a secure context camera and AR are offered anyway,
+   * marked unavailable, and a tap says why (instead of the buttons silently missing). */
   showModes({ ar, camera, align }) {
-    this.root.querySelector('[data-mode="ar"]').hidden = !ar;
-    this.root.querySelector('[data-mode="camera"]').hidden = !camera;
+    const insecure = insecureReason() !== null;
+    for (const [mode, available] of [['ar', ar], ['camera', camera]]) {
+      const button = this.root.querySelector(`[data-mode="${mode}"]`);
+      button.hidden = !available && !insecure;
+      button.classList.toggle('unavailable', !available);
+      button.title = available ? '' : insecureReason() ?? '';
+    }
     this.root.querySelector('.align').hidden = !align;
     this.root.querySelectorAll('[data-mode]').forEach((b) => b.classList.toggle('active', b.dataset.mode === this.app.mode));
   }

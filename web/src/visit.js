@@ -20,13 +20,25 @@ export class VisitView {
     this.controls.minDistance = radius * 0.3;
     this.controls.maxDistance = radius * 6;
     // From the south-east, a little above eye height of a tall visitor on a hill; further
-    // away on a portrait screen so that the whole width of the site fits.
-    const fit = Math.max(1, 1.1 / Math.max(0.3, camera.aspect));
-    camera.position.copy(centre).add(new THREE.Vector3(radius * 1.3, radius * 0.55, radius * 1.6).multiplyScalar(fit));
+    // away on a portrait screen so that the whole width of the site fits (fit()).
+    this.distanceScale = 1;
+    camera.position.copy(centre).add(new THREE.Vector3(radius * 1.3, radius * 0.55, radius * 1.6));
+    this.fit();
     camera.near = 0.1;
     camera.far = radius * 40;
     camera.updateProjectionMatrix();
     this.controls.addEventListener('start', () => { this.controls.autoRotate = false; });
+    this.controls.update();
+  }
+
+  /** Scale the camera's distance to the screen's shape: 1 on a landscape screen, more on a
+   * portrait one so that the whole width of the site fits. Called again when the screen turns;
+   * keeps whatever orbit and zoom the visitor chose. */
+  fit() {
+    const scale = Math.max(1, 1.1 / Math.max(0.3, this.camera.aspect));
+    const target = this.controls.target;
+    this.camera.position.sub(target).multiplyScalar(scale / this.distanceScale).add(target);
+    this.distanceScale = scale;
     this.controls.update();
   }
 
