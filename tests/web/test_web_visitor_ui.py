@@ -91,7 +91,8 @@ def test_insecure_page_explains_camera_and_ar(browser, web_build, sky):
         server.push(light_message(sky, 1), remember=True)
         # A name that is not localhost, resolved to the stub: an insecure context.
         flags = CHROMIUM_FLAGS + ["--host-resolver-rules=MAP daylit.test 127.0.0.1"]
-        remote = browser.browser_type.launch(executable_path=chromium_path(), args=flags, headless=True)
+        remote = browser.browser_type.launch(executable_path=chromium_path(), args=flags,
+                                             headless=True)
         try:
             page = remote.new_page(viewport={"width": 960, "height": 540})
             page.goto(f"http://daylit.test:{server.port}/?mode=camera")
