@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import jsonschema
@@ -79,12 +80,22 @@ def _show(value: Any) -> str:
     return repr(value)
 
 
-def first_problem(instance: dict, schema: dict, depth: int = 1) -> tuple[tuple, str] | None:
+@dataclass(frozen=True)
+class Problem:
+    """One problem: ``path`` the key's path (``("sky", "rate_hz")``), ``words`` e.g.
+    ``"must be a number > 0, got -2"``; for a key the schema does not have, ``unknown`` is
+    true and ``words`` lists the known ones, ``"(known: a, b)"``."""
+
+    path: tuple
+    words: str
+    unknown: bool = False
+
+
+def first_problem(instance: dict, schema: dict, depth: int = 1) -> Problem | None:
     """The first problem of ``instance`` against ``schema``, or None.
 
     ``depth`` is how many levels of tables hold the keys (1: flat keys, 2: sections of
-    keys). Returns ``(path, words)``: ``path`` the key's path (``("sky", "rate_hz")``),
-    ``words`` e.g. ``"must be a number > 0, got -2"`` or ``"unknown key (known: a, b)"``.
+    keys).
     """
     validator = jsonschema.Draft202012Validator(schema)
     errors = sorted(validator.iter_errors(instance),
@@ -95,17 +106,17 @@ def first_problem(instance: dict, schema: dict, depth: int = 1) -> tuple[tuple, 
             here = _at(schema, path)
             known = list(here.get("properties", {}))
             extra = sorted(set(_get(instance, path)) - set(known))
-            return path + (extra[0],), f"unknown ({', '.join(known)})"
+            return Problem(path + (extra[0],), f"(known: {', '.join(known)})", unknown=True)
         if len(path) < depth:  # a section that is not a table
-            return path, f"must be a table of keys, got {_show(_get(instance, path))}"
+            return Problem(path, f"must be a table of keys, got {_show(_get(instance, path))}")
         key_path = path[:depth]
         prop = _at(schema, key_path)
         words = _failed_words(error, prop, inside=len(path) > depth)
-        return key_path, (f"must be {words}, "
-                          f"got {_show(_get(instance, key_path))}")
+        return Problem(key_path, f"must be {words}, got {_show(_get(instance, key_path))}")
     for key_path, value in _leaves(instance, depth):
         if any(isinstance(v, float) and not math.isfinite(v) for v in _flat(value)):
-            return key_path, f"must be {allowed(_at(schema, key_path))} (finite), got {value!r}"
+            return Problem(key_path,
+                           f"must be {allowed(_at(schema, key_path))} (finite), got {value!r}")
     return None
 
 

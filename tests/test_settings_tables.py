@@ -34,9 +34,10 @@ SCHEMA = {"type": "object", "additionalProperties": False, "properties": {
     ({"mode": "fork"}, ("mode",), "must be process | thread, got 'fork'"),
     ({"rgb": [1, 2]}, ("rgb",), "must be three positive numbers [r, g, b], got [1, 2]"),
     ({"rgb": [1, 2, -1]}, ("rgb",), "must be three positive numbers [r, g, b], got [1, 2, -1]"),
-    ({"rat_hz": 2}, ("rat_hz",), "unknown (rate_hz, port, mode, rgb)"),
+    ({"rat_hz": 2}, ("rat_hz",), "(known: rate_hz, port, mode, rgb)"),
 ])
 def test_problems_name_the_key_and_what_is_allowed(instance, path, words):
-    assert first_problem(instance, SCHEMA) == (path, words)
+    problem = first_problem(instance, SCHEMA)
+    assert (problem.path, problem.words, problem.unknown) == (path, words, "known" in words)
     assert first_problem({"rate_hz": 120, "port": 1, "mode": "thread", "rgb": [1, 1, 1]},
                          SCHEMA) is None

@@ -9,6 +9,7 @@ tests/test_settings_tables.py does.
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -19,9 +20,19 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def tables() -> list[tuple[Path, str, str]]:
     """(doc, table name, table text) for every generated settings table."""
+    from server.config import REPO_ROOT, json_schema
     from server.occlusion.settings import SCHEMA as OCCLUSION
 
-    return [(ROOT / "docs" / "occlusion.md", "occlusion", reference_table(OCCLUSION))]
+    def in_repo(key, default):
+        if isinstance(default, str) and default.startswith(str(REPO_ROOT)):
+            return json.dumps("<repo>" + default[len(str(REPO_ROOT)):])
+        return None
+
+    out = [(ROOT / "docs" / "occlusion.md", "occlusion", reference_table(OCCLUSION))]
+    for section, schema in json_schema()["properties"].items():
+        out.append((ROOT / "docs" / "server.md", f"server.{section}",
+                    reference_table(schema, in_repo)))
+    return out
 
 
 def main(argv: list[str]) -> int:

@@ -232,8 +232,7 @@ class OcclusionSettings:
         values = {f.name: _plain(getattr(self, f.name)) for f in fields(self)}
         problem = first_problem(values, SCHEMA)
         if problem is not None:
-            (key, *_), words = problem
-            raise ValueError(f"occlusion settings: {key} {words}")
+            raise ValueError(f"occlusion settings: {problem.path[0]} {problem.words}")
         # What one key's schema cannot say: relations between keys.
         if self.bg_rate * self.bg_update_bands >= 1.0:
             raise ValueError("occlusion settings: bg_rate * bg_update_bands must be < 1")
