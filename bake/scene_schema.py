@@ -104,7 +104,7 @@ SCHEMA: dict = _table({
     "site": _table({
         "name": _str(None, "shown to visitors and operators"),
         "id": _str(None, "names the build and the stream", pattern="^[A-Za-z0-9_-]+$",
-                   **{"x-default": "folder name",
+                   **{"x-default": "folder name", "x-allowed": "letters, digits, - and _",
                       "x-message": "may hold only letters, digits, - and _"}),
         "latitude_deg": _num(None, "WGS84 latitude (north positive)", -90.0, 90.0),
         "longitude_deg": _num(None, "WGS84 longitude (east positive)", -180.0, 180.0),

@@ -158,19 +158,28 @@ def _cell(text: str) -> str:
     return text.replace("|", "&#124;")
 
 
+def default_words(key: str, prop: dict, required=()) -> str:
+    """A key's default for a table: ``x-default``, the default as JSON in backquotes,
+    ``required``, or ``-`` (optional, no default)."""
+    if "x-default" in prop:
+        return prop["x-default"]
+    if "default" in prop:
+        return f"`{json.dumps(prop['default'])}`"
+    return "required" if key in required else "-"
+
+
 def reference_table(schema: dict, default_text=None) -> str:
     """The Markdown table of a flat settings schema: key, default, allowed, meaning.
 
     ``default_text(key, default)`` may word a default (e.g. a path inside the repository);
-    otherwise it is the default as JSON.
+    otherwise :func:`default_words`.
     """
     lines = ["| key | default | allowed | meaning |", "|---|---|---|---|"]
+    required = schema.get("required", ())
     for key, prop in schema["properties"].items():
-        default = prop.get("default")
-        shown = default_text(key, default) if default_text else None
-        if shown is None:
-            shown = json.dumps(default)
-        lines.append(f"| `{key}` | `{_cell(shown)}` | {_cell(allowed(prop))} | "
+        shown = default_text(key, prop.get("default")) if default_text else None
+        shown = f"`{shown}`" if shown is not None else default_words(key, prop, required)
+        lines.append(f"| `{key}` | {_cell(shown)} | {_cell(allowed(prop))} | "
                      f"{_cell(prop.get('description', ''))} |")
     return "\n".join(lines) + "\n"
 

@@ -13,7 +13,7 @@ import json
 import sys
 from pathlib import Path
 
-from daylit.settingschema import reference_table, replace_table, table_in
+from daylit.settingschema import allowed, reference_table, replace_table, table_in
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -29,9 +29,40 @@ def tables() -> list[tuple[Path, str, str]]:
         return None
 
     out = [(ROOT / "docs" / "occlusion.md", "occlusion", reference_table(OCCLUSION))]
+    out += scene_tables()
     for section, schema in json_schema()["properties"].items():
         out.append((ROOT / "docs" / "server.md", f"server.{section}",
                     reference_table(schema, in_repo)))
+    return out
+
+
+def _quality_levels(quality: dict) -> str:
+    """The quality levels side by side: key, draft, final, allowed, meaning."""
+    levels = [k for k, p in quality["properties"].items() if p.get("type") == "object"]
+    lines = ["| key | " + " | ".join(levels) + " | allowed | meaning |",
+             "|---|" + "---|" * len(levels) + "---|---|"]
+    first = quality["properties"][levels[0]]["properties"]
+    for key, prop in first.items():
+        values = " | ".join(json.dumps(quality["properties"][lv]["properties"][key]["default"])
+                            for lv in levels)
+        lines.append(f"| `{key}` | {values} | {allowed(prop)} | {prop['description']} |")
+    return "\n".join(lines) + "\n"
+
+
+def scene_tables() -> list[tuple[Path, str, str]]:
+    from bake.scene_schema import SCHEMA
+
+    doc = ROOT / "docs" / "scene-format.md"
+    props = SCHEMA["properties"]
+    out = []
+    for name, prop in props.items():
+        table = prop["items"] if prop["type"] == "array" else prop
+        if name == "quality":
+            table = {**table, "properties": {"default": table["properties"]["default"]}}
+            out.append((doc, "scene.quality-levels", _quality_levels(prop)))
+        out.append((doc, f"scene.{name}", reference_table(table)))
+    out.append((doc, "scene.view.intrinsics",
+                reference_table(props["view"]["items"]["properties"]["intrinsics"])))
     return out
 
 
