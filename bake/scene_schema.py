@@ -103,7 +103,9 @@ def _quality_level(level: str) -> dict:
 SCHEMA: dict = _table({
     "site": _table({
         "name": _str(None, "shown to visitors and operators"),
-        "id": _str(None, "names the build and the stream", pattern="^[A-Za-z0-9_-]+$",
+        # Python's \w (jsonschema matches with re): letters and digits of any script, as
+        # str.isalnum, which checks the folder name that is the default.
+        "id": _str(None, "names the build and the stream", pattern=r"^[\w-]+$",
                    **{"x-default": "folder name", "x-allowed": "letters, digits, - and _",
                       "x-message": "may hold only letters, digits, - and _"}),
         "latitude_deg": _num(None, "WGS84 latitude (north positive)", -90.0, 90.0),
