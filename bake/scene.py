@@ -1,13 +1,14 @@
 """Reading and checking a site description, ``scenes/<site>/scene.toml``.
 
-The format is documented in ``docs/scene-format.md``. Every problem raises :class:`SceneError`
-naming the file, the key and what is wrong, before anything is written. Geometry comes out in
+The format is documented in ``docs/scene-format.md``, and checked against its JSON Schema
+(bake/scene_schema.py, which also holds every default); what no one key's schema can say is
+checked here. Every problem raises :class:`SceneError` naming the file, the key and what is
+wrong, before anything is written. Geometry comes out in
 the world frame of DESIGN.md (metres, +Y up, +X east, -Z north).
 """
 
 from __future__ import annotations
 
-import difflib
 import math
 import tomllib
 import zoneinfo
@@ -19,70 +20,14 @@ import numpy as np
 import trimesh
 
 from bake.dome import MAX_LIGHTS, MIN_LIGHTS
+from bake.scene_schema import QUALITY_DEFAULTS, SCHEMA, first_problem
 
-QUALITY_DEFAULTS = {
-    # direct_rays: visibility rays per point over the whole sky; each light gets
-    #   max(2, ceil(direct_rays / lights)) of them, spread over its patch (soft shadows), so
-    #   a finer dome costs about the same for the same shadow quality.
-    # bounce_rays: cosine-weighted gather rays per texel for the indirect bounce.
-    # cache_spacing_m: spacing of the bounce cache points on every surface.
-    # texel_scale: multiplies every texel size (draft bakes are coarser).
-    # view_scale: multiplies fixed-view resolutions.
-    "draft": {
-        "direct_rays": 160,
-        "bounce_rays": 24,
-        "cache_spacing_m": 1.5,
-        "texel_scale": 2.0,
-        "view_scale": 0.5,
-    },
-    "final": {
-        "direct_rays": 960,
-        "bounce_rays": 96,
-        "cache_spacing_m": 0.6,
-        "texel_scale": 1.0,
-        "view_scale": 1.0,
-    },
-}
-
-
-# Every key the format knows, per kind of table (docs/scene-format.md). Unknown keys are
-# reported before anything else: they are almost always typos of one of these.
-FORMAT_KEYS = {
-    "": {
-        "site",
-        "dome",
-        "quality",
-        "bake",
-        "ground",
-        "shadowing",
-        "lightmap",
-        "compression",
-        "virtual",
-        "real",
-        "view",
-    },
-    "site": {"id", "name", "latitude_deg", "longitude_deg", "elevation_m", "timezone", "north_deg"},
-    "dome": {"lights"},
-    "quality": {"default", "draft", "final"},
-    "quality-level": {"direct_rays", "bounce_rays", "cache_spacing_m", "texel_scale", "view_scale"},
-    "bake": {"seed"},
-    "ground": {"center_m", "size_m", "albedo"},
-    "shadowing": {
-        "texel_m",
-        "hull_texel_m",
-        "hull_offset_m",
-        "min_sun_elevation_deg",
-        "min_plane_area_m2",
-        "max_planes_per_part",
-        "max_atlas_size",
-    },
-    "lightmap": {"texel_m"},
-    "compression": {"budget", "max_rank", "encoding", "selected_lights"},
-    "virtual": {"name", "model", "parts", "albedo", "translation_m", "yaw_deg", "scale"},
-    "real": {"name", "albedo", "receiver", "box_m", "model", "translation_m", "yaw_deg", "scale"},
-    "view": {"name", "width", "height", "position_m", "look_at_m", "fov_y_deg", "intrinsics"},
-    "intrinsics": {"fx", "fy", "cx", "cy"},
-}
+# The quality levels (bake_rays etc.) are documented with the rest of the format in the
+# schema: direct_rays are visibility rays per point over the whole sky (each light gets
+# max(2, ceil(direct_rays / lights)) of them, spread over its patch, so a finer dome costs
+# about the same for the same shadow quality); bounce_rays cosine-weighted gather rays per
+# texel; cache_spacing_m the spacing of the bounce cache points; texel_scale and view_scale
+# multiply every texel size and fixed-view resolution.
 
 
 class SceneError(ValueError):
@@ -202,27 +147,15 @@ class Site:
 
 
 class _Table:
-    """A TOML table of a known kind, with the path of keys that led to it for messages.
+    """A table of a scene.toml already checked against its schema (bake/scene_schema.py), with
+    the path of keys that led to it for messages; absent keys read as the schema's default
+    (None where there is none: an optional key)."""
 
-    Unknown keys are rejected on construction, with the closest known key as a hint.
-    """
-
-    def __init__(self, file: Path, prefix: str, data: Any, kind: str):
+    def __init__(self, file: Path, prefix: str, data: dict, schema: dict):
         self.file = file
         self.prefix = prefix
-        if not isinstance(data, dict):
-            raise SceneError(file, prefix, f"must be a table, got {_kind(data)}")
         self.data = data
-        self.known = FORMAT_KEYS[kind]
-        for key in sorted(data):
-            if key not in self.known:
-                close = difflib.get_close_matches(key, sorted(self.known), n=1, cutoff=0.5)
-                hint = (
-                    f"did you mean {close[0]!r}?"
-                    if close
-                    else f"known keys here: {', '.join(sorted(self.known))}"
-                )
-                raise SceneError(file, self.key(key), f"unknown key ({hint})")
+        self.schema = schema
 
     def key(self, name: str) -> str:
         return f"{self.prefix}.{name}" if self.prefix else name
@@ -230,91 +163,34 @@ class _Table:
     def has(self, name: str) -> bool:
         return name in self.data
 
-    def raw(self, name: str, default: Any = ..., required: bool = False) -> Any:
-        assert name in self.known, f"{name} missing from FORMAT_KEYS"
-        if name not in self.data:
-            if required or default is ...:
-                raise SceneError(self.file, self.key(name), "is required but missing")
-            return default
-        return self.data[name]
+    def raw(self, name: str) -> Any:
+        prop = self.schema["properties"][name]
+        return self.data.get(name, prop.get("default"))
 
-    def number(self, name, default=..., lo=None, hi=None, integer=False, lo_open=False):
-        value = self.raw(name, default)
+    def number(self, name: str) -> float | int | None:
+        value = self.raw(name)
         if value is None:
             return None
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise SceneError(self.file, self.key(name), f"must be a number, got {_kind(value)}")
-        if not math.isfinite(value):
-            raise SceneError(self.file, self.key(name), f"must be finite, got {value}")
-        if integer and int(value) != value:
-            raise SceneError(self.file, self.key(name), f"must be a whole number, got {value}")
-        if lo is not None and (value <= lo if lo_open else value < lo):
-            bound = f"greater than {lo}" if lo_open else f"at least {lo}"
-            raise SceneError(self.file, self.key(name), f"must be {bound}, got {value}")
-        if hi is not None and value > hi:
-            raise SceneError(self.file, self.key(name), f"must be at most {hi}, got {value}")
-        return int(value) if integer else float(value)
+        return int(value) if self.schema["properties"][name]["type"] == "integer" else float(value)
 
-    def vector(self, name, length, default=..., lo=None, hi=None, positive=False):
-        value = self.raw(name, default)
-        if value is None:
-            return None
-        if not isinstance(value, list) or len(value) != length:
-            raise SceneError(
-                self.file, self.key(name), f"must be a list of {length} numbers, got {value!r}"
-            )
-        out = []
-        for i, x in enumerate(value):
-            if isinstance(x, bool) or not isinstance(x, int | float):
-                raise SceneError(
-                    self.file, f"{self.key(name)}[{i}]", f"must be a number, got {_kind(x)}"
-                )
-            if not math.isfinite(x):
-                raise SceneError(self.file, f"{self.key(name)}[{i}]", f"must be finite, got {x}")
-            if positive and x <= 0:
-                raise SceneError(self.file, f"{self.key(name)}[{i}]", f"must be positive, got {x}")
-            if lo is not None and x < lo or hi is not None and x > hi:
-                raise SceneError(
-                    self.file, f"{self.key(name)}[{i}]", f"must be within [{lo}, {hi}], got {x}"
-                )
-            out.append(float(x))
-        return np.array(out)
+    def vector(self, name: str) -> np.ndarray | None:
+        value = self.raw(name)
+        return None if value is None else np.array([float(x) for x in value])
 
-    def string(self, name, default=..., choices=None):
-        value = self.raw(name, default)
-        if value is None:
-            return None
-        if not isinstance(value, str) or not value.strip():
-            raise SceneError(
-                self.file, self.key(name), f"must be a non-empty string, got {value!r}"
-            )
-        if choices is not None and value not in choices:
-            raise SceneError(
-                self.file, self.key(name), f"must be one of {', '.join(choices)}; got {value!r}"
-            )
-        return value
+    def string(self, name: str) -> str | None:
+        return self.raw(name)
 
-    def boolean(self, name, default=...):
-        value = self.raw(name, default)
-        if not isinstance(value, bool):
-            raise SceneError(self.file, self.key(name), f"must be true or false, got {value!r}")
-        return value
+    def boolean(self, name: str) -> bool:
+        return self.raw(name)
 
-    def table(self, name, required=False, kind=None) -> _Table:
-        value = self.raw(name, {} if not required else ...)
-        return _Table(self.file, self.key(name), value, kind or name)
+    def table(self, name: str) -> _Table:
+        return _Table(self.file, self.key(name), self.data.get(name, {}),
+                      self.schema["properties"][name])
 
-    def tables(self, name) -> list[_Table]:
-        value = self.raw(name, [])
-        if not isinstance(value, list):
-            raise SceneError(self.file, self.key(name), "must be an array of tables ([[...]])")
-        return [_Table(self.file, f"{self.key(name)}[{i}]", v, name) for i, v in enumerate(value)]
-
-
-def _kind(value: Any) -> str:
-    return {dict: "a table", list: "a list", str: "a string", bool: "a boolean"}.get(
-        type(value), type(value).__name__
-    )
+    def tables(self, name: str) -> list[_Table]:
+        items = self.schema["properties"][name]["items"]
+        return [_Table(self.file, f"{self.key(name)}[{i}]", v, items)
+                for i, v in enumerate(self.data.get(name, []))]
 
 
 # --------------------------------------------------------------------------------------------
@@ -347,12 +223,15 @@ def load_site(
     except UnicodeDecodeError:
         raise SceneError(scene_file, "", "not UTF-8 text") from None
 
-    root = _Table(scene_file, "", data, "")
-    site_t = root.table("site", required=True)
+    problem = first_problem(data)
+    if problem is not None:
+        raise SceneError(scene_file, *problem)
+    root = _Table(scene_file, "", data, SCHEMA)
+    site_t = root.table("site")
     name = site_t.string("name")
-    latitude = site_t.number("latitude_deg", lo=-90.0, hi=90.0)
-    longitude = site_t.number("longitude_deg", lo=-180.0, hi=180.0)
-    elevation = site_t.number("elevation_m", 0.0, lo=-500.0, hi=9000.0)
+    latitude = site_t.number("latitude_deg")
+    longitude = site_t.number("longitude_deg")
+    elevation = site_t.number("elevation_m")
     timezone = site_t.string("timezone")
     try:
         zoneinfo.ZoneInfo(timezone)
@@ -362,8 +241,8 @@ def load_site(
             site_t.key("timezone"),
             f"unknown time zone {timezone!r} (use an IANA name such as 'Asia/Tokyo')",
         ) from None
-    north_deg = site_t.number("north_deg", 0.0, lo=-360.0, hi=360.0)
-    site_id = site_t.string("id", scene_dir.resolve().name)
+    north_deg = site_t.number("north_deg")
+    site_id = site_t.string("id") or scene_dir.resolve().name
     if not all(c.isalnum() or c in "-_" for c in site_id):
         raise SceneError(scene_file, site_t.key("id"), "may hold only letters, digits, - and _")
     world_from_scene = _rotation_y(north_deg)
@@ -377,11 +256,11 @@ def load_site(
         settings.compression["budget"] = budget
     sources = [scene_file]
 
-    ground_t = root.table("ground", required=True)
+    ground_t = root.table("ground")
     ground = Ground(
-        center_m=tuple(ground_t.vector("center_m", 2, [0.0, 0.0])),
-        size_m=tuple(ground_t.vector("size_m", 2, positive=True)),
-        albedo=ground_t.vector("albedo", 3, lo=0.0, hi=1.0),
+        center_m=tuple(ground_t.vector("center_m")),
+        size_m=tuple(ground_t.vector("size_m")),
+        albedo=ground_t.vector("albedo"),
     )
     ground.part = _ground_part(ground)
 
@@ -392,8 +271,8 @@ def load_site(
         _unique(names, obj, t, scene_file)
         model = _model_path(t, scene_dir)
         sources.append(model)
-        parts_mode = t.string("parts", "nodes", choices=("nodes", "whole"))
-        albedo = t.vector("albedo", 3, None, lo=0.0, hi=1.0)
+        parts_mode = t.string("parts")
+        albedo = t.vector("albedo")
         transform = world_from_scene @ _object_transform(t)
         virtual += _load_model_parts(model, obj, transform, albedo, parts_mode, t)
     if not virtual:
@@ -403,9 +282,9 @@ def load_site(
     for t in root.tables("real"):
         obj = t.string("name")
         _unique(names, obj, t, scene_file)
-        albedo = t.vector("albedo", 3, lo=0.0, hi=1.0)
-        receiver = t.boolean("receiver", True)
-        box = t.vector("box_m", 3, None, positive=True)
+        albedo = t.vector("albedo")
+        receiver = t.boolean("receiver")
+        box = t.vector("box_m")
         transform = world_from_scene @ _object_transform(t)
         if box is not None and t.has("model"):
             raise SceneError(scene_file, t.key("model"), "give either box_m or model, not both")
@@ -448,53 +327,41 @@ def load_site(
 
 def _load_settings(root: _Table, file: Path, lights: int | None, quality: str | None) -> Settings:
     dome_t = root.table("dome")
-    file_lights = dome_t.number("lights", 160, lo=MIN_LIGHTS, hi=MAX_LIGHTS, integer=True)
+    file_lights = dome_t.number("lights")
     if lights is not None and not MIN_LIGHTS <= lights <= MAX_LIGHTS:
         raise SceneError("--lights", "", f"must be between {MIN_LIGHTS} and {MAX_LIGHTS}")
 
     quality_t = root.table("quality")
-    default_quality = quality_t.string("default", "final", choices=tuple(QUALITY_DEFAULTS))
+    default_quality = quality_t.string("default")
     chosen = quality or default_quality
     if chosen not in QUALITY_DEFAULTS:
         raise SceneError("--quality", "", f"must be one of {', '.join(QUALITY_DEFAULTS)}")
     levels = {}
     for level, defaults in QUALITY_DEFAULTS.items():
-        t = quality_t.table(level, kind="quality-level")
-        levels[level] = {
-            "direct_rays": t.number(
-                "direct_rays", defaults["direct_rays"], lo=8, hi=65536, integer=True
-            ),
-            "bounce_rays": t.number(
-                "bounce_rays", defaults["bounce_rays"], lo=0, hi=4096, integer=True
-            ),
-            "cache_spacing_m": t.number(
-                "cache_spacing_m", defaults["cache_spacing_m"], lo=0.05, hi=50.0
-            ),
-            "texel_scale": t.number("texel_scale", defaults["texel_scale"], lo=0.1, hi=16.0),
-            "view_scale": t.number("view_scale", defaults["view_scale"], lo=0.05, hi=4.0),
-        }
+        t = quality_t.table(level)
+        levels[level] = {name: t.number(name) for name in defaults}
 
     bake_t = root.table("bake")
-    seed = bake_t.number("seed", 1, lo=0, hi=2**31 - 1, integer=True)
+    seed = bake_t.number("seed")
 
     shadow_t = root.table("shadowing")
-    shadow_texel = shadow_t.number("texel_m", 0.5, lo=0.01, hi=10.0)
-    hull_texel = shadow_t.number("hull_texel_m", 0.25, lo=0.01, hi=10.0)
-    hull_offset = shadow_t.number("hull_offset_m", 0.03, lo=0.0, hi=1.0)
-    min_elev = shadow_t.number("min_sun_elevation_deg", 10.0, lo=1.0, hi=89.0)
-    min_area = shadow_t.number("min_plane_area_m2", 0.25, lo=0.0, hi=1e6)
-    max_planes = shadow_t.number("max_planes_per_part", 24, lo=4, hi=1000, integer=True)
-    max_atlas = shadow_t.number("max_atlas_size", 2048, lo=64, hi=8192, integer=True)
+    shadow_texel = shadow_t.number("texel_m")
+    hull_texel = shadow_t.number("hull_texel_m")
+    hull_offset = shadow_t.number("hull_offset_m")
+    min_elev = shadow_t.number("min_sun_elevation_deg")
+    min_area = shadow_t.number("min_plane_area_m2")
+    max_planes = shadow_t.number("max_planes_per_part")
+    max_atlas = shadow_t.number("max_atlas_size")
 
     lightmap_t = root.table("lightmap")
-    lightmap_texel = lightmap_t.number("texel_m", 0.2, lo=0.005, hi=10.0)
+    lightmap_texel = lightmap_t.number("texel_m")
 
     compression_t = root.table("compression")
     compression = {
-        "budget": compression_t.number("budget", 0.01, lo=1e-5, hi=0.5),
-        "max_rank": compression_t.number("max_rank", 64, lo=1, hi=512, integer=True),
-        "encoding": compression_t.string("encoding", "uastc", choices=("uastc", "etc1s")),
-        "selected_lights": compression_t.number("selected_lights", 0, lo=0, hi=64, integer=True),
+        "budget": compression_t.number("budget"),
+        "max_rank": compression_t.number("max_rank"),
+        "encoding": compression_t.string("encoding"),
+        "selected_lights": compression_t.number("selected_lights"),
     }
 
     q = levels[chosen]
@@ -545,9 +412,9 @@ def _rotation_y(angle_deg: float) -> np.ndarray:
 
 def _object_transform(t: _Table) -> np.ndarray:
     """scene_from_object: scale, then yaw about +Y, then translation."""
-    translation = t.vector("translation_m", 3, [0.0, 0.0, 0.0])
-    yaw = t.number("yaw_deg", 0.0, lo=-360.0, hi=360.0)
-    scale = t.number("scale", 1.0, lo=0.0, lo_open=True)
+    translation = t.vector("translation_m")
+    yaw = t.number("yaw_deg")
+    scale = t.number("scale")
     m = _rotation_y(yaw)
     m[:3, :3] *= scale
     m[:3, 3] = translation
@@ -627,20 +494,20 @@ def _ground_part(ground: Ground) -> Part:
 
 def _load_view(t: _Table, file: Path, world_from_scene: np.ndarray, view_scale: float) -> View:
     name = t.string("name")
-    width = t.number("width", lo=16, hi=8192, integer=True)
-    height = t.number("height", lo=16, hi=8192, integer=True)
-    position = t.vector("position_m", 3)
-    look_at = t.vector("look_at_m", 3)
-    fov = t.number("fov_y_deg", None, lo=1.0, hi=170.0)
-    intr = t.raw("intrinsics", None)
+    width = t.number("width")
+    height = t.number("height")
+    position = t.vector("position_m")
+    look_at = t.vector("look_at_m")
+    fov = t.number("fov_y_deg")
+    intr = t.raw("intrinsics")
     if (fov is None) == (intr is None):
         raise SceneError(file, t.key("fov_y_deg"), "give exactly one of fov_y_deg or intrinsics")
     if intr is not None:
-        it = _Table(file, t.key("intrinsics"), intr, "intrinsics")
-        fx = it.number("fx", lo=1.0)
-        fy = it.number("fy", lo=1.0)
-        cx = it.number("cx", lo=0.0, hi=width)
-        cy = it.number("cy", lo=0.0, hi=height)
+        it = t.table("intrinsics")
+        fx, fy, cx, cy = (it.number(k) for k in ("fx", "fy", "cx", "cy"))
+        for name, value, limit in (("cx", cx, width), ("cy", cy, height)):
+            if value > limit:
+                raise SceneError(file, it.key(name), f"must be at most {limit}, got {value}")
     else:
         fy = fx = 0.5 * height / math.tan(math.radians(fov) / 2.0)
         cx, cy = width / 2.0, height / 2.0

@@ -1,19 +1,22 @@
 """Settings of ``daylit serve``: defaults, a TOML file, then command-line flags.
 
-Every setting has a section, a key, a type, a default and a check; a wrong one stops the server
-before it starts with a message that names it, e.g.
+Every setting has a section, a key, a type, a default and a range, declared compactly as a
+:class:`Key` in ``SCHEMA``; :func:`json_schema` turns them into the JSON Schema the values are
+checked against (daylit.settingschema, as every settings file and the manifest). A wrong one
+stops the server before it starts with a message that names it, e.g.
 ``site.toml: [sky] rate_hz must be a number > 0, got -2``. Unknown keys are errors too (a typo
-would otherwise be silently ignored). ``docs/server.md`` lists every key; ``SCHEMA`` is the
-source of that list.
+would otherwise be silently ignored). ``docs/server.md``'s tables of keys are generated from
+the schema (tools/settings_tables.py).
 """
 
 from __future__ import annotations
 
-import math
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+from daylit.settingschema import first_problem
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
@@ -31,6 +34,8 @@ class Key:
     maximum: float | None = None
     exclusive_minimum: bool = False
     choices: tuple[str, ...] | None = None  # for "str": the only values allowed
+    pattern: str | None = None  # for "str": a regular expression the value must match
+    allowed: str | None = None  # words for what is allowed, in messages and docs
 
 
 SCHEMA: dict[str, dict[str, Key]] = {
@@ -59,7 +64,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
                           "the three package, served at /vendor/three/"),
     },
     "sky": {
-        "source": Key("sim", "source", "sim | replay:PATH | camera:INDEX_OR_URL"),
+        "source": Key("sim", "source", "where the sky's frames come from: the simulated "
+                      "sky, a replay or a live camera (Sky sources, above)"),
         "rate_hz": Key(2.0, "float", "frames per second of the simulated sky and of replays; "
                        "the most a camera is measured per second", 0.0, 120.0, True),
         "stale_after_s": Key(5.0, "float", "no frame for this long marks the light stale", 0.1),
@@ -73,7 +79,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "response": Key("srgb", "str", "inverse response: srgb | linear | gamma:G | path to "
                         "a JSON list of 256 values or RGB triples"),
         "exposure": Key(1.0, "float", "linear camera value of unit radiance, W/(m^2 sr), at "
-                        "the camera's fixed exposure", 0.0, None, True),
+                        "the camera's fixed exposure (merged brackets: in a 1 s exposure)", 0.0,
+                        None, True),
         "photometric_factor": Key([1.0, 1.0, 1.0], "rgb", "multiplies the measured radiance "
                                   "(Sato Sec. 5 calibration, white balance)"),
         "vignetting": Key([], "list[float]", "relative illumination 1 + a1 t^2 + a2 t^4 + ... "
@@ -130,7 +137,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "learn_frames": Key(10, "int", "frames of the empty site learned as the background at "
                             "start and after a relearn (SIGHUP)", 1, 1000),
         "response": Key("srgb", "str", "inverse response of the site camera: srgb | linear | "
-                        "gamma:G"),
+                        "gamma:G", pattern=r"^(srgb|linear|gamma:.+)$",
+                        allowed="srgb, linear or gamma:G"),
         "worker": Key("process", "str", "where frames are processed: process (a worker "
                       "process; the light stream never waits for it) | thread",
                       choices=("process", "thread")),
@@ -171,60 +179,79 @@ def parse_source(text: str, allow_sim: bool = True) -> SourceSpec:
     raise ConfigError(f"source {text!r} is not one of {choices}")
 
 
-def _check(where: str, key: Key, value: Any) -> Any:
-    """Coerce and check one value against its key; raise ConfigError naming ``where``."""
+_ALLOWED = {
+    "source": "sim | replay:PATH | camera:INDEX_OR_URL",
+    "rgb": "three positive numbers [r, g, b]",
+}
+
+
+def _property(key: Key, section: str) -> dict:
+    """One key as a JSON Schema property (with its default and meaning)."""
     kind = key.kind
-
-    def fail(what: str) -> ConfigError:
-        return ConfigError(f"{where} must be {what}, got {value!r}")
-
+    prop: dict[str, Any] = {}
     if kind == "str":
-        if not isinstance(value, str):
-            raise fail("a string")
-        if key.choices is not None and value not in key.choices:
-            raise fail(" | ".join(key.choices))
-        return value
+        prop = {"type": "string"} if key.choices is None else {"enum": list(key.choices)}
+        if key.pattern is not None:
+            prop["pattern"] = key.pattern
+    elif kind == "source":
+        # The form (and that a replay exists) is parse_source's, which builds the SourceSpec.
+        allowed = _ALLOWED["source"]
+        if section == "site_camera":
+            allowed = "empty | replay:PATH | camera:INDEX_OR_URL"
+        prop = {"type": "string", "x-allowed": allowed}
+    elif kind == "bool":
+        prop = {"type": "boolean"}
+    elif kind in ("int", "float"):
+        prop = {"type": "integer" if kind == "int" else "number"}
+        if key.minimum is not None:
+            prop["exclusiveMinimum" if key.exclusive_minimum else "minimum"] = key.minimum
+        if key.maximum is not None:
+            prop["maximum"] = key.maximum
+    elif kind in ("list[str]", "list[float]"):
+        prop = {"type": "array", "items": {"type": "string" if kind == "list[str]" else "number"}}
+    elif kind == "rgb":
+        prop = {"type": "array", "items": {"type": "number", "exclusiveMinimum": 0},
+                "minItems": 3, "maxItems": 3, "x-allowed": _ALLOWED["rgb"]}
+    else:
+        raise AssertionError(kind)
+    if key.allowed is not None:
+        prop["x-allowed"] = key.allowed
+    return {**prop, "default": key.default, "description": key.help}
+
+
+def json_schema() -> dict:
+    """The JSON Schema of a settings file: ``{section: {key: value}}``, every key known."""
+    return {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "type": "object",
+        "additionalProperties": False,
+        "properties": {
+            section: {"type": "object", "additionalProperties": False,
+                      "properties": {name: _property(key, section) for name, key in keys.items()}}
+            for section, keys in SCHEMA.items()
+        },
+    }
+
+
+def _coerce(where: str, key: Key, value: Any) -> Any:
+    """A checked value as Settings holds it (int, float, list of float, SourceSpec or None)."""
+    kind = key.kind
     if kind == "source":
-        if not isinstance(value, str):
-            raise fail("a string such as sim, replay:PATH or camera:0")
         if value == "":
             return None
         try:
             return parse_source(value, allow_sim=not where.startswith("[site_camera]"))
         except ConfigError as exc:
             raise ConfigError(f"{where}: {exc}") from None
-    if kind == "bool":
-        if not isinstance(value, bool):
-            raise fail("true or false")
-        return value
-    if kind in ("int", "float"):
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise fail("an integer" if kind == "int" else "a number")
-        if kind == "int" and not float(value).is_integer():
-            raise fail("an integer")
-        value = int(value) if kind == "int" else float(value)
-        if not math.isfinite(value):
-            raise fail("a finite number")
-        lo, hi = key.minimum, key.maximum
-        if lo is not None and (value <= lo if key.exclusive_minimum else value < lo):
-            raise fail(f"a number {'>' if key.exclusive_minimum else '>='} {lo:g}")
-        if hi is not None and value > hi:
-            raise fail(f"a number <= {hi:g}")
-        return value
-    if kind in ("list[str]", "list[float]", "rgb"):
-        if not isinstance(value, list):
-            raise fail("a list")
-        if kind == "list[str]":
-            if not all(isinstance(v, str) for v in value):
-                raise fail("a list of strings")
-            return list(value)
-        if not all(isinstance(v, int | float) and not isinstance(v, bool) for v in value):
-            raise fail("a list of numbers")
-        out = [float(v) for v in value]
-        if kind == "rgb" and (len(out) != 3 or min(out) <= 0):
-            raise fail("three positive numbers [r, g, b]")
-        return out
-    raise AssertionError(kind)
+    if kind == "int":
+        return int(value)
+    if kind == "float":
+        return float(value)
+    if kind in ("list[float]", "rgb"):
+        return [float(v) for v in value]
+    if kind == "list[str]":
+        return list(value)
+    return value
 
 
 class Settings:
@@ -258,7 +285,7 @@ def load_settings(
     path: Path | str | None = None, overrides: dict[str, Any] | None = None
 ) -> Settings:
     """Defaults, then the TOML file at ``path``, then ``overrides`` {"section.key": value}."""
-    raw: dict[str, dict[str, Any]] = {s: {} for s in SCHEMA}
+    raw: dict[str, Any] = {s: {} for s in SCHEMA}
     origin: dict[str, str] = {}
     label = "config"
     if path is not None:
@@ -273,17 +300,9 @@ def load_settings(
         except tomllib.TOMLDecodeError as exc:
             raise ConfigError(f"{path}: not valid TOML: {exc}") from None
         for section, keys in data.items():
-            if section not in SCHEMA:
-                raise ConfigError(
-                    f"{path}: unknown section [{section}] (known: {', '.join(SCHEMA)})")
-            if not isinstance(keys, dict):
-                raise ConfigError(f"{path}: {section} must be a [section] of keys")
-            for key, value in keys.items():
-                if key not in SCHEMA[section]:
-                    raise ConfigError(
-                        f"{path}: unknown key [{section}] {key} "
-                        f"(known: {', '.join(SCHEMA[section])})")
-                raw[section][key] = value
+            raw[section] = keys
+            origin[section] = str(path)
+            for key in keys if isinstance(keys, dict) else ():
                 origin[f"{section}.{key}"] = str(path)
     for dotted, value in (overrides or {}).items():
         section, _, key = dotted.partition(".")
@@ -291,16 +310,30 @@ def load_settings(
             raise ConfigError(f"unknown setting {dotted!r}")
         raw[section][key] = value
         origin[dotted] = "command line"
+    merged = {section: ({name: k.default for name, k in SCHEMA.get(section, {}).items()} | keys
+                        if isinstance(keys, dict) else keys) for section, keys in raw.items()}
+    problem = first_problem(merged, json_schema(), depth=2)
+    if problem is not None:
+        src = origin.get(".".join(problem.path), origin.get(problem.path[0], "default"))
+        prefix = f"{src}: " if src != "default" else ""
+        if problem.unknown and len(problem.path) == 1:
+            raise ConfigError(f"{prefix}unknown section [{problem.path[0]}] "
+                              f"{problem.words}")
+        if problem.unknown:
+            raise ConfigError(f"{prefix}unknown key [{problem.path[0]}] {problem.path[1]} "
+                              f"{problem.words}")
+        if len(problem.path) == 1:
+            raise ConfigError(f"{prefix}{problem.path[0]} must be a [section] of keys")
+        raise ConfigError(f"{prefix}[{problem.path[0]}] {problem.path[1]} {problem.words}")
     values: dict[str, dict[str, Any]] = {}
     for section, keys in SCHEMA.items():
         values[section] = {}
         for key, spec in keys.items():
-            value = raw[section].get(key, spec.default)
             src = origin.get(f"{section}.{key}", "default")
             where = f"[{section}] {key}"
-            prefix = f"{src}: " if src not in ("default",) else ""
+            prefix = f"{src}: " if src != "default" else ""
             try:
-                values[section][key] = _check(where, spec, value)
+                values[section][key] = _coerce(where, spec, merged[section][key])
             except ConfigError as exc:
                 raise ConfigError(f"{prefix}{exc}") from None
     settings = Settings(values, origin)
@@ -317,10 +350,6 @@ def load_settings(
             raise ConfigError(f"{origin.get('sim.start', label)}: [sim] start must be auto, now "
                               f"or an ISO date-time such as 2026-06-21T10:00, got {start!r}"
                               ) from None
-    response = settings.occlusion.response
-    if response not in ("srgb", "linear") and not response.startswith("gamma:"):
-        raise ConfigError(f"{origin.get('occlusion.response', label)}: [occlusion] response "
-                          f"must be srgb, linear or gamma:G, got {response!r}")
     return settings
 
 

@@ -8,7 +8,11 @@ channels' centre wavelengths (:func:`camera_constants`) unless given explicitly.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
+
+import numpy as np
+
+from daylit.settingschema import first_problem
 
 
 def camera_constants(wavelengths_nm: tuple[float, float, float]) -> tuple[float, float]:
@@ -35,156 +39,207 @@ def camera_constants(wavelengths_nm: tuple[float, float, float]) -> tuple[float,
     return A, w
 
 
+def _num(default, description, **bounds) -> dict:
+    return {"type": "number", "default": default, "description": description, **bounds}
+
+
+def _int(default, description, **bounds) -> dict:
+    return {"type": "integer", "default": default, "description": description, **bounds}
+
+
+def _numbers(default, n, description, **bounds) -> dict:
+    return {"type": "array", "items": {"type": "number", **bounds}, "minItems": n,
+            "maxItems": n, "default": default, "description": description}
+
+
+# Every setting of the pipeline with its default, what is allowed and its meaning: the one
+# source of OcclusionSettings' defaults, its checks (daylit.settingschema) and the table in
+# docs/occlusion.md (tests/server/occlusion/test_occlusion_docs.py).
+SCHEMA: dict = {
+    "type": "object",
+    "additionalProperties": False,
+    "properties": {
+        # Input
+        "response": {"type": ["string", "array"], "default": "srgb",
+                     "x-allowed": "srgb, linear, gamma:G or a table",
+                     "description": "inverse response of the site camera (as server.measure"
+                     ".inverse_response_table); the F-value and the daylight gain are "
+                     "computed on linear values"},
+        "learn_frames": _int(10, "frames of the empty site averaged (per-pixel median) "
+                             "before segmenting", minimum=1),
+        # Background model (background.py)
+        "bg_rate": _num(0.02, "per-frame update rate of the per-pixel background mean and "
+                        "variance where the final label is background (time constant 1 / "
+                        "bg_rate frames)", exclusiveMinimum=0, exclusiveMaximum=1),
+        "bg_update_bands": _int(4, "the slow update visits one of this many row bands per "
+                                "frame (rate bg_rate * bands each; bg_rate * bands < 1)",
+                                minimum=1),
+        "bg_protect_px": _int(3, "no update this close to a person or shadow, pixels",
+                              minimum=0),
+        "bg_update_gate": _num(3.0, "no update of pixels further than this many standard "
+                               "deviations (per channel, RMS) from their background: a person "
+                               "the cut missed is not learned", exclusiveMinimum=0),
+        "bg_sigma_floor": _num(2.0, "smallest per-channel standard deviation of the "
+                               "background, codes (0-255)", exclusiveMinimum=0),
+        "bg_global_components": _int(15, "Gaussians of the global background colour mixture "
+                                     "(paper: 15)", minimum=1),
+        "bg_global_weight": _num(0.0, "lambda, weight of the global mixture against the "
+                                 "per-pixel Gaussian in the background term (small: a large "
+                                 "one hides people in colours found elsewhere in the "
+                                 "background)", minimum=0, exclusiveMaximum=1),
+        "gain_sample_step_px": _int(2, "the daylight gain is a median over every this-many "
+                                    "coarse pixels", minimum=1),
+        # Region of interest (pipeline.py)
+        "detect_scale": _int(4, "the background difference that finds candidate regions is "
+                             "taken on frames shrunk by this factor", minimum=1),
+        "detect_threshold": _num(7.0, "mean absolute difference, codes, above which a coarse "
+                                 "pixel is a candidate", minimum=0),
+        "roi_pad_px": _int(8, "full-resolution margin around each candidate region, pixels",
+                           minimum=0),
+        "min_region_px": _int(32, "candidate regions smaller than this (full-resolution "
+                              "pixels) are noise", minimum=0),
+        # Segmentation energy (segment.py, Kakuta Eq. 6-7)
+        "fg_components": _int(5, "Gaussians of the person colour mixture (paper: 5)",
+                              minimum=1),
+        "fg_uniform_weight": _num(0.3, "uniform share of the person colour density, so a "
+                                  "person in a colour not yet seen is still explained",
+                                  exclusiveMinimum=0, maximum=1),
+        "fg_refit_every": _int(10, "frames between refits of the person mixture (warm-started "
+                               "EM)", minimum=1),
+        "fg_samples": _int(300, "at most this many person pixels per refit", minimum=1),
+        "temporal_weight": _num(1.0, "alpha, weight of the temporal prior V^T", minimum=0),
+        "temporal_prior": _numbers([0.1, 0.3, 0.7, 0.9], 4, "P(person now | person at t-1, "
+                                   "t-2) after (0,0), (0,1), (1,0), (1,1)",
+                                   exclusiveMinimum=0, exclusiveMaximum=1),
+        "spatial_weight": _num(6.0, "beta, weight of the contrast-sensitive spatial prior "
+                               "V^S, nats per pair of neighbours with different labels (at no "
+                               "contrast)", minimum=0),
+        "band_px": _int(3, "graph nodes are the pixels within this distance of a possible "
+                        "person pixel; the others are fixed background", minimum=0),
+        "lut_bits": _int(5, "colour bits per channel of the mixture look-up tables",
+                         minimum=3, maximum=6),
+        "full_frame": {"type": "boolean", "default": False,
+                       "description": "one graph node per pixel of the whole frame, no "
+                       "regions, no band (the benchmark's unoptimised baseline; same energy)"},
+        # Shadow (shadow.py, Kakuta Eq. 8-12)
+        "wavelengths_nm": _numbers([610.0, 540.0, 465.0], 3, "centre wavelengths of the R, "
+                                   "G, B channels, nm (R > G > B); A and w follow",
+                                   exclusiveMinimum=0),
+        "f_constants": {"type": ["array", "null"], "items": {"type": "number"},
+                        "minItems": 2, "maxItems": 2, "default": None,
+                        "x-allowed": "null or two numbers [A, w]",
+                        "description": "(A, w) of Kakuta Eq. 11 given directly instead of "
+                        "wavelengths_nm"},
+        "t_f": _num(0.12, "a pixel is shadow only when |ln F - ln F_background| < t_f",
+                    exclusiveMinimum=0),
+        "shadow_ratio": _numbers([0.15, 0.92], 2, "(lo, hi) of a shadow's luminance over the "
+                                 "background's (hi < 1: darker), lo < hi", minimum=0),
+        "shadow_min_blue_shift": _num(0.08, "least drop of ln(G/B) below the background's "
+                                      "in shadow (lit by the bluer sky alone); 0: the paper's "
+                                      "two conditions alone", minimum=0),
+        "shadow_signature": {"type": "boolean", "default": True,
+                             "description": "also require the blue shift and darkening of "
+                             "the frame's shadows (shadow.ShadowSignature), tracked from "
+                             "frame to frame"},
+        "daylight_temperatures_k": _numbers([5600.0, 11000.0], 2, "colour temperatures, K, "
+                                            "of sun plus sky and of sky alone, from which "
+                                            "the first expected blue shift follows (Wien)",
+                                            exclusiveMinimum=0),
+        "shadow_search": _num(0.25, "half width, ln units, of the blue shifts searched "
+                              "around the last estimate", minimum=0),
+        "shadow_shift_tolerance": _num(0.1, "a shadow's blue shift is within this of the "
+                                       "frame's, ln units", exclusiveMinimum=0),
+        "shadow_dark_tolerance": _num(0.3, "its log darkening is within this of the "
+                                      "frame's", exclusiveMinimum=0),
+        "shadow_signature_rate": _num(0.3, "smoothing of the signature from frame to frame "
+                                      "(1: no memory)", exclusiveMinimum=0, maximum=1),
+        "shadow_cost": _num(6.0, "background cost, nats, of a pixel that is a perfect shadow",
+                            minimum=0),
+        "shadow_slope": _num(4.0, "added cost, nats, per squared tolerance of deviation from "
+                             "a perfect shadow", minimum=0),
+        "dark_floor": _num(0.004, "linear values below this (on any channel) make the "
+                           "chromaticity meaningless; such pixels are never shadow", minimum=0),
+        # People and depth (depth.py, Kakuta Eq. 13)
+        "min_person_px": _int(25, "connected person regions smaller than this are dropped",
+                              minimum=0),
+        "foot_min_px": _int(2, "the foot line is the lowest row with at least this many "
+                            "pixels of the region", minimum=1),
+    },
+}
+
+
+def _default(key: str):
+    value = SCHEMA["properties"][key]["default"]
+    return tuple(value) if isinstance(value, list) else value
+
+
 @dataclass(frozen=True)
 class OcclusionSettings:
     """What the occlusion pipeline may be tuned with; defaults suit a 320-1024 px site camera.
 
-    Input
-    -----
-    response : inverse response of the site camera (``"srgb"``, ``"linear"``, ``"gamma:G"`` or a
-        table, as :func:`server.measure.inverse_response_table`); the F-value and the daylight
-        gain are computed on linear values.
-    learn_frames : frames of the empty site averaged (per-pixel median) before segmenting.
-
-    Background model (background.py)
-    --------------------------------
-    bg_rate : per-frame update rate of the per-pixel background mean and variance where the
-        final label is background (time constant ``1 / bg_rate`` frames).
-    bg_update_bands : the slow update visits this many horizontal bands in turn, one per frame
-        (rate ``bg_rate * bands`` each), so its cost is spread over frames.
-    bg_protect_px : a band this wide around every person is not updated either (their edges).
-    bg_update_gate : and only pixels within this many standard deviations (per channel, RMS) of
-        their background are: a person the cut missed is not learned into the background.
-    bg_sigma_floor : smallest per-channel standard deviation of the background, codes (0-255).
-    bg_global_components : Gaussians in the global background colour mixture (paper: 15).
-    bg_global_weight : weight of the global mixture against the per-pixel Gaussian in the
-        background likelihood (Sun et al.'s combined model); small, because a fixed site camera's
-        per-pixel model is far sharper and a large weight hides people dressed in colours that
-        occur elsewhere in the background.
-    gain_sample_step_px : the daylight gain is a median over every this-many coarse pixels.
-
-    Region of interest (pipeline.py)
-    --------------------------------
-    detect_scale : the background difference that finds candidate regions is taken on frames
-        shrunk by this factor (the graph cut then runs at full resolution inside the regions).
-    detect_threshold : mean absolute difference, codes, above which a coarse pixel is a
-        candidate.
-    roi_pad_px : full-resolution margin added around each candidate region.
-    min_region_px : candidate regions smaller than this (full-resolution pixels) are noise.
-
-    Segmentation energy (segment.py, Kakuta Eq. 6-7)
-    ------------------------------------------------
-    fg_components : Gaussians in the foreground colour mixture (paper: 5).
-    fg_uniform_weight : weight of a uniform colour density in the foreground model, so a person
-        in a colour not yet seen is still explained.
-    fg_refit_every : refit the foreground mixture every this many frames (warm-started EM).
-    fg_samples : at most this many person pixels are used for a refit.
-    temporal_weight : ``alpha``, weight of the temporal prior ``V^T``.
-    temporal_prior : ``P(person now | person at t-1, person at t-2)`` for the four histories
-        ``((0, 0), (0, 1), (1, 0), (1, 1))`` as ``(t-1, t-2)`` pairs.
-    spatial_weight : ``beta``, weight of the contrast-sensitive spatial prior ``V^S``, nats per
-        neighbour pair.
-    band_px : graph nodes are the pixels within this distance of a possible person pixel
-        (foreground by colour, or person in the last frame); the others are fixed background.
-    lut_bits : colour bits per channel of the mixture look-up tables.
-    full_frame : one graph node per pixel of the whole frame, no regions, no band (the
-        unoptimised baseline of the benchmark; same energy).
-
-    Shadow (shadow.py, Kakuta Eq. 8-12)
-    -----------------------------------
-    wavelengths_nm : centre wavelengths of the R, G, B channels; ``A`` and ``w`` follow.
-    f_constants : ``(A, w)`` given directly instead of ``wavelengths_nm``.
-    t_f : a pixel is shadow only when ``|ln F - ln F_background| < t_f``.
-    shadow_ratio : ``(min, max)`` of its luminance over the background's (``max < 1``: darker).
-    shadow_min_blue_shift : and its ``ln(G/B)`` lies at least this far below the background's:
-        the shadowed ground is lit by the sky alone, which is bluer (a higher colour
-        temperature) than sun plus sky. 0 gives the paper's two conditions alone.
-    shadow_signature : also require the blue shift and darkening of the frame's shadows
-        (shadow.ShadowSignature), tracked from frame to frame.
-    daylight_temperatures_k : (sun plus sky, sky alone) colour temperatures, K, from which the
-        first expected blue shift of shadows follows (Wien's approximation).
-    shadow_search : half width, ln units, of the blue shifts searched around the last estimate.
-    shadow_shift_tolerance : a shadow's blue shift is within this of the frame's, ln units.
-    shadow_dark_tolerance : its log darkening is within this of the frame's.
-    shadow_signature_rate : smoothing of the signature from frame to frame (1: no memory).
-    shadow_cost : background cost, nats, of a pixel that is a perfect shadow.
-    shadow_slope : added cost, nats, per squared tolerance of deviation from a perfect shadow.
-    dark_floor : linear values below this (on any channel) make the chromaticity meaningless;
-        such pixels are never called shadow.
-
-    People and depth (depth.py, Kakuta Eq. 13)
-    -------------------------------------------
-    min_person_px : connected person regions smaller than this are dropped.
-    foot_min_px : the foot line is the lowest row with at least this many pixels of the region.
+    Each field's meaning, unit, default and allowed values are in :data:`SCHEMA` (and the
+    table generated from it in docs/occlusion.md). A value it does not allow raises
+    ``ValueError("occlusion settings: KEY must be ..., got ...")``.
     """
 
-    response: object = "srgb"
-    learn_frames: int = 10
+    response: object = _default("response")
+    learn_frames: int = _default("learn_frames")
 
-    bg_rate: float = 0.02
-    bg_update_bands: int = 4
-    bg_protect_px: int = 3
-    bg_update_gate: float = 3.0
-    bg_sigma_floor: float = 2.0
-    bg_global_components: int = 15
-    bg_global_weight: float = 0.0
-    gain_sample_step_px: int = 2
+    bg_rate: float = _default("bg_rate")
+    bg_update_bands: int = _default("bg_update_bands")
+    bg_protect_px: int = _default("bg_protect_px")
+    bg_update_gate: float = _default("bg_update_gate")
+    bg_sigma_floor: float = _default("bg_sigma_floor")
+    bg_global_components: int = _default("bg_global_components")
+    bg_global_weight: float = _default("bg_global_weight")
+    gain_sample_step_px: int = _default("gain_sample_step_px")
 
-    detect_scale: int = 4
-    detect_threshold: float = 7.0
-    roi_pad_px: int = 8
-    min_region_px: int = 32
+    detect_scale: int = _default("detect_scale")
+    detect_threshold: float = _default("detect_threshold")
+    roi_pad_px: int = _default("roi_pad_px")
+    min_region_px: int = _default("min_region_px")
 
-    fg_components: int = 5
-    fg_uniform_weight: float = 0.3
-    fg_refit_every: int = 10
-    fg_samples: int = 300
-    temporal_weight: float = 1.0
-    temporal_prior: tuple[float, float, float, float] = (0.1, 0.3, 0.7, 0.9)
-    spatial_weight: float = 6.0
-    band_px: int = 3
-    lut_bits: int = 5
-    full_frame: bool = False
+    fg_components: int = _default("fg_components")
+    fg_uniform_weight: float = _default("fg_uniform_weight")
+    fg_refit_every: int = _default("fg_refit_every")
+    fg_samples: int = _default("fg_samples")
+    temporal_weight: float = _default("temporal_weight")
+    temporal_prior: tuple[float, float, float, float] = _default("temporal_prior")
+    spatial_weight: float = _default("spatial_weight")
+    band_px: int = _default("band_px")
+    lut_bits: int = _default("lut_bits")
+    full_frame: bool = _default("full_frame")
 
-    wavelengths_nm: tuple[float, float, float] = (610.0, 540.0, 465.0)
-    f_constants: tuple[float, float] | None = None
-    t_f: float = 0.12
-    shadow_ratio: tuple[float, float] = (0.15, 0.92)
-    shadow_min_blue_shift: float = 0.08
-    shadow_signature: bool = True
-    daylight_temperatures_k: tuple[float, float] = (5600.0, 11000.0)
-    shadow_search: float = 0.25
-    shadow_shift_tolerance: float = 0.1
-    shadow_dark_tolerance: float = 0.3
-    shadow_signature_rate: float = 0.3
-    shadow_cost: float = 6.0
-    shadow_slope: float = 4.0
-    dark_floor: float = 0.004
+    wavelengths_nm: tuple[float, float, float] = _default("wavelengths_nm")
+    f_constants: tuple[float, float] | None = _default("f_constants")
+    t_f: float = _default("t_f")
+    shadow_ratio: tuple[float, float] = _default("shadow_ratio")
+    shadow_min_blue_shift: float = _default("shadow_min_blue_shift")
+    shadow_signature: bool = _default("shadow_signature")
+    daylight_temperatures_k: tuple[float, float] = _default("daylight_temperatures_k")
+    shadow_search: float = _default("shadow_search")
+    shadow_shift_tolerance: float = _default("shadow_shift_tolerance")
+    shadow_dark_tolerance: float = _default("shadow_dark_tolerance")
+    shadow_signature_rate: float = _default("shadow_signature_rate")
+    shadow_cost: float = _default("shadow_cost")
+    shadow_slope: float = _default("shadow_slope")
+    dark_floor: float = _default("dark_floor")
 
-    min_person_px: int = 25
-    foot_min_px: int = 2
+    min_person_px: int = _default("min_person_px")
+    foot_min_px: int = _default("foot_min_px")
 
     def __post_init__(self) -> None:
-        checks = [
-            (self.learn_frames >= 1, "learn_frames must be >= 1"),
-            (0.0 < self.bg_rate < 1.0, "bg_rate must be in (0, 1)"),
-            (self.bg_update_bands >= 1, "bg_update_bands must be >= 1"),
-            (self.bg_rate * self.bg_update_bands < 1.0, "bg_rate * bg_update_bands must be < 1"),
-            (self.bg_sigma_floor > 0, "bg_sigma_floor must be > 0"),
-            (0.0 <= self.bg_global_weight < 1.0, "bg_global_weight must be in [0, 1)"),
-            (self.detect_scale >= 1, "detect_scale must be >= 1"),
-            (0.0 < self.fg_uniform_weight <= 1.0, "fg_uniform_weight must be in (0, 1]"),
-            (len(self.temporal_prior) == 4, "temporal_prior needs four probabilities"),
-            (all(0.0 < p < 1.0 for p in self.temporal_prior), "temporal_prior must be in (0, 1)"),
-            (3 <= self.lut_bits <= 6, "lut_bits must be 3..6"),
-            (self.t_f > 0, "t_f must be > 0"),
-            (0.0 <= self.shadow_ratio[0] < self.shadow_ratio[1], "shadow_ratio must be (lo, hi)"),
-        ]
-        for ok, message in checks:
-            if not ok:
-                raise ValueError(f"occlusion settings: {message}")
+        values = {f.name: _plain(getattr(self, f.name)) for f in fields(self)}
+        problem = first_problem(values, SCHEMA)
+        if problem is not None:
+            raise ValueError(f"occlusion settings: {problem.path[0]} {problem.words}")
+        # What one key's schema cannot say: relations between keys.
+        if self.bg_rate * self.bg_update_bands >= 1.0:
+            raise ValueError("occlusion settings: bg_rate * bg_update_bands must be < 1")
+        if not self.shadow_ratio[0] < self.shadow_ratio[1]:
+            raise ValueError("occlusion settings: shadow_ratio must be (lo, hi) with lo < hi")
         if self.f_constants is None:
-            camera_constants(self.wavelengths_nm)  # validates
+            camera_constants(self.wavelengths_nm)  # validates R > G > B
 
     @property
     def A(self) -> float:  # noqa: N802 (the paper's name)
@@ -204,3 +259,12 @@ def log_prior_table(prior: tuple[float, float, float, float]) -> tuple[list, lis
     cost_fg = [-math.log(p) for p in prior]
     cost_bg = [-math.log(1.0 - p) for p in prior]
     return cost_fg, cost_bg
+
+
+def _plain(value):
+    """A setting as JSON Schema sees it: tuples and arrays as lists, numpy scalars as numbers."""
+    if isinstance(value, tuple | list | np.ndarray):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value

@@ -37,6 +37,14 @@ def test_defaults_and_file_and_overrides(tmp_path):
         ("[stream]\nchange_threshold = 2\n", "[stream] change_threshold must be a number <= 1"),
         ("[server\nport = 1\n", "not valid TOML"),
         ("[sky]\nreconnect_min_s = 60\n", "reconnect_min_s must not exceed"),
+        ("sky = 3\n", "sky must be a [section] of keys"),
+        ("[sky]\nrate_hz = inf\n", "[sky] rate_hz must be a number <= 120, got inf"),
+        ("[sky]\nrate_hz = nan\n", "[sky] rate_hz must be a number > 0 and <= 120 (finite)"),
+        ('[occlusion]\nresponse = "log"\n', "[occlusion] response must be srgb, linear or "
+                                            "gamma:G, got 'log'"),
+        ('[occlusion]\nworker = "fork"\n', "[occlusion] worker must be process | thread"),
+        ("[sun]\nenabled = 1\n", "[sun] enabled must be true or false, got 1"),
+        ("[server]\nallowed_origins = [1]\n", "allowed_origins must be a list of strings"),
     ],
 )
 def test_mistakes_are_reported_with_the_file_and_key(tmp_path, text, message):
@@ -70,3 +78,22 @@ def test_source_specs(tmp_path):
         parse_source(f"replay:{tmp_path / 'missing'}")
     with pytest.raises(ConfigError):
         parse_source("sim", allow_sim=False)
+
+
+def test_the_settings_schema_is_json_schema():
+    """The keys are checked by jsonschema against a valid draft 2020-12 schema holding every
+    key with its default (docs/server.md's tables are generated from it)."""
+    import jsonschema
+
+    from server.config import SCHEMA, json_schema
+
+    schema = json_schema()
+    jsonschema.Draft202012Validator.check_schema(schema)
+    for section, keys in SCHEMA.items():
+        props = schema["properties"][section]["properties"]
+        assert list(props) == list(keys)
+        for name, key in keys.items():
+            assert props[name]["default"] == key.default and props[name]["description"]
+    defaults = {s: {k: p["default"] for k, p in v["properties"].items()}
+                for s, v in schema["properties"].items()}
+    assert not list(jsonschema.Draft202012Validator(schema).iter_errors(defaults))

@@ -73,3 +73,30 @@ def test_lightmath_matches_python(reference):
     assert np.allclose(got["sh9"][0], math.pi, rtol=5e-3)
     assert np.allclose(got["open"][0], math.pi, rtol=1e-6)
     assert np.allclose(got["smoothing"][0], 1.0 - math.exp(-1.0))
+
+
+def test_lightmath_sh9_against_the_integral():
+    """skySH9 and irradianceSH9 (lightmath.js) on the skies and normals of the shader's test
+    (tests/web/sh9oracle.py): the 'lights' are the sphere's quadrature points (radiance r_i,
+    sh9_i = Y(w_i) dw_i with the paper's constants), the answer the cosine-weighted integral
+    over each normal's hemisphere. Fails, never skips, without Node."""
+    from tests.web import sh9oracle
+
+    rng = np.random.default_rng(21)
+    skies = sh9oracle.skies_that_differ(rng)
+    normals = sh9oracle.normals_that_differ()
+    dirs, weight = sh9oracle.sphere_quadrature()
+    sh9 = (sh9oracle.harmonics(dirs) * weight[:, None]).tolist()
+    names = list(skies)
+    groups = [names[i:i + 3] for i in range(0, len(names), 3)]
+    cases = {"sh9Known": [{"r": np.stack([skies[name](dirs) for name in group], axis=1).tolist(),
+                           "sh9": sh9, "normals": normals.tolist()} for group in groups]}
+    result = subprocess.run(["node", str(ROOT / "tests" / "web" / "lightmath_cases.mjs")],
+                            input=json.dumps(cases), capture_output=True, text=True,
+                            timeout=60, check=True)
+    got = json.loads(result.stdout)["sh9Known"]
+    for group, e in zip(groups, got, strict=True):
+        e = np.array(e)  # (normals, 3)
+        for ch, name in enumerate(group):
+            want = sh9oracle.irradiance(skies[name], normals)
+            assert np.abs(e[:, ch] - want).max() <= 1e-4 * want.max(), (name, e[:, ch], want)

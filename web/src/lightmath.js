@@ -130,9 +130,16 @@ export function skySH9(r, sh9) {
   return L;
 }
 
+/**
+ * The constants c1..c5 of Ramamoorthi & Hanrahan's Eq. 13 (irradiance from the l <= 2
+ * coefficients), the one copy that both irradianceSH9 and the shaders' irradianceSH
+ * (materials.glsl.js) use.
+ */
+export const SH9_IRRADIANCE_C = Object.freeze([0.429043, 0.511664, 0.743125, 0.886227, 0.247708]);
+
 /** Unshadowed irradiance for a unit normal from L (skySH9), Ramamoorthi & Hanrahan Eq. 13. */
 export function irradianceSH9(L, [x, y, z]) {
-  const c1 = 0.429043, c2 = 0.511664, c3 = 0.743125, c4 = 0.886227, c5 = 0.247708;
+  const [c1, c2, c3, c4, c5] = SH9_IRRADIANCE_C;
   const e = [0, 0, 0];
   for (let ch = 0; ch < 3; ch++) {
     const l = (j) => L[3 * j + ch];

@@ -2,6 +2,7 @@
 // (relight.js), so their cost does not depend on the number of lights, and the sun's shadow
 // maps (sun.js). Output is linear radiance times the exposure, then three.js's tone mapping
 // and sRGB encoding.
+import { SH9_IRRADIANCE_C } from './lightmath.js';
 import { sunShadowChunk } from './sun.js';
 
 const common = /* glsl */ `
@@ -109,6 +110,23 @@ void main() {
 `;
 
 /**
+ * The sky's unshadowed irradiance on a unit normal n (world frame) from its spherical
+ * harmonics L[9] (RGB, Ramamoorthi & Hanrahan's order and Eq. 13, the constants those of
+ * lightmath.js): the GLSL twin of lightmath.js irradianceSH9, W/m^2 for L in W/(m^2 sr).
+ */
+const [c1, c2, c3, c4, c5] = SH9_IRRADIANCE_C.map((c) => c.toFixed(6));
+export const irradianceSHChunk = /* glsl */ `
+uniform vec3 L[9];
+vec3 irradianceSH(vec3 n) {
+  const float c1 = ${c1}, c2 = ${c2}, c3 = ${c3}, c4 = ${c4}, c5 = ${c5};
+  float x = n.x, y = n.y, z = n.z;
+  return c1 * L[8] * (x * x - y * y) + c3 * L[6] * z * z + c4 * L[0] - c5 * L[6]
+    + 2.0 * c1 * (L[4] * x * y + L[7] * x * z + L[5] * y * z)
+    + 2.0 * c2 * (L[3] * x + L[1] * y + L[2] * z);
+}
+`;
+
+/**
  * Hull-plane mode (Kakuta): the virtual object's unshadowed shading from the light vector
  * (spherical harmonics of the sky, Ramamoorthi & Hanrahan Eq. 13, from the manifest's sh9)
  * and the unshadowed sun, darkened by the hull planes drawn over it (whose ratio carries the
@@ -116,7 +134,6 @@ void main() {
  */
 export const sh9Fragment = /* glsl */ `
 ${common}
-uniform vec3 L[9];
 uniform vec3 albedo;
 uniform vec3 flatIrradiance;
 uniform float shading;
@@ -124,13 +141,7 @@ uniform vec3 groundAlbedo;
 varying vec3 vNormalW;
 varying vec3 vPositionW;
 ${sunShadowChunk}
-vec3 irradianceSH(vec3 n) {
-  const float c1 = 0.429043, c2 = 0.511664, c3 = 0.743125, c4 = 0.886227, c5 = 0.247708;
-  float x = n.x, y = n.y, z = n.z;
-  return c1 * L[8] * (x * x - y * y) + c3 * L[6] * z * z + c4 * L[0] - c5 * L[6]
-    + 2.0 * c1 * (L[4] * x * y + L[7] * x * z + L[5] * y * z)
-    + 2.0 * c2 * (L[3] * x + L[1] * y + L[2] * z);
-}
+${irradianceSHChunk}
 void main() {
   vec3 n = normalize(vNormalW);
   if (!gl_FrontFacing) n = -n;

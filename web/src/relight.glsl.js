@@ -67,60 +67,26 @@ vec3 decodeTarget(vec4 t) { return t.rgb; }
 `;
 
 /**
- * The sky seen by a fixed view's sky pixels (mask 128), sum_i r_i phi_i(w) with the smooth
- * partition of unity of docs/manifest.md (bake.views.sky_weights): evaluated once per light
- * update, not per frame. lightTex: n x 2 texels, row 0 r_i (RGB), row 1 centroid c_i.
+ * The width of the sky's smooth partition of unity over n patches (docs/manifest.md,
+ * bake.views.sky_weights): w = 0.7 sqrt(2 pi / n) rad, about a patch's angular radius. The
+ * shaders take 1 / w^2 (skyInvWidth2).
  */
-export function viewSkyFragment({ lights, encodeRGBE }) {
-  return /* glsl */ `
-precision highp float;
-uniform sampler2D lightTex;
-uniform sampler2D maskTex;
-uniform mat3 worldFromPixel; // R K^-1: pixel (x + 0.5, y + 0.5, 1) to a world direction
-uniform float invWidth2;    // 1 / w^2, w = 0.7 sqrt(2 pi / n)
-uniform vec2 size;
-out vec4 outColor;
-${encodeRGBE ? RGBE_ENCODE : ''}
-void main() {
-  vec2 px = floor(gl_FragCoord.xy) + 0.5;
-  float m = texture(maskTex, px / size).r;
-  vec3 sky = vec3(0.0);
-  if (abs(m - 128.0 / 255.0) < 0.1) {
-    vec3 w = normalize(worldFromPixel * vec3(px, 1.0));
-    // Subtract the largest logit first, as the reference does, so exp never underflows to 0/0.
-    float best = -1e30;
-    for (int i = 0; i < ${lights}; i++) {
-      vec3 c = texelFetch(lightTex, ivec2(i, 1), 0).rgb;
-      best = max(best, (dot(w, c) - 1.0) * invWidth2);
-    }
-    float total = 0.0;
-    for (int i = 0; i < ${lights}; i++) {
-      vec3 c = texelFetch(lightTex, ivec2(i, 1), 0).rgb;
-      float phi = exp((dot(w, c) - 1.0) * invWidth2 - best);
-      total += phi;
-      sky += phi * texelFetch(lightTex, ivec2(i, 0), 0).rgb;
-    }
-    sky /= total;
-  }
-  outColor = ${encodeRGBE ? 'encodeRGBE(sky)' : 'vec4(sky, 1.0)'};
-}
-`;
+export const SKY_WIDTH_FACTOR = 0.7;
+export function skyInvWidth2(n) {
+  return 1 / (SKY_WIDTH_FACTOR * Math.sqrt(2 * Math.PI / n)) ** 2;
 }
 
-/** The sky dome of the virtual visit: an equirectangular image of the upper hemisphere. */
-export function domeSkyFragment({ lights, encodeRGBE }) {
+/**
+ * sum_i r_i phi_i(w) / sum_i phi_i(w), phi_i = exp((w . c_i - 1) / width^2): the sky's
+ * radiance toward a unit world direction w from the light vector, the one GLSL copy of
+ * bake.views.sky_weights. lightTex: n x 2 texels, row 0 r_i (RGB), row 1 centroid c_i.
+ */
+function skyRadianceChunk(lights) {
   return /* glsl */ `
-precision highp float;
 uniform sampler2D lightTex;
-uniform float invWidth2;
-uniform vec2 size;
-out vec4 outColor;
-${encodeRGBE ? RGBE_ENCODE : ''}
-void main() {
-  vec2 uv = gl_FragCoord.xy / size;
-  float azimuth = uv.x * 6.28318530718;          // clockwise from north (-Z) toward east (+X)
-  float elevation = uv.y * 1.57079632679;
-  vec3 w = vec3(sin(azimuth) * cos(elevation), sin(elevation), -cos(azimuth) * cos(elevation));
+uniform float invWidth2;    // skyInvWidth2(n)
+vec3 skyRadiance(vec3 w) {
+  // Subtract the largest logit first, as the reference does, so exp never underflows to 0/0.
   float best = -1e30;
   for (int i = 0; i < ${lights}; i++) {
     best = max(best, (dot(w, texelFetch(lightTex, ivec2(i, 1), 0).rgb) - 1.0) * invWidth2);
@@ -132,7 +98,53 @@ void main() {
     total += phi;
     sky += phi * texelFetch(lightTex, ivec2(i, 0), 0).rgb;
   }
-  outColor = ${encodeRGBE ? 'encodeRGBE(sky / total)' : 'vec4(sky / total, 1.0)'};
+  return sky / total;
+}
+`;
+}
+
+/**
+ * The sky seen by a fixed view's sky pixels (mask 128), skyRadiance: evaluated once per
+ * light update, not per frame.
+ */
+export function viewSkyFragment({ lights, encodeRGBE }) {
+  return /* glsl */ `
+precision highp float;
+uniform sampler2D maskTex;
+uniform mat3 worldFromPixel; // R K^-1: pixel (x + 0.5, y + 0.5, 1) to a world direction
+uniform vec2 size;
+out vec4 outColor;
+${encodeRGBE ? RGBE_ENCODE : ''}
+${skyRadianceChunk(lights)}
+void main() {
+  vec2 px = floor(gl_FragCoord.xy) + 0.5;
+  float m = texture(maskTex, px / size).r;
+  vec3 sky = vec3(0.0);
+  if (abs(m - 128.0 / 255.0) < 0.1) sky = skyRadiance(normalize(worldFromPixel * vec3(px, 1.0)));
+  outColor = ${encodeRGBE ? 'encodeRGBE(sky)' : 'vec4(sky, 1.0)'};
+}
+`;
+}
+
+/**
+ * The sky dome of the virtual visit: an equirectangular image of the upper hemisphere
+ * (pixel centre u, v in 0..1: azimuth 2 pi u clockwise from north, -Z, toward east, +X;
+ * elevation pi / 2 v), skyRadiance.
+ */
+export function domeSkyFragment({ lights, encodeRGBE }) {
+  return /* glsl */ `
+precision highp float;
+uniform vec2 size;
+out vec4 outColor;
+${encodeRGBE ? RGBE_ENCODE : ''}
+${skyRadianceChunk(lights)}
+void main() {
+  vec2 uv = gl_FragCoord.xy / size;
+  float azimuth = uv.x * 6.28318530718;          // clockwise from north (-Z) toward east (+X)
+  float elevation = uv.y * 1.57079632679;
+  vec3 w = vec3(sin(azimuth) * cos(elevation), sin(elevation), -cos(azimuth) * cos(elevation));
+  vec3 sky = skyRadiance(w);
+  outColor = ${encodeRGBE ? 'encodeRGBE(sky)' : 'vec4(sky, 1.0)'};
 }
 `;
 }

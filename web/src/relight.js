@@ -22,7 +22,7 @@
 import * as THREE from 'three';
 import { baseCoefficients, selectionWeights, selectLights, stackWeights } from './lightmath.js';
 import {
-  domeSkyFragment, relightFragment, relightVertex, viewSkyFragment,
+  domeSkyFragment, relightFragment, relightVertex, skyInvWidth2, viewSkyFragment,
 } from './relight.glsl.js';
 
 const LIGHT_CACHE_PER_STACK = 12; // selected_lights per vector (0 or 1); the sun moves one patch in tens of minutes
@@ -270,7 +270,7 @@ export class Relighter {
     this.manifest.dome.lights.forEach((l, i) => this.lightData.set([...l.centroid, 1], 4 * (n + i)));
     this.lightTex = new THREE.DataTexture(this.lightData, n, 2, THREE.RGBAFormat, THREE.FloatType);
     this.lightTex.minFilter = this.lightTex.magFilter = THREE.NearestFilter;
-    const invWidth2 = 1 / (0.7 * Math.sqrt(2 * Math.PI / n)) ** 2;
+    const invWidth2 = skyInvWidth2(n);
     for (const entry of this.viewSky.values()) {
       const { view } = entry;
       const maskBitmap = await this.assets.image(view.mask);
