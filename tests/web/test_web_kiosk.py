@@ -124,7 +124,7 @@ def test_a_person_in_front_hides_the_virtual_building_and_one_behind_does_not(
                   "(window.daylit.debug.kioskState())")
         state = page.page.evaluate("window.daylit.debug.kioskState()")
         assert state["frameCaptureTime"] == state["maskCaptureTime"] == t
-        assert any('"occlusion-mask"' in m for m in server.received)  # it subscribed
+        assert any('"occlusion"' in m for m in server.received)  # it subscribed
         gpu = composite(page)
         page.screenshot("kiosk-occlusion")
         assert not page.errors, page.errors
