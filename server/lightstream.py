@@ -11,7 +11,7 @@ OCCLUSION_MASK message of the same frame (same capture time), never a mask of an
 
 Every message is encoded once per protocol version (:data:`server.protocol.VERSIONS`) when it
 is published, and each client is sent its connection's version: ``?protocol=3`` gets version 3
-(the sun apart, the sky in RGB9E5), ``?protocol=2`` version 2 (the sun apart, float32), no
+(the sun apart, the sky in float16), ``?protocol=2`` version 2 (the sun apart, float32), no
 parameter or ``protocol=1`` version 1 (the sun folded into its patch by the publisher), any
 other value HTTP 400. aiohttp then frames each message per client (``send_bytes``: a 4-byte
 WebSocket header joined to the message; its public API cannot send a pre-built frame), a cost

@@ -1,6 +1,6 @@
 """The light stream's wire format, protocol versions 1, 2 and 3 (``GET /ws/light``;
 docs/protocol.md). A client asks for version 3 with ``?protocol=3`` (the sun apart, the sky
-in RGB9E5), for version 2 with ``?protocol=2`` (the sun apart, the sky in float32); without a
+in float16), for version 2 with ``?protocol=2`` (the sun apart, the sky in float32); without a
 parameter (or with ``protocol=1``) it gets version 1, in which the sun is folded back into its
 patch.
 
@@ -24,9 +24,9 @@ Server -> client
    LIGHT, version 2: first the sun (28 bytes: direction float32[3], unit, site frame, zero
    when none; normal irradiance float32[3] RGB W/m^2; source uint8 (daylit.sun.SunSource);
    three reserved zero bytes), then the sky as in version 1 but *without* the sun's disc.
-   LIGHT, version 3: as version 2, but each light's sky value is one little-endian uint32 in
-   RGB9E5 (:mod:`server.rgb9e5`) instead of three float32; a value above 65408 is sent as
-   65408 and its light marked saturated (a lower bound).
+   LIGHT, version 3: as version 2, but the sky values are IEEE float16 (:mod:`server.float16`,
+   6 bytes a light) instead of float32; a value above 65504 is sent as 65504 and its light
+   marked saturated (a lower bound).
    SITE_CAMERA (2): ``count`` bytes of one JPEG image of the kiosk's site camera.
    OCCLUSION_MASK (3): ``count`` bytes: the mask of visitors standing in front of the virtual
    objects in that site-camera frame (same capture time; payload layout in
@@ -52,7 +52,7 @@ from enum import IntEnum, IntFlag
 
 import numpy as np
 
-from server import rgb9e5
+from server import float16
 
 PROTOCOL_VERSION = 3  # the newest; the server also speaks every version in VERSIONS
 VERSIONS = (1, 2, 3)
@@ -138,8 +138,9 @@ def bitmask_bytes(count: int) -> int:
 
 
 def sky_bytes_per_light(version: int) -> int:
-    """Bytes of one light's sky value: 12 (RGB float32) in versions 1 and 2, 4 (RGB9E5) in 3."""
-    return 4 if version >= 3 else 12
+    """Bytes of one light's sky value: 12 (RGB float32) in versions 1 and 2, 6 (RGB float16)
+    in version 3."""
+    return 6 if version >= 3 else 12
 
 
 def light_message_bytes(count: int, version: int = PROTOCOL_VERSION) -> int:
@@ -168,9 +169,8 @@ def encode_light(
     Versions 2 and 3 take ``sun``: any object with ``direction`` (3,), ``normal_irradiance_w_m2``
     (3,) and ``source`` (int), or None for no sun (source 0, zeros). Version 1 drops ``sun``
     (fold it into ``rgb`` first: :func:`fold_sun`) and the flags version 1 does not have.
-    Version 3 packs ``rgb`` in RGB9E5 (:func:`server.rgb9e5.encode`: negative values become 0,
-    values above 65408 become 65408 and their lights are marked saturated; NaN or infinity
-    raise ValueError).
+    Version 3 sends ``rgb`` as float16 (:func:`server.float16.encode`: values above 65504
+    become 65504 and their lights are marked saturated).
     """
     check_version(version)
     rgb = np.ascontiguousarray(rgb, dtype="<f4")
@@ -182,9 +182,9 @@ def encode_light(
         raise ValueError(f"saturated must have shape ({n},), got {sat.shape}")
     flags = int(flags)
     if version >= 3:
-        words, clipped = rgb9e5.encode(rgb)
+        halves, clipped = float16.encode(rgb)
         sat = sat | clipped
-        sky = words.astype("<u4").tobytes()
+        sky = halves.tobytes()
     else:
         sky = rgb.tobytes()
     if sat.any():
@@ -260,7 +260,8 @@ def decode(data: bytes) -> Message:
                               values[6], bool(flags & Flags.SUN_ESTIMATED))
             body = body[sun_bytes:]
         if version >= 3:
-            msg.rgb = rgb9e5.decode(np.frombuffer(body[: 4 * count], dtype="<u4"))
+            halves = np.frombuffer(body[: 6 * count], dtype="<f2").reshape(count, 3)
+            msg.rgb = float16.decode(halves)
         else:
             msg.rgb = np.frombuffer(body[: 12 * count], dtype="<f4").reshape(count, 3).copy()
         bits = np.frombuffer(body[per_light * count:], dtype=np.uint8)
@@ -331,7 +332,7 @@ def hello_message(
                       if f and (version >= 2 or f & VERSION1_FLAGS)},
         },
     }
-    hello["sky_encoding"] = "rgb9e5" if version >= 3 else "float32"
+    hello["sky_encoding"] = "float16" if version >= 3 else "float32"
     if version >= 2:
         hello["sun"] = {"units": "W/m^2, direct normal irradiance, linear RGB",
                         "frame": "+X east, +Y up, -Z north", "sources": list(SUN_SOURCES)}

@@ -122,12 +122,13 @@ def version2_vectors() -> dict[str, tuple[bytes, dict]]:
 
 
 def version3_vectors() -> dict[str, tuple[bytes, dict]]:
-    """LIGHT messages of protocol version 3: the sun as in version 2, the sky in RGB9E5.
+    """LIGHT messages of protocol version 3: the sun as in version 2, the sky in float16.
 
     The expected values are written out by hand (tests/protocol_vectors/README.md works the
-    codes), not taken from the encoder: ``light3_sun_measured`` holds values RGB9E5 carries
-    exactly, ``light3_rounding_clipped`` values it rounds (1.999 -> 2, 3.1 -> 3) and one it
-    clips (1e6 -> 65408, marked saturated).
+    codes), not taken from the encoder: ``light3_sun_measured`` holds values float16 carries
+    exactly, ``light3_rounding_clipped`` values it rounds (1.999 -> 1.9990234375, 3.1 ->
+    3.099609375, 1e-6 -> 17 x 2^-24, a subnormal), a negative one, and one it clips (1e6 ->
+    65504, marked saturated).
     """
     out = {}
     direction = np.array([0.375, 0.5, -0.78062475], np.float32)
@@ -144,14 +145,15 @@ def version3_vectors() -> dict[str, tuple[bytes, dict]]:
         "sun": {"direction": [0.375, 0.5, -0.7806247472763062],
                 "normal_irradiance": [850.5, 812.25, 760.0], "source": "measured",
                 "estimated": False}})
-    rough = np.array([[1.999, 0.0, 0.0], [100.0, 50.0, 3.1], [1e6, 1.0, 0.0]])
+    rough = np.array([[1.999, -0.5, 0.0], [100.0, 50.0, 3.1], [1e6, 1.0, 1e-6]])
     data = encode_light(rough, np.zeros(3, bool), 14, 1790000002.0, Flags.SIMULATED,
                         version=3)
     out["light3_rounding_clipped"] = (data, {
         "type": 1, "type_name": "light", "version": 3, "flags": 6, "stale": False,
         "saturated_flag": True, "simulated": True, "replay": False, "sequence": 14,
         "capture_time_s": 1790000002.0, "count": 3,
-        "rgb": [[2.0, 0.0, 0.0], [100.0, 50.0, 3.0], [65408.0, 0.0, 0.0]], "saturated": [2],
+        "rgb": [[1.9990234375, -0.5, 0.0], [100.0, 50.0, 3.099609375],
+                [65504.0, 1.0, 17 * 2.0**-24]], "saturated": [2],
         "sun": {"direction": [0.0, 0.0, 0.0], "normal_irradiance": [0.0, 0.0, 0.0],
                 "source": "none", "estimated": False}})
     return out

@@ -94,7 +94,7 @@ def test_the_kiosk_client_reads_the_stored_hello_and_subscribes_by_the_servers_n
       protocol: seen.protocol, encoding: seen.sky_encoding, streams: seen.available_streams }));
     """.replace("HELLO", json.dumps(hello)))
     assert out["url"] == "ws://kiosk.local:8000/ws/light?protocol=3&streams=light,site-camera"
-    assert out["protocol"] == 3 and out["encoding"] == "rgb9e5"
+    assert out["protocol"] == 3 and out["encoding"] == "float16"
     assert out["streams"] == ["light", "site-camera", "occlusion"]
     subscribes = [json.loads(m) for m in out["sent"] if json.loads(m)["type"] == "subscribe"]
     assert len(subscribes) == 1

@@ -2,7 +2,7 @@
 // binary light vectors (and, for the kiosk, site-camera JPEG frames and occlusion masks).
 // When the connection drops it keeps the last vector (the caller shows it as stale),
 // reconnects with exponential backoff and jitter, and carries on without a reload.
-// It asks for protocol version 3 (the sky in RGB9E5); a server of before version 3 refuses
+// It asks for protocol version 3 (the sky in float16); a server of before version 3 refuses
 // that with HTTP 400, which a browser only sees as a connection closed before the hello, so
 // each attempt that ends before a hello switches between asking 3 and 2 (docs/protocol.md,
 // "Versions").

@@ -9,8 +9,7 @@
 //   36 f32[3] normal irradiance RGB, W/m^2 | 48 u8 source (0 none, 1 measured, 2 model,
 //   3 scene) | 49 u8[3] reserved
 // then the sky: versions 1 and 2 count x RGB float32 (version 2 without the sun's disc),
-// version 3 count x u32 RGB9E5 (bits 0-8 red, 9-17 green, 18-26 blue mantissas, 27-31 the
-// shared exponent e: value = mantissa * 2^(e - 24)), and a saturated bitmask of
+// version 3 count x RGB IEEE float16 (halfToFloat), and a saturated bitmask of
 // ceil(count / 8) bytes (bit i % 8 of byte i >> 3, least significant bit first); for other
 // types, count bytes. This client asks for version 3 (lightStreamUrl) and reads versions 1
 // (an older server: sun null) and 2 (a server of 2026-11 before version 3) as well.
@@ -47,6 +46,21 @@ function asDataView(data) {
   if (data instanceof ArrayBuffer) return new DataView(data);
   if (ArrayBuffer.isView(data)) return new DataView(data.buffer, data.byteOffset, data.byteLength);
   throw new ProtocolError('expected an ArrayBuffer or a typed array');
+}
+
+/**
+ * An IEEE 754 binary16 value from its 16 bits: sign, 5 exponent bits (bias 15), 10 fraction
+ * bits. Exact (every half is a float32). (Node 20 has no DataView.getFloat16.)
+ * @param {number} h 0..65535
+ * @returns {number}
+ */
+export function halfToFloat(h) {
+  const sign = h & 0x8000 ? -1 : 1;
+  const e = (h >> 10) & 31;
+  const f = h & 1023;
+  if (e === 0) return sign * f * 2 ** -24; // zero and subnormals
+  if (e === 31) return f ? NaN : sign * Infinity;
+  return sign * (1024 + f) * 2 ** (e - 25);
 }
 
 /**
@@ -93,7 +107,7 @@ export function decodeMessage(data) {
   if (type === MessageType.LIGHT) {
     const n = msg.count;
     const sunBytes = version >= 2 ? SUN_BYTES : 0;
-    const perLight = version >= 3 ? 4 : 12;
+    const perLight = version >= 3 ? 6 : 12;
     const need = sunBytes + perLight * n + ((n + 7) >> 3);
     if (bodyBytes !== need) {
       throw new ProtocolError(`light message of ${n} lights needs ${need} payload bytes`);
@@ -112,13 +126,7 @@ export function decodeMessage(data) {
     const start = HEADER_BYTES + sunBytes;
     const rgb = new Float32Array(3 * n);
     if (version >= 3) {
-      for (let i = 0; i < n; i++) {
-        const w = view.getUint32(start + 4 * i, true);
-        const scale = 2 ** ((w >>> 27) - 24); // exponent bias 15, 9 mantissa bits
-        rgb[3 * i] = (w & 511) * scale;
-        rgb[3 * i + 1] = ((w >>> 9) & 511) * scale;
-        rgb[3 * i + 2] = ((w >>> 18) & 511) * scale;
-      }
+      for (let i = 0; i < 3 * n; i++) rgb[i] = halfToFloat(view.getUint16(start + 2 * i, true));
     } else {
       for (let i = 0; i < 3 * n; i++) rgb[i] = view.getFloat32(start + 4 * i, true);
     }
