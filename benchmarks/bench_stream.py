@@ -12,6 +12,15 @@ Levels: 10 clients (latency), then 100, 250, 500 and 1000 clients (fan-out). Eac
 client per second, median, 99th percentile and maximum latency in ms, and how many clients got
 at least 90 % of the vectors.
 
+``--protocols 2,3`` runs every level once per protocol version, one after the other in the
+same server (version 2: the sky in float32, 4902 bytes at 400 lights; version 3: float16, 2502
+bytes), and prints for each the bytes per message, the messages the clients received, the
+server's CPU per 1,000 messages and its messages per second per core (messages / server CPU
+seconds). ``--framing`` first measures, in this process, what is done once per message
+(encoding each version) and what aiohttp does per client (``send_bytes``: building the
+WebSocket frame and handing it to the transport), against a bare ``transport.write`` of a
+pre-built frame.
+
 Run: ``.venv/bin/python benchmarks/bench_stream.py`` (about two minutes).
 """
 
@@ -102,6 +111,7 @@ async def wait_for_first_vector(base: str) -> None:
 async def run_level(url: str, clients: int, seconds: float, server_pid: int) -> dict:
     latencies: list[list[float]] = [[] for _ in range(clients)]
     measuring = {"on": False}
+    sizes: set[int] = set()
 
     async def listen(ws, k):
         async for msg in ws:
@@ -109,6 +119,7 @@ async def run_level(url: str, clients: int, seconds: float, server_pid: int) -> 
                 _, _, mtype, _, _, _, captured = HEADER.unpack_from(msg.data)
                 if mtype == 1:
                     latencies[k].append(time.time() - captured)
+                    sizes.add(len(msg.data))
 
     connector = aiohttp.TCPConnector(limit=0)
     async with aiohttp.ClientSession(connector=connector) as session:
@@ -140,10 +151,85 @@ async def run_level(url: str, clients: int, seconds: float, server_pid: int) -> 
         "full": sum(len(x) >= 0.9 * expected for x in latencies),
         "server_cpu": server_cpu,
         "client_cpu": client_cpu,
+        "messages": int(every.size),
+        "bytes": sorted(sizes),
+        "server_cpu_s": server_cpu * wall,
     }
 
 
-async def main_async(levels: list[int], seconds: float) -> None:
+def framing_costs(lights: int = 400, repeats: int = 20000) -> None:
+    """Per message (once, at publishing) and per client (aiohttp's send_bytes) costs, in this
+    process, for protocol versions 2 and 3 at ``lights`` lights."""
+    from types import SimpleNamespace
+
+    from aiohttp._websocket.writer import WebSocketWriter
+
+    from server import protocol
+
+    rng = np.random.default_rng(1)
+    sky = (10.0 ** rng.uniform(-1, 3, (lights, 1)) * rng.uniform(0.3, 1, (lights, 3)))
+    sun = SimpleNamespace(direction=np.array([0.3, 0.8, -0.5]),
+                          normal_irradiance_w_m2=np.array([900.0, 850.0, 800.0]), source=1)
+    sat = np.zeros(lights, bool)
+
+    class NullTransport:
+        """Takes the bytes and drops them: what is left is aiohttp's own work."""
+
+        def write(self, data):
+            pass
+
+        def is_closing(self):
+            return False
+
+    def per_call_us(fn, n):
+        t0 = time.perf_counter()
+        for _ in range(n):
+            fn()
+        return (time.perf_counter() - t0) / n * 1e6
+
+    async def send_cost(message: bytes) -> float:
+        writer = WebSocketWriter(SimpleNamespace(_paused=False), NullTransport())
+        t0 = time.perf_counter()
+        for _ in range(repeats):
+            await writer.send_frame(message, aiohttp.WSMsgType.BINARY)
+        return (time.perf_counter() - t0) / repeats * 1e6
+
+    def socket_send_us(frame: bytes, n: int) -> float:
+        """A blocking send of the frame on a local socket pair (the kernel's part)."""
+        a, b = socket.socketpair()
+        spent = 0.0
+        try:
+            for _ in range(n):
+                t0 = time.perf_counter()
+                a.sendall(frame)
+                spent += time.perf_counter() - t0
+                got = 0
+                while got < len(frame):
+                    got += len(b.recv(1 << 16))
+        finally:
+            a.close()
+            b.close()
+        return spent / n * 1e6
+
+    print(f"Per message and per client, {lights} lights, {repeats} calls each (this process):")
+    print(f"{'protocol':>8} {'bytes':>6} {'encode once us':>14} {'send_bytes us':>13} "
+          f"{'header+copy us':>14} {'socket send us':>14}")
+    for version in (2, 3):
+        data = protocol.encode_light(sky, sat, 1, 2.0, version=version, sun=sun)
+        encode_us = per_call_us(lambda v=version: protocol.encode_light(
+            sky, sat, 1, 2.0, version=v, sun=sun), 2000)
+        send_us = asyncio.run(send_cost(data))
+        # What a pre-built frame would save per client: the header and the copy behind it.
+        copy_us = per_call_us(lambda d=data: struct.pack("!BBH", 0x82, 126, len(d)) + d, repeats)
+        frame = struct.pack("!BBH", 0x82, 126, len(data)) + data
+        kernel_us = socket_send_us(frame, repeats // 4)
+        print(f"{version:8d} {len(data):6d} {encode_us:14.1f} {send_us:13.2f} {copy_us:14.2f} "
+              f"{kernel_us:14.2f}")
+    print()
+
+
+async def main_async(levels: list[int], seconds: float,
+                     protocols: list[int] | None = None) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         build = make_build(tmp / "build", lights=400, scene_id="bench")
@@ -155,6 +241,11 @@ async def main_async(levels: list[int], seconds: float) -> None:
         try:
             url = f"http://127.0.0.1:{port}/ws/light"
             await wait_for_first_vector(f"http://127.0.0.1:{port}")
+            if protocols:
+                print(f"400 lights, 1280x960 JPEG replay at {RATE_HZ:g} Hz, {seconds:g} s a "
+                      "level, loopback, 2 cores shared\n")
+                await compare_protocols(url, levels, seconds, proc.pid, protocols)
+                return
             print(f"400 lights ({12 * 400 + 74} bytes a vector), 1280x960 JPEG replay at "
                   f"{RATE_HZ:g} Hz, {seconds:g} s a level, loopback, 2 cores shared\n")
             print(f"{'clients':>7} {'vec/s each':>10} {'p50 ms':>7} {'p99 ms':>7} "
@@ -169,14 +260,38 @@ async def main_async(levels: list[int], seconds: float) -> None:
             proc.wait(timeout=30)
 
 
+async def compare_protocols(url: str, levels: list[int], seconds: float, server_pid: int,
+                            protocols: list[int]) -> None:
+    """Each level once per protocol version, in the same server, one after the other."""
+    print(f"{'protocol':>8} {'bytes':>6} {'clients':>7} {'vec/s each':>10} {'p50 ms':>7} "
+          f"{'p99 ms':>7} {'messages':>8} {'server CPU':>10} {'CPU ms/1000 msg':>15} "
+          f"{'msg/s per core':>14}")
+    for n in levels:
+        for version in protocols:
+            r = await run_level(f"{url}?protocol={version}", n, seconds, server_pid)
+            per_1000_ms = 1e6 * r["server_cpu_s"] / max(r["messages"], 1)
+            per_core = r["messages"] / max(r["server_cpu_s"], 1e-9)
+            size = "/".join(map(str, r["bytes"])) or "-"
+            print(f"{version:8d} {size:>6} {n:7d} {r['rate']:10.2f} {r['p50']:7.1f} "
+                  f"{r['p99']:7.1f} {r['messages']:8d} {100 * r['server_cpu']:9.0f}% "
+                  f"{per_1000_ms:15.1f} {per_core:14.0f}", flush=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=8.0)
     parser.add_argument("--levels", default="10,100,250,500,1000")
+    parser.add_argument("--protocols", default="",
+                        help="e.g. 2,3: run every level once per protocol version")
+    parser.add_argument("--framing", action="store_true",
+                        help="first measure encoding and aiohttp's per-client framing")
     args = parser.parse_args()
     soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
     resource.setrlimit(resource.RLIMIT_NOFILE, (min(hard, 8192), hard))
-    asyncio.run(main_async([int(x) for x in args.levels.split(",")], args.seconds))
+    if args.framing:
+        framing_costs()
+    protocols = [int(x) for x in args.protocols.split(",") if x]
+    asyncio.run(main_async([int(x) for x in args.levels.split(",")], args.seconds, protocols))
 
 
 if __name__ == "__main__":

@@ -94,7 +94,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
     "sun": {
         "enabled": Key(True, "bool", "measure the sun apart from the sky (docs/sun.md): its "
                        "direction, normal irradiance and source in every vector; false: the "
-                       "sun stays in its patch as before (protocol 2 clients then get no sun)"),
+                       "sun stays in its patch as before (protocol 2 and 3 clients then get no sun)"),
         "linke_turbidity": Key(3.0, "float", "Linke turbidity of the clear-sky model (Ineichen) "
                                "that estimates the sun where the camera clips it, and of the "
                                "simulated sky: 2 very clear, 3 clear, 4-5 hazy, 6-7 polluted",

@@ -10,9 +10,12 @@ client subscribed to both streams gets the SITE_CAMERA message and then, next on
 OCCLUSION_MASK message of the same frame (same capture time), never a mask of another frame.
 
 Every message is encoded once per protocol version (:data:`server.protocol.VERSIONS`) when it
-is published, and each client is sent its connection's version: ``?protocol=2`` gets version 2
-(the sun apart), no parameter or ``protocol=1`` version 1 (the sun folded into its patch by the
-publisher), any other value HTTP 400.
+is published, and each client is sent its connection's version: ``?protocol=3`` gets version 3
+(the sun apart, the sky in float16), ``?protocol=2`` version 2 (the sun apart, float32), no
+parameter or ``protocol=1`` version 1 (the sun folded into its patch by the publisher), any
+other value HTTP 400. aiohttp then frames each message per client (``send_bytes``: a 4-byte
+WebSocket header joined to the message; its public API cannot send a pre-built frame), a cost
+measured in docs/benchmarks.md.
 
 Per connection (``GET /ws/light``):
 - the Origin must be the page's own or in ``allowed_origins`` (else HTTP 403);
@@ -141,17 +144,18 @@ class LightHub:
                       sun: object = None, folded_rgb=None) -> int:
         """Encode and publish a light vector; returns its sequence number.
 
-        ``rgb`` (n, 3): the sky without the sun's disc, sent to version-2 clients with ``sun``
-        (see :func:`server.protocol.encode_light`); ``folded_rgb`` (n, 3): the vector for
-        version-1 clients, with the sun in its patch (:func:`server.protocol.fold_sun`;
-        default ``rgb``).
+        ``rgb`` (n, 3): the sky without the sun's disc, sent to version-2 and version-3 clients
+        with ``sun`` (see :func:`server.protocol.encode_light`); ``folded_rgb`` (n, 3): the
+        vector for version-1 clients, with the sun in its patch
+        (:func:`server.protocol.fold_sun`; default ``rgb``).
         """
         seq = self.sequence[LIGHT] = (self.sequence[LIGHT] + 1) & 0xFFFFFFFF
         v1 = rgb if folded_rgb is None else folded_rgb
         data = {
             1: protocol.encode_light(v1, saturated, seq, capture_time_s, flags, version=1),
-            2: protocol.encode_light(rgb, saturated, seq, capture_time_s, flags, version=2,
-                                     sun=sun),
+            **{version: protocol.encode_light(rgb, saturated, seq, capture_time_s, flags,
+                                              version=version, sun=sun)
+               for version in protocol.VERSIONS if version >= 2},
         }
         self.publish(LIGHT, data, seq)
         return seq

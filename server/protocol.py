@@ -1,6 +1,8 @@
-"""The light stream's wire format, protocol versions 1 and 2 (``GET /ws/light``;
-docs/protocol.md). A client asks for version 2 with ``?protocol=2``; without it (or with
-``protocol=1``) it gets version 1, in which the sun is folded back into its patch.
+"""The light stream's wire format, protocol versions 1, 2 and 3 (``GET /ws/light``;
+docs/protocol.md). A client asks for version 3 with ``?protocol=3`` (the sun apart, the sky
+in float16), for version 2 with ``?protocol=2`` (the sun apart, the sky in float32); without a
+parameter (or with ``protocol=1``) it gets version 1, in which the sun is folded back into its
+patch.
 
 Server -> client
 ----------------
@@ -9,7 +11,7 @@ Server -> client
 
        offset size type     field
        0      4    bytes    magic "DLYT"
-       4      1    uint8    protocol version (1 or 2)
+       4      1    uint8    protocol version (1, 2 or 3)
        5      1    uint8    message type (MessageType)
        6      2    uint16   flags (Flags)
        8      4    uint32   sequence number (per message type, wraps at 2^32)
@@ -22,6 +24,9 @@ Server -> client
    LIGHT, version 2: first the sun (28 bytes: direction float32[3], unit, site frame, zero
    when none; normal irradiance float32[3] RGB W/m^2; source uint8 (daylit.sun.SunSource);
    three reserved zero bytes), then the sky as in version 1 but *without* the sun's disc.
+   LIGHT, version 3: as version 2, but the sky values are IEEE float16 (:mod:`server.float16`,
+   6 bytes a light) instead of float32; a value above 65504 is sent as 65504 and its light
+   marked saturated (a lower bound).
    SITE_CAMERA (2): ``count`` bytes of one JPEG image of the kiosk's site camera.
    OCCLUSION_MASK (3): ``count`` bytes: the mask of visitors standing in front of the virtual
    objects in that site-camera frame (same capture time; payload layout in
@@ -47,8 +52,10 @@ from enum import IntEnum, IntFlag
 
 import numpy as np
 
-PROTOCOL_VERSION = 2  # the newest; the server also speaks every version in VERSIONS
-VERSIONS = (1, 2)
+from server import float16
+
+PROTOCOL_VERSION = 3  # the newest; the server also speaks every version in VERSIONS
+VERSIONS = (1, 2, 3)
 MAGIC = b"DLYT"
 HEADER = struct.Struct("<4sBBHIId")
 HEADER_BYTES = HEADER.size  # 24
@@ -72,7 +79,7 @@ class Flags(IntFlag):
     SIMULATED = 4  # the built-in simulated sky, not a camera
     REPLAY = 8  # a recording being replayed
     LEARNING = 16  # OCCLUSION_MASK: the empty site is being learned; the mask is all clear
-    SUN_ESTIMATED = 32  # version 2 LIGHT: the sun's irradiance is a model's, not measured
+    SUN_ESTIMATED = 32  # LIGHT of version 2 or 3: the sun's irradiance is a model's
 
 
 # Flags a version-1 message may carry (an older client knows no others).
@@ -85,7 +92,7 @@ class ProtocolError(ValueError):
 
 @dataclass
 class WireSun:
-    """The sun of a version-2 LIGHT message.
+    """The sun of a LIGHT message of version 2 or 3.
 
     direction : (3,) float32, unit, site frame (+X east, +Y up, -Z north); zero when none.
     normal_irradiance_w_m2 : (3,) float32, RGB direct normal irradiance, W/m^2.
@@ -115,7 +122,7 @@ class Message:
     count: int
     rgb: np.ndarray | None = None  # (count, 3) float32 for LIGHT
     saturated: np.ndarray | None = None  # (count,) bool for LIGHT
-    sun: WireSun | None = None  # LIGHT of version 2; None in version 1
+    sun: WireSun | None = None  # LIGHT of version 2 or 3; None in version 1
     payload: bytes = field(default=b"", repr=False)  # other types
 
     @property
@@ -130,10 +137,16 @@ def bitmask_bytes(count: int) -> int:
     return (count + 7) // 8
 
 
+def sky_bytes_per_light(version: int) -> int:
+    """Bytes of one light's sky value: 12 (RGB float32) in versions 1 and 2, 6 (RGB float16)
+    in version 3."""
+    return 6 if version >= 3 else 12
+
+
 def light_message_bytes(count: int, version: int = PROTOCOL_VERSION) -> int:
     """Size of a LIGHT message with ``count`` lights."""
     sun = SUN_BYTES if version >= 2 else 0
-    return HEADER_BYTES + sun + 12 * count + bitmask_bytes(count)
+    return HEADER_BYTES + sun + sky_bytes_per_light(version) * count + bitmask_bytes(count)
 
 
 def check_version(version: int) -> int:
@@ -151,11 +164,13 @@ def encode_light(
     version: int = 1,
     sun: object = None,
 ) -> bytes:
-    """A LIGHT message: ``rgb`` (n, 3) radiance, ``saturated`` (n,) bool.
+    """A LIGHT message: ``rgb`` (n, 3) radiance W/(m^2 sr), ``saturated`` (n,) bool.
 
-    Version 2 needs ``sun``: any object with ``direction`` (3,), ``normal_irradiance_w_m2``
+    Versions 2 and 3 take ``sun``: any object with ``direction`` (3,), ``normal_irradiance_w_m2``
     (3,) and ``source`` (int), or None for no sun (source 0, zeros). Version 1 drops ``sun``
     (fold it into ``rgb`` first: :func:`fold_sun`) and the flags version 1 does not have.
+    Version 3 sends ``rgb`` as float16 (:func:`server.float16.encode`: values above 65504
+    become 65504 and their lights are marked saturated).
     """
     check_version(version)
     rgb = np.ascontiguousarray(rgb, dtype="<f4")
@@ -166,6 +181,12 @@ def encode_light(
     if sat.shape != (n,):
         raise ValueError(f"saturated must have shape ({n},), got {sat.shape}")
     flags = int(flags)
+    if version >= 3:
+        halves, clipped = float16.encode(rgb)
+        sat = sat | clipped
+        sky = halves.tobytes()
+    else:
+        sky = rgb.tobytes()
     if sat.any():
         flags |= Flags.SATURATED
     sun_bytes = b""
@@ -185,7 +206,7 @@ def encode_light(
         MAGIC, version, MessageType.LIGHT, flags & 0xFFFF,
         sequence & 0xFFFFFFFF, n, float(capture_time_s),
     )
-    return head + sun_bytes + rgb.tobytes() + np.packbits(sat, bitorder="little").tobytes()
+    return head + sun_bytes + sky + np.packbits(sat, bitorder="little").tobytes()
 
 
 def fold_sun(rgb: np.ndarray, sun: object, sun_patch: int | None,
@@ -216,8 +237,8 @@ def encode_blob(
 
 
 def decode(data: bytes) -> Message:
-    """Decode one binary message of version 1 or 2; raises :class:`ProtocolError` if it is
-    malformed."""
+    """Decode one binary message of version 1, 2 or 3; raises :class:`ProtocolError` if it is
+    malformed. LIGHT values come back as float32 whatever the encoding."""
     if len(data) < HEADER_BYTES:
         raise ProtocolError(f"message of {len(data)} bytes is shorter than the header")
     magic, version, mtype, flags, seq, count, t = HEADER.unpack_from(data, 0)
@@ -229,7 +250,8 @@ def decode(data: bytes) -> Message:
     msg = Message(mtype, version, flags, seq, t, count)
     if mtype == MessageType.LIGHT:
         sun_bytes = SUN_BYTES if version >= 2 else 0
-        need = sun_bytes + 12 * count + bitmask_bytes(count)
+        per_light = sky_bytes_per_light(version)
+        need = sun_bytes + per_light * count + bitmask_bytes(count)
         if len(body) != need:
             raise ProtocolError(f"light message of {count} lights needs {need} payload bytes")
         if sun_bytes:
@@ -237,8 +259,12 @@ def decode(data: bytes) -> Message:
             msg.sun = WireSun(np.array(values[0:3], np.float32), np.array(values[3:6], np.float32),
                               values[6], bool(flags & Flags.SUN_ESTIMATED))
             body = body[sun_bytes:]
-        msg.rgb = np.frombuffer(body[: 12 * count], dtype="<f4").reshape(count, 3).copy()
-        bits = np.frombuffer(body[12 * count:], dtype=np.uint8)
+        if version >= 3:
+            halves = np.frombuffer(body[: 6 * count], dtype="<f2").reshape(count, 3)
+            msg.rgb = float16.decode(halves)
+        else:
+            msg.rgb = np.frombuffer(body[: 12 * count], dtype="<f4").reshape(count, 3).copy()
+        bits = np.frombuffer(body[per_light * count:], dtype=np.uint8)
         msg.saturated = np.unpackbits(bits, bitorder="little")[:count].astype(bool)
     else:
         if len(body) != count:
@@ -251,7 +277,7 @@ def parse_protocol(text: str | None) -> int:
     """The version a client asks for with ``?protocol=`` (none: 1, the oldest)."""
     if text is None or text == "":
         return 1
-    if text.strip() in ("1", "2"):
+    if text.strip() in {str(v) for v in VERSIONS}:
         return int(text)
     raise ProtocolError(f"unsupported protocol {text[:16]!r}: this server speaks "
                         f"{', '.join(map(str, VERSIONS))}")
@@ -306,6 +332,7 @@ def hello_message(
                       if f and (version >= 2 or f & VERSION1_FLAGS)},
         },
     }
+    hello["sky_encoding"] = "float16" if version >= 3 else "float32"
     if version >= 2:
         hello["sun"] = {"units": "W/m^2, direct normal irradiance, linear RGB",
                         "frame": "+X east, +Y up, -Z north", "sources": list(SUN_SOURCES)}

@@ -66,13 +66,17 @@ def vectors() -> dict[str, tuple[bytes, dict]]:
         "capture_time_s": 1750000002.0, "count": 8, "payload_hex": bytes(range(8)).hex(),
     })
     out.update(version2_vectors())
+    out.update(version3_vectors())
     good = out["light_3_plain"][0]
     out["error_bad_magic"] = (b"XXXX" + good[4:], {"error": "magic"})
-    out["error_version_3"] = (good[:4] + bytes([3]) + good[5:], {"error": "version"})
+    out["error_version_4"] = (good[:4] + bytes([4]) + good[5:], {"error": "version"})
     # A version-1 body under a version-2 header: 28 bytes short of the sun.
     out["error_light2_without_sun"] = (good[:4] + bytes([2]) + good[5:], {"error": "bytes"})
     out["error_truncated"] = (good[:-3], {"error": "bytes"})
     out["error_short_header"] = (good[:10], {"error": "header"})
+    # A version-2 body (float32 sky) under a version-3 header: 8 bytes a light too long.
+    v2 = out["light2_sun_measured"][0]
+    out["error_light3_float_body"] = (v2[:4] + bytes([3]) + v2[5:], {"error": "bytes"})
     return out
 
 
@@ -117,7 +121,47 @@ def version2_vectors() -> dict[str, tuple[bytes, dict]]:
     return out
 
 
+def version3_vectors() -> dict[str, tuple[bytes, dict]]:
+    """LIGHT messages of protocol version 3: the sun as in version 2, the sky in float16.
+
+    The expected values are written out by hand (tests/protocol_vectors/README.md works the
+    codes), not taken from the encoder: ``light3_sun_measured`` holds values float16 carries
+    exactly, ``light3_rounding_clipped`` values it rounds (1.999 -> 1.9990234375, 3.1 ->
+    3.099609375, 1e-6 -> 17 x 2^-24, a subnormal), a negative one, and one it clips (1e6 ->
+    65504, marked saturated).
+    """
+    out = {}
+    direction = np.array([0.375, 0.5, -0.78062475], np.float32)
+    sky = np.array([[10.5, 12.25, 20.0], [8.0, 9.5, 16.75], [0.0, 0.125, 3.5]], np.float32)
+    sun = SimpleNamespace(direction=direction, normal_irradiance_w_m2=np.array(
+        [850.5, 812.25, 760.0], np.float32), source=1)
+    data = encode_light(sky, np.zeros(3, bool), 11, 1790000000.5, Flags.REPLAY, version=3,
+                        sun=sun)
+    out["light3_sun_measured"] = (data, {
+        "type": 1, "type_name": "light", "version": 3, "flags": 8, "stale": False,
+        "saturated_flag": False, "simulated": False, "replay": True, "sequence": 11,
+        "capture_time_s": 1790000000.5, "count": 3,
+        "rgb": [[10.5, 12.25, 20.0], [8.0, 9.5, 16.75], [0.0, 0.125, 3.5]], "saturated": [],
+        "sun": {"direction": [0.375, 0.5, -0.7806247472763062],
+                "normal_irradiance": [850.5, 812.25, 760.0], "source": "measured",
+                "estimated": False}})
+    rough = np.array([[1.999, -0.5, 0.0], [100.0, 50.0, 3.1], [1e6, 1.0, 1e-6]])
+    data = encode_light(rough, np.zeros(3, bool), 14, 1790000002.0, Flags.SIMULATED,
+                        version=3)
+    out["light3_rounding_clipped"] = (data, {
+        "type": 1, "type_name": "light", "version": 3, "flags": 6, "stale": False,
+        "saturated_flag": True, "simulated": True, "replay": False, "sequence": 14,
+        "capture_time_s": 1790000002.0, "count": 3,
+        "rgb": [[1.9990234375, -0.5, 0.0], [100.0, 50.0, 3.099609375],
+                [65504.0, 1.0, 17 * 2.0**-24]], "saturated": [2],
+        "sun": {"direction": [0.0, 0.0, 0.0], "normal_irradiance": [0.0, 0.0, 0.0],
+                "source": "none", "estimated": False}})
+    return out
+
+
 def main() -> None:
+    for stale in HERE.glob("error_version_3.*"):  # renamed: version 3 exists now
+        stale.unlink()
     for name, (data, expected) in vectors().items():
         (HERE / f"{name}.bin").write_bytes(data)
         (HERE / f"{name}.json").write_text(json.dumps(expected, indent=1) + "\n", "utf-8")

@@ -32,6 +32,7 @@ from tests.server.helpers import (
     settings_for,
     wait_for,
 )
+from tests.server.test_hello_vector import load_hello
 
 EMPTY_FRAMES = 15  # the site is empty for 1.5 s; the first 10 frames are learned
 
@@ -92,6 +93,16 @@ async def test_kiosk_gets_each_frame_with_the_mask_of_the_people_in_front(
     assert hello["binary"]["flags"]["learning"] == Flags.LEARNING == 16
     phone = await client.ws_connect("/ws/light")  # light only: no camera frames, no masks
     assert json.loads((await phone.receive(timeout=30)).data)["streams"] == ["light"]
+    # The web kiosk's connection gets the stored hello's keys and stream names (one name for
+    # the occlusion stream: the JavaScript client is checked against the same file).
+    web_kiosk = await client.ws_connect("/ws/light?protocol=3&streams=light,site-camera")
+    got = json.loads((await web_kiosk.receive(timeout=30)).data)
+    want = load_hello()
+    assert set(got) == set(want)
+    for key in ("protocol", "streams", "available_streams", "binary", "sky_encoding", "sun",
+                "units", "manifest", "asset_query"):
+        assert got[key] == want[key], key
+    await web_kiosk.close()
 
     near_set = near_all = far_set = far_all = 0
     learning = 0

@@ -65,6 +65,16 @@ def chromium_path() -> str:
                        "chromium) or set DAYLIT_CHROMIUM")
 
 
+def node_path() -> str:
+    """Node, which the README's set-up installs (`make setup` runs `npm ci` with it); a test
+    that needs it fails without it, never skips."""
+    node = os.environ.get("DAYLIT_NODE") or shutil.which("node")
+    if not node:
+        raise RuntimeError("node is not installed: install Node 20 and run `make setup` "
+                           "(README.md, Set-up), or set DAYLIT_NODE")
+    return node
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

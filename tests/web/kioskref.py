@@ -20,7 +20,7 @@ REL = 5e-3
 ABS = 2e-3
 
 KIOSK_HELLO = {"streams": ["light", "site-camera"],
-               "available_streams": ["light", "site-camera", "occlusion-mask"],
+               "available_streams": ["light", "site-camera", "occlusion"],
                "site_camera": {"source": "test", "size": [320, 180]}}
 
 

@@ -5,19 +5,17 @@ the sun (whose sun-bounce images the client fetches; against daylit.spherical.Pa
 
 import json
 import math
-import shutil
 import subprocess
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from bake.compress import Selection
+from tests.web.harness import node_path
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-@pytest.mark.skipif(shutil.which("node") is None, reason="node is not installed")
 def test_lightmath_matches_python(reference):
     manifest = reference.manifest
     lights = manifest["dome"]["lights"]
@@ -51,7 +49,7 @@ def test_lightmath_matches_python(reference):
     suns = [d / np.linalg.norm(d) * [1, np.sign(d[1]) or 1, 1] for d in suns]
     for d in suns:
         cases["patch"].append({"lights": lights, "direction": d.tolist()})
-    result = subprocess.run(["node", str(ROOT / "tests" / "web" / "lightmath_cases.mjs")],
+    result = subprocess.run([node_path(), str(ROOT / "tests" / "web" / "lightmath_cases.mjs")],
                             input=json.dumps(cases), capture_output=True, text=True,
                             timeout=60, check=True)
     got = json.loads(result.stdout)

@@ -2,9 +2,13 @@
 // binary light vectors (and, for the kiosk, site-camera JPEG frames and occlusion masks).
 // When the connection drops it keeps the last vector (the caller shows it as stale),
 // reconnects with exponential backoff and jitter, and carries on without a reload.
+// It asks for protocol version 3 (the sky in float16); a server of before version 3 refuses
+// that with HTTP 400, which a browser only sees as a connection closed before the hello, so
+// each attempt that ends before a hello switches between asking 3 and 2 (docs/protocol.md,
+// "Versions").
 import {
-  decodeMessage, decodeOcclusionMask, lightStreamUrl, MessageType, parseHello,
-  pingMessage, ProtocolError, subscribeMessage,
+  decodeMessage, decodeOcclusionMask, FALLBACK_VERSION, lightStreamUrl, MessageType,
+  parseHello, pingMessage, PROTOCOL_VERSION, ProtocolError, subscribeMessage,
 } from './protocol.js';
 
 const MIN_BACKOFF_MS = 500;
@@ -13,12 +17,14 @@ const PING_EVERY_MS = 20000;
 // The server re-sends the vector at least every max_interval_s (5 s); three missed keep-alives
 // mean the connection is dead even if the socket has not noticed.
 const SILENCE_LIMIT_MS = 16000;
-const OCCLUSION_STREAM_NAMES = ['occlusion-mask', 'occlusion'];
+const OCCLUSION_STREAM = 'occlusion'; // server/lightstream.py OCCLUSION
 
 export class LightStream {
   /**
-   * @param {{siteCamera?: boolean, url?: string, onLight?: Function, onFrame?: Function,
-   *   onMask?: Function, onHello?: Function, onState?: Function}} options
+   * @param {{siteCamera?: boolean, url?: string, location?: {protocol: string, host: string},
+   *   onLight?: Function, onFrame?: Function, onMask?: Function, onHello?: Function,
+   *   onState?: Function}} options  url: a fixed URL (no version fallback); location: the
+   *   server's (default the page's).
    *   onLight({rgb, saturated, sequence, captureTime, stale, flags, sun}): sun is
    *   {direction, normalIrradiance, source, estimated} (protocol 2) or null (an older
    *   server's protocol 1: the sun is then inside its patch's value in rgb),
@@ -29,7 +35,9 @@ export class LightStream {
   constructor(options = {}) {
     this.options = options;
     this.streams = options.siteCamera ? ['light', 'site-camera'] : ['light'];
-    this.url = options.url ?? lightStreamUrl(location, this.streams);
+    this.location = options.location ?? globalThis.location;
+    this.version = PROTOCOL_VERSION; // the version the next connection asks for
+    this.url = options.url ?? lightStreamUrl(this.location, this.streams, this.version);
     this.ws = null;
     this.state = 'closed';
     this.hello = null;
@@ -37,7 +45,7 @@ export class LightStream {
     this.reconnects = 0;
     this.lastMessageMs = 0;
     this.clockOffsetS = 0; // server_time - local time, from ping/pong
-    this.messages = { light: 0, 'site-camera': 0, 'occlusion-mask': 0, skipped: 0 };
+    this.messages = { light: 0, 'site-camera': 0, occlusion: 0, skipped: 0 };
     this._timer = null;
     this._pingTimer = null;
     this._stopped = true;
@@ -74,6 +82,7 @@ export class LightStream {
   _connect() {
     clearTimeout(this._timer);
     this._setState(this.reconnects ? 'reconnecting' : 'connecting');
+    if (!this.options.url) this.url = lightStreamUrl(this.location, this.streams, this.version);
     let ws;
     try {
       ws = new WebSocket(this.url);
@@ -87,6 +96,10 @@ export class LightStream {
     ws.onmessage = (event) => this._onMessage(event.data);
     ws.onclose = () => {
       if (this.ws !== ws) return;
+      if (this.hello === null && !this.options.url) {
+        // Closed before the hello: a server down, or one of before version 3 refusing it.
+        this.version = this.version === PROTOCOL_VERSION ? FALLBACK_VERSION : PROTOCOL_VERSION;
+      }
       this.ws = null;
       clearInterval(this._pingTimer);
       if (!this._stopped) this._scheduleReconnect();
@@ -134,7 +147,7 @@ export class LightStream {
         this.messages.skipped += 1;
         return;
       }
-      this.messages['occlusion-mask'] += 1;
+      this.messages.occlusion += 1;
       this.options.onMask?.({ ...mask, sequence: msg.sequence, captureTime: msg.captureTime });
     }
     // other types: skipped, as the protocol asks
@@ -172,14 +185,13 @@ export class LightStream {
     }
   }
 
-  /** The kiosk also wants the occlusion masks, under whatever name the server offers them. */
+  /** The kiosk also wants the occlusion masks when the server offers them. */
   _subscribeOcclusion() {
     if (!this.options.siteCamera) return;
     const available = this.hello.available_streams ?? [];
-    const extra = OCCLUSION_STREAM_NAMES.filter((name) => available.includes(name));
     const granted = this.hello.streams ?? [];
-    if (extra.length && !extra.every((name) => granted.includes(name))) {
-      this.ws?.send(subscribeMessage([...new Set([...granted, ...this.streams, ...extra])]
+    if (available.includes(OCCLUSION_STREAM) && !granted.includes(OCCLUSION_STREAM)) {
+      this.ws?.send(subscribeMessage([...new Set([...granted, ...this.streams, OCCLUSION_STREAM])]
         .filter((name) => available.includes(name))));
     }
   }

@@ -1,20 +1,23 @@
-// The light stream's wire format, protocol versions 1 and 2 (docs/protocol.md).
+// The light stream's wire format, protocol versions 1, 2 and 3 (docs/protocol.md).
 // A pure ES module: no DOM, no network; the web client and the Node tests import it.
 //
 // Binary messages are little-endian: a 24-byte header
 //   0 magic "DLYT" | 4 u8 version | 5 u8 type | 6 u16 flags | 8 u32 sequence
 //   12 u32 count | 16 f64 capture time (Unix seconds)
-// then, for LIGHT of version 2, the sun (28 bytes):
+// then, for LIGHT of version 2 or 3, the sun (28 bytes):
 //   24 f32[3] direction (unit, site frame +X east, +Y up, -Z north; zeros when none)
 //   36 f32[3] normal irradiance RGB, W/m^2 | 48 u8 source (0 none, 1 measured, 2 model,
 //   3 scene) | 49 u8[3] reserved
-// then (both versions) count x RGB float32 (version 2: the sky without the sun's disc) and
-// a saturated bitmask of ceil(count / 8) bytes (bit i % 8 of byte i >> 3, least significant
-// bit first); for other types, count bytes. This client asks for version 2
-// (lightStreamUrl) and still reads version 1 (an older server), with sun: null.
+// then the sky: versions 1 and 2 count x RGB float32 (version 2 without the sun's disc),
+// version 3 count x RGB IEEE float16 (halfToFloat), and a saturated bitmask of
+// ceil(count / 8) bytes (bit i % 8 of byte i >> 3, least significant bit first); for other
+// types, count bytes. This client asks for version 3 (lightStreamUrl) and reads versions 1
+// (an older server: sun null) and 2 (a server of 2026-11 before version 3) as well.
 
-export const PROTOCOL_VERSION = 2;
-export const SUPPORTED_VERSIONS = Object.freeze([1, 2]);
+export const PROTOCOL_VERSION = 3;
+export const SUPPORTED_VERSIONS = Object.freeze([1, 2, 3]);
+// What to ask an older server that refuses ?protocol=3 (HTTP 400): see LightStream.
+export const FALLBACK_VERSION = 2;
 export const SUN_BYTES = 28;
 export const SUN_SOURCES = Object.freeze(['none', 'measured', 'model', 'scene']);
 export const MAGIC = 'DLYT';
@@ -46,6 +49,21 @@ function asDataView(data) {
 }
 
 /**
+ * An IEEE 754 binary16 value from its 16 bits: sign, 5 exponent bits (bias 15), 10 fraction
+ * bits. Exact (every half is a float32). (Node 20 has no DataView.getFloat16.)
+ * @param {number} h 0..65535
+ * @returns {number}
+ */
+export function halfToFloat(h) {
+  const sign = h & 0x8000 ? -1 : 1;
+  const e = (h >> 10) & 31;
+  const f = h & 1023;
+  if (e === 0) return sign * f * 2 ** -24; // zero and subnormals
+  if (e === 31) return f ? NaN : sign * Infinity;
+  return sign * (1024 + f) * 2 ** (e - 25);
+}
+
+/**
  * Decode one binary message.
  * @param {ArrayBuffer|ArrayBufferView} data
  * @returns {{type:number, typeName:string, version:number, flags:number, stale:boolean,
@@ -53,8 +71,9 @@ function asDataView(data) {
  *   captureTime:number, count:number, rgb?:Float32Array, saturated?:Uint8Array,
  *   sun?:({direction:number[], normalIrradiance:number[], source:string,
  *   estimated:boolean}|null), payload?:Uint8Array}}
- *   rgb holds count x 3 values (light-major); saturated[i] is 1 when light i clipped;
- *   sun (LIGHT only) is null in version 1 (the sun is then inside its patch's value).
+ *   rgb holds count x 3 values (light-major) whatever the encoding; saturated[i] is 1 when
+ *   light i clipped; sun (LIGHT only) is null in version 1 (the sun is then inside its
+ *   patch's value).
  * @throws {ProtocolError} when the message is malformed.
  */
 export function decodeMessage(data) {
@@ -88,7 +107,8 @@ export function decodeMessage(data) {
   if (type === MessageType.LIGHT) {
     const n = msg.count;
     const sunBytes = version >= 2 ? SUN_BYTES : 0;
-    const need = sunBytes + 12 * n + ((n + 7) >> 3);
+    const perLight = version >= 3 ? 6 : 12;
+    const need = sunBytes + perLight * n + ((n + 7) >> 3);
     if (bodyBytes !== need) {
       throw new ProtocolError(`light message of ${n} lights needs ${need} payload bytes`);
     }
@@ -105,9 +125,13 @@ export function decodeMessage(data) {
     }
     const start = HEADER_BYTES + sunBytes;
     const rgb = new Float32Array(3 * n);
-    for (let i = 0; i < 3 * n; i++) rgb[i] = view.getFloat32(start + 4 * i, true);
+    if (version >= 3) {
+      for (let i = 0; i < 3 * n; i++) rgb[i] = halfToFloat(view.getUint16(start + 2 * i, true));
+    } else {
+      for (let i = 0; i < 3 * n; i++) rgb[i] = view.getFloat32(start + 4 * i, true);
+    }
     const saturated = new Uint8Array(n);
-    const maskStart = start + 12 * n;
+    const maskStart = start + perLight * n;
     for (let i = 0; i < n; i++) {
       saturated[i] = (view.getUint8(maskStart + (i >> 3)) >> (i & 7)) & 1;
     }
@@ -157,11 +181,12 @@ export function pingMessage(id) {
 
 /**
  * WebSocket URL of the light stream for a page at `location` (an URL or Location), asking
- * for protocol version 2 (a server that only knows version 1 ignores the parameter).
+ * for protocol `version` (default the newest, 3; a server that only knows version 1 ignores
+ * the parameter, one that knows 1 and 2 refuses 3 with HTTP 400: ask FALLBACK_VERSION).
  */
-export function lightStreamUrl(location, streams = ['light']) {
+export function lightStreamUrl(location, streams = ['light'], version = PROTOCOL_VERSION) {
   const scheme = location.protocol === 'https:' ? 'wss:' : 'ws:';
-  const params = [`protocol=${PROTOCOL_VERSION}`];
+  const params = [`protocol=${version}`];
   if (streams.length) params.push(`streams=${streams.join(',')}`);
   return `${scheme}//${location.host}/ws/light?${params.join('&')}`;
 }

@@ -21,7 +21,7 @@ export function makeStatus(source) {
     bytesLoaded: () => source.assets?.bytesLoaded ?? 0,
     firstRelitMs: () => source.firstRelitMs,
     siteCameraFrames: () => source.kiosk?.framesShown ?? 0,
-    occlusionMasks: () => source.stream?.messages['occlusion-mask'] ?? 0,
+    occlusionMasks: () => source.stream?.messages.occlusion ?? 0,
     contextLost: () => source.contextLost,
     reconnects: () => source.stream?.reconnects ?? 0,
   };
