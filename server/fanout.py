@@ -136,6 +136,7 @@ def status_body(app: web.Application) -> dict:
         "server_time_s": time.time(),
         "restarts": app[SUPERVISOR].restarts,
         "relay": link,
+        "measuring_relay": measuring.get("relay"),
         "measuring_uptime_s": measuring.get("uptime_s"),
     }
 
