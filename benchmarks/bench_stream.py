@@ -133,7 +133,7 @@ def start_redis(port: int) -> subprocess.Popen:
     raise SystemExit("redis-server did not start")
 
 
-def _client_process(url: str, clients: int, start_at: float, end_at: float, out) -> None:
+def _client_process(url: str, clients: int, seconds: float, go_event, out) -> None:
     """One client process of ``run_level_processes``: its latencies (s) and CPU seconds."""
 
     async def go():
@@ -153,10 +153,11 @@ def _client_process(url: str, clients: int, start_at: float, end_at: float, out)
                 batch = range(start, min(start + 100, clients))
                 sockets += await asyncio.gather(*(session.ws_connect(url) for _ in batch))
             tasks = [asyncio.create_task(listen(ws, k)) for k, ws in enumerate(sockets)]
-            await asyncio.sleep(max(0.0, start_at - time.time()))
+            out.put("connected")
+            await asyncio.to_thread(go_event.wait)  # every process connected, warmed up
             on["v"] = True
             cpu0 = time.process_time()
-            await asyncio.sleep(max(0.0, end_at - time.time()))
+            await asyncio.sleep(seconds)
             on["v"] = False
             cpu = time.process_time() - cpu0
             await asyncio.gather(*(ws.close() for ws in sockets), return_exceptions=True)
@@ -175,18 +176,19 @@ async def run_level_processes(url: str, clients: int, seconds: float, server_pid
 
     ctx = mp.get_context("spawn")
     queue = ctx.Queue()
-    connect_s = 5.0 + clients / 200.0  # time to open the connections before the window
-    start_at = time.time() + connect_s
-    end_at = start_at + seconds
+    go_event = ctx.Event()
     shares = [clients // processes + (i < clients % processes) for i in range(processes)]
-    procs = [ctx.Process(target=_client_process, args=(url, n, start_at, end_at, queue))
+    procs = [ctx.Process(target=_client_process, args=(url, n, seconds, go_event, queue))
              for n in shares if n]
     for p in procs:
         p.start()
-    await asyncio.sleep(max(0.0, start_at - time.time()))
+    for _ in procs:
+        assert await asyncio.to_thread(queue.get, True, 300) == "connected"
+    await asyncio.sleep(1.0)  # warm-up, as run_level
     pids = process_tree(server_pid) + list(extra_pids)
     cpu0, t0 = tree_cpu_seconds(pids), time.monotonic()
-    await asyncio.sleep(max(0.0, end_at - time.time()))
+    go_event.set()
+    await asyncio.sleep(seconds)
     wall = time.monotonic() - t0
     server_cpu = (tree_cpu_seconds(pids) - cpu0) / wall
     results = [await asyncio.to_thread(queue.get, True, 120) for _ in procs]

@@ -276,7 +276,8 @@ async def _serve_pool(args, settings, app) -> int:
             if ok:
                 print(f"daylit: {workers} fan-out workers on port {srv.port}, fed by "
                       f"{_link_name(broker)}", flush=True)
-                print(f"daylit: open http://localhost:{srv.port}/", flush=True)
+                shown = "localhost" if srv.host in ("0.0.0.0", "::", "") else srv.host
+                print(f"daylit: open http://{shown}:{srv.port}/", flush=True)
                 failed = asyncio.ensure_future(pool.failed.wait())
                 stopped = asyncio.ensure_future(stop.wait())
                 await asyncio.wait({failed, stopped}, return_when=asyncio.FIRST_COMPLETED)

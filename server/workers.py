@@ -203,8 +203,8 @@ async def serve_measuring(app: web.Application, settings, link, pool: WorkerPool
                   f"{link.status().get('broker') or link.status().get('feed')}", flush=True)
             print(f"daylit: open http://{shown}:{port}/", flush=True)
         else:
-            print(f"daylit: measuring, publishing to {link.status()['broker']} "
-                  "(Ctrl-C to stop)", flush=True)
+            where = link.status().get("broker") or link.status().get("feed")
+            print(f"daylit: measuring, publishing to {where} (Ctrl-C to stop)", flush=True)
         failed = asyncio.ensure_future(pool.failed.wait() if pool else asyncio.Event().wait())
         stopped = asyncio.ensure_future(stop.wait())
         await asyncio.wait({failed, stopped}, return_when=asyncio.FIRST_COMPLETED)

@@ -332,3 +332,36 @@ async def test_two_local_workers_share_the_port_and_the_sequence(serve):
     finally:
         for c in clients:
             await c.close()
+
+
+async def test_a_local_worker_that_dies_is_replaced(serve):
+    """``--workers 2``: a worker killed is started again by the parent; its clients reconnect
+    (to whichever worker the kernel picks) and the others never notice."""
+    port = free_port()
+    parent = serve(port, "--workers", "2")
+    clients, by_pid = await spread_clients(port)
+    reconnected: list[Client] = []
+    try:
+        victim = min(by_pid)
+        on_victim = by_pid[victim]["clients"]
+        os.kill(victim, signal.SIGKILL)
+        await wait_for(lambda: sum(c.closed for c in clients) == on_victim, 60)
+        survivors = [c for c in clients if not c.closed]
+        await wait_for_messages(survivors, 3)
+        deadline = time.monotonic() + 90
+        while True:  # the parent starts another worker: two pids again, the victim not one
+            try:
+                pids = set(await statuses_by_worker(port, tries=50))
+            except AssertionError:  # one worker only, so far
+                pids = set()
+            if len(pids) == 2 and victim not in pids:
+                break
+            assert time.monotonic() < deadline, pids
+        reconnected = await open_clients(port, on_victim)
+        await wait_for_messages(survivors + reconnected, 4)
+        assert_same_stream(survivors + reconnected)
+        assert "fan-out worker" in parent.stderr() and "starting another" in parent.stderr()
+        assert parent.proc.poll() is None
+    finally:
+        for c in clients + reconnected:
+            await c.close()
