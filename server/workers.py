@@ -147,9 +147,14 @@ class WorkerPool:
 
 def worker_argv(args, settings, broker: str) -> list[str]:
     """The ``daylit serve`` arguments of one fan-out worker of this command."""
-    argv = [str(args.build), "--role", "fanout", "--workers", "1", "--broker", broker,
+    argv = [str(args.build), "--role", "fanout", "--workers", "1",
             "--host", settings.server.host, "--port", str(settings.server.port),
             "--log-level", args.log_level]
+    # A broker from the settings file (which the worker reads too) stays off the command line:
+    # no password in `ps`.
+    from_file = settings.origin.get("server.broker") not in (None, "command line")
+    if not (from_file and broker == settings.server.broker):
+        argv += ["--broker", broker]
     if args.config:
         argv += ["--config", args.config]
     for text in args.set:

@@ -50,24 +50,27 @@ def free_port() -> int:
 class RedisServer:
     """``redis-server`` on 127.0.0.1:port, without persistence; restartable on that port."""
 
-    def __init__(self, tmp_path: Path):
+    def __init__(self, tmp_path: Path, password: str = ""):
         self.port = free_port()
         self.dir = tmp_path / "redis"
         self.dir.mkdir()
         self.proc: subprocess.Popen | None = None
-        self.url = f"redis://127.0.0.1:{self.port}/0"
+        self.password = password
+        auth = f":{password}@" if password else ""
+        self.url = f"redis://{auth}127.0.0.1:{self.port}/0"
 
     def start(self) -> None:
         self.proc = subprocess.Popen(
             ["redis-server", "--port", str(self.port), "--bind", "127.0.0.1", "--save", "",
-             "--appendonly", "no", "--dir", str(self.dir)],
+             "--appendonly", "no", "--dir", str(self.dir)]
+            + (["--requirepass", self.password] if self.password else []),
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         deadline = time.monotonic() + 30
         while time.monotonic() < deadline:
             with contextlib.suppress(OSError), \
                     socket.create_connection(("127.0.0.1", self.port), 1) as sock:
                 sock.sendall(b"PING\r\n")
-                if sock.recv(64).startswith(b"+PONG"):
+                if sock.recv(64).startswith((b"+PONG", b"-NOAUTH")):
                     return
             time.sleep(0.05)
         raise AssertionError("redis-server did not start")
@@ -365,3 +368,24 @@ async def test_a_local_worker_that_dies_is_replaced(serve):
     finally:
         for c in clients + reconnected:
             await c.close()
+
+
+async def test_a_broker_password_from_the_settings_file_stays_out_of_sight(serve, tmp_path):
+    """``[server] broker`` with a password in the settings file: ``--workers 2`` runs through
+    that Redis, the workers' command lines do not carry it, the status shows ``***``."""
+    redis = RedisServer(tmp_path, password="s3cret-word")
+    redis.start()
+    try:
+        config = tmp_path / "site.toml"
+        config.write_text(f'[server]\nbroker = "{redis.url}"\n')
+        port = free_port()
+        parent = serve(port, "--workers", "2", "--config", str(config))
+        by_pid = await statuses_by_worker(port)
+        for pid, body in by_pid.items():
+            assert body["relay"]["connected"] and not body["stale"]
+            assert body["relay"]["link"] == f"redis://:***@127.0.0.1:{redis.port}/0"
+            assert "s3cret-word" not in Path(f"/proc/{pid}/cmdline").read_text()
+        assert "s3cret-word" not in json.dumps(list(by_pid.values()))
+        assert "s3cret-word" not in parent.stderr()
+    finally:
+        redis.stop()
