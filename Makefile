@@ -8,7 +8,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 DEMO_BUILD := build/demo
 
-.PHONY: demo test setup python-deps node-deps chromium lint clean
+.PHONY: demo test setup python-deps node-deps chromium redis lint clean
 
 # The demo is baked at draft quality (about 3 minutes on two cores, 1.7 GB): the final quality
 # takes tens of minutes and 5.0 GB (README.md says how to bake it).
@@ -23,7 +23,7 @@ test: setup
 	$(BIN)/ruff check .
 	$(BIN)/python -m pytest
 
-setup: python-deps node-deps chromium
+setup: python-deps node-deps chromium redis
 
 python-deps: $(VENV)/.installed
 $(VENV)/.installed: pyproject.toml
@@ -42,6 +42,13 @@ chromium:
 		if [ "$$(id -u)" = 0 ]; then SUDO=; else SUDO=sudo; fi; \
 		echo "Installing Debian's chromium for the browser tests..."; \
 		$$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq chromium >/dev/null; }
+
+# Debian's Redis: the broker of several fan-out workers (docs/server.md), started by its tests.
+redis:
+	@command -v redis-server >/dev/null 2>&1 || { \
+		if [ "$$(id -u)" = 0 ]; then SUDO=; else SUDO=sudo; fi; \
+		echo "Installing Debian's redis-server for the broker tests..."; \
+		$$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq redis-server >/dev/null; }
 
 lint: python-deps
 	$(BIN)/ruff check .

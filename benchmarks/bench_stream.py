@@ -22,12 +22,19 @@ WebSocket frame and handing it to the transport), against a bare ``transport.wri
 pre-built frame.
 
 Run: ``.venv/bin/python benchmarks/bench_stream.py`` (about two minutes).
+
+Several processes (issue 19): ``--workers N`` serves with N fan-out workers fed by the
+measuring process (its Unix socket), ``--broker redis`` through a ``redis-server`` this script
+starts on a free port (``--broker redis://HOST:PORT/DB``: an existing one), and
+``--client-processes K`` spreads the clients over K processes of their own. Server CPU is
+then the sum over the measuring process, its workers (and Redis).
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import os
 import resource
 import socket
@@ -68,7 +75,8 @@ def make_frames(folder: Path, count: int = 10) -> None:
         cv2.imwrite(str(folder / f"{k:03d}.jpg"), bgr, [cv2.IMWRITE_JPEG_QUALITY, 92])
 
 
-def start_server(build: Path, frames: Path, port: int) -> subprocess.Popen:
+def start_server(build: Path, frames: Path, port: int, extra: tuple[str, ...] = ()
+                 ) -> subprocess.Popen:
     cmd = [
         sys.executable, "-m", "daylit.cli", "serve", str(build), "--host", "127.0.0.1",
         "--port", str(port), "--sky", f"replay:{frames}", "--log-level", "warning",
@@ -77,6 +85,7 @@ def start_server(build: Path, frames: Path, port: int) -> subprocess.Popen:
         "--set", "sky.stale_after_s=60",
         # Every benchmark client comes from 127.0.0.1.
         "--set", "server.max_connections_per_address=10000",
+        *extra,
     ]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, cwd=ROOT,
                             env=dict(os.environ, PYTHONUNBUFFERED="1"))
@@ -95,6 +104,118 @@ def cpu_seconds(pid: int) -> float:
     """User + system CPU time of a process (Linux /proc)."""
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def process_tree(pid: int) -> list[int]:
+    """``pid`` and its descendants (Linux /proc)."""
+    out, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        out.append(p)
+        for task in Path(f"/proc/{p}/task").glob("*/children"):
+            todo += [int(c) for c in task.read_text().split()]
+    return out
+
+
+def tree_cpu_seconds(pids: list[int]) -> float:
+    total = 0.0
+    for pid in pids:
+        with contextlib.suppress(FileNotFoundError, ProcessLookupError):
+            total += cpu_seconds(pid)
+    return total
+
+
+def start_redis(port: int) -> subprocess.Popen:
+    proc = subprocess.Popen(["redis-server", "--port", str(port), "--bind", "127.0.0.1",
+                             "--save", "", "--appendonly", "no"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline:
+        try:
+            with socket.create_connection(("127.0.0.1", port), 1) as sock:
+                sock.sendall(b"PING\r\n")
+                if sock.recv(16).startswith(b"+PONG"):
+                    return proc
+        except OSError:
+            time.sleep(0.05)
+    proc.kill()
+    raise SystemExit("redis-server did not start")
+
+
+def _client_process(url: str, clients: int, seconds: float, go_event, out) -> None:
+    """One client process of ``run_level_processes``: its latencies (s) and CPU seconds."""
+
+    async def go():
+        latencies: list[list[float]] = [[] for _ in range(clients)]
+        on = {"v": False}
+
+        async def listen(ws, k):
+            async for msg in ws:
+                if msg.type == aiohttp.WSMsgType.BINARY and on["v"]:
+                    _, _, mtype, _, _, _, captured = HEADER.unpack_from(msg.data)
+                    if mtype == 1:
+                        latencies[k].append(time.time() - captured)
+
+        async with aiohttp.ClientSession(connector=aiohttp.TCPConnector(limit=0)) as session:
+            sockets = []
+            for start in range(0, clients, 100):
+                batch = range(start, min(start + 100, clients))
+                sockets += await asyncio.gather(*(session.ws_connect(url) for _ in batch))
+            tasks = [asyncio.create_task(listen(ws, k)) for k, ws in enumerate(sockets)]
+            out.put("connected")
+            await asyncio.to_thread(go_event.wait)  # every process connected, warmed up
+            on["v"] = True
+            cpu0 = time.process_time()
+            await asyncio.sleep(seconds)
+            on["v"] = False
+            cpu = time.process_time() - cpu0
+            await asyncio.gather(*(ws.close() for ws in sockets), return_exceptions=True)
+            for task in tasks:
+                task.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
+        return latencies, cpu
+
+    out.put(asyncio.run(go()))
+
+
+async def run_level_processes(url: str, clients: int, seconds: float, server_pid: int,
+                              processes: int, extra_pids: tuple[int, ...] = ()) -> dict:
+    """As :func:`run_level`, the clients spread over ``processes`` processes."""
+    import multiprocessing as mp
+
+    ctx = mp.get_context("spawn")
+    queue = ctx.Queue()
+    go_event = ctx.Event()
+    shares = [clients // processes + (i < clients % processes) for i in range(processes)]
+    procs = [ctx.Process(target=_client_process, args=(url, n, seconds, go_event, queue))
+             for n in shares if n]
+    for p in procs:
+        p.start()
+    for _ in procs:
+        assert await asyncio.to_thread(queue.get, True, 300) == "connected"
+    await asyncio.sleep(1.0)  # warm-up, as run_level
+    pids = process_tree(server_pid) + list(extra_pids)
+    cpu0, t0 = tree_cpu_seconds(pids), time.monotonic()
+    go_event.set()
+    await asyncio.sleep(seconds)
+    wall = time.monotonic() - t0
+    server_cpu = (tree_cpu_seconds(pids) - cpu0) / wall
+    results = [await asyncio.to_thread(queue.get, True, 120) for _ in procs]
+    for p in procs:
+        p.join(30)
+    latencies = [x for lat, _ in results for x in lat]
+    every = np.concatenate([np.asarray(x) for x in latencies]) * 1e3
+    expected = RATE_HZ * seconds
+    return {
+        "clients": clients,
+        "rate": len(every) / clients / seconds,
+        "p50": float(np.median(every)) if every.size else float("nan"),
+        "p99": float(np.percentile(every, 99)) if every.size else float("nan"),
+        "max": float(every.max()) if every.size else float("nan"),
+        "full": sum(len(x) >= 0.9 * expected for x in latencies),
+        "server_cpu": server_cpu,
+        "client_cpu": sum(cpu for _, cpu in results) / seconds,
+    }
 
 
 async def wait_for_first_vector(base: str) -> None:
@@ -228,8 +349,8 @@ def framing_costs(lights: int = 400, repeats: int = 20000) -> None:
     print()
 
 
-async def main_async(levels: list[int], seconds: float,
-                     protocols: list[int] | None = None) -> None:
+async def main_async(levels: list[int], seconds: float, protocols: list[int] | None = None,
+                     workers: int = 1, broker: str = "", client_processes: int = 1) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         build = make_build(tmp / "build", lights=400, scene_id="bench")
@@ -237,7 +358,17 @@ async def main_async(levels: list[int], seconds: float,
         frames.mkdir()
         make_frames(frames)
         port = free_port()
-        proc = start_server(build, frames, port)
+        redis = None
+        extra: tuple[str, ...] = ()
+        if broker == "redis":
+            redis_port = free_port()
+            redis = start_redis(redis_port)
+            broker = f"redis://127.0.0.1:{redis_port}/0"
+        if workers > 1 or broker:
+            extra = ("--workers", str(workers))
+        if broker:
+            extra += ("--broker", broker)
+        proc = start_server(build, frames, port, extra)
         try:
             url = f"http://127.0.0.1:{port}/ws/light"
             await wait_for_first_vector(f"http://127.0.0.1:{port}")
@@ -247,17 +378,26 @@ async def main_async(levels: list[int], seconds: float,
                 await compare_protocols(url, levels, seconds, proc.pid, protocols)
                 return
             print(f"400 lights ({12 * 400 + 74} bytes a vector), 1280x960 JPEG replay at "
-                  f"{RATE_HZ:g} Hz, {seconds:g} s a level, loopback, 2 cores shared\n")
+                  f"{RATE_HZ:g} Hz, {seconds:g} s a level, loopback, 2 cores shared")
+            print(f"workers: {workers}, broker: {broker or 'none'}, client processes: "
+                  f"{client_processes}\n")
             print(f"{'clients':>7} {'vec/s each':>10} {'p50 ms':>7} {'p99 ms':>7} "
                   f"{'max ms':>7} {'>=90% of vectors':>16} {'server CPU':>10} {'client CPU':>10}")
             for n in levels:
-                r = await run_level(url, n, seconds, proc.pid)
+                if client_processes > 1 or workers > 1 or broker:
+                    r = await run_level_processes(url, n, seconds, proc.pid, client_processes,
+                                                  (redis.pid,) if redis else ())
+                else:
+                    r = await run_level(url, n, seconds, proc.pid)
                 print(f"{r['clients']:7d} {r['rate']:10.2f} {r['p50']:7.1f} {r['p99']:7.1f} "
                       f"{r['max']:7.1f} {r['full']:10d}/{n:<5} {100 * r['server_cpu']:9.0f}% "
                       f"{100 * r['client_cpu']:9.0f}%", flush=True)
         finally:
             proc.terminate()
             proc.wait(timeout=30)
+            if redis is not None:
+                redis.terminate()
+                redis.wait(timeout=30)
 
 
 async def compare_protocols(url: str, levels: list[int], seconds: float, server_pid: int,
@@ -285,13 +425,20 @@ def main() -> None:
                         help="e.g. 2,3: run every level once per protocol version")
     parser.add_argument("--framing", action="store_true",
                         help="first measure encoding and aiohttp's per-client framing")
+    parser.add_argument("--workers", type=int, default=1,
+                        help="fan-out workers (daylit serve --workers)")
+    parser.add_argument("--broker", default="",
+                        help="redis (a redis-server started here) or redis://HOST:PORT/DB")
+    parser.add_argument("--client-processes", type=int, default=1,
+                        help="processes the clients are spread over")
     args = parser.parse_args()
     soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
     resource.setrlimit(resource.RLIMIT_NOFILE, (min(hard, 8192), hard))
     if args.framing:
         framing_costs()
     protocols = [int(x) for x in args.protocols.split(",") if x]
-    asyncio.run(main_async([int(x) for x in args.levels.split(",")], args.seconds, protocols))
+    asyncio.run(main_async([int(x) for x in args.levels.split(",")], args.seconds, protocols,
+                           args.workers, args.broker, args.client_processes))
 
 
 if __name__ == "__main__":

@@ -336,7 +336,13 @@ def relearn_occlusion(app: web.Application) -> bool:
 
 async def status(request: web.Request) -> web.Response:
     """``GET /api/status``."""
-    app = request.app
+    resp = web.json_response(status_body(request.app), headers={"Cache-Control": "no-store"})
+    resp.enable_compression()
+    return resp
+
+
+def status_body(app: web.Application) -> dict:
+    """What ``/api/status`` says (a measuring process also relays it to its workers)."""
     pipeline = app[PIPELINE]
     hub = app[HUB]
     feed = app[SITE_CAMERA]
@@ -354,9 +360,22 @@ async def status(request: web.Request) -> web.Response:
     }
     if pipeline.temporal.value is not None:
         body["mean_radiance"] = np.round(pipeline.temporal.value.mean(axis=0), 4).tolist()
-    resp = web.json_response(body, headers={"Cache-Control": "no-store"})
-    resp.enable_compression()
-    return resp
+    return body
+
+
+def hello_info(app: web.Application) -> dict:
+    """What a client's hello says of the sources: ``source``, ``simulated``, ``site_camera``
+    and ``occlusion`` (:func:`server.protocol.hello_message`'s arguments)."""
+    source = app[PIPELINE].source
+    feed = app[SITE_CAMERA]
+    occlusion = app[OCCLUSION]
+    site = None if feed is None else {"source": feed.source.name, "size": feed.size}
+    occ = None
+    if occlusion is not None:
+        occ = {"view": occlusion.config.view_id,
+               "size": list(occlusion.size) if occlusion.size else None}
+    return {"source": source.name, "simulated": bool(source.flags & protocol.Flags.SIMULATED),
+            "site_camera": site, "occlusion": occ}
 
 
 def occlusion_status(app: web.Application) -> dict | None:

@@ -60,6 +60,15 @@ def add_subcommands(subparsers) -> None:
     serve.add_argument("--config", metavar="FILE", help="TOML settings file")
     serve.add_argument("--set", metavar="KEY=VALUE", action="append", default=[],
                        help="override one setting, e.g. --set stream.smoothing_s=5 (repeatable)")
+    serve.add_argument("--workers", type=int, metavar="N",
+                       help="fan-out processes holding the clients on the one port, fed by "
+                            "one measuring process (default 1: one process does everything)")
+    serve.add_argument("--broker", metavar="URL",
+                       help="redis://HOST:PORT/DB: measuring and fan-out processes on several "
+                            "machines share this Redis (docs/server.md)")
+    serve.add_argument("--role", choices=["all", "measure", "fanout"],
+                       help="with --broker: measure (the measuring process alone) or fanout "
+                            "(fan-out workers alone); default all")
     serve.add_argument("--log-level", default="info",
                        choices=["debug", "info", "warning", "error"], help="default: info")
     serve.set_defaults(run=run_serve)
@@ -120,19 +129,40 @@ def run_serve(args: argparse.Namespace) -> int:
     try:
         overrides = dict(parse_override(text) for text in args.set)
         for flag, key in (("host", "server.host"), ("port", "server.port"),
-                          ("sky", "sky.source"), ("site_camera", "site_camera.source")):
+                          ("sky", "sky.source"), ("site_camera", "site_camera.source"),
+                          ("workers", "server.workers"), ("broker", "server.broker"),
+                          ("role", "server.role")):
             if getattr(args, flag) is not None:
                 overrides[key] = getattr(args, flag)
         settings = load_settings(args.config, overrides)
-        from server.app import create_app
+        srv = settings.server
+        split = srv.role != "all" or srv.workers > 1 or bool(srv.broker)
+        if split:
+            _tag_log(srv.role)
+        if srv.role == "fanout":
+            from server.fanout import create_fanout_app
 
-        app = create_app(args.build, settings)
+            link = _subscriber(srv.broker, args.build)
+            app = create_fanout_app(args.build, settings, link, _link_name(srv.broker))
+        else:
+            from server.app import create_app
+
+            app = create_app(args.build, settings)
     except (ConfigError, ManifestError, CalibrationError) as exc:
         print(f"daylit serve: error: {exc}", file=sys.stderr)
         return 2
     _raise_open_file_limit(settings.server.max_clients + 256, log)
     try:
+        if srv.role == "fanout" and srv.workers > 1:
+            return asyncio.run(_serve_pool(args, settings, None))
+        if srv.role == "fanout":
+            return asyncio.run(_serve_fanout(app, settings, link, log))
+        if split:
+            return asyncio.run(_serve_pool(args, settings, app))
         return asyncio.run(_serve(app, settings, log))
+    except LinkError as exc:
+        print(f"daylit serve: error: {exc}", file=sys.stderr)
+        return 1
     except OSError as exc:
         if exc.errno == errno.EADDRINUSE:
             print(f"daylit serve: error: port {settings.server.port} on "
@@ -146,27 +176,137 @@ def run_serve(args: argparse.Namespace) -> int:
         raise
 
 
-async def _serve(app, settings, log) -> int:
-    from aiohttp import web
+def _ignore_further_stops(loop) -> None:
+    """Stopping: a second SIGTERM (systemd and ``timeout`` signal a whole process group, the
+    parent forwards one more) must not land while the event loop closes its wake-up fd."""
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.remove_signal_handler(sig)
+        signal.signal(sig, signal.SIG_IGN)
 
-    from server.app import MANIFEST, OCCLUSION, PIPELINE, relearn_occlusion
-    from server.connections import GuardedSite
 
-    host, port = settings.server.host, settings.server.port
-    # keepalive_timeout is also how long a new connection may take to send its headers.
-    runner = web.AppRunner(app, handle_signals=False, access_log=None,
-                           keepalive_timeout=settings.server.header_timeout_s,
-                           shutdown_timeout=SHUTDOWN_TIMEOUT_S)
-    await runner.setup()
-    site = GuardedSite(runner, host, port,
-                       max_connections_per_address=settings.server.max_connections_per_address)
+class LinkError(RuntimeError):
+    """The broker or the measuring process's feed cannot be reached at start."""
+
+
+def _tag_log(role: str) -> None:
+    """Log lines of several processes on one stderr: say which process wrote each."""
+    from server.workers import WORKER_ENV
+
+    number = os.environ.get(WORKER_ENV)
+    tag = f"worker {number}" if number else ("measuring" if role != "fanout" else "fanout")
+    for handler in logging.getLogger().handlers:
+        handler.setFormatter(logging.Formatter(
+            f"%(asctime)s %(levelname)-7s [{tag} %(process)d] %(name)s: %(message)s",
+            "%Y-%m-%d %H:%M:%S"))
+
+
+def _link_name(broker: str) -> str:
+    from server.broker import redacted
+
+    return redacted(broker)
+
+
+def _scene_id(build) -> str:
+    from daylit import manifest as manifest_io
+
+    return manifest_io.load(build)["scene"]["id"]
+
+
+def _subscriber(broker: str, build):
+    if broker.startswith("local:"):
+        from server.localfeed import LocalFeedSubscriber
+
+        return LocalFeedSubscriber(broker)
+    from server.broker import RedisSubscriber
+
+    return RedisSubscriber(broker, _scene_id(build))
+
+
+def _stop_event(log) -> asyncio.Event:
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+
+    def stopping(name: str) -> None:
+        log.info("%s", name)
+        stop.set()
+        _ignore_further_stops(loop)
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stopping, sig.name)
+    return stop
+
+
+async def _serve_fanout(app, settings, link, log) -> int:
+    """One fan-out worker: check its link, then serve with SO_REUSEPORT."""
+    from server.broker import BrokerError
+    from server.localfeed import FeedError
+    from server.workers import die_with_parent
+
+    die_with_parent()
     try:
-        await site.start()
-    except OSError:
-        await runner.cleanup()
-        raise
+        await link.check()
+    except (BrokerError, FeedError) as exc:
+        raise LinkError(str(exc)) from None
+    return await _serve(app, settings, log, reuse_port=True)
+
+
+async def _serve_pool(args, settings, app) -> int:
+    """The measuring process (``app``; None: fan-out workers only) and its fan-out workers."""
+    from server.broker import BrokerError, RedisPublisher
+    from server.localfeed import FeedError, LocalFeedPublisher
+    from server.relay import Outbox
+    from server.workers import WorkerPool, local_feed_url, serve_measuring, worker_argv
+
+    log = logging.getLogger("daylit.workers")
+    srv = settings.server
+    broker, folder = srv.broker, None
+    if not broker:
+        broker, folder = local_feed_url()
+    stop = _stop_event(log)
+    workers = srv.workers if srv.role != "measure" else 0
+    pool = WorkerPool(workers, worker_argv(args, settings, broker)) if workers else None
+    try:
+        if app is None:  # --role fanout --workers N: the workers alone
+            try:
+                await _subscriber(broker, args.build).check()
+            except (BrokerError, FeedError) as exc:
+                raise LinkError(str(exc)) from None
+            await pool.start()
+            ok = await pool.wait_ready()
+            if ok:
+                print(f"daylit: {workers} fan-out workers on port {srv.port}, fed by "
+                      f"{_link_name(broker)}", flush=True)
+                shown = "localhost" if srv.host in ("0.0.0.0", "::", "") else srv.host
+                print(f"daylit: open http://{shown}:{srv.port}/", flush=True)
+                failed = asyncio.ensure_future(pool.failed.wait())
+                stopped = asyncio.ensure_future(stop.wait())
+                await asyncio.wait({failed, stopped}, return_when=asyncio.FIRST_COMPLETED)
+                failed.cancel()
+                stopped.cancel()
+                ok = not pool.failed.is_set()
+            await pool.stop()
+            return 0 if ok else 1
+        outbox = Outbox()
+        if broker.startswith("local:"):
+            link = LocalFeedPublisher(broker, outbox)
+        else:
+            link = RedisPublisher(broker, _scene_id(args.build), outbox)
+        try:
+            await link.start()
+        except (BrokerError, FeedError) as exc:
+            raise LinkError(str(exc)) from None
+        return await serve_measuring(app, settings, link, pool, stop)
+    finally:
+        if folder is not None:
+            import shutil
+
+            shutil.rmtree(folder, ignore_errors=True)
+
+
+def _banner(app) -> None:
+    from server.app import MANIFEST, PIPELINE
+
     scene = app[MANIFEST]["scene"]
-    shown = "localhost" if host in ("0.0.0.0", "::", "") else host
     print(f"daylit: serving {scene['name']} ({scene['id']}, {app[MANIFEST]['dome']['count']} "
           f"lights), sky: {app[PIPELINE].source.name}", flush=True)
     sim = getattr(app[PIPELINE].source, "sim", None)
@@ -178,6 +318,36 @@ async def _serve(app, settings, log) -> int:
         print(f"daylit: simulated sky from {start:%Y-%m-%d %H:%M} local time at the site, "
               f"{sim.clock.speed:g} times real time"
               + (" (always by day)" if sim.keep_daylight else ""), flush=True)
+
+
+async def _serve(app, settings, log, reuse_port: bool = False) -> int:
+    from aiohttp import web
+
+    from server.app import OCCLUSION, PIPELINE, relearn_occlusion
+    from server.connections import GuardedSite
+
+    host, port = settings.server.host, settings.server.port
+    # keepalive_timeout is also how long a new connection may take to send its headers.
+    runner = web.AppRunner(app, handle_signals=False, access_log=None,
+                           keepalive_timeout=settings.server.header_timeout_s,
+                           shutdown_timeout=SHUTDOWN_TIMEOUT_S)
+    await runner.setup()
+    site = GuardedSite(runner, host, port,
+                       max_connections_per_address=settings.server.max_connections_per_address,
+                       reuse_port=reuse_port)
+    try:
+        await site.start()
+    except OSError:
+        await runner.cleanup()
+        raise
+    shown = "localhost" if host in ("0.0.0.0", "::", "") else host
+    if PIPELINE in app:
+        _banner(app)
+    else:
+        from server.fanout import LINK_NAME
+
+        print(f"daylit: fan-out worker (pid {os.getpid()}), fed by {app[LINK_NAME]}",
+              flush=True)
     print(f"daylit: open http://{shown}:{port}/", flush=True)
     lan = _lan_address() if host in ("0.0.0.0", "::", "") else None
     if lan:
@@ -187,19 +357,21 @@ async def _serve(app, settings, log) -> int:
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
-    if app[OCCLUSION] is not None:
+    if OCCLUSION in app and app[OCCLUSION] is not None:
         view = app[OCCLUSION].config.view_id
         print(f"daylit: occlusion by visitors on the site camera (view {view!r}); "
               f"kill -HUP {os.getpid()} re-learns the empty site", flush=True)
 
     def hangup() -> None:
         log.info("SIGHUP")
-        relearn_occlusion(app)
+        if OCCLUSION in app:
+            relearn_occlusion(app)
 
     loop.add_signal_handler(signal.SIGHUP, hangup)
     started = time.monotonic()
     try:
         await stop.wait()
+        _ignore_further_stops(loop)
     finally:
         log.info("stopping after %.0f s", time.monotonic() - started)
         await runner.cleanup()

@@ -59,6 +59,15 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "heartbeat_s": Key(30.0, "float", "the light stream pings each client this often; "
                            "one that does not answer within half of it is dropped (logged)",
                            0.1, 3600.0),
+        "workers": Key(1, "int", "fan-out processes holding the WebSocket clients on the one "
+                       "port (SO_REUSEPORT), fed by one measuring process; 1 without a broker: "
+                       "one process does everything", 1, 256),
+        "broker": Key("", "str", "where the measuring process publishes and fan-out workers "
+                      "subscribe: redis://HOST:PORT/DB (Redis, across machines) | local:PATH "
+                      "(a Unix socket of the measuring process, one machine); empty: none"),
+        "role": Key("all", "str", "all (measuring and fan-out) | measure (the measuring "
+                    "process alone, publishing to the broker) | fanout (fan-out workers alone, "
+                    "fed by the broker)", choices=("all", "measure", "fanout")),
         "web_root": Key(str(REPO_ROOT / "web"), "str", "folder served at /"),
         "three_root": Key(str(REPO_ROOT / "node_modules" / "three"), "str",
                           "the three package, served at /vendor/three/"),
@@ -94,7 +103,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
     "sun": {
         "enabled": Key(True, "bool", "measure the sun apart from the sky (docs/sun.md): its "
                        "direction, normal irradiance and source in every vector; false: the "
-                       "sun stays in its patch as before (protocol 2 and 3 clients then get no sun)"),
+                       "sun stays in its patch as before (protocol 2 and 3 clients then get "
+                       "no sun)"),
         "linke_turbidity": Key(3.0, "float", "Linke turbidity of the clear-sky model (Ineichen) "
                                "that estimates the sun where the camera clips it, and of the "
                                "simulated sky: 2 very clear, 3 clear, 4-5 hazy, 6-7 polluted",
@@ -350,7 +360,29 @@ def load_settings(
             raise ConfigError(f"{origin.get('sim.start', label)}: [sim] start must be auto, now "
                               f"or an ISO date-time such as 2026-06-21T10:00, got {start!r}"
                               ) from None
+    _check_serving(settings, origin, label)
     return settings
+
+
+BROKER_SCHEMES = ("redis://", "rediss://", "unix://", "local:")
+
+
+def _check_serving(settings: Settings, origin: dict[str, str], label: str) -> None:
+    """``[server] broker``, ``role`` and ``workers`` together."""
+    srv = settings.server
+    if srv.broker and not srv.broker.startswith(BROKER_SCHEMES):
+        raise ConfigError(f"{origin.get('server.broker', label)}: [server] broker must be "
+                          f"redis://HOST:PORT/DB or local:PATH, got {srv.broker!r}")
+    if srv.broker.startswith("local:") and not srv.broker.removeprefix("local:"):
+        raise ConfigError(f"{origin.get('server.broker', label)}: [server] broker local:PATH "
+                          "needs the path of its Unix socket")
+    if srv.role != "all" and not srv.broker:
+        raise ConfigError(f"{origin.get('server.role', label)}: [server] role {srv.role} needs "
+                          "a broker (--broker redis://HOST:PORT/DB)")
+    if srv.role == "measure" and srv.workers > 1:
+        raise ConfigError(f"{origin.get('server.workers', label)}: [server] workers: the "
+                          "measuring process alone (role measure) runs no fan-out workers; "
+                          "start them with --role fanout")
 
 
 def parse_override(text: str) -> tuple[str, Any]:

@@ -52,6 +52,7 @@ LIGHT = "light"
 SITE_CAMERA = "site-camera"
 OCCLUSION = "occlusion"
 FRAME_STREAMS = (SITE_CAMERA, OCCLUSION)  # the parts of a frame bundle, in wire order
+FRAME = "frame"  # a frame bundle, to LightHub.listeners
 CLOSE_CLIENTS_S = 2.0  # at shutdown, the longest wait for clients to take the 1001 close
 
 
@@ -124,6 +125,9 @@ class LightHub:
         self.sequence: dict[str, int] = {LIGHT: 0, SITE_CAMERA: 0, OCCLUSION: 0}
         self.refused = 0
         self.closed_for_protocol = 0
+        # Called with (stream, sequence or bundle number, encoded data) after each publication
+        # (the measuring process forwards them to fan-out workers: server.relay).
+        self.listeners: list[Callable[[str, int, object], None]] = []
 
     # --------------------------------------------------------------------------- publishing
 
@@ -136,9 +140,12 @@ class LightHub:
         if isinstance(data, bytes | bytearray):
             data = dict.fromkeys(protocol.VERSIONS, bytes(data))
         self.latest[stream] = (sequence, data)
+        self.sequence[stream] = sequence
         for client in self.clients:
             if stream in client.streams:
                 client.wake.set()
+        for listener in self.listeners:
+            listener(stream, sequence, data)
 
     def publish_light(self, rgb, saturated, capture_time_s: float, flags: int,
                       sun: object = None, folded_rgb=None) -> int:
@@ -189,12 +196,21 @@ class LightHub:
                                                         mask_payload, mseq, capture_time_s,
                                                         mask_flags, version)
             by_version[version] = parts
-        self.frames_published += 1
-        self.latest_frame = (self.frames_published, by_version)
-        for client in self.clients:
-            if not client.streams.isdisjoint(parts):
-                client.wake.set()
+        self.publish_bundle(self.frames_published + 1, by_version)
         return seq
+
+    def publish_bundle(self, number: int, by_version: dict[int, dict[str, bytes]]) -> None:
+        """Make an encoded frame bundle ({version: {stream: message}}, see
+        :meth:`publish_frame`) the newest, as number ``number``, and wake its subscribers (a
+        fan-out worker publishes what the measuring process encoded)."""
+        self.frames_published = number
+        self.latest_frame = (number, by_version)
+        streams = set().union(*by_version.values()) if by_version else set()
+        for client in self.clients:
+            if not client.streams.isdisjoint(streams):
+                client.wake.set()
+        for listener in self.listeners:
+            listener(FRAME, number, by_version)
 
     # ----------------------------------------------------------------------------- clients
 
