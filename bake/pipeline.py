@@ -41,7 +41,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from bake import chunkio, compress
+from bake import basisu, chunkio, compress, sunbounce, testskies
 from bake import receivers as rx
 from bake.denoise import fill_from_nearest, smooth_within_labels, surface_labels
 from bake.dome import Dome
@@ -465,15 +465,15 @@ class _Work:
 def _run_two_at_a_time(units: list) -> list:
     """Run the write units (callables returning a manifest entry) in two threads; their
     entries in the order given. On a failure or Ctrl-C no other unit starts, the running one
-    stops at its next encoder call (:func:`bake.compress.stop_encoding`), and the error is
+    stops at its next encoder call (:func:`bake.basisu.stop_encoding`), and the error is
     raised once it has stopped: nothing writes into the staging folder afterwards."""
-    compress.allow_encoding()
+    basisu.allow_encoding()
     with futures.ThreadPoolExecutor(max_workers=2, thread_name_prefix="write") as pool:
         running = [pool.submit(unit) for unit in units]
         try:
             return [future.result() for future in running]
         except BaseException:
-            compress.stop_encoding()
+            basisu.stop_encoding()
             pool.shutdown(wait=True, cancel_futures=True)
             raise
 
@@ -733,7 +733,7 @@ class _Compressor:
         self.rows: dict[str, dict] = {}  # stack name -> report row (written from two threads)
         self.stack_names: list[str] = []
         self.bar = None
-        compress.basisu_binary()  # fail before baking, not after, when the encoder is missing
+        basisu.basisu_binary()  # fail before baking, not after, when the encoder is missing
 
     def start(self, site: Site, dome: Dome, stack_names: list[str], progress: bool) -> None:
         """Prepare the test skies, prior and light selection; show a progress bar over the
@@ -747,7 +747,7 @@ class _Compressor:
         }
         # The lights the sun can be in (and the brightest patches of the site's skies with
         # the sun in its patch): the sun-bounce stacks have columns for them.
-        selectable = compress.sun_path_selectable(scene, dome.vertices, dome.solid_angles_sr)
+        selectable = testskies.sun_path_selectable(scene, dome.vertices, dome.solid_angles_sr)
         # Every stack, the fixed views' too, is relit with the sky without the sun's disc
         # (protocol version 2; the kiosk draws the sun itself: web/src/kiosksun.js).
         self.skies, self.S, self.S_inv, self.selection = compress.prepare(
@@ -777,7 +777,7 @@ class _Compressor:
                 images, prefix, staging, self.skies, self.S, self.S_inv, self.selection,
                 self.settings,
             )
-        except compress.CompressionError as exc:
+        except basisu.CompressionError as exc:
             raise BakeError(str(exc)) from None
         self.bar.update(len(results))  # tqdm locks its own updates
         out = {}
@@ -798,13 +798,13 @@ class _Compressor:
 
     def run_sun_bounce(self, image: np.ndarray, name: str, staging: Path) -> dict | None:
         """Compress one sun-bounce stack ``name`` (``<atlas>.sun_bounce.<stack>``) into one
-        image per light the sun can be in (:func:`bake.compress.compress_sun_bounce`); its
+        image per light the sun can be in (:func:`bake.sunbounce.compress_sun_bounce`); its
         compact entry, or None when it is zero everywhere (then the master is dropped too)."""
         try:
-            result = compress.compress_sun_bounce(
+            result = sunbounce.compress_sun_bounce(
                 image, name, staging, self.selection.selectable, self.settings
             )
-        except compress.CompressionError as exc:
+        except basisu.CompressionError as exc:
             raise BakeError(str(exc)) from None
         self.bar.update(1)
         if result is None:

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bake.compress import Selection
+from daylit.selection import Selection
 
 ROOT = Path(__file__).resolve().parents[2]
 
