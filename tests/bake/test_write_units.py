@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from bake import basisu, compress, quantize
-from bake.pipeline import BakeError, _run_two_at_a_time
+from bake.errors import BakeError
+from bake.pipeline import _run_two_at_a_time
 
 
 def test_entries_come_back_in_the_order_given_whatever_finishes_first():
