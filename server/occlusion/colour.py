@@ -10,7 +10,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from server.measure import inverse_response_table
+from server.photometry import inverse_response_table
 
 
 class Transfer:
