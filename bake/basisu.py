@@ -68,8 +68,8 @@ def encode(
     UASTC level of ``settings``.
 
     Separate textures are split between one single-threaded encoder per core: basisu's own
-    threads share out the blocks of one image and idle between images (measured on 40
-    light images: 27-43 % less time, the same bytes). An array gets one encoder with its
+    threads share out the blocks of one image and idle between images (less time for the
+    same bytes: docs/benchmarks.md, "Baking"). An array gets one encoder with its
     threads; :func:`_run_encoders` restarts one that hangs."""
     args = [
         str(basisu_binary()),
@@ -119,8 +119,8 @@ def _check_not_stopped() -> None:
 # main thread waits forever to join it (seen in the test suite: a bake waiting 15 minutes
 # on an encoder using no CPU; gdb: std::thread::join against std::condition_variable::wait).
 # An encoder whose CPU time stands still this long is stuck, killed and started again.
-# Single-threaded encoders cannot hang this way, but an array encoded on one thread took
-# 15 % longer to bake at 400 lights.
+# Single-threaded encoders cannot hang this way, but encoding arrays on one thread made the
+# write stage longer (docs/benchmarks.md, "Baking").
 ENCODER_STALL_S = 30.0
 ENCODER_ATTEMPTS = 3
 _POLL_S = 2.0

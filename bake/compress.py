@@ -65,30 +65,28 @@ from daylit.selection import Selection
 
 @dataclass
 class Settings:
-    budget: float = 0.01
+    """How a build's stacks are compressed. The measurements behind each default are in
+    docs/benchmarks.md, "Figures behind choices in the code"."""
+
+    budget: float = 0.01  # RMS error over the mean on every test sky
     max_rank: int = 64
     encoding: str = "uastc"
-    # One: the sun's patch. Measured on the demo's final bakes at 160 / 400 lights: with 4
-    # (the sun's patch and its 3 brightest neighbours) the ground pair needed k 22 / 19, the
-    # lightmap 14 / 9, the hull 64 (max_rank) / 22; with 1, 12 / 12, 9 / 9 and 20 / 16 (at
-    # 40 lights, truncation ranks: ground 32 -> 17, lightmap 30 -> 14). Zeroing the
-    # neighbours leaves holes around the sun in r', which the smooth base then has to draw;
+    # One: the sun's patch. Selecting its brightest neighbours too raised k on every stack:
+    # zeroing them leaves holes around the sun in r', which the smooth base then has to draw;
     # their own light is smooth, and the base sums it well.
     selected_lights: int = 1
-    # UASTC levels, measured on the demo: level 2 is 20x slower than 0 for 0.1 point less RMS
-    # error; but on refinement layers (noise-like) level 1 cuts the worst texel of a shadow
-    # edge from 4.8 to 0.8 LSB for 4% more bytes, as level 2 does at 4x the time.
+    # UASTC levels: level 0 for coarse layers (level 2 is far slower for little less error);
+    # level 1 for refinement layers (noise-like), where it cuts the worst texel of a shadow
+    # edge for a few per cent more bytes, as level 2 does at several times the time.
     uastc_level: int = 0  # coarse light images
     refine_level: int = 1  # refinement layers, and arrays holding both stages
     # The same for stacks judged by their RMS error alone (lightmap, views): a refinement
     # layer spans a few steps of its coarse layer, so level 1's better worst texel does not
-    # show there. Measured at 400 lights: lightmap.I 83 -> 60 s, error 0.54 -> 0.56 %;
-    # kiosk O and S 78 -> 61 s, 0.70 -> 0.74 % and 0.38 -> 0.38 % (budget 1 %).
+    # show there, and level 0 is faster.
     rms_refine_level: int = 0
     # Zstandard supercompression of the UASTC blocks (lossless): level 19 for arrays (the
-    # base layers every phone downloads: level 15 made them 4.6 % larger), 15 for separate
-    # light images (measured on 30 lightmap light images at 400 lights: 25 % less encode
-    # time at UASTC level 0, 7 % at level 1, for 0.5 % more bytes; 0.3 % over a bake).
+    # base layers every phone downloads: 15 made them larger), 15 for separate light images
+    # (less encode time for a fraction of a per cent more bytes).
     zstd_level: int = 19
     image_zstd_level: int = 15
     # Base layers from this coefficient on (with UASTC) go into a second array encoded with
@@ -102,10 +100,9 @@ class Settings:
     # the stack is encoded again from ``etc1s_from_layer``, then with no ETC1S layer
     # (:func:`compress_rms_stack`). Measured: docs/benchmarks.md, "Downloads with the sun apart".
     rms_etc1s_from_layer: int | None = 4
-    # No rate-distortion optimization (basisu -uastc_rdo_l): measured at 400 lights, RDO
-    # (lambda 0.5) cut coarse light images by 28 % but took 4.4x the time (40 lightmap
-    # images); over a whole bake it saved 14 % of the light bytes (114 MB against 132 MB;
-    # 0.2 MB of a phone's download) for about half of the bake's time.
+    # No rate-distortion optimization (basisu -uastc_rdo_l): it shrinks coarse light images
+    # but refinements are most of the light bytes, so over a bake it saved little of a
+    # phone's download for about half of the bake's time.
 
 
 @dataclass

@@ -57,9 +57,9 @@ def prior_sqrt(training: list[np.ndarray], selection: Selection):
 
 RATIO_TRUNCATION = 0.008  # per-texel shadow-ratio error allowed to truncation (test: 0.02)
 # Per-texel shadow-ratio error that the base layers left unrefined may add, for each stack of
-# a pair (d and delta: twice this at most). Measured at 400 lights on the demo's ground (four
-# selected lights, k = 19): 15 of d's layers and 14 of delta's could go unrefined, and the
-# refinements had been two thirds of the base's bytes.
+# a pair (d and delta: twice this at most). Most of a pair's layers can go unrefined within
+# it, and refinements had been most of the base's bytes (docs/benchmarks.md,
+# "Figures behind choices in the code").
 RATIO_UNREFINED = 0.002
 RATIO_FLOOR = 0.05  # ratios are checked where sum r d exceeds this share of its mean
 
@@ -154,8 +154,7 @@ def sky_composites(M: np.ndarray, r: np.ndarray) -> np.ndarray:
 
     One BLAS product of the texels as (T, 3n) rows with a block matrix (3n, 3K) that keeps the
     channels apart. Two thirds of its products are with zeros, yet it is far faster than an
-    einsum per sky, which walks the whole stack each time (an einsum per sky took 62 s of the
-    400-light write stage; on a 50 k-texel, 400-light stack the product is 17x faster)."""
+    einsum per sky, which walks the whole stack each time (docs/benchmarks.md, "Baking")."""
     T, n, _ = M.shape
     K = len(r)
     blocks = np.zeros((n, 3, 3, K), dtype=np.float32)  # [light, channel in, channel out, sky]
@@ -338,8 +337,9 @@ class RatioRefinement:
     def layers(self, losses: np.ndarray, f: Factors) -> list[int]:
         """The layers to refine, given their coarse ``losses`` (T, 3, k).
 
-        One layer's moves are held at a time (all k at once were 2 GB for the hull at 160
-        lights: k x skies x texels)."""
+        One layer's moves are held at a time: all k at once are k x skies x texels values,
+        which raised the bake's peak memory (docs/benchmarks.md,
+        "Figures behind choices in the code")."""
 
         def largest(per_sky) -> float:
             return max((float(np.abs(m).max(initial=0.0)) for m in per_sky), default=0.0)

@@ -128,7 +128,7 @@ def bake(
     if site.views:
         (staging / "views").mkdir()
     # Each unit loads its own traced arrays when it starts and lets go of them when done:
-    # loading every set first held them all at once (15.8 GB at 400 lights).
+    # loading every set first held them all at once (the peak memory: docs/benchmarks.md).
     traced = TracedResults(work.point_sets, partial)
     units = [
         partial_fn(write_atlas, a, traced, staging, compressor, sun_bounce)
@@ -197,8 +197,9 @@ def bake(
 
 @contextlib.contextmanager
 def _disk_full_is_a_bake_error(partial: Path):
-    """A full disk (a 400-light bake keeps about 5 GB of traced chunks and writes 2.4 GB)
-    ends the bake with what to do, not a traceback; what was traced is kept."""
+    """A full disk (a bake keeps its traced chunks while it writes the build: the sizes are
+    in docs/benchmarks.md) ends the bake with what to do, not a traceback; what was traced
+    is kept."""
     try:
         yield
     except OSError as exc:

@@ -19,7 +19,8 @@ def quantize(values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """8-bit RGB of ``values`` (..., 3) with per-channel ``scale`` and ``offset`` (3,):
     ``value ~ byte / 255 * scale + offset``."""
     values = np.asarray(values, dtype=np.float32)
-    # Channel-major copy: numpy reduces a contiguous axis ~30x faster than a strided one.
+    # Channel-major copy: numpy reduces a contiguous axis far faster than a
+    # strided one (docs/benchmarks.md, "Figures behind choices in the code").
     planes = np.ascontiguousarray(np.moveaxis(values, -1, 0)).reshape(3, -1)
     lo = planes.min(axis=1)
     hi = planes.max(axis=1)

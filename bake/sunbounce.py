@@ -28,8 +28,8 @@ def compress_sun_bounce(image, name, out_dir, lights, settings) -> CompactStack 
     The sun's bounce is one column at a time (the sun's patch ``p``: ``E_sun /
     solid_angle_p`` times column ``p``), so a client fetches that column's image alone, on
     demand, as it fetches a selected light's own image of an ordinary stack; a low-rank base
-    would have to be downloaded whole, and the columns are not low rank anyway (measured on
-    the demo at 40 lights, draft: k = all 26 sun-path patches, 2.0-3.4 % RMS error).
+    would have to be downloaded whole, and the columns are not low rank anyway (docs/sun.md,
+    item 5).
 
     Each image is encoded exactly as the ordinary stacks' light images
     (:func:`bake.compress.compress_stack`): quantized to 8 bits with its own scale and
@@ -49,9 +49,9 @@ def compress_sun_bounce(image, name, out_dir, lights, settings) -> CompactStack 
     if not valid.any() or len(lights) == 0:
         return None
     # The selected lights' images' two levels (coarse at uastc_level, refinement at
-    # refine_level), not the RMS stacks' cheaper refinement (rms_refine_level): measured on
-    # the demo at 40 lights (draft), a column's refinement is noise-like and level 1 cut the
-    # worst column's error from 2.7 to 1.9 % (ground I) for 3 % more bytes.
+    # refine_level), not the RMS stacks' cheaper refinement (rms_refine_level): a column's
+    # refinement is noise-like, and level 1 cut the worst column's error for a few per cent
+    # more bytes (docs/benchmarks.md, "Figures behind choices in the code").
     image_settings = settings
     (out_dir / "ktx2").mkdir(exist_ok=True)
     light_files = []

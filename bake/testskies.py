@@ -150,9 +150,9 @@ def test_skies(site, dome_vertices, sun_in_patch: bool = False) -> list[TestSky]
             out.append(sky(f"CIE {sky_type} {az:.0f},{el:.0f}", _cie_sky(sky_type, az, el)))
     if not sun_in_patch:
         # Without its disc a clear sky is brightest in the sun's aureole, whose soft shadows
-        # move with the sun: checked along its whole yearly path, not at nine positions
-        # (measured on the demo at 40 lights: the ground's shadow ratio chosen on the nine
-        # alone was 0.023 off on a held-out clear sky; with these, 0.008).
+        # move with the sun: checked along its whole yearly path, not at nine positions (a
+        # rank chosen on the nine alone missed the ground's shadow ratio on a held-out clear
+        # sky: docs/benchmarks.md, "Figures behind choices in the code").
         for when, az, el in _yearly_sun_path(site, days=30, hours=2.0, named=True):
             out.append(TestSky(f"clear {when} sky", _vector(
                 skies.clear_sky(az, el), dome_vertices, False, samples_per_side=6)))

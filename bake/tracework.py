@@ -81,9 +81,9 @@ def _run_chunk(task):
     """Compute one chunk in a worker and save it to ``path`` (``{config: array}``, written
     under a temporary name, then renamed); returns the rays cast.
 
-    The worker saves, not the baking process: sending the arrays back (about 5 GB at 400
-    lights) made the baking process unpickle and write them all on its own while the
-    workers took both cores."""
+    The worker saves, not the baking process: sending the arrays back (gigabytes at 400
+    lights: docs/benchmarks.md, "Baking") made the baking process unpickle and write them
+    all on its own while the workers took both cores."""
     points, normals, configs, bounce, seed_words, path = task
     estimator: Estimator = _WORKER["estimator"]
     estimator.rays_cast = 0

@@ -13,8 +13,8 @@ from server.fisheye import FisheyeCamera
 # Frames are binned (after linearising, by a power of two) to at most this many pixels of the
 # image circle's bounding box: at 1 megapixel 320 x 240, a hundred or more pixels per light of
 # a 400-light dome, which keeps the per-frame cost near one table look-up per full-resolution
-# pixel. Twice as many pixels per side (4 times this) quarter the error at the patches' edges
-# for 1.5 times the time (docs/benchmarks.md). Setting: [sky] max_working_pixels.
+# pixel. Twice as many pixels per side (4 times this) cut the error at the patches' edges for
+# more time per frame (docs/benchmarks.md, "Light server"). Setting: [sky] max_working_pixels.
 DEFAULT_WORKING_PIXELS = 1 << 17
 
 

@@ -10,7 +10,7 @@ patches they are a fifth of all pixels. Counting them by coverage (the plain are
 for a sky that is continuous across the edge, yet where the sky jumps at the edge (a sky that is
 constant per patch, the test's known answer) it leaks between neighbours. A least-squares
 unmixing ``(A^T W A) r = A^T W v`` is exact for the jump but biased for real, textured skies
-(docs/benchmarks.md). So a cut
+(docs/benchmarks.md, "Figures behind choices in the code"). So a cut
 pixel ``p`` is shared between its patches ``k`` in proportion to ``c_pk * x_ref(p,k)``: its
 coverage times the value of the nearest whole pixel of patch ``k``. Where the sky is continuous
 the reference values agree and this is the plain area mean; where it jumps at the edge they
@@ -238,7 +238,8 @@ class PatchMatrix:
         cp, cl, cc = cp[order], cl[order], cc[order]
         cut_weight = weight.reshape(H, W)[y0:y1, x0:x1].ravel()
         # Column-major: the products walk the frame's pixels (and pairs) in memory order and
-        # add into the small (n, 3) result, about 1.6 times faster than row-major here.
+        # add into the small (n, 3) result, faster than row-major here (docs/benchmarks.md,
+        # "Figures behind choices in the code").
         whole = sp.csc_matrix((cut_weight[wp], (wl, wp)), shape=(n, P), dtype=np.float32)
         m = cp.size
         pairs_to_light = sp.csc_matrix(
