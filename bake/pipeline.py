@@ -34,7 +34,7 @@ from dataclasses import dataclass
 from functools import partial as partial_fn
 from pathlib import Path
 
-from bake import basisu, chunkio
+from bake import basisu, chunkio, lightmap
 from bake import receivers as rx
 from bake.buildmanifest import build_manifest, write_manifest
 from bake.compressor import Compressor
@@ -257,7 +257,7 @@ def _atlases(site: Site, dome: Dome, geometry: Geometry, scenes: SceneSet, log) 
             "real",
             settings.max_atlas_size,
         ),
-        "lightmap": rx.lightmap_atlas(
+        "lightmap": lightmap.lightmap_atlas(
             site.virtual + [proxy.part for proxy in site.real],
             settings.lightmap_texel_m * texel_scale,
             settings.max_atlas_size,
