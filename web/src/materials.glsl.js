@@ -2,7 +2,7 @@
 // (relight.js), so their cost does not depend on the number of lights, and the sun's shadow
 // maps (sun.js). Output is linear radiance times the exposure, then three.js's tone mapping
 // and sRGB encoding.
-import { sunShadowChunk } from './sun.js';
+import { sunShadowChunk } from './sun.glsl.js';
 
 const common = /* glsl */ `
 uniform float exposure;
