@@ -161,7 +161,8 @@ def plane_receiver(name, kind, obj, triangles, normal, texel_m, offset_m=0.0) ->
     w = int(np.ceil((u.max() - u.min()) / texel_m - 1e-9)) + 2 * PAD_TEXELS
     h = int(np.ceil((v.max() - v.min()) / texel_m - 1e-9)) + 2 * PAD_TEXELS
     # Whole 4x4 blocks: with every rectangle block-aligned in the atlas, no compressed block
-    # mixes two receivers (measured: shadow ratios off by up to 0.1 at such seams otherwise).
+    # mixes two receivers (otherwise the shadow ratio is off at such seams: docs/benchmarks.md
+    # "Figures behind choices in the code").
     w, h = (
         round_up(max(w, 2 * PAD_TEXELS + 1), BLOCK),
         round_up(max(h, 2 * PAD_TEXELS + 1), BLOCK),
