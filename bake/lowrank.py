@@ -37,7 +37,6 @@ class Factors:
     truncation_error: dict
 
 
-
 def prior_sqrt(training: list[np.ndarray], selection: Selection):
     """``S = C^(1/2)`` and ``S^-1`` of the second moment of training vectors whose selected
     lights are removed (those come from their own images), with a small ridge."""
@@ -52,7 +51,6 @@ def prior_sqrt(training: list[np.ndarray], selection: Selection):
     w, E = np.linalg.eigh(C)
     w = np.maximum(w, w.max() * 1e-12)
     return (E * np.sqrt(w)) @ E.T, (E / np.sqrt(w)) @ E.T
-
 
 
 RATIO_TRUNCATION = 0.008  # per-texel shadow-ratio error allowed to truncation (test: 0.02)
@@ -271,7 +269,6 @@ def factor(M, S, S_inv, skies, selection, settings, min_k: int = 0) -> Factors:
     spec = Spectrum.of(M / gain[:, None, None], gain, S)
     k, errors = rms_rank(spec, S, S_inv, skies, selection, settings)
     return factors(spec, max(k, min_k), S, S_inv, errors)
-
 
 
 def layers_to_refine(losses, f, skies, selection, settings, means=None) -> list[int]:

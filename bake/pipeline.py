@@ -53,7 +53,6 @@ from daylit import __version__
 CHUNK_FORMAT = 3  # 3: .chunk files of .npy records, traced direct light grey (P, n)
 
 
-
 @dataclass
 class BakeResult:
     out_dir: Path
@@ -62,7 +61,6 @@ class BakeResult:
     rays: int
     rays_per_s: float
     stage_s: dict
-
 
 
 def bake(
@@ -194,7 +192,6 @@ def bake(
     return BakeResult(out_dir, manifest, duration, rays, rate, stage_s)
 
 
-
 @contextlib.contextmanager
 def _disk_full_is_a_bake_error(partial: Path):
     """A full disk (a bake keeps its traced chunks while it writes the build: the sizes are
@@ -288,7 +285,6 @@ def _run_two_at_a_time(units: list) -> list:
             basisu.stop_encoding()
             pool.shutdown(wait=True, cancel_futures=True)
             raise
-
 
 
 def _check_output(out_dir: Path) -> None:

@@ -31,7 +31,6 @@ def quantize(values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return q.astype(np.uint8), scale.astype(np.float64), lo.astype(np.float64)
 
 
-
 @dataclass
 class Quantized:
     path: Path

@@ -46,8 +46,6 @@ class PointSet:
         ]
 
 
-
-
 _WORKER: dict = {}
 
 # Workers start from a clean server process, not forked from this one: this process has run

@@ -317,7 +317,6 @@ class PatchMatrix:
         return np.flatnonzero(hit)
 
 
-
 def _reference_pixels(
     cut_pix: np.ndarray, cut_light: np.ndarray, whole_pix: np.ndarray, whole_light: np.ndarray,
     width: int, neighbours: int = 64,
