@@ -2,9 +2,10 @@
 
 A chunk file is a run of ``.npy`` records (numpy's own format): first the array names, then
 one array per name, each with the chunk's points along axis 0. Not ``.npz``: ``np.savez``
-writes a zip whose CRC-32 over every byte took 7 of the 122 worker-seconds of the 400-light
-final bake, and reading a set back from zips, then concatenating its chunks, copied every
-array twice. Here each chunk's arrays are read straight into their rows of the set's arrays.
+writes a zip whose CRC-32 over every byte took a visible share of the workers' time
+(docs/benchmarks.md, "Baking"), and reading a set back from zips, then concatenating its
+chunks, copied every array twice. Here each chunk's arrays are read straight into their
+rows of the set's arrays.
 
 Files are written under a temporary name and renamed when complete: a chunk file that exists
 is whole (an interrupted bake resumes from them).

@@ -137,7 +137,8 @@ def add_subcommands(subparsers) -> None:
 
 
 def run_bake(args) -> int:
-    from bake.pipeline import BakeError, bake
+    from bake.errors import BakeError
+    from bake.pipeline import bake
     from bake.scene import SceneError
 
     try:

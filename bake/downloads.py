@@ -34,9 +34,9 @@ def lights_selected_over(manifest: dict, start: str, end: str, step: str = STEP,
     lights, so a build's own count is zero: see ``m``)."""
     import pandas as pd
 
-    from bake.compress import Selection
     from daylit import sky as skies
     from daylit.manifest import dome_vertices
+    from daylit.selection import Selection
 
     site = manifest["scene"]
     vertices = dome_vertices(manifest)

@@ -83,7 +83,7 @@ class Build:
         self.solid_angles = np.array(
             [light["solid_angle_sr"] for light in self.manifest["dome"]["lights"]]
         )
-        from bake.compress import Selection
+        from daylit.selection import Selection
 
         # Which lights the compact data takes from their own images, as the client selects.
         self.selection = Selection.of_manifest(self.manifest)
@@ -115,7 +115,7 @@ class Build:
 
     def sun_bounce_compact(self, atlas: str, name: str):
         """The compact reader of a sun-bounce stack (one image per light, no base)."""
-        from bake.compress import CompactReader
+        from bake.compact_reader import CompactReader
 
         key = (atlas, "sun_bounce", name)
         if key not in self._compact:
@@ -126,8 +126,8 @@ class Build:
         return self._compact[key]
 
     def compact(self, atlas: str, name: str):
-        """The compact reader of a stack (see ``bake.compress.CompactReader``)."""
-        from bake.compress import CompactReader
+        """The compact reader of a stack (see ``bake.compact_reader.CompactReader``)."""
+        from bake.compact_reader import CompactReader
 
         key = (atlas, name)
         if key not in self._compact:

@@ -117,10 +117,9 @@ class BounceCache:
         self._raster = _nearest_point_rasters(self.geometry, self.points, self.faces, self.cell_m)
         # Albedo times irradiance, flattened to (C, n * 3): what one bounce ray picks up.
         # float32, as the gather matrix: the gather streams this whole array once per chunk,
-        # and float64 doubled its time (measured: 1.29 s -> 0.69 s for 12 chunks at 400
-        # lights; results differ by 1e-6 relative).
-        # Multiplied in float32 too: a float64 product of 58 k points x 400 lights x RGB took
-        # 2.5 s of every worker's start (page faults of its 560 MB), float32 0.3 s.
+        # and float64 doubled its time (results differ by 1e-6 relative).
+        # Multiplied in float32 too: a float64 product slowed every worker's start (page
+        # faults of its size). Figures: docs/benchmarks.md, "Figures behind choices in the code".
         albedo32 = self.albedo.astype(np.float32)[:, None, :]
         self._picked_up = {
             config: (E.astype(np.float32)[:, :, None] * albedo32).reshape(len(self.points), -1)

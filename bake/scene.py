@@ -4,7 +4,7 @@ The format is documented in ``docs/scene-format.md``, and checked against its JS
 (bake/scene_schema.py, which also holds every default); what no one key's schema can say is
 checked here. Every problem raises :class:`SceneError` naming the file, the key and what is
 wrong, before anything is written. Geometry comes out in
-the world frame of DESIGN.md (metres, +Y up, +X east, -Z north).
+the world frame of docs/architecture.md (metres, +Y up, +X east, -Z north).
 """
 
 from __future__ import annotations

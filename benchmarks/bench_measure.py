@@ -40,14 +40,10 @@ import numpy as np  # noqa: E402
 from bake.dome import Dome  # noqa: E402
 from daylit.sky import patch_mean_radiance  # noqa: E402
 from daylit.spherical import PatchLookup  # noqa: E402
+from server.binning import DEFAULT_WORKING_PIXELS  # noqa: E402
 from server.fisheye import FisheyeCamera  # noqa: E402
-from server.measure import (  # noqa: E402
-    DEFAULT_WORKING_PIXELS,
-    Frame,
-    Photometry,
-    SkyMeter,
-    inverse_response_table,
-)
+from server.measure import Frame, SkyMeter  # noqa: E402
+from server.photometry import Photometry, inverse_response_table  # noqa: E402
 from server.simsky import SimulatedSky  # noqa: E402
 from server.sunmeter import SunMeter  # noqa: E402
 

@@ -1,7 +1,7 @@
 """A build's compact stacks on held-out skies, and what its clients download (issue 15 item 8).
 
 For every stack: k, the selected lights, the worst RMS error on the test skies (the bake's
-record) and on the held-out skies (``bake.compress.held_out_skies``: without the sun's disc for
+record) and on the held-out skies (``bake.testskies.held_out_skies``: without the sun's disc for
 the atlases, with it in its patch for the views, as the client relights them), decoded as the
 client decodes them; the ground's and the hull's worst shadow-ratio error on the held-out
 skies; then the downloads (``bake/downloads.py``) and the bake's time.
@@ -23,7 +23,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from bake import compress  # noqa: E402
+from bake import testskies  # noqa: E402
 from bake.downloads import download_bytes  # noqa: E402
 from bake.evaluate import Build  # noqa: E402
 
@@ -34,7 +34,7 @@ def measure(build_dir: Path) -> dict:
     site = m["scene"]
     views = {v["id"] for v in m["views"]}
     held = {
-        flag: {s.name: s.r for s in compress.held_out_skies(site, build.dome_vertices, flag)}
+        flag: {s.name: s.r for s in testskies.held_out_skies(site, build.dome_vertices, flag)}
         for flag in (False, True)
     }
     report = {row["stack"]: row for row in m["compression"]["report"]}

@@ -1,8 +1,9 @@
 """Analytic daylight skies and the sun, as linear RGB radiance over sky directions.
 
 Used by ``daylit probe`` (named test skies), by the server's simulated sky, and by the tests
-as known answers. Directions follow DESIGN.md: world frame +X east, +Y up, -Z north; azimuth
-is clockwise from north toward east, elevation above the horizon.
+as known answers. Directions follow docs/architecture.md, "Frames, units, the index rule":
+world frame +X east, +Y up, -Z north; azimuth is clockwise from north toward east, elevation
+above the horizon.
 
 Radiance is in W/(m^2 sr) per RGB channel, roughly broadband-physical: a clear noon sky gives
 a horizontal diffuse irradiance near 100 and a direct normal sun irradiance near 900.
@@ -237,7 +238,7 @@ def patch_mean_radiance(
     Integrates the sky's radiance over each spherical triangle with a stratified grid of
     ``samples_per_side^2`` points (solid-angle weighted), then adds the sun disk to the patch
     that contains its centre as ``L_sun * omega_sun / omega_patch`` (the disk is far smaller
-    than any patch). This is ``r_i`` of DESIGN.md before any camera is involved.
+    than any patch). This is ``r_i`` (docs/architecture.md) before any camera is involved.
     """
     from daylit.spherical import PatchLookup, solid_angle
 

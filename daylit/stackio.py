@@ -5,9 +5,9 @@ light ``i`` the RGB irradiance (or radiance) at unit radiance of patch ``i``. Th
 stores light ``i`` as channels ``L{i:04d}.R``, ``.G``, ``.B`` (float32, lossless PIZ), so
 light ``i`` is channel group ``i`` (the one index rule) and the file opens in any EXR viewer.
 
-PIZ rather than ZIPS: measured on the demo's 400-light masters, it writes 1.7x faster
-(lightmap.I: 7.6 s against 13.1 s) and is 11 % smaller (726 against 815 MB), reads as fast,
-and every OpenEXR reader has it (ZSTD, smaller still, needs OpenEXR 3.4 or later).
+PIZ rather than ZIPS: on the demo's 400-light masters it writes faster and is smaller
+(docs/benchmarks.md, "Baking"), reads as fast, and every OpenEXR reader has it (ZSTD,
+smaller still, needs OpenEXR 3.4 or later).
 """
 
 from __future__ import annotations

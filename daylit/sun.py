@@ -13,7 +13,8 @@
   4 ms a call; positions are interpolated between 30-second knots, well under 0.001 degrees).
 - :class:`SunSource`: how a frame's sun was obtained (on the wire: docs/protocol.md).
 
-Directions follow DESIGN.md: site frame +X east, +Y up, -Z north.
+Directions follow docs/architecture.md, "Frames, units, the index rule": site
+frame +X east, +Y up, -Z north.
 """
 
 from __future__ import annotations

@@ -8,7 +8,8 @@ One concept per module:
 - ``lightstream``: the WebSocket broadcast of light vectors (and kiosk camera frames);
 - ``protocol``: the wire format (docs/protocol.md);
 - ``pipeline``: newest frame -> measurement -> smoothing -> publish, stale detection;
-- ``measure``: fisheye frame -> light vector (Sato Sec. 5), temporal filter;
+- ``measure``: fisheye frame -> light vector (Sato Sec. 5), with ``photometry``,
+  ``patchmatrix`` and ``binning``; ``temporalfilter``: smoothing and when to send;
 - ``fisheye``: the lens model and its rotation to the site frame;
 - ``simsky``: the simulated sky with a known answer;
 - ``sources``: sim, replay and live camera sources;

@@ -35,14 +35,16 @@ from server.config import ConfigError, Settings, SourceSpec, load_settings
 from server.connections import install_refused_request_log
 from server.fisheye import FisheyeCamera, load_calibration
 from server.lightstream import LightHub
-from server.measure import Photometry, SkyMeter, TemporalFilter, inverse_response_table
+from server.measure import SkyMeter
 from server.occlusionfeed import OcclusionConfig, OcclusionRunner
+from server.photometry import Photometry, inverse_response_table
 from server.pipeline import LightPipeline
 from server.routes import add_static_routes
 from server.simsky import SimulatedSky
 from server.sitecamera import SiteCameraFeed
 from server.sources import CameraSource, ReplaySource, SimSource, Source
 from server.sunmeter import SunMeter
+from server.temporalfilter import TemporalFilter
 
 log = logging.getLogger("daylit.server")
 

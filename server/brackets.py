@@ -132,7 +132,7 @@ def read_sidecar(folder: Path, names: list[str]) -> tuple[dict[str, float], floa
 def read_bracket(folder: Path | str, response: np.ndarray,
                  saturation_level: float = 0.98) -> MergedBracket:
     """Read and merge the bracket in ``folder``; ``response``: the inverse response table
-    (256, 3), RGB, code -> linear (``server.measure.inverse_response_table``).
+    (256, 3), RGB, code -> linear (``server.photometry.inverse_response_table``).
 
     Raises :class:`BracketError` saying what is wrong: fewer than two exposures, an image that
     cannot be read or is not 8-bit colour, sizes that differ, a missing exposure time.

@@ -15,10 +15,10 @@ with ``atan2`` from the ray itself, the same formula that also covers lenses wid
 degrees. ``tests/server/test_fisheye.py`` checks it against ``cv2.fisheye.projectPoints`` and
 ``cv2.fisheye.undistortPoints`` where those apply.
 
-Site frame (DESIGN.md): metres, +X east, +Y up, -Z north. ``site_from_camera`` (3, 3) turns
-camera-frame vectors into site-frame vectors. The default is a camera lying on its back, looking
-at the zenith, with north at the top of the image and hence east on the left, as all-sky images
-are usually shown.
+Site frame (docs/architecture.md, "Frames, units, the index rule"): metres, +X east, +Y up,
+-Z north. ``site_from_camera`` (3, 3) turns camera-frame vectors into site-frame vectors. The
+default is a camera lying on its back, looking at the zenith, with north at the top of the
+image and hence east on the left, as all-sky images are usually shown.
 """
 
 from __future__ import annotations

@@ -33,10 +33,11 @@ import numpy as np
 from daylit.spherical import PatchLookup, solid_angle
 from daylit.sun import SunSource
 from server.lightstream import LightHub
-from server.measure import Frame, FrameError, Measurement, SkyMeter, TemporalFilter
+from server.measure import Frame, FrameError, Measurement, SkyMeter
 from server.protocol import Flags, fold_sun
 from server.sources.base import Source
 from server.sunmeter import SunMeasurement
+from server.temporalfilter import TemporalFilter
 
 log = logging.getLogger("daylit.pipeline")
 

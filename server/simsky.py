@@ -52,7 +52,8 @@ from daylit.sun import (
     sun_colour,
 )
 from server.fisheye import FisheyeCamera
-from server.measure import Frame, Photometry, inverse_response_table
+from server.measure import Frame
+from server.photometry import Photometry, inverse_response_table
 
 # Linear value of unit radiance at the camera's longest exposure: full scale at 1 W/(m^2 sr),
 # about a hundredth of a daylight sky.

@@ -10,7 +10,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from server.measure import inverse_response_table
+from server.photometry import inverse_response_table
 
 
 class Transfer:
@@ -41,13 +41,6 @@ class Transfer:
     def image_to_linear(self, codes_bgr: np.ndarray) -> np.ndarray:
         """(H, W, 3) uint8 codes -> (H, W, 3) float32 linear values, one cv2.LUT."""
         return cv2.LUT(codes_bgr, self.decode_table)
-
-    def float_to_linear(self, codes_bgr: np.ndarray) -> np.ndarray:
-        """(..., 3) fractional codes (e.g. a background mean) -> float32 linear values."""
-        out = np.empty(codes_bgr.shape, dtype=np.float32)
-        for c in range(3):
-            out[..., c] = np.interp(codes_bgr[..., c], self._codes, self.decode_bgr[:, c])
-        return out
 
     def to_codes(self, linear_bgr: np.ndarray) -> np.ndarray:
         """(..., 3) linear values -> (..., 3) float32 fractional codes (inverse of decode)."""

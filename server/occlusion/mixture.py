@@ -97,13 +97,6 @@ class ColourMixture:
             logs[k] = const - 0.5 * (z[:, 0] * z[:, 0] + z[:, 1] * z[:, 1] + z[:, 2] * z[:, 2])
         return logs
 
-    def log_density(self, x_bgr: np.ndarray) -> np.ndarray:
-        """(N, 3) codes -> (N,) natural log of the mixture density (per code^3)."""
-        x = np.asarray(x_bgr, dtype=np.float64).reshape(-1, 3)
-        logs = self._component_logs(x)
-        top = logs.max(0)
-        return top + np.log(np.exp(logs - top).sum(0))
-
     def table(self, bits: int, uniform_weight: float = 0.0) -> np.ndarray:
         """(2^(3 bits),) float32 log-density at each bin centre, optionally mixed with uniform.
 

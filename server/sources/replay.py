@@ -27,7 +27,8 @@ import cv2
 import numpy as np
 
 from server.brackets import BracketError, read_bracket
-from server.measure import Frame, Photometry, inverse_response_table
+from server.measure import Frame
+from server.photometry import Photometry, inverse_response_table
 from server.protocol import Flags
 from server.sources.base import Deliver, Source
 

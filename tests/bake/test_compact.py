@@ -16,15 +16,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bake import compress
+from bake import basisu, compact_reader, compress, lowrank, quantize, testskies
 from bake.evaluate import Build
 from daylit import sky as skies
+from daylit.selection import Selection, select_lights
 
 REPO = Path(__file__).resolve().parents[2]
 
 
 def held_out_skies(build: Build, sun_in_patch: bool = False) -> dict:
-    """Skies that chose no k (``bake.compress.held_out_skies``): the sun where it really is at
+    """Skies that chose no k (``bake.testskies.held_out_skies``): the sun where it really is at
     the site at a time no test sky used (10 May, 10:40) under a clear, an intermediate and a
     turbid sky, and a partly cloudy sky (CIE type 7, the sun of a January afternoon).
     Without the sun's disc (what every stack is relit with, protocol version 2: the client
@@ -33,7 +34,7 @@ def held_out_skies(build: Build, sun_in_patch: bool = False) -> dict:
     site = build.manifest["scene"]
     return {
         sky.name: sky.r
-        for sky in compress.held_out_skies(site, build.dome_vertices, sun_in_patch)
+        for sky in testskies.held_out_skies(site, build.dome_vertices, sun_in_patch)
     }
 
 
@@ -118,7 +119,7 @@ def test_light_images_are_in_dome_order(build, tmp_path):
     )
     assert result.entry["selected_lights"] == 1 and result.light_bytes > 0
     # No gain: its images are the master's as they are.
-    reader = compress.CompactReader(tmp_path, result.entry, master.shape[:2])
+    reader = compact_reader.CompactReader(tmp_path, result.entry, master.shape[:2])
     lit = build.selection.selectable
     for i in (lit[0], lit[len(lit) // 3], lit[-1]):
         decoded = reader.lights([i])[i]
@@ -215,7 +216,7 @@ def test_base_layers_decode_to_u_within_the_stated_error(build, tmp_path):
         refine_all=True,
     )
     valid = _valid(build, "ground", "d")
-    reader = compress.CompactReader(tmp_path, result.entry, image.shape[:2])
+    reader = compact_reader.CompactReader(tmp_path, result.entry, image.shape[:2])
     decoded = reader.base()
     U = result.factors.U
     assert decoded.shape[0] == U.shape[2] == result.entry["k"]
@@ -287,8 +288,8 @@ def test_the_sun_patch_is_selected_under_a_clear_sky_all_year(build):
     sun_patch = lookup(skies.direction_from_azimuth_elevation(az[up], el[up]))
     assert set(sun_patch.tolist()) <= set(build.selection.selectable.tolist())
     compression = build.manifest["compression"]
-    version_1 = compress.Selection(
-        build.selection.weights_sr, compress.SUN_PATH_SELECTED_LIGHTS)
+    version_1 = Selection(
+        build.selection.weights_sr, testskies.SUN_PATH_SELECTED_LIGHTS)
     assert compression["selected_lights"] == 0 and version_1.m == 1
     assert "view_selected_lights" not in compression
     for atlas, name in every_stack(build):
@@ -305,10 +306,10 @@ def test_selection_never_picks_a_light_that_cannot_be_selected():
     r[4] = [100, 1, 1]
     r[2] = [1, 50, 1]
     r[5] = [10, 10, 10]
-    selection = compress.Selection.of(np.ones(6), 2, selectable=[0, 1, 2, 3, 5])
+    selection = Selection.of(np.ones(6), 2, selectable=[0, 1, 2, 3, 5])
     assert list(selection(r)) == [2, 5]  # light 4 is brightest but has no images
     assert list(selection.selectable) == [0, 1, 2, 3, 5]
-    assert list(compress.Selection.of(np.ones(6), 2)(r)) == [2, 4]
+    assert list(Selection.of(np.ones(6), 2)(r)) == [2, 4]
 
 
 def test_selection_picks_the_brightest_patches():
@@ -317,8 +318,8 @@ def test_selection_picks_the_brightest_patches():
     r[2] = [1, 50, 1]
     omega = np.array([1.0, 1, 1, 1, 1, 0.1])
     r[5] = [300, 300, 300]  # bright but tiny: score 30
-    assert list(compress.select_lights(r, omega, 2)) == [2, 4]
-    assert list(compress.select_lights(np.zeros((6, 3)), omega, 2)) == []
+    assert list(select_lights(r, omega, 2)) == [2, 4]
+    assert list(select_lights(np.zeros((6, 3)), omega, 2)) == []
 
 
 def test_selection_sees_r_as_the_light_stream_carries_it():
@@ -326,9 +327,9 @@ def test_selection_sees_r_as_the_light_stream_carries_it():
     the tie goes to the lower index, as the client picks (a float64 pick differed)."""
     r = np.ones((3, 3))
     r[2] += 1e-12
-    assert list(compress.select_lights(r, np.ones(3), 1)) == [0]
+    assert list(select_lights(r, np.ones(3), 1)) == [0]
     r[2] += 1e-3
-    assert list(compress.select_lights(r, np.ones(3), 1)) == [2]
+    assert list(select_lights(r, np.ones(3), 1)) == [2]
 
 
 def test_sky_composites_sum_each_channel_over_the_lights():
@@ -344,16 +345,16 @@ def test_sky_composites_sum_each_channel_over_the_lights():
         for t in range(37):
             for c in range(3):
                 expected[s, t, c] = sum(float(M[t, i, c]) * r[s, i, c] for i in range(9))
-    out = compress.sky_composites(M, r)
+    out = lowrank.sky_composites(M, r)
     assert out.shape == (4, 37, 3) and out.dtype == np.float32
     np.testing.assert_allclose(out, expected, rtol=1e-5)
     assert np.all(out[2] == 0.0) and np.all(out[3, :, 1] == 0.0)
 
 
-def _ratio_refinement(role: str, X: float) -> compress.RatioRefinement:
+def _ratio_refinement(role: str, X: float) -> lowrank.RatioRefinement:
     """One sky, one light (r' = 1), 4 texels with D = 1 and X as given, all checked."""
     lit = np.ones((4, 3), bool)
-    return compress.RatioRefinement(
+    return lowrank.RatioRefinement(
         role, [np.ones((1, 3))], [lit], [np.ones(12)], [np.full(12, X)], [1.0], tolerance=0.002
     )
 
@@ -362,7 +363,7 @@ def test_ratio_refinement_leaves_unrefined_only_what_the_ratio_can_afford():
     """Base layers whose coarse loss moves the shadow ratio stay refined; the small ones go
     unrefined while their *summed* move at every texel stays within the tolerance."""
     V = np.ones((1, 4), np.float32)  # c_j = 1 for every layer
-    f = compress.Factors(4, np.zeros((4, 3, 4), np.float32), V, {})
+    f = lowrank.Factors(4, np.zeros((4, 3, 4), np.float32), V, {})
     losses = np.zeros((4, 3, 4), np.float32)
     losses[0, :, 0] = 0.01  # moves delta's ratio by 0.01: refined
     losses[1, :, 1:] = 0.0008  # three small ones at one texel: 0.0024 together, one too many
@@ -382,8 +383,8 @@ def test_unit_gain_spectrum_matches_the_general_gram_matrices():
     rng = np.random.default_rng(12)
     M = rng.random((300, 8, 3), dtype=np.float32)
     S = np.diag(rng.uniform(0.5, 2.0, 8))
-    unit = compress.Spectrum.of(M, np.ones(300, np.float32), S)
-    general = compress.Spectrum.of(M, np.full(300, 1.0 + 1e-7, np.float32), S)
+    unit = lowrank.Spectrum.of(M, np.ones(300, np.float32), S)
+    general = lowrank.Spectrum.of(M, np.full(300, 1.0 + 1e-7, np.float32), S)
     np.testing.assert_allclose(unit.G, general.G, rtol=1e-5)
     np.testing.assert_allclose(np.abs(unit.Y), np.abs(general.Y), atol=1e-4)
 
@@ -400,11 +401,11 @@ def test_separate_textures_are_encoded_side_by_side_each_into_its_own_file(tmp_p
         image = np.round(image[:40] * 255.0).astype(np.uint8)
         images.append(image)
         pngs.append(tmp_path / f"layer{j}.png")
-        compress._write_png(pngs[-1], image)
+        quantize.write_png(pngs[-1], image)
     out = tmp_path / "out"
     out.mkdir()
-    compress.encode(pngs, out, compress.Settings(), array=False, level=1)
-    decoded = compress.decode([out / f"layer{j}.ktx2" for j in range(5)])
+    basisu.encode(pngs, out, compress.Settings(), array=False, level=1)
+    decoded = basisu.decode([out / f"layer{j}.ktx2" for j in range(5)])
     for image, d in zip(images, decoded, strict=True):
         assert d.shape == (1, 40, 48, 4)
         error = np.abs(d[0, :, :, :3].astype(int) - image.astype(int))
@@ -414,15 +415,15 @@ def test_separate_textures_are_encoded_side_by_side_each_into_its_own_file(tmp_p
 def test_an_encoder_failure_says_what_failed(tmp_path):
     bad = tmp_path / "not-a.png"
     bad.write_bytes(b"this is not a PNG")
-    with pytest.raises(compress.CompressionError, match="basisu failed"):
-        compress.encode([bad], tmp_path, compress.Settings(), array=False)
+    with pytest.raises(basisu.CompressionError, match="basisu failed"):
+        basisu.encode([bad], tmp_path, compress.Settings(), array=False)
 
 
 @pytest.fixture
 def quick_stall(monkeypatch):
     """An encoder counts as hung after 1 s without CPU (30 s in a bake)."""
-    monkeypatch.setattr(compress, "ENCODER_STALL_S", 1.0)
-    monkeypatch.setattr(compress, "_POLL_S", 0.2)
+    monkeypatch.setattr(basisu, "ENCODER_STALL_S", 1.0)
+    monkeypatch.setattr(basisu, "_POLL_S", 0.2)
 
 
 def test_a_hung_encoder_is_restarted(tmp_path, quick_stall):
@@ -431,13 +432,13 @@ def test_a_hung_encoder_is_restarted(tmp_path, quick_stall):
     marker = tmp_path / "started-once"
     script = f"if [ -e {marker} ]; then exit 0; fi; touch {marker}; exec sleep 60"
     started = time.monotonic()
-    compress._run_encoders([["sh", "-c", script]])
+    basisu._run_encoders([["sh", "-c", script]])
     assert marker.exists() and time.monotonic() - started < 30
 
 
 def test_an_encoder_that_keeps_hanging_is_an_error(quick_stall):
-    with pytest.raises(compress.CompressionError, match="basisu hung 3 times"):
-        compress._run_encoders([["sleep", "60"]])
+    with pytest.raises(basisu.CompressionError, match="basisu hung 3 times"):
+        basisu._run_encoders([["sleep", "60"]])
 
 
 def test_a_busy_encoder_is_left_to_finish(tmp_path, quick_stall):
@@ -449,7 +450,7 @@ def test_a_busy_encoder_is_left_to_finish(tmp_path, quick_stall):
         "while time.process_time() - t < 3.0: pass\n"
         f"pathlib.Path({str(out)!r}).write_text('ok')"
     )
-    compress._run_encoders([[sys.executable, "-c", busy]])
+    basisu._run_encoders([[sys.executable, "-c", busy]])
     assert out.read_text() == "ok"
 
 
@@ -506,12 +507,12 @@ def test_test_skies_hold_the_sky_without_the_suns_disc():
     dome = Dome.for_light_count(40)
     site = {"timezone": "Europe/Paris", "latitude_deg": 48.85, "longitude_deg": 2.35,
             "elevation_m": 35.0}
-    fitted = {s.name: s.r for s in compress.test_skies(site, dome.vertices)}
-    with_sun = {s.name: s.r for s in compress.test_skies(site, dome.vertices, sun_in_patch=True)}
-    held = {s.name: s.r for s in compress.held_out_skies(site, dome.vertices)}
+    fitted = {s.name: s.r for s in testskies.test_skies(site, dome.vertices)}
+    with_sun = {s.name: s.r for s in testskies.test_skies(site, dome.vertices, sun_in_patch=True)}
+    held = {s.name: s.r for s in testskies.held_out_skies(site, dome.vertices)}
     assert not set(held) & set(fitted)
     assert len([name for name in fitted if name.startswith("clear")]) > 50  # the yearly path
-    for az, el in compress._sun_path(site):
+    for az, el in testskies._sun_path(site):
         name = f"clear {az:.0f},{el:.0f}"
         sun = skies.clear_sky(az, el).sun
         patch = PatchLookup(dome.vertices)(sun.direction[None])[0]

@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pandas as pd
 
-from bake import compress, downloads
+from bake import downloads, testskies
 from bake.evaluate import Build
 from daylit import sky as skies
 from daylit.spherical import PatchLookup
@@ -72,7 +72,7 @@ def test_a_visit_selects_the_suns_patches_and_a_day_more(demo_draft_build):
     build = Build(demo_draft_build)
     manifest = build.manifest
     assert downloads.lights_selected_over(manifest, *downloads.VISIT) == []
-    m = compress.SUN_PATH_SELECTED_LIGHTS
+    m = testskies.SUN_PATH_SELECTED_LIGHTS
     visit = downloads.lights_selected_over(manifest, *downloads.VISIT, m=m)
     day = downloads.lights_selected_over(manifest, *downloads.KIOSK_DAY, m=m)
     assert set(visit) <= set(day) <= set(build.selection.selectable.tolist())

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bake import receivers as rx
+from bake import lightmap
 from bake.scene import Part
 from tests.sites import box
 
@@ -18,7 +18,7 @@ def test_lightmap_leaves_out_faces_resting_on_the_ground():
     1 m keeps it: a visitor can look up at it. No texel of the standing box faces down."""
     standing = _part("standing", box([2.0, 2.0, 2.0], [0.0, 0.0, 0.0]))
     lifted = _part("lifted", box([2.0, 2.0, 2.0], [5.0, 1.0, 0.0]))
-    atlas = rx.lightmap_atlas([standing, lifted], texel_m=0.25, max_size=1024)
+    atlas = lightmap.lightmap_atlas([standing, lifted], texel_m=0.25, max_size=1024)
     faces = {r.name: len(r.faces) for r in atlas.receivers}
     assert faces == {"standing": 10, "lifted": 12}
     down = atlas.normals[:, 1] < -0.99
@@ -36,5 +36,5 @@ def test_a_part_lying_flat_on_the_ground_keeps_its_faces():
     slab = _part("slab", box([2.0, 0.0, 2.0], [0.0, 0.0, 0.0]))
     slab.mesh.update_faces(slab.mesh.face_normals[:, 1] < -0.99)
     assert len(slab.mesh.faces) == 2
-    atlas = rx.lightmap_atlas([slab], texel_m=0.25, max_size=1024)
+    atlas = lightmap.lightmap_atlas([slab], texel_m=0.25, max_size=1024)
     assert len(atlas.receivers[0].faces) == 2 and atlas.count > 0

@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bake import pipeline
+from bake import writers
+from bake.errors import BakeError
 from bake.pipeline import bake
 from daylit.stackio import read_stack_exr
 from tests.sites import make_site
@@ -123,8 +124,8 @@ def test_a_full_disk_ends_the_bake_with_what_to_do_and_keeps_the_chunks(tmp_path
     def full_disk(path, stack, attributes=None):
         raise OSError(errno.ENOSPC, f"no space left on device writing {path}")
 
-    monkeypatch.setattr(pipeline, "write_stack_exr", full_disk)
-    with pytest.raises(pipeline.BakeError, match="no space left") as caught:
+    monkeypatch.setattr(writers, "write_stack_exr", full_disk)
+    with pytest.raises(BakeError, match="no space left") as caught:
         bake(scene, out, **QUIET)
     assert "free space" in str(caught.value) and "run the same command again" in str(caught.value)
     assert str(partial) in str(caught.value)

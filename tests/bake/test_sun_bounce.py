@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bake.compress import CompactReader
+from bake.compact_reader import CompactReader
 from bake.evaluate import Build, ProbeError
 from daylit.sky import direction_from_azimuth_elevation, sun_positions
 from daylit.spherical import clipped_cosine_integral

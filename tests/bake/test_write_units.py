@@ -8,8 +8,9 @@ import time
 import numpy as np
 import pytest
 
-from bake import compress
-from bake.pipeline import BakeError, _run_two_at_a_time
+from bake import basisu, compress, quantize
+from bake.errors import BakeError
+from bake.pipeline import _run_two_at_a_time
 
 
 def test_entries_come_back_in_the_order_given_whatever_finishes_first():
@@ -30,7 +31,7 @@ def test_entries_come_back_in_the_order_given_whatever_finishes_first():
 
 
 def _tiny_png(path):
-    compress._write_png(path, np.full((8, 8, 3), 128, np.uint8))
+    quantize.write_png(path, np.full((8, 8, 3), 128, np.uint8))
     return path
 
 
@@ -50,8 +51,8 @@ def test_a_failure_stops_the_other_units_encoders_and_is_raised_once_they_stoppe
             out = tmp_path / f"out{len(refused)}"
             out.mkdir(exist_ok=True)
             try:
-                compress.encode([png], out, compress.Settings(), array=False)
-            except compress.CompressionError as exc:
+                basisu.encode([png], out, compress.Settings(), array=False)
+            except basisu.CompressionError as exc:
                 refused.append(str(exc))
                 break
         finished.set()
@@ -64,7 +65,7 @@ def test_a_failure_stops_the_other_units_encoders_and_is_raised_once_they_stoppe
 
     # The next write stage encodes again.
     def encodes():
-        compress.encode([png], tmp_path, compress.Settings(), array=False)
+        basisu.encode([png], tmp_path, compress.Settings(), array=False)
         return (tmp_path / "layer.ktx2").is_file()
 
     assert _run_two_at_a_time([encodes]) == [True]

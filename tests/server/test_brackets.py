@@ -17,7 +17,8 @@ import pytest
 from bake.dome import Dome
 from daylit.sun import SunSource
 from server.brackets import BracketError, read_bracket
-from server.measure import Frame, Photometry, SkyMeter, inverse_response_table
+from server.measure import Frame, SkyMeter
+from server.photometry import Photometry, inverse_response_table
 from server.sources.replay import ReplaySource
 from server.sunmeter import SunMeter
 from tests.server.test_sunmeter import (

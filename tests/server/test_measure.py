@@ -9,15 +9,10 @@ from bake.dome import Dome
 from daylit.sky import UniformSky, patch_mean_radiance
 from daylit.spherical import PatchLookup
 from server.fisheye import FisheyeCamera
-from server.measure import (
-    Frame,
-    FrameError,
-    Photometry,
-    SkyMeter,
-    TemporalFilter,
-    inverse_response_table,
-)
+from server.measure import Frame, FrameError, SkyMeter
+from server.photometry import Photometry, inverse_response_table
 from server.simsky import SimulatedSky
+from server.temporalfilter import TemporalFilter
 
 
 def opencv_camera(size):

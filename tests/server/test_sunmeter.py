@@ -13,7 +13,8 @@ import pytest
 from bake.dome import Dome
 from daylit.spherical import PatchLookup
 from daylit.sun import SunSource
-from server.measure import Frame, Photometry, SkyMeter
+from server.measure import Frame, SkyMeter
+from server.photometry import Photometry
 from server.sources.replay import read_frame_image
 from server.sunmeter import SunMeter
 

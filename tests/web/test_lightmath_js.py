@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bake.compress import Selection
+from daylit.selection import Selection
 from tests.web.harness import node_path
 
 ROOT = Path(__file__).resolve().parents[2]

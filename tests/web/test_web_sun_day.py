@@ -30,7 +30,8 @@ HOURS = (7.0, 8.5, 10.0, 11.5, 13.0, 14.5, 16.0, 17.5)
 def measured_day(manifest):
     """(elevation_deg, LIGHT message) for each hour of 21 March at the site, clear sky."""
     from server import protocol
-    from server.measure import Photometry, SkyMeter
+    from server.measure import SkyMeter
+    from server.photometry import Photometry
     from server.simsky import SimulatedSky
     from server.sunmeter import SunMeter
 

@@ -6,7 +6,7 @@
 
 /**
  * A(r): the m lights with the largest max(r_i.R, r_i.G, r_i.B) * weight_i, ties to the lower
- * index, lights scoring 0 never. Returned in increasing index order (bake.compress
+ * index, lights scoring 0 never. Returned in increasing index order (daylit.selection
  * .select_lights does the same). The weights are `selectionWeights(...)`.
  * @param {ArrayLike<number>} r n x 3
  * @param {ArrayLike<number>} weightsSr n
@@ -26,7 +26,7 @@ export function selectLights(r, weightsSr, m) {
 
 /**
  * Selection weights: each light's solid angle if it can be selected (only those lights have
- * their own images), else 0 (bake.compress.Selection.weights_sr).
+ * their own images), else 0 (daylit.selection.Selection.weights_sr).
  * @param {ArrayLike<number>} solidAnglesSr n
  * @param {number[] | undefined} selectable manifest compression.selectable_lights (absent:
  *   every light, as in builds made before it existed)

@@ -3,7 +3,7 @@
 // maps (sun.js). Output is linear radiance times the exposure, then three.js's tone mapping
 // and sRGB encoding.
 import { SH9_IRRADIANCE_C } from './lightmath.js';
-import { sunShadowChunk } from './sun.js';
+import { sunShadowChunk } from './sun.glsl.js';
 
 const common = /* glsl */ `
 uniform float exposure;

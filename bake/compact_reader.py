@@ -1,0 +1,105 @@
+"""Reads a compact stack back exactly as the client does: decodes its KTX2 textures and
+evaluates ``g (U V^T r' + sum_{i in A(r)} r_i B_i)`` for a light vector ``r`` (n, 3).
+Used by the bake's checks, the tests and ``daylit probe --compact``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from bake.basisu import decode
+from daylit.selection import Selection
+
+
+class CompactReader:
+    """Evaluates a stack from its compact files exactly as the client does (for checks,
+    tests and ``daylit probe --compact``). Decoded textures are cached.
+
+    An entry with ``k = 0`` has no base (no ``ktx2``, ``layers``, ``v``): the lights' own
+    images alone, as the sun-bounce stacks are stored
+    (:func:`bake.sunbounce.compress_sun_bounce`; read a column with :meth:`lights`)."""
+
+    def __init__(self, build_dir: Path, entry: dict, shape: tuple[int, int]):
+        self.dir = Path(build_dir)
+        self.entry = entry
+        self.shape = shape
+        if "v" in entry:
+            n, k = entry["v"]["shape"]
+            self.V = np.fromfile(self.dir / entry["v"]["path"], dtype="<f4").reshape(n, k)
+        else:
+            self.V = np.zeros((len(entry["lights"]["scale"]), 0))
+        self._base = None
+        self._gain = None
+        self._lights: dict[int, np.ndarray] = {}
+
+    def gain(self) -> np.ndarray | float:
+        """(H, W, 3) float32 decoded gain (coarse plus refinement), or 1 without one."""
+        if "gain" not in self.entry:
+            return 1.0
+        if self._gain is None:
+            table = self.entry["gain"]
+            raw = decode([self.dir / table["ktx2"]])[0][..., :3].astype(np.float32) / 255.0
+            self._gain = sum(
+                texel * np.float32(layer["scale"]) + np.float32(layer["offset"])
+                for texel, layer in zip(raw, table["layers"], strict=True)
+            )
+        return self._gain
+
+    def base(self) -> np.ndarray:
+        """(k, H, W, 3) float32 decoded base layers, refinements added to their layers."""
+        if self._base is None and "ktx2" not in self.entry:
+            self._base = np.zeros((0,) + self.shape + (3,), dtype=np.float32)
+        if self._base is None:
+            files = [self.dir / self.entry["ktx2"]]
+            if "etc1s" in self.entry:  # its layers follow the UASTC array's in ``layers``
+                files.append(self.dir / self.entry["etc1s"]["ktx2"])
+            raw = np.concatenate(decode(files))[..., :3].astype(np.float32) / 255.0
+            n, k = self.entry["v"]["shape"]
+            self._base = np.zeros((k,) + raw.shape[1:], dtype=np.float32)
+            for layer, texel in zip(self.entry["layers"], raw, strict=True):
+                value = texel * np.float32(layer["scale"]) + np.float32(layer["offset"])
+                self._base[layer["coefficient"]] += value
+        return self._base
+
+    def lights(self, indices) -> dict[int, np.ndarray]:
+        """(H, W, 3) float32 decoded image of each light in ``indices``."""
+        missing = [i for i in indices if i not in self._lights]
+        if not missing:
+            return {i: self._lights[i] for i in indices}
+        table = self.entry["lights"]
+        files = [self.dir / pattern.format(index=i) for i in missing for pattern in table["ktx2"]]
+        decoded = decode(files)
+        levels = len(table["ktx2"])
+        for slot, i in enumerate(missing):
+            value = np.zeros(self.shape + (3,), dtype=np.float32)
+            for level in range(levels):
+                raw = decoded[slot * levels + level][0, :, :, :3].astype(np.float32) / 255.0
+                value += raw * np.float32(table["scale"][i][level]) + np.float32(
+                    table["offset"][i][level]
+                )
+            self._lights[i] = value
+        return {i: self._lights[i] for i in indices}
+
+    def selection(self, selection: Selection) -> Selection:
+        """``selection`` with this stack's own number of selected lights (its entry's
+        ``selected_lights``, absent in builds made before 2026-11-24: the build's)."""
+        m = self.entry.get("selected_lights", selection.m)
+        return selection if m == selection.m else Selection(selection.weights_sr, m)
+
+    def forget_lights(self) -> None:
+        """Drop the decoded light images (memory)."""
+        self._lights.clear()
+
+    def composite(self, r: np.ndarray, selection: Selection) -> np.ndarray:
+        """``g (sum_l U_l (V^T r')_l + sum_{i in A(r)} r_i B_i)``: (H, W, 3) float32."""
+        r = np.asarray(r, dtype=np.float64)
+        chosen = self.selection(selection)(r)
+        rest = r.copy()
+        rest[chosen] = 0.0
+        c = self.V.T @ rest  # (k, 3)
+        out = np.einsum("khwc,kc->hwc", self.base(), c.astype(np.float32))
+        for i, light in self.lights(chosen).items():
+            out += light * r[i].astype(np.float32)
+        return out * self.gain()

@@ -1,0 +1,200 @@
+"""The bake's compression orchestration: prepares the site's test skies, prior and light
+selection once, runs bake.compress (and bake.sunbounce) on each stack as the write stage
+assembles it (from two threads), and keeps and prints the compression report.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from bake import basisu, compress, sunbounce, testskies
+from bake.dome import Dome
+from bake.downloads import download_bytes
+from bake.errors import BakeError
+from bake.scene import Site
+
+SELECTION_RULE = (
+    "top selected_lights of the selectable_lights (every light when absent) by "
+    "max(r_i.R, r_i.G, r_i.B) * solid_angle_sr_i, ties to the lower index, zero scores never"
+)
+
+
+class Compressor:
+    """Runs ``bake.compress`` on each stack as it is assembled and keeps the report."""
+
+    def __init__(self, site: Site, log):
+        c = site.settings.compression
+        self.settings = compress.Settings(
+            budget=c["budget"],
+            max_rank=c["max_rank"],
+            encoding=c["encoding"],
+            selected_lights=c["selected_lights"],
+        )
+        self.log = log
+        self.rows: dict[str, dict] = {}  # stack name -> report row (written from two threads)
+        self.stack_names: list[str] = []
+        self.bar = None
+        basisu.basisu_binary()  # fail before baking, not after, when the encoder is missing
+
+    def start(self, site: Site, dome: Dome, stack_names: list[str], progress: bool) -> None:
+        """Prepare the test skies, prior and light selection; show a progress bar over the
+        stacks ``stack_names`` (``<atlas or view>.<stack>``, the report's order)."""
+        self.stack_names = list(stack_names)
+        scene = {
+            "timezone": site.timezone,
+            "latitude_deg": site.latitude_deg,
+            "longitude_deg": site.longitude_deg,
+            "elevation_m": site.elevation_m,
+        }
+        # The lights the sun can be in (and the brightest patches of the site's skies with
+        # the sun in its patch): the sun-bounce stacks have columns for them.
+        selectable = testskies.sun_path_selectable(scene, dome.vertices, dome.solid_angles_sr)
+        # Every stack, the fixed views' too, is relit with the sky without the sun's disc
+        # (protocol version 2; the kiosk draws the sun itself: web/src/kiosksun.js).
+        self.skies, self.S, self.S_inv, self.selection = compress.prepare(
+            scene, dome.vertices, dome.solid_angles_sr, self.settings.selected_lights,
+            selectable=selectable, sun_in_patch=False,
+        )
+        self.log(
+            f"  {len(self.selection.selectable)} of {dome.count} lights can be selected "
+            "(the sun's path and the brightest patches of the site's skies): only they get "
+            "their own images, in the sun's bounce and the stacks that select lights"
+        )
+        self.bar = tqdm(
+            total=len(self.stack_names),
+            unit="stack",
+            disable=not progress,
+            desc="writing",
+            file=sys.stderr,
+            dynamic_ncols=True,
+        )
+
+    def run(self, images: dict, prefix: str, staging: Path) -> dict:
+        """Compress the stacks ``images`` ({name: (H, W, n, 3)}) of one atlas or fixed view;
+        ``I`` and ``d`` together (shadow ratio). Returns {name: compact manifest entry}. Safe
+        to call from several threads at once (each with its own stacks)."""
+        try:
+            results = compress.compress_stacks(
+                images, prefix, staging, self.skies, self.S, self.S_inv, self.selection,
+                self.settings,
+            )
+        except basisu.CompressionError as exc:
+            raise BakeError(str(exc)) from None
+        self.bar.update(len(results))  # tqdm locks its own updates
+        out = {}
+        stored = max(len(self.selection.selectable), 1)
+        for name, result in results:
+            # One key per stack: dict assignment is atomic under the GIL.
+            self.rows[f"{prefix}.{name}"] = {
+                "stack": f"{prefix}.{name}",
+                "k": result.entry["k"],
+                "error": result.entry["error"]["max"],
+                "base_bytes": result.base_bytes,
+                "light_bytes": result.light_bytes,
+                "light_bytes_per_light": round(result.light_bytes / stored),
+                "encode_s": round(result.encode_s, 2),
+            }
+            out[name] = result.entry
+        return out
+
+    def run_sun_bounce(self, image: np.ndarray, name: str, staging: Path) -> dict | None:
+        """Compress one sun-bounce stack ``name`` (``<atlas>.sun_bounce.<stack>``) into one
+        image per light the sun can be in (:func:`bake.sunbounce.compress_sun_bounce`); its
+        compact entry, or None when it is zero everywhere (then the master is dropped too)."""
+        try:
+            result = sunbounce.compress_sun_bounce(
+                image, name, staging, self.selection.selectable, self.settings
+            )
+        except basisu.CompressionError as exc:
+            raise BakeError(str(exc)) from None
+        self.bar.update(1)
+        if result is None:
+            (staging / "exr" / f"{name}.exr").unlink(missing_ok=True)
+            return None
+        self.rows[name] = {
+            "stack": name,
+            "k": result.entry["k"],
+            "error": result.entry["error"]["max"],
+            "base_bytes": 0,
+            "light_bytes": result.light_bytes,
+            "light_bytes_per_light": round(
+                result.light_bytes / max(result.entry["error"]["test_lights"], 1)
+            ),
+            "encode_s": round(result.encode_s, 2),
+        }
+        return result.entry
+
+    def close(self) -> None:
+        self.bar.close()
+
+    def manifest_entry(self) -> dict:
+        return {
+            "budget": self.settings.budget,
+            "encoding": self.settings.encoding,
+            "selected_lights": self.settings.selected_lights,
+            "selectable_lights": self.selection.selectable.tolist(),
+            "selection": SELECTION_RULE,
+            "test_skies": [s.name for s in self.skies],
+            "report": self.report(),
+        }
+
+    def report(self) -> list[dict]:
+        """The report rows in the order of the stacks given to :meth:`start`."""
+        return [self.rows[name] for name in self.stack_names if name in self.rows]
+
+    def print_report(self, manifest: dict, staging: Path) -> None:
+        budget = self.settings.budget
+        self.log(
+            f"compact assets ({self.settings.encoding}, budget {budget:.2%} RMS of the "
+            f"mean, {self.settings.selected_lights} selected "
+            f"light{'' if self.settings.selected_lights == 1 else 's'}):"
+        )
+        self.log(f"  {'stack':<22}{'k':>4}{'error':>9}{'base':>10}{'lights':>12}{'per light':>11}")
+        for row in self.report():
+            flag = "" if row["error"] <= budget else "  over budget"
+            self.log(
+                f"  {row['stack']:<22}{row['k']:>4}{row['error']:>9.2%}"
+                f"{row['base_bytes'] / 1e6:>8.2f}MB{row['light_bytes'] / 1e6:>10.2f}MB"
+                f"{row['light_bytes_per_light'] / 1e3:>9.1f}kB{flag}"
+            )
+        sizes = download_bytes(manifest, staging)
+
+        def mb(key: str) -> str:
+            return f"{sizes[key] / 1e6:.1f} MB"
+
+        self.log(
+            f"  a visitor's phone downloads {mb('phone')} to start, {mb('phone_visit')} over a "
+            f"two-hour visit under a clear sky ({sizes['visit_lights']} lights' images per "
+            f"stack{'' if sizes['visit_lights'] else ': none, the sky is relit without the sun'}"
+            f"); hull-plane mode adds {(sizes['phone_hull'] - sizes['phone']) / 1e6:.1f} MB"
+        )
+        if manifest["views"]:
+            self.log(
+                f"  the kiosk downloads {mb('kiosk')} to start, {mb('kiosk_day')} from sunrise "
+                f"to sunset ({sizes['day_lights']} lights)"
+            )
+        self.log(f"  all compact files (what the server offers): {mb('all')}")
+        sun_rows = [row for row in self.report() if ".sun_bounce." in row["stack"]]
+        if sun_rows:
+            default = [r for r in sun_rows if not r["stack"].startswith("hull.")]
+            per_light = sum(r["light_bytes_per_light"] for r in default)
+            total = sum(r["light_bytes"] for r in sun_rows)
+            masters = sum(
+                e["bytes"] for e in manifest["files"] if ".sun_bounce." in e["path"]
+                and e["path"].startswith("exr/")
+            )
+            self.log(
+                f"  the sun's bounce: one light's images per stack, fetched for the sun's "
+                f"patch: {per_light / 1e3:.0f} kB per patch without the hull, "
+                f"{mb('sun_bounce_visit')} over the visit ({sizes['visit_sun_patches']} "
+                f"patches), {mb('sun_bounce_day')} over a day ({sizes['day_sun_patches']}); "
+                f"hull-plane mode adds {mb('sun_bounce_hull_visit')} over the visit"
+            )
+            self.log(
+                f"  the sun's bounce on the server: {total / 1e6:.2f} MB of light images, "
+                f"{masters / 1e6:.1f} MB of EXR masters"
+            )

@@ -1,0 +1,354 @@
+"""Low-rank factorization of a basis stack and the choice of its rank: the prior-weighted
+eigenbasis, the rank search (RMS error, and the per-texel shadow ratio of a shadowing pair),
+and which base layers need a refinement after coarse encoding.
+
+A stack ``B`` (texels x n lights, per RGB channel) is approximated as ``U V^T r'`` plus the
+selected lights' own images (bake.compress). ``U V^T`` (Teo et al., cited in Sato Sec. 8) is
+a rank-k approximation, weighted by the covariance ``C`` of expected light vectors with their
+brightest patches removed: with ``S = C^(1/2)`` and ``Y`` the top eigenvectors of ``S G S``
+(``G = B^T B``), ``U = B S Y`` and ``V = S^-1 Y``; it is the best rank-k fit for those skies
+(not for arbitrary columns). ``k`` is the smallest rank whose error stays within a share of
+the budget on the test skies (bake.testskies).
+
+Shapes: texels ``M`` (T, n, 3) over a stack's valid texels, gain (T,), ``U`` (T, 3, k),
+``V`` (n, k), light vectors (n, 3) in W/(m^2 sr).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from bake.testskies import TestSky
+from daylit.selection import Selection
+
+TRUNCATION_SHARE = 0.6  # of the budget allowed to rank truncation; the rest is for encoding
+GRAM_ROWS = 65536  # rows per chunk when accumulating B^T B in float64
+
+
+@dataclass
+class Factors:
+    """A stack's factors. ``U`` (T, 3, k) over the valid texels, ``V`` (n, k)."""
+
+    k: int
+    U: np.ndarray
+    V: np.ndarray
+    truncation_error: dict
+
+
+def prior_sqrt(training: list[np.ndarray], selection: Selection):
+    """``S = C^(1/2)`` and ``S^-1`` of the second moment of training vectors whose selected
+    lights are removed (those come from their own images), with a small ridge."""
+    columns = []
+    for r in training:
+        r = r.copy()
+        r[selection(r)] = 0.0
+        columns.append(r)
+    X = np.concatenate(columns, axis=1)  # (n, 3 * skies)
+    C = X @ X.T / X.shape[1]
+    C += 1e-4 * np.trace(C) / len(C) * np.eye(len(C))
+    w, E = np.linalg.eigh(C)
+    w = np.maximum(w, w.max() * 1e-12)
+    return (E * np.sqrt(w)) @ E.T, (E / np.sqrt(w)) @ E.T
+
+
+RATIO_TRUNCATION = 0.008  # per-texel shadow-ratio error allowed to truncation (test: 0.02)
+# Per-texel shadow-ratio error that the base layers left unrefined may add, for each stack of
+# a pair (d and delta: twice this at most). Most of a pair's layers can go unrefined within
+# it, and refinements had been most of the base's bytes (docs/benchmarks.md,
+# "Figures behind choices in the code").
+RATIO_UNREFINED = 0.002
+RATIO_FLOOR = 0.05  # ratios are checked where sum r d exceeds this share of its mean
+
+
+@dataclass
+class Spectrum:
+    """One stack's valid texels, gain-normalized, and what choosing a rank needs.
+
+    ``M`` (T, n, 3) are the texels divided by their gain ``g`` (T,); the prior-weighted
+    eigenvectors ``Y`` (n, n, strongest first) are those of the normalized texels, so the
+    basis fits every texel to the same *relative* precision (dim texels too); the per-channel
+    Gram matrices ``G`` (3, n, n) and column sums (3, n) are of the *absolute* values
+    ``g M``, which the error budget is stated in.
+    """
+
+    M: np.ndarray
+    gain: np.ndarray
+    G: np.ndarray
+    colsum: np.ndarray
+    Y: np.ndarray
+    _projected: np.ndarray | None = None
+    _truths: dict = field(default_factory=dict)
+
+    def projections(self, S: np.ndarray, k: int) -> np.ndarray:
+        """``M S Y`` for at least the first k columns, computed once for the largest rank
+        asked so far (doubling) and cached."""
+        if self._projected is None or self._projected.shape[2] < k:
+            have = 0 if self._projected is None else self._projected.shape[2]
+            self._projected = self.project(S, min(self.Y.shape[1], max(k, 2 * have)))
+        return self._projected
+
+    def truths(self, skies: list[TestSky]) -> list[np.ndarray]:
+        """Exact normalized composites ``M r`` (T, 3) under the test skies, cached by sky
+        name; the missing ones come from one BLAS product (:func:`sky_composites`)."""
+        missing = [sky for sky in skies if sky.name not in self._truths]
+        if missing:
+            values = sky_composites(self.M, np.stack([sky.r for sky in missing]))
+            self._truths.update(zip((sky.name for sky in missing), values, strict=True))
+        return [self._truths[sky.name] for sky in skies]
+
+    def absolute_truths(self, skies: list[TestSky]) -> list[np.ndarray]:
+        """Exact composites of the absolute values ``g M r`` (T, 3) under the test skies."""
+        return [truth * self.gain[:, None] for truth in self.truths(skies)]
+
+    @classmethod
+    def of(cls, M: np.ndarray, gain: np.ndarray, S: np.ndarray) -> Spectrum:
+        T, n, _ = M.shape
+        G = np.zeros((3, n, n))
+        G_normalized = np.zeros((n, n))
+        colsum = np.zeros((3, n))
+        # With unit gain (the RMS-judged stacks) the normalized Gram matrix is the sum of the
+        # absolute ones: half the products.
+        unit_gain = bool(np.all(gain == 1.0))
+        for start in range(0, T, GRAM_ROWS):
+            # float32 products per block (BLAS sgemm), accumulated in float64 across blocks.
+            block = np.ascontiguousarray(M[start : start + GRAM_ROWS].transpose(2, 0, 1))
+            g = gain[start : start + GRAM_ROWS].astype(np.float32)
+            for c in range(3):
+                absolute = block[c] if unit_gain else block[c] * g[:, None]
+                G[c] += absolute.T @ absolute
+                colsum[c] += absolute.sum(axis=0, dtype=np.float64)
+                if not unit_gain:
+                    G_normalized += block[c].T @ block[c]
+        if unit_gain:
+            G_normalized = G.sum(axis=0)
+        eigenvalues, Y = np.linalg.eigh(S @ G_normalized @ S)
+        return cls(M, gain, G, colsum, Y[:, np.argsort(eigenvalues)[::-1]])
+
+    def project(self, S: np.ndarray, k: int) -> np.ndarray:
+        """``M S Y_k``: (T, 3, k) float32, the unquantized base U of rank k (one BLAS
+        product; every lower rank is a prefix of it)."""
+        T, n, _ = self.M.shape
+        SY = (S @ self.Y[:, :k]).astype(np.float32)
+        rows = np.ascontiguousarray(self.M.transpose(0, 2, 1)).reshape(T * 3, n)
+        return (rows @ SY).reshape(T, 3, k)
+
+    def composite(
+        self, P: np.ndarray, k: int, S_inv, r: np.ndarray, chosen: np.ndarray
+    ) -> np.ndarray:
+        """(T, 3) normalized composite of rank k with the lights ``chosen`` exact,
+        ``M (Q_k r' + r_A)``, from the projections ``P = project(S, K >= k)``."""
+        rest = r.copy()
+        rest[chosen] = 0.0
+        c = (self.Y[:, :k].T @ (S_inv @ rest)).astype(np.float32)  # (k, 3)
+        out = np.einsum("tck,kc->tc", P[:, :, :k], c)
+        return out + np.einsum("tnc,nc->tc", self.M[:, chosen], r[chosen].astype(np.float32))
+
+
+def sky_composites(M: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """``sum_i M[t, i, c] r[s, i, c]``: the composites (K, T, 3) float32 of a stack's texels
+    ``M`` (T, n, 3) under K light vectors ``r`` (K, n, 3).
+
+    One BLAS product of the texels as (T, 3n) rows with a block matrix (3n, 3K) that keeps the
+    channels apart. Two thirds of its products are with zeros, yet it is far faster than an
+    einsum per sky, which walks the whole stack each time (docs/benchmarks.md, "Baking")."""
+    T, n, _ = M.shape
+    K = len(r)
+    blocks = np.zeros((n, 3, 3, K), dtype=np.float32)  # [light, channel in, channel out, sky]
+    for c in range(3):
+        blocks[:, c, c, :] = r[:, :, c].T
+    rows = np.ascontiguousarray(M, dtype=np.float32).reshape(T, 3 * n)
+    out = rows @ blocks.reshape(3 * n, 3 * K)  # (T, 3K)
+    return np.ascontiguousarray(out.reshape(T, 3, K).transpose(2, 0, 1))
+
+
+def rms_rank(spec: Spectrum, S, S_inv, skies, selection, settings) -> tuple[int, dict]:
+    """Smallest k whose RMS error is within ``TRUNCATION_SHARE`` of the budget on every sky.
+
+    The error of every rank comes in closed form from the per-channel Gram matrices,
+    ``err_c^2 = e_c^T (I - Q)^T G_c (I - Q) e_c`` with ``e = r - r_A``: no pass over texels.
+    """
+    T, n, _ = spec.M.shape
+    rest, mean = [], []
+    for sky in skies:
+        e = sky.r.copy()
+        e[selection(sky.r)] = 0.0
+        rest.append(e)
+        mean.append(np.einsum("cn,nc->", spec.colsum, sky.r) / (3 * T))
+    target = TRUNCATION_SHARE * settings.budget
+    errors = {}
+    for k in range(1, min(settings.max_rank, n) + 1):
+        Yk = spec.Y[:, :k]
+        errors = {}
+        for sky, e, mu in zip(skies, rest, mean, strict=True):
+            d = e - S @ (Yk @ (Yk.T @ (S_inv @ e)))  # (I - Q) e, (n, 3)
+            sq = sum(d[:, c] @ spec.G[c] @ d[:, c] for c in range(3)) / (3 * T)
+            errors[sky.name] = float(np.sqrt(max(sq, 0.0)) / max(mu, 1e-30))
+        if max(errors.values()) <= target:
+            return k, errors
+    return min(settings.max_rank, n), errors
+
+
+def ratio_checks(spec_d: Spectrum, spec_delta: Spectrum, skies):
+    """Per sky ``(sky, d, delta, lit)``: a shadowing pair's exact normalized composites
+    (T, 3) and where its ratio is checked, ``sum r d`` above ``RATIO_FLOOR`` of its mean
+    (T, 3) bool."""
+    for sky, d_true, delta_true, d_absolute in zip(
+        skies,
+        spec_d.truths(skies),
+        spec_delta.truths(skies),
+        spec_d.absolute_truths(skies),
+        strict=True,
+    ):
+        yield sky, d_true, delta_true, d_absolute > RATIO_FLOOR * d_absolute.mean()
+
+
+def ratio_error(
+    spec_delta: Spectrum, spec_d: Spectrum, k: int, S, S_inv, skies, selection, settings
+) -> float:
+    """Worst per-texel error of ``sum r I / sum r d`` at rank k over the skies, where
+    ``sum r d`` is not tiny (above ``RATIO_FLOOR`` of its mean), with ``I = d - delta``. The
+    two spectra share one gain, which cancels in the ratio."""
+    worst = 0.0
+    P_delta, P_d = spec_delta.projections(S, k), spec_d.projections(S, k)
+    for sky, d_true, delta_true, lit in ratio_checks(spec_d, spec_delta, skies):
+        chosen = selection(sky.r)
+        I_true = d_true - delta_true
+        d_k = spec_d.composite(P_d, k, S_inv, sky.r, chosen)
+        I_k = d_k - spec_delta.composite(P_delta, k, S_inv, sky.r, chosen)
+        if lit.any():
+            error = np.abs(I_k / np.maximum(d_k, 1e-12) - I_true / np.maximum(d_true, 1e-12))
+            worst = max(worst, float(error[lit].max()))
+    return worst
+
+
+def ratio_rank(spec_I, spec_d, k_start, S, S_inv, skies, selection, settings) -> int:
+    """Smallest rank at least ``k_start`` found (doubling, then bisection) whose shadow ratio
+    is within ``RATIO_TRUNCATION`` at every texel on the skies; at most ``max_rank``."""
+    n = spec_I.M.shape[1]
+    top = min(settings.max_rank, n)
+
+    def ok(k):
+        return (
+            ratio_error(spec_I, spec_d, k, S, S_inv, skies, selection, settings)
+            <= RATIO_TRUNCATION
+        )
+
+    low, high = k_start, k_start
+    while not ok(high):
+        if high >= top:
+            return top
+        low, high = high + 1, min(top, 2 * high)
+    while low < high:
+        middle = (low + high) // 2
+        if ok(middle):
+            high = middle
+        else:
+            low = middle + 1
+    return high
+
+
+def factors(spec: Spectrum, k: int, S, S_inv, errors: dict) -> Factors:
+    """``U = M S Y_k`` (T, 3, k) and ``V = S^-1 Y_k`` (n, k)."""
+    U = spec.projections(S, k)[:, :, :k]
+    return Factors(k, np.ascontiguousarray(U), (S_inv @ spec.Y[:, :k]).astype(np.float32), errors)
+
+
+def gain_of(M: np.ndarray) -> np.ndarray:
+    """Per-texel gain (T,): the mean basis value over lights and channels, floored at a
+    millionth of its overall mean so that empty texels stay finite."""
+    g = M.mean(axis=(1, 2), dtype=np.float64)
+    return np.maximum(g, 1e-6 * max(g.mean(), 1e-30)).astype(np.float32)
+
+
+def factor(M, S, S_inv, skies, selection, settings, min_k: int = 0) -> Factors:
+    """Choose k (RMS criterion, at least ``min_k``) and factor ``M`` (T, n, 3) normalized
+    by its own gain."""
+    gain = gain_of(M)
+    spec = Spectrum.of(M / gain[:, None, None], gain, S)
+    k, errors = rms_rank(spec, S, S_inv, skies, selection, settings)
+    return factors(spec, max(k, min_k), S, S_inv, errors)
+
+
+def layers_to_refine(losses, f, skies, selection, settings, means=None) -> list[int]:
+    """Base layers whose coarse encoding loses more than a tenth of the budget on a sky,
+    measured on the normalized values (relative to each texel's level): ``losses`` (T, 3, k)
+    what each layer's coarse encoding lost at the valid texels; ``means`` the composite's
+    mean on each sky to measure against (default: this stack's base composite)."""
+    refine = set()
+    for s, sky in enumerate(skies):
+        rest = sky.r.copy()
+        rest[selection(sky.r)] = 0.0
+        c = f.V.T @ rest  # (k, 3)
+        mean = np.abs(np.einsum("tck,kc->tc", f.U, c)).mean() if means is None else means[s]
+        for j in range(f.k):
+            loss = losses[:, :, j] * c[j]
+            if np.sqrt((loss**2).mean()) > 0.1 * settings.budget * mean:
+                refine.add(j)
+    return sorted(refine)
+
+
+@dataclass
+class RatioRefinement:
+    """Which base layers of one stack of a shadowing pair need their refinement for the
+    per-texel shadow ratio ``alpha = X / D`` (``X = sum r delta``, ``D = sum r d``).
+
+    A coarse loss ``e_j`` of layer j moves ``alpha`` by ``c_j e_j / D`` in delta's layers and
+    by ``-X c_j e_j / D^2`` in d's (``c = V^T r'``). Layers are left unrefined, smallest move
+    first, while their summed move stays within ``tolerance`` at every texel where ``D`` is
+    above ``RATIO_FLOOR`` of its mean, on every test sky. All values are gain-normalized
+    (the pair's one gain cancels in the ratio).
+    """
+
+    role: str  # "d" or "delta"
+    rests: list[np.ndarray]  # per sky: r without its selected lights (n, 3)
+    lit: list[np.ndarray]  # per sky: (T, 3) where the ratio is checked
+    d: list[np.ndarray]  # per sky: D at the lit texels (L,)
+    delta: list[np.ndarray]  # per sky: X at the lit texels (L,)
+    means: list[float]  # per sky: mean of D, what the RMS rule measures the pair against
+    tolerance: float = RATIO_UNREFINED
+
+    @classmethod
+    def pair(cls, spec_d: Spectrum, spec_delta: Spectrum, skies, selection):
+        """The two roles' :class:`RatioRefinement` (d's, delta's) for a pair's spectra."""
+        rests, lit, d, delta, means = [], [], [], [], []
+        for sky, d_true, delta_true, mask in ratio_checks(spec_d, spec_delta, skies):
+            rest = sky.r.copy()
+            rest[selection(sky.r)] = 0.0
+            rests.append(rest)
+            lit.append(mask)
+            d.append(np.maximum(d_true[mask], 1e-12))
+            delta.append(delta_true[mask])
+            means.append(float(np.abs(d_true).mean()))
+        return tuple(cls(role, rests, lit, d, delta, means) for role in ("d", "delta"))
+
+    def moves(self, losses: np.ndarray, V: np.ndarray, j: int) -> list[np.ndarray]:
+        """Layer j's move of the ratio on each sky (L,) float32, from ``losses`` (T, 3, k)."""
+        out = []
+        for rest, lit, D, X in zip(self.rests, self.lit, self.d, self.delta, strict=True):
+            change = (losses[:, :, j] * (V[:, j] @ rest).astype(np.float32))[lit]
+            out.append(change / D if self.role == "delta" else -X * change / D**2)
+        return out
+
+    def layers(self, losses: np.ndarray, f: Factors) -> list[int]:
+        """The layers to refine, given their coarse ``losses`` (T, 3, k).
+
+        One layer's moves are held at a time: all k at once are k x skies x texels values,
+        which raised the bake's peak memory (docs/benchmarks.md,
+        "Figures behind choices in the code")."""
+
+        def largest(per_sky) -> float:
+            return max((float(np.abs(m).max(initial=0.0)) for m in per_sky), default=0.0)
+
+        worst = [largest(self.moves(losses, f.V, j)) for j in range(f.k)]
+        total = None
+        refine = []
+        for j in np.argsort(worst, kind="stable"):
+            moves = self.moves(losses, f.V, j)
+            trial = moves if total is None else [t + m for t, m in zip(total, moves, strict=True)]
+            if largest(trial) <= self.tolerance:
+                total = trial
+            else:
+                refine.append(int(j))
+        return sorted(refine)

@@ -1,0 +1,271 @@
+"""The bake's write stage, one atlas or fixed view at a time: its stacks assembled from the
+traced arrays (direct plus the bounce smoothed within each surface, gutters filled), written
+as EXR masters and (through :class:`bake.compressor.Compressor`) compact textures, with the
+sun-bounce stacks, the views' masks and depth; and the build's atomic swap into place.
+Stacks are (H, W, n, 3) float32 irradiance or radiance per unit light radiance.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from bake.denoise import fill_from_nearest, smooth_within_labels, surface_labels
+from bake.dome import Dome
+from bake.errors import BakeError
+from bake.raytrace import Geometry
+from bake.scene import Site
+from bake.tracework import TracedResults, lookup_result
+from bake.views import mask_image, radiance_image, virtual_depth_image
+from daylit.stackio import CHANNEL_PATTERN, write_exr, write_stack_exr
+
+BOUNCE_SIGMA_TEXELS = 1.5  # smoothing of the indirect bounce within a surface (texels, pixels)
+# An atlas's bounce is smoothed with a local linear fit (bake.denoise: no bias at a surface's
+# edges, where the bounce beside a sunlit wall changes fastest); views keep the plain mean.
+BOUNCE_ORDER = 1
+
+
+@dataclass
+class SunBounce:
+    """What the sun-bounce stacks need (docs/sun.md, item 5): the lights the sun can be in
+    (``compression.selectable_lights``, set once the compressor knows them), the dome's
+    upward irradiance per light and the ground's albedo (the closed-form bounce of a hull
+    plane's ``d``); ``enabled`` is False when the scene traces no bounce."""
+
+    enabled: bool
+    up: np.ndarray  # (n,)
+    albedo: np.ndarray  # (3,)
+    stack_names: list  # <atlas>.sun_bounce.<stack>, the report's rows
+    lights: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+
+    @classmethod
+    def of(cls, site: Site, dome: Dome, atlases: dict) -> SunBounce:
+        enabled = site.settings.bounce_rays > 0
+        names = [
+            f"{a.id}.sun_bounce.{stack}" for a in atlases.values() for stack in a.stacks
+        ] if enabled else []
+        return cls(enabled, dome.cosine_weighted_sr, np.asarray(site.ground.albedo), names)
+
+    def image(self, a, config, bounce, coverage, labels) -> np.ndarray:
+        """The one-bounce part of an atlas stack (H, W, n, 3), exactly as
+        :func:`_atlas_image` adds it (smoothed within each surface, gutters filled), for the
+        lights the sun can be in; zero in the other columns (light i stays column i).
+        ``"none"`` (a hull plane's ``d``) has the open ground's bounce in closed form,
+        ``albedo E_up_i (1 - n_y) / 2`` (:meth:`Estimator.basis`)."""
+        lights = self.lights
+        if config == "none":
+            lower = 0.5 * (1.0 - a.normals[:, 1])
+            part = a.to_image(
+                (
+                    lower[:, None, None]
+                    * self.up[None, lights, None]
+                    * self.albedo[None, None, :]
+                ).astype(np.float32)
+            )
+        else:
+            part = smooth_bounce(a.to_image(np.ascontiguousarray(bounce[:, lights])), labels)
+        part = _dilate(part, coverage, rings=3)
+        image = np.zeros((a.height, a.width, len(self.up), 3), dtype=np.float32)
+        image[:, :, lights] = part
+        return image
+
+
+def write_atlas(a, traced: TracedResults, staging: Path, compressor, sun_bounce) -> dict:
+    """Assemble an atlas's stacks (direct plus smoothed bounce, gutters filled), write their
+    EXR masters and compact textures; then its sun-bounce stacks (the bounce alone, the
+    sun's lights only: :class:`SunBounce`); returns the atlas's manifest entry."""
+    entry = {
+        "id": a.id,
+        "role": a.role,
+        "width": a.width,
+        "height": a.height,
+        "texel_m": round(a.texel_m, 9),
+        "stacks": {},
+        "receivers": [r.manifest_entry() for r in a.receivers],
+    }
+    if a.d_reference:
+        entry["d_reference"] = a.d_reference
+    coverage = a.coverage()
+    labels = a.label_image()
+    results = traced.load(a.id)
+    images, sun_images = {}, {}
+    for stack, config in a.stacks.items():
+        direct, bounce = lookup_result(results, f"{a.id}.{stack}", config)
+        images[stack] = _atlas_image(
+            a, config, direct, bounce, coverage, _open_labels(a, labels, direct, config)
+        )
+        rel = f"exr/{a.id}.{stack}.exr"
+        write_stack_exr(staging / rel, images[stack])
+        entry["stacks"][stack] = {
+            "master": rel,
+            "quantity": "irradiance",
+            "channels": CHANNEL_PATTERN,
+        }
+        if sun_bounce.enabled and (bounce is not None or config == "none"):
+            sun_images[stack] = sun_bounce.image(
+                a, config, bounce, coverage, _open_labels(a, labels, direct, config)
+            )
+    del results, direct, bounce  # the images hold what compression needs
+    # Shadowing atlases show I / d: their two stacks are compressed together for it.
+    for stack, compact in compressor.run(images, a.id, staging).items():
+        entry["stacks"][stack]["compact"] = compact
+    del images
+    sun_entries = {}
+    for stack in list(sun_images):
+        image = sun_images.pop(stack)
+        rel = f"exr/{a.id}.sun_bounce.{stack}.exr"
+        write_stack_exr(staging / rel, image)
+        compact = compressor.run_sun_bounce(image, f"{a.id}.sun_bounce.{stack}", staging)
+        if compact is not None:
+            sun_entries[stack] = {
+                "master": rel,
+                "quantity": "irradiance",
+                "channels": CHANNEL_PATTERN,
+                "compact": compact,
+            }
+    if sun_entries:
+        entry["sun_bounce"] = sun_entries
+    return entry
+
+
+def _atlas_image(a, config, direct, bounce, coverage, labels) -> np.ndarray:
+    """An atlas stack (H, W, n, 3): direct plus smoothed bounce, gutters filled. ``labels``
+    from :func:`_open_labels` (buried texels -2)."""
+    image = _rgb(a.to_image(direct), config)
+    if bounce is not None:
+        image += smooth_bounce(a.to_image(bounce), labels)
+    return _dilate(image, coverage, rings=3)
+
+
+def _open_labels(a, labels: np.ndarray, direct, config: str) -> np.ndarray:
+    """The atlas's surface labels (H, W) with its *buried* texels (inside another solid: no
+    light from any patch of the dome reaches them, e.g. the ground under a building) marked
+    ``-2 - label``: the bounce's smoothing leaves them out (:func:`smooth_bounce`)."""
+    if config == "none":
+        return labels  # nothing casts: nothing is buried
+    seen = a.to_image(np.asarray(direct).reshape(len(direct), -1).max(axis=1) > 0.0)
+    out = labels.copy()
+    buried = (labels >= 0) & ~seen
+    out[buried] = -2 - labels[buried]
+    return out
+
+
+def smooth_bounce(image: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """An atlas's traced bounce (H, W, ...) smoothed within each surface by a local linear
+    fit (:data:`BOUNCE_ORDER`) over its open texels; each buried texel (label ``-2 - label``,
+    :func:`_open_labels`) takes the smoothed bounce of the nearest open texel of its surface,
+    so bilinear filtering at a wall's foot reads open values only (bake.denoise)."""
+    smoothed = smooth_within_labels(image, labels, BOUNCE_SIGMA_TEXELS, order=BOUNCE_ORDER)
+    surface = np.where(labels <= -2, -2 - labels, labels)
+    return fill_from_nearest(smoothed, surface, labels >= 0)
+
+
+def _rgb(direct: np.ndarray, config: str) -> np.ndarray:
+    """Direct light with RGB last, (..., n, 3): a traced configuration's is grey, (..., n),
+    and is repeated for R, G, B; ``"none"``'s already has RGB (:meth:`Estimator.basis`)."""
+    return direct if config == "none" else np.repeat(direct[..., None], 3, axis=-1)
+
+
+def write_view(
+    view, hits: dict, traced: TracedResults, geometry, dome, site, staging: Path, compressor
+) -> dict:
+    """Assemble a view's O and S (direct plus smoothed bounce), mask and virtual depth, write
+    them and the compact textures; returns the view's manifest entry."""
+    entry = {
+        "id": view.name,
+        "width": view.width,
+        "height": view.height,
+        "K": [[round(float(x), 9) for x in row] for row in view.K],
+        "world_from_camera": [[round(float(x), 9) for x in row] for row in view.world_from_camera],
+        "camera_convention": "opencv",
+        "stacks": {},
+    }
+    up = dome.cosine_weighted_sr
+    results = traced.load(view.name)
+    for stack, config in (("O", "all"), ("S", "real")):
+        direct, bounce = lookup_result(results, f"{view.name}.{stack}", config)
+        E = _rgb(direct, config)
+        if bounce is not None:
+            E += view_smoothed(view, hits[stack], bounce, geometry)
+        image = radiance_image(view, hits[stack], E, up, site.ground.albedo)
+        rel = f"views/{view.name}.{stack}.exr"
+        write_stack_exr(staging / rel, image)
+        entry["stacks"][stack] = {
+            "master": rel,
+            "quantity": "radiance",
+            "channels": CHANNEL_PATTERN,
+            "compact": compressor.run({stack: image}, view.name, staging)[stack],
+        }
+    entry["mask"] = f"views/{view.name}.mask.png"
+    _write_png(staging / entry["mask"], mask_image(view, hits["O"]))
+    entry["depth"] = f"views/{view.name}.depth.exr"
+    _write_depth(staging / entry["depth"], virtual_depth_image(view, hits["O"]))
+    return entry
+
+
+def view_smoothed(view, hits, bounce: np.ndarray, geometry: Geometry) -> np.ndarray:
+    """The bounce at a view's hit points (P, n, 3), smoothed in image space within the flat
+    surface each pixel sees."""
+    h, w = view.height, view.width
+    image = np.zeros((h * w,) + bounce.shape[1:], dtype=np.float32)
+    image[hits.surface] = bounce
+    labels = np.full(h * w, -1, dtype=np.int64)
+    labels[hits.surface] = surface_labels(geometry.part[hits.faces], hits.normals)
+    smoothed = smooth_within_labels(
+        image.reshape((h, w) + bounce.shape[1:]), labels.reshape(h, w), BOUNCE_SIGMA_TEXELS
+    )
+    return smoothed.reshape((h * w,) + bounce.shape[1:])[hits.surface]
+
+
+def _dilate(image: np.ndarray, coverage: np.ndarray, rings: int) -> np.ndarray:
+    """Fill up to ``rings`` texels around covered ones with their covered neighbours' mean,
+    so bilinear filtering at chart borders never blends in empty texels."""
+    covered = coverage.copy()
+    h, w = covered.shape
+    for _ in range(rings):
+        grown = cv2.dilate(covered.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+        ring = np.argwhere(grown & ~covered)
+        if len(ring) == 0:
+            break
+        total = np.zeros((len(ring),) + image.shape[2:], dtype=np.float64)
+        count = np.zeros(len(ring))
+        for dy, dx in ((-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (-1, 1), (1, -1), (1, 1)):
+            y = np.clip(ring[:, 0] + dy, 0, h - 1)
+            x = np.clip(ring[:, 1] + dx, 0, w - 1)
+            ok = covered[y, x]
+            total[ok] += image[y[ok], x[ok]]
+            count += ok
+        image[ring[:, 0], ring[:, 1]] = (
+            total / count.reshape((-1,) + (1,) * (total.ndim - 1))
+        ).astype(image.dtype)
+        covered = grown
+    return image
+
+
+def _write_png(path: Path, image: np.ndarray) -> None:
+    if not cv2.imwrite(str(path), image):
+        raise BakeError(f"could not write {path}")
+
+
+def _write_depth(path: Path, depth: np.ndarray) -> None:
+    import OpenEXR
+
+    header = {"compression": OpenEXR.ZIPS_COMPRESSION, "type": OpenEXR.scanlineimage}
+    write_exr(path, header, {"Z": np.ascontiguousarray(depth, dtype=np.float32)})
+
+
+def swap_into_place(staging: Path, out_dir: Path) -> None:
+    """Replace ``out_dir`` by ``staging`` with renames only (same file system)."""
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    old = None
+    if out_dir.exists():
+        old = out_dir.parent / f".{out_dir.name}.old-{os.getpid()}"
+        os.replace(out_dir, old)
+    os.replace(staging, out_dir)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
