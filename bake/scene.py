@@ -137,10 +137,6 @@ class Site:
     settings: Settings
     source_files: list[Path]
 
-    @property
-    def virtual_objects(self) -> list[str]:
-        return list(dict.fromkeys(p.object_name for p in self.virtual))
-
 
 # --------------------------------------------------------------------------------------------
 # Key checking

@@ -273,13 +273,6 @@ class Settings:
         for section, keys in values.items():
             setattr(self, section, _Section(section, keys))
 
-    def as_dict(self) -> dict[str, dict[str, Any]]:
-        out = {}
-        for section, keys in self._values.items():
-            out[section] = {k: (str(v) if isinstance(v, SourceSpec) else v)
-                            for k, v in keys.items()}
-        return out
-
 
 class _Section:
     def __init__(self, name: str, values: dict[str, Any]):

@@ -167,10 +167,6 @@ class LightHub:
         self.publish(LIGHT, data, seq)
         return seq
 
-    def publish_site_camera(self, jpeg: bytes, capture_time_s: float, flags: int = 0) -> int:
-        """Publish a site-camera frame without a mask; returns its sequence number."""
-        return self.publish_frame(jpeg, capture_time_s, flags)
-
     def publish_frame(
         self,
         jpeg: bytes,
