@@ -32,14 +32,13 @@ from daylit import __version__
 from daylit import manifest as manifest_io
 from server import protocol
 from server.config import ConfigError, Settings, SourceSpec, load_settings
-from server.connections import install_refused_request_log
 from server.fisheye import FisheyeCamera, load_calibration
 from server.lightstream import LightHub
 from server.measure import SkyMeter
 from server.occlusionfeed import OcclusionConfig, OcclusionRunner
 from server.photometry import Photometry, inverse_response_table
 from server.pipeline import LightPipeline
-from server.routes import add_static_routes
+from server.routes import add_client_routes
 from server.simsky import SimulatedSky
 from server.sitecamera import SiteCameraFeed
 from server.sources import CameraSource, ReplaySource, SimSource, Source
@@ -293,12 +292,8 @@ def create_app(
     app[SUPERVISOR] = Supervisor(settings.sky.reconnect_min_s, settings.sky.reconnect_max_s)
     app.cleanup_ctx.append(background_tasks)
     app.on_shutdown.append(close_streams)
-    install_refused_request_log()
-    app.router.add_get("/ws/light", hub.handle, name="light")
-    app.router.add_get("/api/status", status, name="status")
-    app.router.add_get("/api/sky.jpg", sky_jpeg, name="sky")
-    checksums = {f["path"]: f["sha256"] for f in manifest["files"]}
-    add_static_routes(app, Path(srv.web_root), Path(srv.three_root), build_dir, checksums)
+    add_client_routes(app, hub, status, sky_jpeg, Path(srv.web_root), Path(srv.three_root),
+                      build_dir, manifest)
     return app
 
 

@@ -24,10 +24,9 @@ from daylit import manifest as manifest_io
 from server import protocol
 from server.app import Supervisor
 from server.config import Settings
-from server.connections import install_refused_request_log
 from server.lightstream import LightHub
 from server.relay import STATUS_PERIOD_S, Inbox
-from server.routes import add_static_routes
+from server.routes import add_client_routes
 
 log = logging.getLogger("daylit.server")
 
@@ -91,12 +90,8 @@ def create_fanout_app(build_dir: Path | str, settings: Settings, link, link_name
     app[SUPERVISOR] = Supervisor(0.05, 2.0)
     app.cleanup_ctx.append(_background)
     app.on_shutdown.append(_close_streams)
-    install_refused_request_log()
-    app.router.add_get("/ws/light", hub.handle, name="light")
-    app.router.add_get("/api/status", status, name="status")
-    app.router.add_get("/api/sky.jpg", sky_jpeg, name="sky")
-    checksums = {f["path"]: f["sha256"] for f in manifest["files"]}
-    add_static_routes(app, Path(srv.web_root), Path(srv.three_root), build_dir, checksums)
+    add_client_routes(app, hub, status, sky_jpeg, Path(srv.web_root), Path(srv.three_root),
+                      build_dir, manifest)
     return app
 
 

@@ -30,6 +30,8 @@ from pathlib import Path, PurePosixPath
 
 from aiohttp import web
 
+from server.connections import install_refused_request_log
+
 CONTENT_TYPES = {
     ".glb": "model/gltf-binary",
     ".gltf": "model/gltf+json",
@@ -153,3 +155,16 @@ def add_static_routes(app: web.Application, web_root: Path, three_root: Path, bu
     app.router.add_get("/build/{tail:.*}", build.handle, name="build")
     app.router.add_get("/vendor/three/{tail:.*}", three.handle, name="three")
     app.router.add_get("/{tail:.*}", site.handle, name="web")
+
+
+def add_client_routes(app: web.Application, hub, status, sky_jpeg, web_root: Path,
+                      three_root: Path, build_dir: Path, manifest: dict) -> None:
+    """What every process that holds clients serves (one process, or a fan-out worker): the
+    light stream of ``hub`` (a :class:`server.lightstream.LightHub`), ``/api/status`` and
+    ``/api/sky.jpg`` (the given handlers), then the static roots; refused requests logged."""
+    install_refused_request_log()
+    app.router.add_get("/ws/light", hub.handle, name="light")
+    app.router.add_get("/api/status", status, name="status")
+    app.router.add_get("/api/sky.jpg", sky_jpeg, name="sky")
+    checksums = {f["path"]: f["sha256"] for f in manifest["files"]}
+    add_static_routes(app, web_root, three_root, build_dir, checksums)

@@ -243,3 +243,14 @@ async def wait_for(predicate, timeout_s: float = 60.0, period_s: float = 0.05) -
     while not predicate():
         assert loop.time() < end, "condition not reached"
         await asyncio.sleep(period_s)
+
+
+def stop_process(proc: subprocess.Popen, sig: int = signal.SIGTERM, timeout_s: float = 30.0):
+    """Stop a `daylit serve` subprocess with ``sig`` (killed if it takes over ``timeout_s``)."""
+    if proc.poll() is None:
+        proc.send_signal(sig)
+        try:
+            proc.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()

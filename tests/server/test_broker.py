@@ -30,7 +30,7 @@ import aiohttp
 import pytest
 
 from server import protocol
-from tests.server.helpers import wait_for
+from tests.server.helpers import stop_process, wait_for
 
 pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(shutil.which("redis-server") is None,
@@ -119,13 +119,7 @@ class Serve:
         return self.err_path.read_text()
 
     def stop(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+        stop_process(self.proc, signal.SIGTERM)
         self.proc.stdout.close()
         self.err.close()
 

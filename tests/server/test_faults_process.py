@@ -22,6 +22,8 @@ from pathlib import Path
 import aiohttp
 import pytest
 
+from tests.server.helpers import stop_process
+
 pytestmark = pytest.mark.slow
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -81,13 +83,7 @@ class Served:
         return json.loads(body)
 
     def stop(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGINT)
-            try:
-                self.proc.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+        stop_process(self.proc, signal.SIGINT)
         self.proc.stdout.close()
         self.err.close()
 
