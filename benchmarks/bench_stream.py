@@ -178,6 +178,24 @@ def _client_process(url: str, clients: int, seconds: float, go_event, out) -> No
     out.put(asyncio.run(go()))
 
 
+def summarize(latencies: list[list[float]], clients: int, seconds: float, server_cpu: float,
+              client_cpu: float) -> dict:
+    """One level's figures from each client's capture-to-receipt latencies (seconds)."""
+    every = np.concatenate([np.asarray(x) for x in latencies]) * 1e3
+    expected = RATE_HZ * seconds
+    return {
+        "clients": clients,
+        "rate": len(every) / clients / seconds,
+        "p50": float(np.median(every)) if every.size else float("nan"),
+        "p99": float(np.percentile(every, 99)) if every.size else float("nan"),
+        "max": float(every.max()) if every.size else float("nan"),
+        "full": sum(len(x) >= 0.9 * expected for x in latencies),
+        "server_cpu": server_cpu,
+        "client_cpu": client_cpu,
+        "messages": int(every.size),
+    }
+
+
 async def run_level_processes(url: str, clients: int, seconds: float, server_pid: int,
                               processes: int, extra_pids: tuple[int, ...] = ()) -> dict:
     """As :func:`run_level`, the clients spread over ``processes`` processes."""
@@ -204,18 +222,8 @@ async def run_level_processes(url: str, clients: int, seconds: float, server_pid
     for p in procs:
         p.join(30)
     latencies = [x for lat, _ in results for x in lat]
-    every = np.concatenate([np.asarray(x) for x in latencies]) * 1e3
-    expected = RATE_HZ * seconds
-    return {
-        "clients": clients,
-        "rate": len(every) / clients / seconds,
-        "p50": float(np.median(every)) if every.size else float("nan"),
-        "p99": float(np.percentile(every, 99)) if every.size else float("nan"),
-        "max": float(every.max()) if every.size else float("nan"),
-        "full": sum(len(x) >= 0.9 * expected for x in latencies),
-        "server_cpu": server_cpu,
-        "client_cpu": sum(cpu for _, cpu in results) / seconds,
-    }
+    return summarize(latencies, clients, seconds, server_cpu,
+                     sum(cpu for _, cpu in results) / seconds)
 
 
 async def wait_for_first_vector(base: str) -> None:
@@ -261,18 +269,8 @@ async def run_level(url: str, clients: int, seconds: float, server_pid: int) -> 
         for task in tasks:
             task.cancel()
         await asyncio.gather(*tasks, return_exceptions=True)
-    every = np.concatenate([np.asarray(x) for x in latencies]) * 1e3
-    expected = RATE_HZ * seconds
     return {
-        "clients": clients,
-        "rate": len(every) / clients / seconds,
-        "p50": float(np.median(every)) if every.size else float("nan"),
-        "p99": float(np.percentile(every, 99)) if every.size else float("nan"),
-        "max": float(every.max()) if every.size else float("nan"),
-        "full": sum(len(x) >= 0.9 * expected for x in latencies),
-        "server_cpu": server_cpu,
-        "client_cpu": client_cpu,
-        "messages": int(every.size),
+        **summarize(latencies, clients, seconds, server_cpu, client_cpu),
         "bytes": sorted(sizes),
         "server_cpu_s": server_cpu * wall,
     }
