@@ -156,6 +156,8 @@ export class App {
       const ar = !kiosk && await arSupported();
       this.hud.showModes({ ar, camera: !kiosk && !!navigator.mediaDevices?.getUserMedia, align: this.mode === 'camera' || this.mode === 'ar' });
     } catch (err) {
+      // Downloads still on their way must not write "Loading…" over the error.
+      if (this.assets) this.assets.onProgress = null;
       this.error = err instanceof AssetError ? err.message : `Could not start: ${err.message}`;
       this.hud.setMessage(`${this.error}. Retrying in ${RETRY_BOOT_MS / 1000} s.`, 'error');
       this._teardown();
