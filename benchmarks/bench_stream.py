@@ -142,37 +142,52 @@ def start_redis(port: int) -> subprocess.Popen:
     raise SystemExit("redis-server did not start")
 
 
+async def open_clients(session: aiohttp.ClientSession, url: str, clients: int, measuring: dict,
+                       sizes: set[int] | None = None):
+    """Connect ``clients`` light streams (100 at a time) and listen on each: while
+    ``measuring["on"]``, each LIGHT message's capture-to-receipt latency (s) is appended to its
+    client's list (and its size to ``sizes``). Returns (sockets, listening tasks, latencies)."""
+    latencies: list[list[float]] = [[] for _ in range(clients)]
+
+    async def listen(ws, k):
+        async for msg in ws:
+            if msg.type == aiohttp.WSMsgType.BINARY and measuring["on"]:
+                _, _, mtype, _, _, _, captured = HEADER.unpack_from(msg.data)
+                if mtype == 1:
+                    latencies[k].append(time.time() - captured)
+                    if sizes is not None:
+                        sizes.add(len(msg.data))
+
+    sockets = []
+    for start in range(0, clients, 100):
+        batch = range(start, min(start + 100, clients))
+        sockets += await asyncio.gather(*(session.ws_connect(url) for _ in batch))
+    tasks = [asyncio.create_task(listen(ws, k)) for k, ws in enumerate(sockets)]
+    return sockets, tasks, latencies
+
+
+async def close_clients(sockets, tasks) -> None:
+    await asyncio.gather(*(ws.close() for ws in sockets), return_exceptions=True)
+    for task in tasks:
+        task.cancel()
+    await asyncio.gather(*tasks, return_exceptions=True)
+
+
 def _client_process(url: str, clients: int, seconds: float, go_event, out) -> None:
     """One client process of ``run_level_processes``: its latencies (s) and CPU seconds."""
 
     async def go():
-        latencies: list[list[float]] = [[] for _ in range(clients)]
-        on = {"v": False}
-
-        async def listen(ws, k):
-            async for msg in ws:
-                if msg.type == aiohttp.WSMsgType.BINARY and on["v"]:
-                    _, _, mtype, _, _, _, captured = HEADER.unpack_from(msg.data)
-                    if mtype == 1:
-                        latencies[k].append(time.time() - captured)
-
+        measuring = {"on": False}
         async with aiohttp.ClientSession(connector=aiohttp.TCPConnector(limit=0)) as session:
-            sockets = []
-            for start in range(0, clients, 100):
-                batch = range(start, min(start + 100, clients))
-                sockets += await asyncio.gather(*(session.ws_connect(url) for _ in batch))
-            tasks = [asyncio.create_task(listen(ws, k)) for k, ws in enumerate(sockets)]
+            sockets, tasks, latencies = await open_clients(session, url, clients, measuring)
             out.put("connected")
             await asyncio.to_thread(go_event.wait)  # every process connected, warmed up
-            on["v"] = True
+            measuring["on"] = True
             cpu0 = time.process_time()
             await asyncio.sleep(seconds)
-            on["v"] = False
+            measuring["on"] = False
             cpu = time.process_time() - cpu0
-            await asyncio.gather(*(ws.close() for ws in sockets), return_exceptions=True)
-            for task in tasks:
-                task.cancel()
-            await asyncio.gather(*tasks, return_exceptions=True)
+            await close_clients(sockets, tasks)
         return latencies, cpu
 
     out.put(asyncio.run(go()))
@@ -238,25 +253,10 @@ async def wait_for_first_vector(base: str) -> None:
 
 
 async def run_level(url: str, clients: int, seconds: float, server_pid: int) -> dict:
-    latencies: list[list[float]] = [[] for _ in range(clients)]
     measuring = {"on": False}
     sizes: set[int] = set()
-
-    async def listen(ws, k):
-        async for msg in ws:
-            if msg.type == aiohttp.WSMsgType.BINARY and measuring["on"]:
-                _, _, mtype, _, _, _, captured = HEADER.unpack_from(msg.data)
-                if mtype == 1:
-                    latencies[k].append(time.time() - captured)
-                    sizes.add(len(msg.data))
-
-    connector = aiohttp.TCPConnector(limit=0)
-    async with aiohttp.ClientSession(connector=connector) as session:
-        sockets = []
-        for start in range(0, clients, 100):
-            batch = range(start, min(start + 100, clients))
-            sockets += await asyncio.gather(*(session.ws_connect(url) for _ in batch))
-        tasks = [asyncio.create_task(listen(ws, k)) for k, ws in enumerate(sockets)]
+    async with aiohttp.ClientSession(connector=aiohttp.TCPConnector(limit=0)) as session:
+        sockets, tasks, latencies = await open_clients(session, url, clients, measuring, sizes)
         await asyncio.sleep(1.0)
         measuring["on"] = True
         cpu0, own0, t0 = cpu_seconds(server_pid), time.process_time(), time.monotonic()
@@ -265,10 +265,7 @@ async def run_level(url: str, clients: int, seconds: float, server_pid: int) -> 
         wall = time.monotonic() - t0
         server_cpu = (cpu_seconds(server_pid) - cpu0) / wall
         client_cpu = (time.process_time() - own0) / wall
-        await asyncio.gather(*(ws.close() for ws in sockets), return_exceptions=True)
-        for task in tasks:
-            task.cancel()
-        await asyncio.gather(*tasks, return_exceptions=True)
+        await close_clients(sockets, tasks)
     return {
         **summarize(latencies, clients, seconds, server_cpu, client_cpu),
         "bytes": sorted(sizes),
