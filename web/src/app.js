@@ -131,6 +131,9 @@ export class App {
         this.shadingMode === 'hull' ? this.relighter.activate(this._hullStacks) : null,
       ]);
       this.relighter.onApplied = (applied) => this._onApplied(applied);
+      // Everything is here: the loading note goes (before the mode, whose note must stay).
+      this.assets.onProgress = null;
+      this.hud.setMessage(null);
       if (kiosk) {
         this.kiosk = new Kiosk(this.renderer, this.relighter, view,
           new KioskSun(this.renderer, gltf, manifest, view, this.relighter.format));
@@ -144,14 +147,10 @@ export class App {
           { virtual: this.site.nodes.virtual, real: this.site.nodes.real }, this.site.sun,
           { groundY: this.site.groundY });
         this.sunShadows.setMaterials(this.site.sunMaterials());
-        this.assets.onProgress = null;
-        this.hud.setMessage(null); // before the mode, whose note (no camera...) must stay
         await this._enterMode(this.mode);
       }
-      this.assets.onProgress = null;
       this.ready = true;
       this.error = null;
-      if (kiosk) this.hud.setMessage(null);
       if (this.smoother.value) this._needRelight = true;
       const ar = !kiosk && await arSupported();
       this.hud.showModes({ ar, camera: !kiosk && !!navigator.mediaDevices?.getUserMedia, align: this.mode === 'camera' || this.mode === 'ar' });
