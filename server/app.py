@@ -31,6 +31,7 @@ from aiohttp import web
 from daylit import __version__
 from daylit import manifest as manifest_io
 from server import protocol
+from server.backoff import Backoff
 from server.config import ConfigError, Settings, SourceSpec, load_settings
 from server.fisheye import FisheyeCamera, load_calibration
 from server.lightstream import LightHub
@@ -71,22 +72,21 @@ class Supervisor:
         self.tasks[name] = asyncio.create_task(self._keep(name, factory), name=name)
 
     async def _keep(self, name: str, factory) -> None:
-        backoff = self.min_backoff_s
+        backoff = Backoff(self.min_backoff_s, self.max_backoff_s)
         while True:
             started = time.monotonic()
             try:
                 await factory()
-                log.warning("%s ended; restarting in %.0f s", name, backoff)
+                log.warning("%s ended; restarting in %.0f s", name, backoff.delay_s)
             except asyncio.CancelledError:
                 raise
             except Exception as exc:
-                log.error("%s failed: %s; restarting in %.0f s", name, exc, backoff,
+                log.error("%s failed: %s; restarting in %.0f s", name, exc, backoff.delay_s,
                           exc_info=not isinstance(exc, OSError | ValueError | RuntimeError))
             if time.monotonic() - started > 60.0:
-                backoff = self.min_backoff_s  # it ran well for a while: start over
+                backoff.reset()  # it ran well for a while: start over
             self.restarts[name] += 1
-            await asyncio.sleep(backoff)
-            backoff = min(2.0 * backoff, self.max_backoff_s)
+            await backoff.wait()
 
     async def stop(self) -> None:
         for task in self.tasks.values():

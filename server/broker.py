@@ -8,7 +8,7 @@ it (re)subscribes, GETs the newest of each kind, so it has the current vector at
 Several sites may share one Redis: the scene id keeps them apart.
 
 Redis going away does not stop either side: the publisher keeps only the newest message of
-each kind while it cannot publish and retries (0.05 s doubling to 2 s), the subscriber
+each kind while it cannot publish and retries (:data:`RETRY_S`), the subscriber
 reconnects on the same schedule; each logs once per 10 s meanwhile. Only at start is an
 unreachable broker an error (:class:`BrokerError`), so a wrong address is seen at once.
 """
@@ -23,6 +23,7 @@ from urllib.parse import urlsplit, urlunsplit
 import redis.asyncio as aioredis
 from redis.exceptions import RedisError
 
+from server.backoff import Backoff
 from server.relay import KINDS, Inbox, Outbox
 from server.throttledlog import ThrottledWarnings
 
@@ -30,6 +31,7 @@ log = logging.getLogger("daylit.broker")
 
 LATEST_TTL_S = 60
 CONNECT_TIMEOUT_S = 3.0
+RETRY_S = (0.05, 2.0)  # back-off of both sides while Redis is away: first and longest wait
 HEALTH_CHECK_S = 5  # a subscriber idle this long pings Redis (a dead link is found)
 LINK_ERRORS = (RedisError, OSError, asyncio.TimeoutError)
 
@@ -97,7 +99,7 @@ class RedisPublisher:
         self._wake.set()
 
     async def run(self) -> None:
-        backoff_s = 0.05
+        backoff = Backoff(*RETRY_S)
         while True:
             await self._wake.wait()
             self._wake.clear()
@@ -119,13 +121,12 @@ class RedisPublisher:
                         self._warnings.warn("down", f"the broker {redacted(self.url)} is "
                                             f"still unreachable: {exc}")
                     self.connected = False
-                    await asyncio.sleep(backoff_s)
-                    backoff_s = min(2 * backoff_s, 2.0)
+                    await backoff.wait()
                     continue
                 if not self.connected:
                     log.info("broker %s reachable again", redacted(self.url))
                 self.connected = True
-                backoff_s = 0.05
+                backoff.reset()
                 self.published += 1
 
     async def close(self) -> None:
@@ -151,7 +152,7 @@ class RedisSubscriber:
         await check(self.url)
 
     async def run(self, inbox: Inbox) -> None:
-        backoff_s = 0.05
+        backoff = Backoff(*RETRY_S)
         while True:
             client = connect(self.url)
             pubsub = client.pubsub()
@@ -166,7 +167,7 @@ class RedisSubscriber:
                              redacted(self.url))
                 inbox.connected = True
                 inbox.connects += 1
-                backoff_s = 0.05
+                backoff.reset()
                 while True:
                     msg = await pubsub.get_message(ignore_subscribe_messages=True,
                                                    timeout=1.0)
@@ -184,5 +185,4 @@ class RedisSubscriber:
                 with contextlib.suppress(*LINK_ERRORS):
                     await pubsub.aclose()
                     await client.aclose()
-            await asyncio.sleep(backoff_s)
-            backoff_s = min(2 * backoff_s, 2.0)
+            await backoff.wait()

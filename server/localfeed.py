@@ -20,6 +20,7 @@ import os
 import struct
 from pathlib import Path
 
+from server.backoff import Backoff
 from server.relay import KINDS, MAX_MESSAGE_BYTES, Inbox, Outbox
 from server.throttledlog import ThrottledWarnings
 
@@ -27,6 +28,7 @@ log = logging.getLogger("daylit.relay")
 
 MAX_BUFFER_BYTES = 16 << 20
 PREFIX = struct.Struct("<I")
+RECONNECT_S = (0.05, 2.0)  # the worker's reconnection back-off: first and longest wait
 
 
 class FeedError(RuntimeError):
@@ -105,7 +107,7 @@ class LocalFeedPublisher:
 
 class LocalFeedSubscriber:
     """The worker side: reads the measuring process's Unix socket into an
-    :class:`server.relay.Inbox`, reconnecting (0.05 s doubling to 2 s) when it goes away."""
+    :class:`server.relay.Inbox`, reconnecting (:data:`RECONNECT_S`) when it goes away."""
 
     def __init__(self, url: str):
         self.url = url
@@ -129,7 +131,7 @@ class LocalFeedSubscriber:
                 await asyncio.sleep(0.1)
 
     async def run(self, inbox: Inbox) -> None:
-        backoff_s = 0.05
+        backoff = Backoff(*RECONNECT_S)
         while True:
             try:
                 reader, writer = await asyncio.open_unix_connection(str(self.path))
@@ -137,12 +139,11 @@ class LocalFeedSubscriber:
                 inbox.last_error = f"feed {self.path}: {exc.strerror}"
                 self._warnings.warn("connect", f"cannot reach the measuring process's feed "
                                     f"{self.path}: {exc.strerror}; retrying")
-                await asyncio.sleep(backoff_s)
-                backoff_s = min(2 * backoff_s, 2.0)
+                await backoff.wait()
                 continue
             inbox.connected = True
             inbox.connects += 1
-            backoff_s = 0.05
+            backoff.reset()
             try:
                 while True:
                     size = PREFIX.unpack(await reader.readexactly(PREFIX.size))[0]
