@@ -6,7 +6,10 @@ build's manifest, serves the same routes as the single process, and publishes to
 what the relay (:mod:`server.relay`) brings, byte for byte. Its ``/api/status`` is the
 measuring process's, as last relayed, with ``clients`` and the like its own, and ``relay``: its
 link (connected, age of the last message, stale). ``stale`` and ``connected`` at the top are
-false/true only when both the measuring process and the link say so.
+false/true only when both the measuring process and the link say so. When the link has been
+silent past the stale time (a broker or measuring process gone), the worker re-sends its last
+vector to its clients marked STALE (:meth:`server.relay.Inbox.mark_stale_if_lost`), so they
+show the light as stale at once rather than after their own time-out.
 """
 
 from __future__ import annotations
@@ -97,6 +100,7 @@ def create_fanout_app(build_dir: Path | str, settings: Settings, link, link_name
 
 async def _background(app: web.Application):
     app[SUPERVISOR].start("relay", lambda: app[LINK].run(app[INBOX]))
+    app[SUPERVISOR].start("stale link watchdog", app[INBOX].watch_link)
     try:  # before listening: so the first clients' hello names the sources
         await asyncio.wait_for(app[INBOX].has_status.wait(), FIRST_STATUS_WAIT_S)
     except TimeoutError:

@@ -66,7 +66,9 @@ class Client:
     version: int = 1  # the connection's protocol version
     transport: asyncio.BaseTransport | None = None
     wake: asyncio.Event = field(default_factory=asyncio.Event)
-    sent: dict[str, int] = field(default_factory=dict)
+    # The hub's LIGHT entry last sent, by identity: the same vector re-published marked STALE
+    # (by a fan-out worker that lost its link) is a new entry with the same sequence number.
+    sent_light: tuple[int, dict[int, bytes]] | None = None
     sent_frame: int | None = None  # the last frame bundle sent
     connected_at_s: float = field(default_factory=time.time)
     tokens: float = 0.0
@@ -336,17 +338,17 @@ class LightHub:
             while not ws.closed:
                 await client.wake.wait()
                 client.wake.clear()
-                if LIGHT in client.streams and LIGHT in self.latest:
-                    seq, by_version = self.latest[LIGHT]
-                    data = by_version[client.version]
-                    last = client.sent.get(LIGHT)
-                    if last != seq:
-                        if last is not None:
-                            client.skipped += max(0, ((seq - last) & 0xFFFFFFFF) - 1)
-                        # Blocks only while this client's connection is full (flow control).
-                        await asyncio.wait_for(ws.send_bytes(data), self.slow_client_timeout_s)
-                        client.sent[LIGHT] = seq
-                        client.messages_sent += 1
+                entry = self.latest.get(LIGHT) if LIGHT in client.streams else None
+                if entry is not None and entry is not client.sent_light:
+                    seq, by_version = entry
+                    if client.sent_light is not None:
+                        client.skipped += max(
+                            0, ((seq - client.sent_light[0]) & 0xFFFFFFFF) - 1)
+                    # Blocks only while this client's connection is full (flow control).
+                    await asyncio.wait_for(ws.send_bytes(by_version[client.version]),
+                                           self.slow_client_timeout_s)
+                    client.sent_light = entry
+                    client.messages_sent += 1
                 frame = self.latest_frame
                 if (frame is not None and frame[0] != client.sent_frame
                         and not client.streams.isdisjoint(FRAME_STREAMS)):

@@ -236,6 +236,19 @@ def encode_blob(
     return head + bytes(payload)
 
 
+FLAGS = struct.Struct("<H")  # HEADER's flags field, at FLAGS_OFFSET
+FLAGS_OFFSET = 6
+
+
+def with_flags(message: bytes, flags: int) -> bytes:
+    """An encoded binary ``message`` (any type and version) with ``flags`` set besides its
+    own; the rest unchanged (a fan-out worker marks the vector it relays STALE this way)."""
+    (own,) = FLAGS.unpack_from(message, FLAGS_OFFSET)
+    out = bytearray(message)
+    FLAGS.pack_into(out, FLAGS_OFFSET, (own | int(flags)) & 0xFFFF)
+    return bytes(out)
+
+
 def decode(data: bytes) -> Message:
     """Decode one binary message of version 1, 2 or 3; raises :class:`ProtocolError` if it is
     malformed. LIGHT values come back as float32 whatever the encoding."""

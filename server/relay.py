@@ -33,6 +33,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from server import protocol
 from server.lightstream import FRAME, LIGHT, LightHub
 
 log = logging.getLogger("daylit.relay")
@@ -160,13 +161,19 @@ class Inbox:
         self.connects = 0  # links made (the first and each reconnection)
         self.last_error = ""
         self.has_status = asyncio.Event()  # a status (and so the hello's sources) came
+        self.marked_stale = False  # the last vector was re-sent STALE since the last one came
 
     def apply(self, data: bytes) -> None:
         """Apply one relay message; a malformed one is counted and logged, never raised."""
         try:
             m = decode(data)
             if m.kind == "light":
-                self.hub.publish(LIGHT, {int(v): b for v, b in m.blobs.items()}, m.seq)
+                by_version = {int(v): b for v, b in m.blobs.items()}
+                latest = self.hub.latest.get(LIGHT)
+                # The same message again (a resubscription's GET of the newest) is not news.
+                if latest is None or latest[0] != m.seq or latest[1] != by_version:
+                    self.hub.publish(LIGHT, by_version, m.seq)
+                self.marked_stale = False
             elif m.kind == "frame":
                 by_version: dict[int, dict[str, bytes]] = {}
                 for name, blob in m.blobs.items():
@@ -190,6 +197,29 @@ class Inbox:
             return
         self.messages += 1
         self.last_message_s = time.monotonic()
+
+    def mark_stale_if_lost(self) -> bool:
+        """If the link has been silent past ``stale_after_s``, re-publish the last vector with
+        the STALE flag (same sequence number), once until a vector comes again, so the
+        clients show the light as stale as they would for a camera that stopped. True if it
+        did."""
+        entry = self.hub.latest.get(LIGHT)
+        if self.marked_stale or entry is None or not self.stale:
+            return False
+        seq, by_version = entry
+        self.hub.publish(LIGHT, {v: protocol.with_flags(message, protocol.Flags.STALE)
+                                 for v, message in by_version.items()}, seq)
+        self.marked_stale = True
+        log.warning("nothing from the measuring process for %.1f s (%s): the last vector "
+                    "re-sent to the clients marked stale", self.age_s,
+                    self.last_error or "no error reported")
+        return True
+
+    async def watch_link(self, period_s: float = 0.5) -> None:
+        """Run :meth:`mark_stale_if_lost` every ``period_s``."""
+        while True:
+            await asyncio.sleep(period_s)
+            self.mark_stale_if_lost()
 
     @property
     def age_s(self) -> float | None:

@@ -165,6 +165,7 @@ class Client:
         self.port = port
         self.messages: dict[int, bytes] = {}
         self.order: list[int] = []
+        self.stale: list[bool] = []  # each LIGHT message's STALE flag, in order
         self.close_code: int | None = None
         self.hello: dict | None = None
         self.task: asyncio.Task | None = None
@@ -182,6 +183,7 @@ class Client:
                 if m.type == protocol.MessageType.LIGHT:
                     self.messages[m.sequence] = msg.data
                     self.order.append(m.sequence)
+                    self.stale.append(bool(m.flags & protocol.Flags.STALE))
         self.close_code = self.ws.close_code
 
     @property
@@ -264,7 +266,9 @@ async def test_two_workers_through_redis(serve, redis_server):
         await wait_for_messages(survivors + reconnected, 4)
         assert_same_stream(survivors + reconnected)
 
-        # Redis restarted: b and the measuring process go on, neither restarted.
+        # Redis restarted: b and the measuring process go on, neither restarted; meanwhile
+        # b's clients are sent the last vector marked STALE, and fresh ones after.
+        assert not any(c.stale[-1] for c in survivors)
         redis_server.stop()
 
         async def b_says(stale: bool) -> bool:
@@ -275,6 +279,7 @@ async def test_two_workers_through_redis(serve, redis_server):
         while not await b_says(True):
             assert time.monotonic() < deadline, "the worker did not see the broker go"
             await asyncio.sleep(0.2)
+        await wait_for(lambda: all(c.stale[-1] for c in survivors), 30)
         redis_server.start()
         seq_before = max(max(c.order) for c in survivors)
         deadline = time.monotonic() + 60
@@ -282,6 +287,7 @@ async def test_two_workers_through_redis(serve, redis_server):
             assert time.monotonic() < deadline, "the worker did not recover with the broker"
             await asyncio.sleep(0.2)
         await wait_for(lambda: all(max(c.order) > seq_before + 2 for c in survivors), 60)
+        assert not any(c.stale[-1] for c in survivors)
         assert measuring.proc.poll() is None and b.proc.poll() is None
         assert (await status(port))["relay"]["connects"] >= 2
         for served in (measuring, b):
@@ -326,6 +332,36 @@ async def test_two_local_workers_share_the_port_and_the_sequence(serve):
                 os.kill(pid, 0)
         assert parent.proc.returncode == 0
         assert "Traceback" not in parent.stderr()
+    finally:
+        for c in clients:
+            await c.close()
+
+
+def exited(pid: int) -> bool:
+    """The process is gone, or a zombie waiting for whoever adopted it to reap it."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (FileNotFoundError, ProcessLookupError):
+        return True
+    return state in ("Z", "X")
+
+
+async def test_workers_stop_when_their_parent_is_killed(serve):
+    """SIGKILL to the parent of ``--workers 2`` (it cannot stop its children): the kernel
+    sends each worker SIGTERM (PR_SET_PDEATHSIG), which closes its clients with 1001 and exits;
+    nothing is left holding the port."""
+    port = free_port()
+    parent = serve(port, "--workers", "2")
+    clients, by_pid = await spread_clients(port)
+    try:
+        await wait_for_messages(clients, 2)
+        parent.proc.kill()
+        parent.proc.wait(timeout=30)
+        await wait_for(lambda: all(c.closed for c in clients), 30)
+        assert {c.close_code for c in clients} == {1001}
+        await wait_for(lambda: all(exited(pid) for pid in by_pid), 30)
+        with pytest.raises(OSError), socket.create_connection(("127.0.0.1", port), 2):
+            pass
     finally:
         for c in clients:
             await c.close()

@@ -64,6 +64,36 @@ def test_a_worker_hub_sends_the_measuring_hubs_bytes():
     assert inbox.bad_messages == 1 and inbox.messages == 2 and not inbox.stale
 
 
+def test_a_silent_link_resends_the_last_vector_marked_stale(monkeypatch):
+    """Past the stale time the worker re-publishes its last vector with the STALE flag (bit 0
+    of the uint16 at byte 6, docs/protocol.md), same sequence, every other byte the same;
+    once; and the next vector from the measuring process is published as it came."""
+    measuring = LightHub(lambda streams, version=1: "{}")
+    outbox = Outbox()
+    outbox.attach(measuring)
+    worker = LightHub(lambda streams, version=1: "{}")
+    inbox = Inbox(worker, stale_after_s=3.0)
+    outbox.listeners.append(lambda kind, message: inbox.apply(message))
+    rgb = np.arange(120, dtype=np.float32).reshape(40, 3)
+    seq = measuring.publish_light(rgb, np.zeros(40, bool), 12.5, protocol.Flags.SIMULATED)
+    fresh = dict(worker.latest[LIGHT][1])
+    assert not inbox.mark_stale_if_lost()  # not silent yet
+    now = inbox.last_message_s
+    monkeypatch.setattr("server.relay.time.monotonic", lambda: now + 3.5)
+    assert inbox.mark_stale_if_lost()
+    stale_seq, stale = worker.latest[LIGHT]
+    assert stale_seq == seq and set(stale) == set(fresh)
+    for version, message in stale.items():
+        flags = struct.unpack_from("<H", message, 6)[0]
+        assert flags == protocol.Flags.SIMULATED | 1
+        assert message[:6] == fresh[version][:6] and message[8:] == fresh[version][8:]
+        assert protocol.decode(message).flags & protocol.Flags.STALE
+    assert not inbox.mark_stale_if_lost()  # once
+    measuring.publish_light(rgb, np.zeros(40, bool), 13.0, protocol.Flags.SIMULATED)
+    assert worker.latest[LIGHT] == measuring.latest[LIGHT]
+    assert not protocol.decode(worker.latest[LIGHT][1][3]).flags & protocol.Flags.STALE
+
+
 def test_status_tells_the_worker_which_streams_exist():
     worker = LightHub(lambda streams, version=1: "{}")
     inbox = Inbox(worker, stale_after_s=3.0)
