@@ -1,11 +1,11 @@
 """Capture-to-client latency and fan-out of ``GET /ws/light`` over loopback.
 
 Starts ``daylit serve`` in a subprocess on a 400-light build, replaying 1280x960 JPEG sky frames
-(rendered once by the simulated sky) at 10 Hz with smoothing and the change threshold off, so
-every frame becomes a vector. Clients in this process connect and record, for every vector,
-``arrival time - capture time`` (the header's capture time is stamped when the frame is handed
-over by the source, before decoding is finished, measuring and sending). Client and server share
-the machine's two cores, so the client side's own cost is inside the figures.
+(rendered once by the simulated sky) at 10 Hz (``--rate-hz``) with smoothing and the change
+threshold off, so every frame becomes a vector. Clients in this process connect and record, for
+every vector, ``arrival time - capture time`` (the header's capture time is stamped when the
+frame is handed over by the source, before decoding is finished, measuring and sending). Client
+and server share the machine's two cores, so the client side's own cost is inside the figures.
 
 Levels: 10 clients (latency), then 100, 250, 500 and 1000 clients (fan-out). Each level runs for
 ``--seconds`` (default 8) after a one-second warm-up. Printed per level: clients, vectors per
@@ -57,7 +57,8 @@ from server.simsky import SimulatedSky  # noqa: E402
 from tests.server.conftest import make_build  # noqa: E402
 
 HEADER = struct.Struct("<4sBBHIId")
-RATE_HZ = 10.0
+RATE_HZ = 10.0  # the replay's and so the vectors' rate; --rate-hz sets it
+MAX_CLIENTS = 12000  # per server process: above the largest level
 
 
 def free_port() -> int:
@@ -81,7 +82,7 @@ def start_server(build: Path, frames: Path, port: int, extra: tuple[str, ...] = 
         sys.executable, "-m", "daylit.cli", "serve", str(build), "--host", "127.0.0.1",
         "--port", str(port), "--sky", f"replay:{frames}", "--log-level", "warning",
         "--set", f"sky.rate_hz={RATE_HZ}", "--set", "stream.smoothing_s=0",
-        "--set", "stream.change_threshold=0", "--set", "server.max_clients=5000",
+        "--set", "stream.change_threshold=0", "--set", f"server.max_clients={MAX_CLIENTS}",
         "--set", "sky.stale_after_s=60",
         # Every benchmark client comes from 127.0.0.1.
         "--set", "server.max_connections_per_address=10000",
@@ -413,6 +414,7 @@ async def compare_protocols(url: str, levels: list[int], seconds: float, server_
 
 
 def main() -> None:
+    global RATE_HZ  # read by start_server, summarize and the printed heading
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=8.0)
     parser.add_argument("--levels", default="10,100,250,500,1000")
@@ -426,9 +428,14 @@ def main() -> None:
                         help="redis (a redis-server started here) or redis://HOST:PORT/DB")
     parser.add_argument("--client-processes", type=int, default=1,
                         help="processes the clients are spread over")
+    parser.add_argument("--rate-hz", type=float, default=RATE_HZ,
+                        help="vectors a second (the replay's frame rate); e.g. 2 for the "
+                        "10,000-client level")
     args = parser.parse_args()
+    RATE_HZ = args.rate_hz
+    # Each client is a socket on both ends (server, its workers and the clients inherit this).
     soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
-    resource.setrlimit(resource.RLIMIT_NOFILE, (min(hard, 8192), hard))
+    resource.setrlimit(resource.RLIMIT_NOFILE, (min(hard, 2 * MAX_CLIENTS + 1024), hard))
     if args.framing:
         framing_costs()
     protocols = [int(x) for x in args.protocols.split(",") if x]
