@@ -332,6 +332,23 @@ class LightHub:
         client.tokens -= 1.0
         return True
 
+    async def _send(self, client: Client, message: bytes) -> None:
+        """Send one message; past ``slow_client_timeout_s`` of waiting, TimeoutError.
+
+        ``send_bytes`` waits only while the connection's write buffer is paused (above its
+        high-water mark until it drains to the low one): below the low mark it returns at
+        once, so it is awaited bare; ``asyncio.wait_for`` starts a task of its own each call,
+        which cost more than the send itself (docs/benchmarks.md)."""
+        transport = client.transport
+        try:
+            flowing = transport.get_write_buffer_size() <= transport.get_write_buffer_limits()[0]
+        except (AttributeError, NotImplementedError):  # no transport, or one without limits
+            flowing = False
+        if flowing:
+            await client.ws.send_bytes(message)
+        else:
+            await asyncio.wait_for(client.ws.send_bytes(message), self.slow_client_timeout_s)
+
     async def _send_loop(self, client: Client) -> None:
         ws = client.ws
         try:
@@ -344,9 +361,7 @@ class LightHub:
                     if client.sent_light is not None:
                         client.skipped += max(
                             0, ((seq - client.sent_light[0]) & 0xFFFFFFFF) - 1)
-                    # Blocks only while this client's connection is full (flow control).
-                    await asyncio.wait_for(ws.send_bytes(by_version[client.version]),
-                                           self.slow_client_timeout_s)
+                    await self._send(client, by_version[client.version])
                     client.sent_light = entry
                     client.messages_sent += 1
                 frame = self.latest_frame
@@ -358,8 +373,7 @@ class LightHub:
                         client.skipped += max(0, number - client.sent_frame - 1)
                     for stream in FRAME_STREAMS:
                         if stream in client.streams and stream in parts:
-                            await asyncio.wait_for(ws.send_bytes(parts[stream]),
-                                                   self.slow_client_timeout_s)
+                            await self._send(client, parts[stream])
                             client.messages_sent += 1
                     client.sent_frame = number
         except TimeoutError:
