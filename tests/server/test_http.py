@@ -154,3 +154,9 @@ async def test_paths_cannot_escape_their_root(client, target):
 async def test_sky_image_is_unavailable_before_the_first_frame(client):
     resp = await client.get("/api/sky.jpg")
     assert resp.status == 503 and resp.headers["Retry-After"] == "1"
+
+
+async def test_answers_keep_a_kiosk_token_out_of_referers(client):
+    for path in ("/", "/build/manifest.json", "/src/main.js"):
+        resp = await client.get(path)
+        assert resp.headers["Referrer-Policy"] == "same-origin", path
