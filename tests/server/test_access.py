@@ -52,9 +52,10 @@ def serve(build: Path, *args: str, token: str | None = None, host: str = "127.0.
     try:
         deadline = time.monotonic() + 90
         lines = []
-        while time.monotonic() < deadline and not any("open http" in x for x in lines):
+        while time.monotonic() < deadline and not any("kiosk:" in x for x in lines):
             lines.append(proc.stdout.readline())
             assert lines[-1], proc.stderr.read()
+        serve.banner = "".join(lines)
         yield port
     finally:
         interrupt_and_wait(proc, 30)
@@ -101,6 +102,8 @@ def test_with_a_token_only_its_bearers_see_the_site(demo_draft_build, kiosk_fram
     with serve(demo_draft_build, "--site-camera", f"replay:{kiosk_frames}",
                token=TOKEN) as port:
         asyncio.run(_token_checks(f"127.0.0.1:{port}"))
+    assert "?mode=kiosk&token=<the operator token>" in serve.banner
+    assert TOKEN not in serve.banner  # never printed
 
 
 async def _token_checks(where: str) -> None:
@@ -134,6 +137,12 @@ def test_without_a_token_only_this_machine_sees_the_site(demo_draft_build, kiosk
     with serve(demo_draft_build, "--site-camera", f"replay:{kiosk_frames}",
                host="0.0.0.0") as port:
         asyncio.run(_local_checks(port, lan))
+    # What `make demo` prints (it serves on every interface, without TLS): the phone's way in.
+    banner = serve.banner
+    assert f"kiosk: http://localhost:{port}/?mode=kiosk on this machine only" in banner
+    if lan is not None:
+        assert f"on the site network: http://{lan}:{port}/" in banner
+        assert "phones allow the camera and AR over HTTPS only" in banner
 
 
 async def _local_checks(port: int, lan: str | None) -> None:

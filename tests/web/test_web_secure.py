@@ -106,3 +106,27 @@ def test_a_file_damaged_every_time_is_an_error_that_names_it(new_page, web_build
         assert model in error and "SHA-256" in error and "also when fetched again" in error
         note = page.page.evaluate("document.querySelector('#hud .message').textContent")
         assert "Could not load" in note, note
+
+
+def test_an_insecure_page_checks_lengths_and_a_name_not_allowed_is_refused(browser, web_build):
+    """Plain http:// under a LAN name (not localhost) has no SubtleCrypto: the client says it
+    checks lengths only and boots; the name is served because --allow-host names it, and a
+    name not allowed gets 421."""
+    from tests.web.harness import CHROMIUM_FLAGS, chromium_path
+
+    with DaylitServer(web_build, "--allow-host", "daylit.test") as server:
+        flags = CHROMIUM_FLAGS + ["--host-resolver-rules=MAP daylit.test 127.0.0.1, "
+                                  "MAP other.test 127.0.0.1"]
+        remote = browser.browser_type.launch(executable_path=chromium_path(), args=flags,
+                                             headless=True)
+        try:
+            page = remote.new_page(viewport={"width": 640, "height": 360})
+            page.goto(f"http://daylit.test:{server.port}/?mode=visit&test")
+            page.wait_for_function("window.daylit && window.daylit.status.ready", timeout=90000)
+            assert page.evaluate("isSecureContext") is False
+            status = page.evaluate("JSON.parse(JSON.stringify(window.daylit.status))")
+            assert status["integrity"] == "length" and status["error"] is None
+            refused = page.goto(f"http://other.test:{server.port}/")
+            assert refused.status == 421
+        finally:
+            remote.close()
