@@ -31,6 +31,7 @@ from aiohttp import web
 from daylit import __version__
 from daylit import manifest as manifest_io
 from server import protocol
+from server.access import AccessPolicy
 from server.backoff import Backoff
 from server.config import ConfigError, Settings, SourceSpec, load_settings
 from server.fisheye import FisheyeCamera, load_calibration
@@ -293,7 +294,8 @@ def create_app(
     app.cleanup_ctx.append(background_tasks)
     app.on_shutdown.append(close_streams)
     add_client_routes(app, hub, status, sky_jpeg, Path(srv.web_root), Path(srv.three_root),
-                      build_dir, manifest)
+                      build_dir, manifest,
+                      AccessPolicy.from_settings(settings))
     return app
 
 

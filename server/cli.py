@@ -69,6 +69,14 @@ def add_subcommands(subparsers) -> None:
     serve.add_argument("--role", choices=["all", "measure", "fanout"],
                        help="with --broker: measure (the measuring process alone) or fanout "
                             "(fan-out workers alone); default all")
+    serve.add_argument("--tls-cert", metavar="FILE",
+                       help="serve HTTPS and WSS with this PEM certificate (chain); with "
+                            "--tls-key (docs/server.md, HTTPS)")
+    serve.add_argument("--tls-key", metavar="FILE", help="the PEM private key of --tls-cert")
+    serve.add_argument("--allow-host", metavar="NAME", action="append", default=None,
+                       help="a Host name this server answers for (its domain behind a proxy; "
+                            "*.example.org for a domain); repeatable. IP addresses, localhost "
+                            "and the machine's names are always allowed")
     serve.add_argument("--log-level", default="info",
                        choices=["debug", "info", "warning", "error"], help="default: info")
     serve.set_defaults(run=run_serve)
@@ -94,7 +102,17 @@ def setup_logging(level: str) -> None:
 
 
 def _lan_address() -> str | None:
-    """This machine's address as others on the network would use it (no traffic sent)."""
+    """This machine's address as others on the network would use it (no traffic sent): the
+    source address of a route out (a UDP socket's connect sends nothing), else the host name's
+    address (Debian maps the host name to 127.0.1.1, hence the route first)."""
+    try:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+            probe.connect(("192.0.2.1", 9))  # TEST-NET-1: never answered, never sent to
+            address = probe.getsockname()[0]
+        if not address.startswith(("127.", "0.")):
+            return address
+    except OSError:
+        pass
     try:
         address = socket.gethostbyname(socket.gethostname())
     except OSError:
@@ -131,11 +149,19 @@ def run_serve(args: argparse.Namespace) -> int:
         for flag, key in (("host", "server.host"), ("port", "server.port"),
                           ("sky", "sky.source"), ("site_camera", "site_camera.source"),
                           ("workers", "server.workers"), ("broker", "server.broker"),
-                          ("role", "server.role")):
+                          ("role", "server.role"), ("tls_cert", "server.tls_cert"),
+                          ("tls_key", "server.tls_key")):
             if getattr(args, flag) is not None:
                 overrides[key] = getattr(args, flag)
+        if args.allow_host:
+            overrides["access.allowed_hosts"] = list(args.allow_host)
         settings = load_settings(args.config, overrides)
         srv = settings.server
+        tls = None
+        if srv.tls_cert:
+            from server.tls import server_context
+
+            tls = server_context(srv.tls_cert, srv.tls_key)
         split = srv.role != "all" or srv.workers > 1 or bool(srv.broker)
         if split:
             _tag_log(srv.role)
@@ -156,10 +182,10 @@ def run_serve(args: argparse.Namespace) -> int:
         if srv.role == "fanout" and srv.workers > 1:
             return asyncio.run(_serve_pool(args, settings, None))
         if srv.role == "fanout":
-            return asyncio.run(_serve_fanout(app, settings, link, log))
+            return asyncio.run(_serve_fanout(app, settings, link, log, tls))
         if split:
             return asyncio.run(_serve_pool(args, settings, app))
-        return asyncio.run(_serve(app, settings, log))
+        return asyncio.run(_serve(app, settings, log, tls=tls))
     except LinkError as exc:
         print(f"daylit serve: error: {exc}", file=sys.stderr)
         return 1
@@ -236,7 +262,7 @@ def _stop_event(log) -> asyncio.Event:
     return stop
 
 
-async def _serve_fanout(app, settings, link, log) -> int:
+async def _serve_fanout(app, settings, link, log, tls=None) -> int:
     """One fan-out worker: check its link, then serve with SO_REUSEPORT."""
     from server.broker import BrokerError
     from server.localfeed import FeedError
@@ -247,7 +273,7 @@ async def _serve_fanout(app, settings, link, log) -> int:
         await link.check()
     except (BrokerError, FeedError) as exc:
         raise LinkError(str(exc)) from None
-    return await _serve(app, settings, log, reuse_port=True)
+    return await _serve(app, settings, log, reuse_port=True, tls=tls)
 
 
 async def _serve_pool(args, settings, app) -> int:
@@ -277,7 +303,8 @@ async def _serve_pool(args, settings, app) -> int:
                 print(f"daylit: {workers} fan-out workers on port {srv.port}, fed by "
                       f"{_link_name(broker)}", flush=True)
                 shown = "localhost" if srv.host in ("0.0.0.0", "::", "") else srv.host
-                print(f"daylit: open http://{shown}:{srv.port}/", flush=True)
+                scheme = "https" if srv.tls_cert else "http"
+                print(f"daylit: open {scheme}://{shown}:{srv.port}/", flush=True)
                 failed = asyncio.ensure_future(pool.failed.wait())
                 stopped = asyncio.ensure_future(stop.wait())
                 await asyncio.wait({failed, stopped}, return_when=asyncio.FIRST_COMPLETED)
@@ -320,7 +347,7 @@ def _banner(app) -> None:
               + (" (always by day)" if sim.keep_daylight else ""), flush=True)
 
 
-async def _serve(app, settings, log, reuse_port: bool = False) -> int:
+async def _serve(app, settings, log, reuse_port: bool = False, tls=None) -> int:
     from aiohttp import web
 
     from server.app import OCCLUSION, PIPELINE, relearn_occlusion
@@ -334,7 +361,7 @@ async def _serve(app, settings, log, reuse_port: bool = False) -> int:
     await runner.setup()
     site = GuardedSite(runner, host, port,
                        max_connections_per_address=settings.server.max_connections_per_address,
-                       reuse_port=reuse_port)
+                       reuse_port=reuse_port, ssl_context=tls)
     try:
         await site.start()
     except OSError:
@@ -348,11 +375,26 @@ async def _serve(app, settings, log, reuse_port: bool = False) -> int:
 
         print(f"daylit: fan-out worker (pid {os.getpid()}), fed by {app[LINK_NAME]}",
               flush=True)
-    print(f"daylit: open http://{shown}:{port}/", flush=True)
+    scheme = "https" if tls is not None else "http"
+    print(f"daylit: open {scheme}://{shown}:{port}/", flush=True)
     lan = _lan_address() if host in ("0.0.0.0", "::", "") else None
     if lan:
-        print(f"daylit: on the site network: http://{lan}:{port}/", flush=True)
-    print(f"daylit: status: http://{shown}:{port}/api/status  (Ctrl-C to stop)", flush=True)
+        print(f"daylit: on the site network: {scheme}://{lan}:{port}/", flush=True)
+        if tls is None:
+            print("daylit: phones allow the camera and AR over HTTPS only: serve with "
+                  "--tls-cert FILE --tls-key FILE (docs/server.md, \"A phone on the same "
+                  "network\")", flush=True)
+    print(f"daylit: status: {scheme}://{shown}:{port}/api/status  (operators; Ctrl-C to "
+          "stop)", flush=True)
+    from server.access import AccessPolicy
+
+    if AccessPolicy.from_settings(settings).token:
+        print(f"daylit: kiosk: {scheme}://{shown}:{port}/?mode=kiosk&token=<the operator token>"
+              " (also for /api/status)", flush=True)
+    else:
+        print(f"daylit: kiosk: {scheme}://localhost:{port}/?mode=kiosk on this machine only; "
+              "elsewhere set DAYLIT_OPERATOR_TOKEN (docs/server.md, Who can see what)",
+              flush=True)
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):

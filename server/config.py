@@ -68,9 +68,24 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "role": Key("all", "str", "all (measuring and fan-out) | measure (the measuring "
                     "process alone, publishing to the broker) | fanout (fan-out workers alone, "
                     "fed by the broker)", choices=("all", "measure", "fanout")),
+        "tls_cert": Key("", "str", "PEM certificate (chain) file: serve HTTPS and WSS "
+                        "(--tls-cert; with tls_key); empty: plain HTTP"),
+        "tls_key": Key("", "str", "PEM private key file of tls_cert (--tls-key)"),
         "web_root": Key(str(REPO_ROOT / "web"), "str", "folder served at /"),
         "three_root": Key(str(REPO_ROOT / "node_modules" / "three"), "str",
                           "the three package, served at /vendor/three/"),
+    },
+    "access": {
+        "operator_token": Key("", "str", "token of kiosks and operators (?token= in the kiosk "
+                              "URL): the site-camera and occlusion streams, /api/status and "
+                              "/api/sky.jpg need it; the environment variable "
+                              "DAYLIT_OPERATOR_TOKEN takes precedence; empty: those are served "
+                              "only to requests from this machine"),
+        "allowed_hosts": Key([], "list[str]", "Host names this server answers for besides IP "
+                             "addresses, localhost and the machine's own names (--allow-host; "
+                             "*.example.org for a domain, \"*\" for any); others get 421"),
+        "serve_masters": Key(False, "bool", "also serve the build's EXR masters under /build/ "
+                             "(gigabytes no client reads)"),
     },
     "sky": {
         "source": Key("sim", "source", "where the sky's frames come from: the simulated "
@@ -372,6 +387,10 @@ def _check_serving(settings: Settings, origin: dict[str, str], label: str) -> No
     if srv.role != "all" and not srv.broker:
         raise ConfigError(f"{origin.get('server.role', label)}: [server] role {srv.role} needs "
                           "a broker (--broker redis://HOST:PORT/DB)")
+    if bool(srv.tls_cert) != bool(srv.tls_key):
+        given, missing = ("tls_cert", "tls_key") if srv.tls_cert else ("tls_key", "tls_cert")
+        raise ConfigError(f"{origin.get('server.' + given, label)}: [server] {given} needs "
+                          f"{missing} too (--tls-cert FILE --tls-key FILE)")
     if srv.role == "measure" and srv.workers > 1:
         raise ConfigError(f"{origin.get('server.workers', label)}: [server] workers: the "
                           "measuring process alone (role measure) runs no fan-out workers; "

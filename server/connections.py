@@ -25,6 +25,7 @@ import asyncio
 import errno
 import logging
 import socket
+import ssl
 
 from aiohttp import web
 from aiohttp.http_exceptions import HttpProcessingError
@@ -80,6 +81,8 @@ class GuardedSite(web.BaseSite):
         Open connections one client address may hold.
     reuse_port : bool
         ``SO_REUSEPORT``: several processes may listen on the same port.
+    ssl_context : ssl.SSLContext, optional
+        Serve TLS (HTTPS and WSS) with it (:func:`server.tls.server_context`).
     log_interval_s : float
         The least time between two log lines of one kind (out of descriptors; one address
         over its limit).
@@ -93,8 +96,9 @@ class GuardedSite(web.BaseSite):
 
     def __init__(self, runner: web.BaseRunner, host: str, port: int, *,
                  max_connections_per_address: int = 256, backlog: int = 128,
-                 reuse_port: bool = False, log_interval_s: float = 10.0):
-        super().__init__(runner, backlog=backlog)
+                 reuse_port: bool = False, log_interval_s: float = 10.0,
+                 ssl_context: ssl.SSLContext | None = None):
+        super().__init__(runner, backlog=backlog, ssl_context=ssl_context)
         self._host = host
         self._port = port
         self._reuse_port = reuse_port
@@ -110,7 +114,8 @@ class GuardedSite(web.BaseSite):
 
     @property
     def name(self) -> str:
-        return f"http://{self._host or '0.0.0.0'}:{self._port}"
+        scheme = "https" if self._ssl_context is not None else "http"
+        return f"{scheme}://{self._host or '0.0.0.0'}:{self._port}"
 
     @property
     def open_connections(self) -> int:
@@ -204,7 +209,8 @@ class GuardedSite(web.BaseSite):
 
     async def _connect(self, conn: socket.socket, protocol: _Counted) -> None:
         try:
-            await asyncio.get_running_loop().connect_accepted_socket(lambda: protocol, conn)
+            await asyncio.get_running_loop().connect_accepted_socket(
+                lambda: protocol, conn, ssl=self._ssl_context)
         except OSError as exc:  # the client left before its transport was made
             log.debug("connection lost while accepting: %s", exc)
             conn.close()

@@ -25,6 +25,7 @@ from aiohttp import web
 from daylit import __version__
 from daylit import manifest as manifest_io
 from server import protocol
+from server.access import AccessPolicy
 from server.app import Supervisor
 from server.config import Settings
 from server.lightstream import LightHub
@@ -94,7 +95,8 @@ def create_fanout_app(build_dir: Path | str, settings: Settings, link, link_name
     app.cleanup_ctx.append(_background)
     app.on_shutdown.append(_close_streams)
     add_client_routes(app, hub, status, sky_jpeg, Path(srv.web_root), Path(srv.three_root),
-                      build_dir, manifest)
+                      build_dir, manifest,
+                      AccessPolicy.from_settings(settings))
     return app
 
 

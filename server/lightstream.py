@@ -19,6 +19,9 @@ measured in docs/benchmarks.md.
 
 Per connection (``GET /ws/light``):
 - the Origin must be the page's own or in ``allowed_origins`` (else HTTP 403);
+- the ``site-camera`` and ``occlusion`` streams go only to an operator's connection (the kiosk
+  URL's ``?token=``, :mod:`server.access`); others get the light alone (their hello's
+  ``streams`` says so);
 - beyond ``max_clients`` the connection is accepted and closed at once with 1013;
 - the first message is the JSON hello, then binary messages (:mod:`server.protocol`);
 - the client may send small JSON messages (subscribe, ping); anything else closes that client
@@ -44,6 +47,7 @@ from urllib.parse import urlsplit
 from aiohttp import WSCloseCode, WSMsgType, web
 
 from server import protocol
+from server.access import OPERATOR, PRIVATE_STREAMS
 from server.protocol import MessageType, ProtocolError
 
 log = logging.getLogger("daylit.stream")
@@ -64,6 +68,7 @@ class Client:
     remote: str
     streams: set[str]
     version: int = 1  # the connection's protocol version
+    operator: bool = False  # may receive the private streams (server.access)
     transport: asyncio.BaseTransport | None = None
     wake: asyncio.Event = field(default_factory=asyncio.Event)
     # The hub's LIGHT entry last sent, by identity: the same vector re-published marked STALE
@@ -254,8 +259,11 @@ class LightHub:
                         remote, len(self.clients))
             await ws.close(code=WSCloseCode.TRY_AGAIN_LATER, message=b"server full")
             return ws
-        client = Client(ws, remote, set(streams), version, request.transport,
-                        tokens=5.0 * self.client_rate)
+        client = Client(ws, remote, set(streams), version, request.get(OPERATOR, False),
+                        request.transport, tokens=5.0 * self.client_rate)
+        if not client.operator and not client.streams.isdisjoint(PRIVATE_STREAMS):
+            log.warning("light stream of %s: %s withheld (no operator token)", remote,
+                        ", ".join(sorted(client.streams & PRIVATE_STREAMS)))
         self._filter_streams(client)
         await ws.send_str(self.hello(sorted(client.streams), version))
         self.clients.add(client)
@@ -282,6 +290,8 @@ class LightHub:
         return ws
 
     def _filter_streams(self, client: Client) -> None:
+        if not client.operator:
+            client.streams -= PRIVATE_STREAMS
         if not self.site_camera_available:
             client.streams.discard(SITE_CAMERA)
         if not self.occlusion_available:

@@ -4,9 +4,9 @@
 ``GET /``, ``/{path}``        the ``web/`` folder (``index.html`` for a folder)
 ``GET /vendor/three/{path}``  the installed ``three`` package (``build/``, ``examples/jsm/``,
                               including the Basis transcoder in ``examples/jsm/libs/basis/``)
-``GET /build/{path}``         the baked build directory
-``GET /api/status``           JSON status for operators and the HUD
-``GET /api/sky.jpg``          the newest sky frame, small
+``GET /build/{path}``         the build's manifest and the files it lists for clients
+``GET /api/status``           JSON status for operators (:mod:`server.access`)
+``GET /api/sky.jpg``          the newest sky frame, small (operators)
 ``GET /ws/light``             the light stream (:mod:`server.lightstream`)
 ============================  ==========================================================
 
@@ -30,7 +30,9 @@ from pathlib import Path, PurePosixPath
 
 from aiohttp import web
 
+from server.access import AccessPolicy, install_access
 from server.connections import install_refused_request_log
+from server.integrity import BuildIntegrity
 
 CONTENT_TYPES = {
     ".glb": "model/gltf-binary",
@@ -86,11 +88,14 @@ class StaticRoot:
     """Serves one folder with explicit types, cache headers and gzip for text."""
 
     def __init__(self, root: Path, name: str, default_cache: str = NO_CACHE,
-                 checksums: dict[str, str] | None = None):
+                 checksums: dict[str, str] | None = None, offered: frozenset[str] | None = None,
+                 integrity: BuildIntegrity | None = None):
         self.root = Path(root)
         self.name = name
         self.default_cache = default_cache
         self.checksums = checksums or {}
+        self.offered = offered  # None: every file under the root; else only these paths
+        self.integrity = integrity
         self._gz_cache: dict[Path, tuple[tuple[int, int], bytes, str]] = {}
 
     def cache_control(self, rel: str, request: web.Request) -> str:
@@ -113,6 +118,16 @@ class StaticRoot:
         if path is None or not path.is_file():
             raise web.HTTPNotFound(text=f"not found: /{self.name}{tail}\n")
         rel = path.relative_to(self.root.resolve()).as_posix()
+        if self.offered is not None and rel not in self.offered:
+            if rel in self.checksums:  # listed, but not for clients: an EXR master
+                raise web.HTTPForbidden(text=f"not offered to clients: /{self.name}{rel} (an EXR "
+                                        "master; [access] serve_masters offers them)\n")
+            raise web.HTTPNotFound(text=f"not found: /{self.name}{tail}\n")
+        if self.integrity is not None and not await self.integrity.intact(rel, path):
+            raise web.HTTPServiceUnavailable(
+                text=f"/{self.name}{rel} is damaged on the server (its SHA-256 does not match "
+                     "the manifest); the operator has been told\n",
+                headers={"Cache-Control": "no-store", "Retry-After": "60"})
         suffix = path.suffix.lower()
         headers = {
             "Content-Type": CONTENT_TYPES.get(suffix, "application/octet-stream"),
@@ -147,9 +162,11 @@ class StaticRoot:
 
 
 def add_static_routes(app: web.Application, web_root: Path, three_root: Path, build_dir: Path,
-                      checksums: dict[str, str]) -> None:
-    """Register the three static roots (the catch-all web root last)."""
-    build = StaticRoot(build_dir, "build/", NO_CACHE, checksums)
+                      checksums: dict[str, str], offered: frozenset[str] | None = None,
+                      integrity: BuildIntegrity | None = None) -> None:
+    """Register the three static roots (the catch-all web root last); ``/build/`` serves only
+    ``offered`` (None: every file) and, with ``integrity``, only intact files."""
+    build = StaticRoot(build_dir, "build/", NO_CACHE, checksums, offered, integrity)
     three = StaticRoot(three_root, "vendor/three/", ONE_DAY)
     site = StaticRoot(web_root, "", NO_CACHE)
     app.router.add_get("/build/{tail:.*}", build.handle, name="build")
@@ -158,13 +175,39 @@ def add_static_routes(app: web.Application, web_root: Path, three_root: Path, bu
 
 
 def add_client_routes(app: web.Application, hub, status, sky_jpeg, web_root: Path,
-                      three_root: Path, build_dir: Path, manifest: dict) -> None:
+                      three_root: Path, build_dir: Path, manifest: dict,
+                      policy: AccessPolicy) -> None:
     """What every process that holds clients serves (one process, or a fan-out worker): the
     light stream of ``hub`` (a :class:`server.lightstream.LightHub`), ``/api/status`` and
-    ``/api/sky.jpg`` (the given handlers), then the static roots; refused requests logged."""
+    ``/api/sky.jpg`` (the given handlers), then the static roots; every request checked by
+    ``policy`` (:mod:`server.access`), the build's files by their SHA-256
+    (:mod:`server.integrity`, checked once at start); refused requests logged."""
     install_refused_request_log()
+    install_access(app, policy)
     app.router.add_get("/ws/light", hub.handle, name="light")
     app.router.add_get("/api/status", status, name="status")
     app.router.add_get("/api/sky.jpg", sky_jpeg, name="sky")
     checksums = {f["path"]: f["sha256"] for f in manifest["files"]}
-    add_static_routes(app, web_root, three_root, build_dir, checksums)
+    offered = policy.client_files(manifest)
+    integrity = BuildIntegrity(build_dir, {p: d for p, d in checksums.items() if p in offered})
+    app[INTEGRITY] = integrity
+    add_static_routes(app, web_root, three_root, build_dir, checksums, offered, integrity)
+    app.on_startup.append(_check_build)
+
+
+INTEGRITY = web.AppKey("integrity", BuildIntegrity)
+
+
+async def _check_build(app: web.Application) -> None:
+    """``on_startup``: check every offered build file once, while the server answers."""
+    task = asyncio.ensure_future(app[INTEGRITY].check_all())
+    app[CHECK_TASK] = task
+
+    async def stop(_app) -> None:
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+
+    app.on_cleanup.append(stop)
+
+
+CHECK_TASK = web.AppKey("integrity_check", asyncio.Task)

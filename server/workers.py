@@ -157,6 +157,11 @@ def worker_argv(args, settings, broker: str) -> list[str]:
         argv += ["--broker", broker]
     if args.config:
         argv += ["--config", args.config]
+    for flag in ("tls_cert", "tls_key"):
+        if getattr(args, flag, None):
+            argv += ["--" + flag.replace("_", "-"), getattr(args, flag)]
+    for name in getattr(args, "allow_host", None) or ():
+        argv += ["--allow-host", name]
     for text in args.set:
         argv += ["--set", text]
     return argv

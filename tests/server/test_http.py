@@ -7,6 +7,7 @@ import json
 
 import pytest
 
+from bake.buildmanifest import write_manifest
 from server.app import create_app
 from tests.server.helpers import ManualSource, settings_for
 
@@ -17,6 +18,8 @@ async def client(aiohttp_client, build_dir, tmp_path):
     (build_dir / "atlas.ktx2").write_bytes(b"\xabKTX 20\xbb\r\n\x1a\n" + bytes(64))
     (build_dir / "exr" / "ground.exr").write_bytes(b"\x76\x2f\x31\x01" + bytes(64))
     (build_dir / "v.bin").write_bytes(bytes(range(16)))
+    write_manifest(build_dir, json.loads((build_dir / "manifest.json").read_text()))
+    (build_dir / "unlisted.bin").write_bytes(bytes(8))  # on disk, not in the manifest
     secret = tmp_path / "secret.txt"
     secret.write_text("TOP SECRET\n")
     (build_dir / "leak.txt").symlink_to(secret)
@@ -34,7 +37,6 @@ async def test_build_files_have_their_types(client):
     for path, ctype in [
         ("/build/site.glb", "model/gltf-binary"),
         ("/build/atlas.ktx2", "image/ktx2"),
-        ("/build/exr/ground.exr", "image/x-exr"),
         ("/build/v.bin", "application/octet-stream"),
         ("/build/manifest.json", "application/json"),
     ]:
@@ -42,6 +44,23 @@ async def test_build_files_have_their_types(client):
         assert resp.status == 200, path
         assert resp.headers["Content-Type"] == ctype, path
         assert resp.headers["X-Content-Type-Options"] == "nosniff"
+
+
+async def test_build_serves_only_what_the_manifest_lists_for_clients(client):
+    master = await client.get("/build/exr/ground.exr")
+    assert master.status == 403 and "serve_masters" in await master.text()
+    assert (await client.get("/build/unlisted.bin")).status == 404
+
+
+async def test_masters_are_served_when_the_operator_says_so(aiohttp_client, build_dir, tmp_path):
+    (build_dir / "exr").mkdir()
+    (build_dir / "exr" / "ground.exr").write_bytes(b"\x76\x2f\x31\x01" + bytes(64))
+    write_manifest(build_dir, json.loads((build_dir / "manifest.json").read_text()))
+    settings = settings_for(tmp_path, access__serve_masters=True)
+    client = await aiohttp_client(create_app(build_dir, settings, sky_source=ManualSource()))
+    resp = await client.get("/build/exr/ground.exr")
+    assert resp.status == 200 and resp.headers["Content-Type"] == "image/x-exr"
+    assert await resp.read() == (build_dir / "exr" / "ground.exr").read_bytes()
 
 
 async def test_cache_headers(client, build_dir):
@@ -98,7 +117,7 @@ async def test_three_addons_and_the_basis_transcoder_are_served(client):
 async def raw_get(port: int, target: str) -> tuple[int, bytes]:
     """Send the request line exactly as written (no client-side normalisation)."""
     reader, writer = await asyncio.open_connection("127.0.0.1", port)
-    writer.write(f"GET {target} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n".encode())
+    writer.write(f"GET {target} HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\r\n".encode())
     await writer.drain()
     data = await asyncio.wait_for(reader.read(), 10)
     writer.close()
@@ -135,3 +154,9 @@ async def test_paths_cannot_escape_their_root(client, target):
 async def test_sky_image_is_unavailable_before_the_first_frame(client):
     resp = await client.get("/api/sky.jpg")
     assert resp.status == 503 and resp.headers["Retry-After"] == "1"
+
+
+async def test_answers_keep_a_kiosk_token_out_of_referers(client):
+    for path in ("/", "/build/manifest.json", "/src/main.js"):
+        resp = await client.get(path)
+        assert resp.headers["Referrer-Policy"] == "same-origin", path

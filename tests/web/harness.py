@@ -197,10 +197,12 @@ class StubServer:
 class DaylitServer:
     """``daylit serve BUILD ARGS`` as a subprocess on a free (or given) port."""
 
-    def __init__(self, build_dir: Path, *args: str, port: int | None = None):
+    def __init__(self, build_dir: Path, *args: str, port: int | None = None,
+                 token: str | None = None):
         self.build_dir = Path(build_dir)
         self.args = list(args)
         self.port = port or free_port()
+        self.token = token  # the operator's token (DAYLIT_OPERATOR_TOKEN), None: none
         self.url = f"http://127.0.0.1:{self.port}"
         self.proc: subprocess.Popen | None = None
 
@@ -209,14 +211,19 @@ class DaylitServer:
                "--host", "127.0.0.1", "--port", str(self.port), *self.args]
         self.log_path = Path(tempfile.gettempdir()) / f"daylit-serve-{self.port}.log"
         self.log = open(self.log_path, "ab")  # noqa: SIM115
-        self.proc = subprocess.Popen(cmd, cwd=REPO, stdout=self.log, stderr=subprocess.STDOUT)
+        env = {k: v for k, v in os.environ.items() if k != "DAYLIT_OPERATOR_TOKEN"}
+        if self.token is not None:
+            env["DAYLIT_OPERATOR_TOKEN"] = self.token
+        self.proc = subprocess.Popen(cmd, cwd=REPO, stdout=self.log, stderr=subprocess.STDOUT,
+                                     env=env)
+        status_url = self.url + "/api/status" + (f"?token={self.token}" if self.token else "")
         t0 = time.monotonic()
         while True:
             if self.proc.poll() is not None:
                 raise RuntimeError(f"daylit serve exited with {self.proc.returncode}: "
                                    + self.log_text()[-2000:])
             with contextlib.suppress(OSError), \
-                    urllib.request.urlopen(self.url + "/api/status", timeout=2) as r:
+                    urllib.request.urlopen(status_url, timeout=2) as r:
                 if json.loads(r.read()).get("sequence", 0) > 0:
                     return self
             if time.monotonic() - t0 > timeout_s:

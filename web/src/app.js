@@ -53,8 +53,12 @@ export class App {
   async start() {
     this.hud = new Hud(this.hudRoot, this);
     this._createRenderer();
+    const params = this.params;
     this.stream = new LightStream({
       siteCamera: this.mode === 'kiosk',
+      // The kiosk URL's ?token= (docs/server.md, "Who can see what") opens the site camera.
+      token: this.mode === 'kiosk' ? params.get('token') : null,
+      onHello: () => this._onHello(),
       onLight: (m) => this._onLight(m),
       onFrame: (f) => this.kiosk?.addFrame(f),
       onMask: (m) => this.kiosk?.addMask(m),
@@ -134,6 +138,7 @@ export class App {
       // Everything is here: the loading note goes (before the mode, whose note must stay).
       this.assets.onProgress = null;
       this.hud.setMessage(null);
+      if (this.stream.hello) this._onHello(); // a kiosk's note that outlasts the loading
       if (kiosk) {
         this.kiosk = new Kiosk(this.renderer, this.relighter, view,
           new KioskSun(this.renderer, gltf, manifest, view, this.relighter.format));
@@ -162,6 +167,13 @@ export class App {
       this._teardown();
       clearTimeout(this._bootTimer);
       this._bootTimer = setTimeout(() => this._boot(), RETRY_BOOT_MS);
+    }
+  }
+
+  /** A kiosk without the operator's token draws the baked view: say why. */
+  _onHello() {
+    if (this.stream.siteCameraDenied) {
+      this.hud.setMessage('The site camera needs the operator\'s token: open this kiosk as ?mode=kiosk&token=…', 'warn');
     }
   }
 

@@ -1,8 +1,13 @@
 // The build over HTTP: the manifest, then the files it lists, each requested as
 // /build/PATH?v=<first 16 hex of its sha256> so the server may let the browser cache it as
-// immutable (docs/server.md, HTTP). Counts the bytes it transfers as they arrive (the HUD shows
-// them while loading, the benchmark reports them) and turns every failure into an AssetError
-// that names the file.
+// immutable (docs/server.md, HTTP). Each file's bytes are checked against the manifest's
+// SHA-256 (SubtleCrypto) before use: a mismatch (a damaged copy in the browser's cache or on the
+// way) is fetched once more bypassing the cache (`cache: 'reload'`, which also replaces the
+// cached copy), and a second mismatch is an error that names the file. SubtleCrypto exists
+// only in a secure context (HTTPS, or localhost): on plain HTTP from another address only the
+// length is checked (`verification` says which; docs/web.md, "Integrity"). Counts the bytes
+// it transfers as they arrive (the HUD shows them while loading, the benchmark reports them)
+// and turns every failure into an AssetError that names the file.
 import { KTX2Loader } from 'three/addons/loaders/KTX2Loader.js';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
 
@@ -33,6 +38,9 @@ export class Assets {
     this.bytesLoaded = 0;
     this.onProgress = options.onProgress ?? null;
     this.requests = 0;
+    this.refetched = []; // paths whose first copy did not match the manifest
+    // 'sha256' where SubtleCrypto is available (a secure context), else 'length'.
+    this.verification = globalThis.crypto?.subtle ? 'sha256' : 'length';
     this.ktx2 = null;
   }
 
@@ -70,21 +78,48 @@ export class Assets {
     return u.href;
   }
 
+  /** A build file's bytes, checked against the manifest (fetched again once on a mismatch). */
   async bytes(path) {
+    const entry = this.files.get(path);
+    let buffer = await this._fetch(path, 'default');
+    let problem = entry ? await this._mismatch(entry, buffer) : null;
+    if (problem) {
+      // A damaged copy (the HTTP cache's, or the network's): once more from the server.
+      this.refetched.push(path);
+      console.warn(`daylit: ${path}: ${problem}; fetching it again, bypassing the cache`);
+      buffer = await this._fetch(path, 'reload');
+      problem = await this._mismatch(entry, buffer);
+      if (problem) throw new AssetError(path, `${problem}, also when fetched again (the file is damaged on the server or on the way)`);
+    }
+    return buffer;
+  }
+
+  async _fetch(path, cache) {
     let response;
     try {
-      response = await fetch(this.url(path));
+      response = await fetch(this.url(path), { cache });
     } catch (err) {
       throw new AssetError(path, `network error (${err.message})`);
     }
+    if (response.status === 503 && response.headers.get('Cache-Control') === 'no-store') {
+      // The server found the file does not match the manifest (docs/server.md, Integrity).
+      throw new AssetError(path, 'the file is damaged on the server (HTTP 503); the operator must repair the build');
+    }
     if (!response.ok) throw new AssetError(path, `HTTP ${response.status}`);
     const buffer = await this._read(response, path);
-    const entry = this.files.get(path);
-    if (entry && entry.bytes !== buffer.byteLength) {
-      throw new AssetError(path, `${buffer.byteLength} bytes, the manifest says ${entry.bytes}`);
-    }
     this.requests += 1;
     return buffer;
+  }
+
+  /** Why `buffer` is not the file `entry` lists ({bytes, sha256}), or null if it is. */
+  async _mismatch(entry, buffer) {
+    if (entry.bytes !== buffer.byteLength) {
+      return `${buffer.byteLength} bytes, the manifest says ${entry.bytes}`;
+    }
+    if (this.verification !== 'sha256' || !entry.sha256) return null;
+    const digest = new Uint8Array(await crypto.subtle.digest('SHA-256', buffer));
+    const hex = Array.from(digest, (b) => b.toString(16).padStart(2, '0')).join('');
+    return hex === entry.sha256 ? null : `SHA-256 ${hex.slice(0, 16)}…, the manifest says ${entry.sha256.slice(0, 16)}…`;
   }
 
   /** The body as an ArrayBuffer, counted into bytesLoaded chunk by chunk as it arrives. */

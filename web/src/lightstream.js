@@ -21,7 +21,8 @@ const OCCLUSION_STREAM = 'occlusion'; // server/lightstream.py OCCLUSION
 
 export class LightStream {
   /**
-   * @param {{siteCamera?: boolean, url?: string, location?: {protocol: string, host: string},
+   * @param {{siteCamera?: boolean, token?: string, url?: string,
+   *   location?: {protocol: string, host: string},
    *   onLight?: Function, onFrame?: Function, onMask?: Function, onHello?: Function,
    *   onState?: Function}} options  url: a fixed URL (no version fallback); location: the
    *   server's (default the page's).
@@ -30,14 +31,15 @@ export class LightStream {
    *   server's protocol 1: the sun is then inside its patch's value in rgb),
    *   onFrame({jpeg: Uint8Array, sequence, captureTime}),
    *   onMask({width, height, mask, people, sequence, captureTime}),
-   *   onState(state): 'connecting' | 'open' | 'reconnecting' | 'closed'.
+   *   onState(state): 'connecting' | 'open' | 'reconnecting' | 'closed';
+   *   token: the operator's token (a kiosk's), sent as the subscription's ?token=.
    */
   constructor(options = {}) {
     this.options = options;
     this.streams = options.siteCamera ? ['light', 'site-camera'] : ['light'];
     this.location = options.location ?? globalThis.location;
     this.version = PROTOCOL_VERSION; // the version the next connection asks for
-    this.url = options.url ?? lightStreamUrl(this.location, this.streams, this.version);
+    this.url = options.url ?? lightStreamUrl(this.location, this.streams, this.version, this.options.token);
     this.ws = null;
     this.state = 'closed';
     this.hello = null;
@@ -82,7 +84,7 @@ export class LightStream {
   _connect() {
     clearTimeout(this._timer);
     this._setState(this.reconnects ? 'reconnecting' : 'connecting');
-    if (!this.options.url) this.url = lightStreamUrl(this.location, this.streams, this.version);
+    if (!this.options.url) this.url = lightStreamUrl(this.location, this.streams, this.version, this.options.token);
     let ws;
     try {
       ws = new WebSocket(this.url);
@@ -183,6 +185,14 @@ export class LightStream {
       this.clockOffsetS = msg.server_time_s - (Date.now() / 1000 - rttS / 2);
       this.rttMs = rttS * 1000;
     }
+  }
+
+  /** True when the kiosk asked for the site camera but the server withheld it (no or a wrong
+   * operator token: server/access.py), though the server has one. */
+  get siteCameraDenied() {
+    if (!this.options.siteCamera || !this.hello) return false;
+    const available = this.hello.available_streams ?? [];
+    return available.includes('site-camera') && !(this.hello.streams ?? []).includes('site-camera');
   }
 
   /** The kiosk also wants the occlusion masks when the server offers them. */

@@ -184,10 +184,16 @@ export function pingMessage(id) {
  * for protocol `version` (default the newest, 3; a server that only knows version 1 ignores
  * the parameter, one that knows 1 and 2 refuses 3 with HTTP 400: ask FALLBACK_VERSION).
  */
-export function lightStreamUrl(location, streams = ['light'], version = PROTOCOL_VERSION) {
+/**
+ * The light stream's URL. `token`: the operator's token a kiosk carries (its page's
+ * `?token=`), without which the server withholds the site-camera and occlusion streams
+ * (docs/protocol.md, "Connecting").
+ */
+export function lightStreamUrl(location, streams = ['light'], version = PROTOCOL_VERSION, token = null) {
   const scheme = location.protocol === 'https:' ? 'wss:' : 'ws:';
   const params = [`protocol=${version}`];
   if (streams.length) params.push(`streams=${streams.join(',')}`);
+  if (token) params.push(`token=${encodeURIComponent(token)}`);
   return `${scheme}//${location.host}/ws/light?${params.join('&')}`;
 }
 

@@ -24,6 +24,9 @@ export function makeStatus(source) {
     occlusionMasks: () => source.stream?.messages.occlusion ?? 0,
     contextLost: () => source.contextLost,
     reconnects: () => source.stream?.reconnects ?? 0,
+    integrity: () => source.assets?.verification ?? null,
+    refetched: () => [...(source.assets?.refetched ?? [])],
+    siteCameraDenied: () => source.stream?.siteCameraDenied ?? false,
   };
   const status = {};
   for (const [name, get] of Object.entries(fields)) {
