@@ -157,9 +157,6 @@ def camera_rays(view: PinholeView) -> np.ndarray:
 def render_sky(site: KnownSite, spec: SkySpec, extra=(), procs: int = 1) -> RenderedSky:
     """Render the view under one gendaylit sky (sun and sky apart), with ``extra`` parts
     ``(name, mesh, albedo)`` the estimator is not told of."""
-    import datetime as dt
-    import zoneinfo
-
     _, env = radiance_env()
     sky = gendaylit(spec, SITE, env)
     rays = camera_rays(site.view)
@@ -179,12 +176,21 @@ def render_sky(site: KnownSite, spec: SkySpec, extra=(), procs: int = 1) -> Rend
                          procs=procs).reshape(shape)
         up = np.array([[0.0, 0.0, 0.001, 0.0, 0.0, 1.0]])
         dhi = float(rtrace(sky_only, up, SKY_IRRADIANCE, env).mean())
-    hh, mm = (int(x) for x in spec.hour.split(":"))
-    # gendaylit's time is local standard time (Japan has no daylight saving)
-    when = dt.datetime(spec.year, spec.month, spec.day, hh, mm,
-                       tzinfo=zoneinfo.ZoneInfo(SITE["scene"]["timezone"]))
+    when = local_time(spec, SITE["scene"]["timezone"])
     return RenderedSky(sun_img, sky_img, sky.dni if sky.has_sun else 0.0, dhi, sky.sun_dir,
-                       when.timestamp())
+                       when)
+
+
+def local_time(spec: SkySpec, timezone: str):
+    """The moment of a gendaylit condition. gendaylit reads its time as decimal hours of
+    local standard time ("9.5"; it takes "9:30" for 9.0): the specs here use decimal hours.
+    (Japan, the test site's zone, has no daylight saving time.)"""
+    import datetime as dt
+    import zoneinfo
+
+    hours = float(spec.hour)
+    start = dt.datetime(spec.year, spec.month, spec.day, tzinfo=zoneinfo.ZoneInfo(timezone))
+    return (start + dt.timedelta(hours=hours)).timestamp()
 
 
 def srgb_encode(linear: np.ndarray) -> np.ndarray:
@@ -226,9 +232,6 @@ def render_build_view(build_dir: Path, spec: SkySpec, width: int, height: int,
     """A build's first fixed view (scaled to ``width`` x ``height``) of its real proxies and
     ground (``bench_fidelity.scene_files``; no virtual object) rendered by Radiance under one
     gendaylit sky for the build's site."""
-    import datetime as dt
-    import zoneinfo
-
     from benchmarks.bench_fidelity import scene_files
 
     _, env = radiance_env()
@@ -250,8 +253,5 @@ def render_build_view(build_dir: Path, spec: SkySpec, width: int, height: int,
                        procs=procs).reshape(height, width, 3)
         up = np.array([[0.0, 0.0, 0.001, 0.0, 0.0, 1.0]])
         dhi = float(rtrace(sky_only, up, SKY_IRRADIANCE, env).mean())
-    hh, mm = (int(x) for x in spec.hour.split(":"))
-    when = dt.datetime(spec.year, spec.month, spec.day, hh, mm,
-                       tzinfo=zoneinfo.ZoneInfo(manifest["scene"]["timezone"]))
-    return RenderedSky(image, np.zeros_like(image), sky.dni, dhi, sky.sun_dir,
-                       when.timestamp()), view
+    when = local_time(spec, manifest["scene"]["timezone"])
+    return RenderedSky(image, np.zeros_like(image), sky.dni, dhi, sky.sun_dir, when), view
