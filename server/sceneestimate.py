@@ -468,26 +468,30 @@ class SceneEstimator:
         return np.concatenate([self._rng.choice(small, take_small, replace=False),
                                self._rng.choice(large, take_large, replace=False)])
 
-    def read_pixels(self, linear: np.ndarray, pixels_xy: np.ndarray) -> np.ndarray:
-        """Mean linear RGB (m, 3) of the ``(2 patch_px + 1)^2`` square about each pixel."""
+    def read_pixels(self, image: np.ndarray, pixels_xy: np.ndarray,
+                    to_linear=None) -> np.ndarray:
+        """The ``(2 patch_px + 1)^2`` pixels about each pixel, (k, m, 3) linear RGB:
+        ``image`` (H, W, >=3) as it is, or through ``to_linear`` (codes (..., 3) -> linear),
+        which then runs on these pixels only, never on the whole frame."""
         r = self.patch_px
-        total = np.zeros((len(pixels_xy), 3))
-        for dy in range(-r, r + 1):
-            for dx in range(-r, r + 1):
-                total += linear[pixels_xy[:, 1] + dy, pixels_xy[:, 0] + dx, :3]
-        return total / (2 * r + 1) ** 2
+        dy, dx = np.mgrid[-r:r + 1, -r:r + 1]
+        ys = pixels_xy[None, :, 1] + dy.ravel()[:, None]
+        xs = pixels_xy[None, :, 0] + dx.ravel()[:, None]
+        raw = image[ys, xs, :3]
+        return (to_linear(raw) if to_linear is not None else raw).astype(np.float64)
 
     def estimate(self, linear: np.ndarray, sun_dir: np.ndarray, radiance_per_unit: float = 1.0,
-                 clip_level: float | None = None,
-                 ignore_mask: np.ndarray | None = None) -> SceneLight:
-        """One estimate from a linear RGB frame (H, W, 3) of the view.
+                 clip_level: float | None = None, ignore_mask: np.ndarray | None = None,
+                 to_linear=None) -> SceneLight:
+        """One estimate from a frame (H, W, 3) of the view: linear RGB, or codes with
+        ``to_linear`` (codes (..., 3) -> linear RGB; applied to the sampled pixels only).
 
         ``radiance_per_unit``: W/(m^2 sr) per linear unit (the camera's exposure and
         photometric factor). Samples any of whose pixels reach ``clip_level`` (linear), or
         that ``ignore_mask`` (H, W bool, e.g. visitors) marks, are skipped.
         """
         linear = np.asarray(linear)
-        if linear.shape[:2] != (self.view.height, self.view.width) or linear.ndim != 3:
+        if linear.ndim != 3 or linear.shape[:2] != (self.view.height, self.view.width):
             raise SceneEstimateError(f"frame of shape {linear.shape}; the view is "
                                      f"{self.view.width}x{self.view.height}")
         if self._rng is None:
@@ -497,15 +501,11 @@ class SceneEstimator:
         lit, bounce_sun, bounce_sky = self.in_sun(sun_dir)
         pick = self._pick(lit)
         xy = p.pixels_xy[pick]
-        values = self.read_pixels(linear, xy)
+        patches = self.read_pixels(linear, xy, to_linear)
+        values = patches.mean(axis=0)
         usable = np.all(np.isfinite(values), axis=1) & (values.min(axis=1) >= 0.0)
         if clip_level is not None:
-            peak = np.zeros(len(pick))
-            r = self.patch_px
-            for dy in range(-r, r + 1):
-                for dx in range(-r, r + 1):
-                    peak = np.maximum(peak, linear[xy[:, 1] + dy, xy[:, 0] + dx, :3].max(axis=1))
-            usable &= peak < clip_level
+            usable &= patches.max(axis=(0, 2)) < clip_level
         if ignore_mask is not None:
             usable &= ~np.asarray(ignore_mask, bool)[xy[:, 1], xy[:, 0]]
         pick, values = pick[usable], values[usable] * radiance_per_unit

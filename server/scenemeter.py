@@ -1,12 +1,12 @@
 """The light vector from the site camera's frames (``--sky scene``): a meter for the pipeline.
 
 :class:`SceneMeter` stands where :class:`server.measure.SkyMeter` stands for a sky camera: the
-pipeline hands it the newest frame and gets a :class:`server.measure.Measurement` back. It
-linearises the frame (the site camera's inverse response, ``[scene]`` radiance per unit and
-photometric factor), asks :class:`server.sceneestimate.SceneEstimator` for the sun and sky of
-the build's fixed view, and integrates the estimated sky over the build's dome patches (the
-same light vector the other sources give). The sun comes with source ``SunSource.SCENE`` (the
-LIGHT message's sun source byte 3, docs/protocol.md), and the pipeline flags its vectors
+pipeline hands it the newest frame and gets a :class:`server.measure.Measurement` back. It has
+the pixels it samples linearised (the site camera's inverse response, ``[scene]`` radiance per
+unit and photometric factor), asks :class:`server.sceneestimate.SceneEstimator` for the sun and
+sky of the build's fixed view, and integrates the estimated sky over the build's dome patches
+(the same light vector the other sources give). The sun comes with source ``SunSource.SCENE``
+(the LIGHT message's sun source byte 3, docs/protocol.md), and the pipeline flags its vectors
 SUN_ESTIMATED. Nothing is clipped from the vector's point of view: ``saturated`` is all false
 (clipped pixels are left out of the estimate instead).
 """
@@ -114,37 +114,51 @@ class SceneMeter:
                                        len(self.dome_vertices), time.perf_counter() - t0)
         return self._matrix
 
-    def linear(self, frame: Frame) -> tuple[np.ndarray, float]:
-        """The frame as linear RGB (H, W, 3) at the view's size, and its clip level."""
+    def pixels(self, frame: Frame) -> tuple[np.ndarray, object, float]:
+        """The frame at the view's size as RGB (H, W, 3), the function that makes its values
+        linear (applied by the estimator to the pixels it samples only: a whole 1280x720
+        frame through the table costs more than the estimate), and its clip level."""
         image = frame.image
         if not isinstance(image, np.ndarray) or image.ndim != 3 or image.shape[2] < 3:
             raise FrameError("frame is not an H x W x 3 image")
         image = image[:, :, :3]
         if frame.bgr:
             image = image[:, :, ::-1]
+        view = self.estimator.view
         if image.dtype == np.uint8:
-            linear = np.stack([self.table[image[:, :, c], c] for c in range(3)], axis=-1)
-            clip = self.saturation_level
+            table = self.table * self.factor[None, :]
+            channels = np.arange(3)
+
+            def to_linear(codes):
+                return table[codes, channels]
+
+            clip = self.saturation_level * float(self.factor.min())
         elif image.dtype.kind == "f":
-            linear = image.astype(np.float32)
-            clip = frame.clip_level if frame.clip_level is not None else np.inf
+            factor = self.factor
+
+            def to_linear(values):
+                return values * factor
+
+            clip = frame.clip_level * float(factor.min()) if frame.clip_level is not None \
+                else np.inf
         else:
             raise FrameError(f"site camera frames of type {image.dtype} are not supported")
-        view = self.estimator.view
-        if linear.shape[:2] != (view.height, view.width):
-            linear = cv2.resize(np.ascontiguousarray(linear, dtype=np.float32),
-                                (view.width, view.height), interpolation=cv2.INTER_AREA)
-        return linear * self.factor[None, None, :].astype(np.float32), clip
+        if image.shape[:2] != (view.height, view.width):
+            # (8-bit codes are averaged as codes: a small bias where a frame is scaled down)
+            image = cv2.resize(np.ascontiguousarray(image), (view.width, view.height),
+                               interpolation=cv2.INTER_AREA)
+        return image, to_linear, clip
 
     def measure(self, frame: Frame) -> Measurement:
         """One frame's light vector; :class:`FrameError` for frames that cannot be used."""
         t0 = time.perf_counter()
-        linear, clip = self.linear(frame)
+        image, to_linear, clip = self.pixels(frame)
         when_s = frame.capture_time_s if frame.sky_time_s is None else frame.sky_time_s
         sun = self.sun_path.at(when_s)
         try:
-            light = self.estimator.estimate(linear, sun.direction, self.radiance_per_unit,
-                                            clip_level=clip if np.isfinite(clip) else None)
+            light = self.estimator.estimate(image, sun.direction, self.radiance_per_unit,
+                                            clip_level=clip if np.isfinite(clip) else None,
+                                            to_linear=to_linear)
         except SceneEstimateError as exc:
             raise FrameError(str(exc)) from None
         self.latest = light
