@@ -1,5 +1,6 @@
-"""``[sky] source = "scene"`` end to end: a site camera's frame of the demo's real proxies,
-rendered by Radiance under a known clear sky, through the real server to a version-2 client.
+"""``[sky] source = "scene"`` end to end: a site camera's frame of a small baked site's real
+proxies (tests/sites.py: a building and a wall, seen from the north as a kiosk would), rendered
+by Radiance under a known clear sky, through the real server to a version-2 client.
 
 The frame is an OpenEXR replay (linear, with its capture time as ``capDate``, so the sun is
 where it was for the render); the vector arrives with the sun's source ``scene`` and the
@@ -9,6 +10,7 @@ SUN_ESTIMATED flag, and ``/api/status`` shows the estimate against the render's 
 from __future__ import annotations
 
 import datetime as dt
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -30,8 +32,37 @@ def write_exr(path, rgb: np.ndarray, when_unix_s: float, utc_offset_h: float = 9
         f.write(str(path))
 
 
+@pytest.fixture(scope="module")
+def scene_build(tmp_path_factory) -> Path:
+    """A real building (8 x 5 x 6 m, albedo 0.55/0.45/0.35) and wall, a small virtual box out
+    of the way, a kiosk view from the north; 40 lights at draft quality (seconds)."""
+    from bake.pipeline import bake
+    from tests.sites import box, make_site, real_box
+
+    root = tmp_path_factory.mktemp("scene")
+    scene = make_site(
+        root / "scene",
+        virtual=[("sign", box([1.0, 1.0, 1.0], [10.0, 0.0, 12.0]), (0.5, 0.5, 0.5))],
+        real=real_box("building", (8.0, 5.0, 6.0), (0.0, 0.0, 0.0), (0.55, 0.45, 0.35))
+        + real_box("wall", (0.4, 2.0, 9.0), (-8.0, 0.0, -6.0), (0.40, 0.42, 0.45)),
+        views="""
+            [[view]]
+            name = "kiosk"
+            width = 320
+            height = 180
+            fov_y_deg = 45.0
+            position_m = [3.0, 7.0, -24.0]
+            look_at_m = [0.0, 0.5, -3.0]
+            """,
+        ground_m=60.0,
+        ground_albedo=(0.22, 0.20, 0.18),
+    )
+    bake(scene, root / "build", progress=False, log=lambda msg: None)
+    return root / "build"
+
+
 @pytest.mark.slow
-async def test_scene_source_streams_the_estimated_sun_and_sky(aiohttp_client, demo_draft_build,
+async def test_scene_source_streams_the_estimated_sun_and_sky(aiohttp_client, scene_build,
                                                               tmp_path):
     from benchmarks.bench_fidelity import SkySpec
     from daylit.sun import SunSource
@@ -40,13 +71,13 @@ async def test_scene_source_streams_the_estimated_sun_and_sky(aiohttp_client, de
     from tests.radiance_frames import render_build_view
     from tests.server.helpers import first_light_v2, settings_for
 
-    rendered, view = render_build_view(demo_draft_build, SkySpec("clear", 10, 15, "11",
+    rendered, view = render_build_view(scene_build, SkySpec("clear", 10, 15, "11",
                                                                  800.0, 80.0), 320, 180)
     exposure = 0.8 / float(np.percentile(rendered.sun_image, 99.0))
     folder = tmp_path / "site"
     folder.mkdir()
     write_exr(folder / "frame.exr", rendered.sun_image * exposure, rendered.when_unix_s)
-    app = create_app(demo_draft_build, settings_for(
+    app = create_app(scene_build, settings_for(
         tmp_path, sky__source="scene", site_camera__source=f"replay:{folder}",
         site_camera__rate_hz=5.0, occlusion__enabled=False,
         scene__radiance_per_unit=1.0 / exposure))
@@ -65,10 +96,10 @@ async def test_scene_source_streams_the_estimated_sun_and_sky(aiohttp_client, de
     await ws.close()
 
 
-def test_scene_source_without_a_site_camera_is_a_clear_error(demo_draft_build, tmp_path):
+def test_scene_source_without_a_site_camera_is_a_clear_error(scene_build, tmp_path):
     from server.app import create_app
     from server.config import ConfigError
     from tests.server.helpers import settings_for
 
     with pytest.raises(ConfigError, match="needs a site camera"):
-        create_app(demo_draft_build, settings_for(tmp_path, sky__source="scene"))
+        create_app(scene_build, settings_for(tmp_path, sky__source="scene"))
