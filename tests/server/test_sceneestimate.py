@@ -16,10 +16,10 @@ import pytest
 
 from daylit.sky import CIESky
 from daylit.sun import sun_position
+from server.robustfit import robust_linear_fit
 from server.sceneestimate import (
     SceneEstimateError,
     SceneEstimator,
-    robust_linear_fit,
     sky_type_for_ratio,
     unit_sky,
 )
