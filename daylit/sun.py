@@ -41,7 +41,7 @@ class SunSource(IntEnum):
     NONE = 0  # below the horizon: no sun
     MEASURED = 1  # an HDR frame saw the disc unclipped: measured
     MODEL = 2  # the camera clipped it: clear-sky model times the visible fraction
-    SCENE = 3  # reserved: estimated from the scene (a later issue)
+    SCENE = 3  # estimated from the site camera's view of the scene (server.sceneestimate)
 
     @property
     def label(self) -> str:

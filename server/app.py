@@ -5,7 +5,8 @@ baker), builds the measuring chain from the settings and registers the routes. I
 ``cleanup_ctx`` runs the background tasks under a supervisor that logs and restarts any that
 fail, with a pause that doubles up to 30 s, so the server keeps going for days:
 
-- the sky source (sim, replay or camera) -> ``LightPipeline.deliver``;
+- the sky source (sim, replay or camera) -> ``LightPipeline.deliver``; with ``scene``, the
+  site camera's frames go there too (:mod:`server.sources.scene`, :mod:`server.scenemeter`);
 - measuring (newest frame -> vector -> hub), and the stale-light watchdog;
 - the site camera, when configured, with occlusion by visitors on its frames
   (:mod:`server.occlusionfeed`: a worker process, started with the site camera).
@@ -30,6 +31,7 @@ from aiohttp import web
 
 from daylit import __version__
 from daylit import manifest as manifest_io
+from daylit.sun import SunPath
 from server import protocol
 from server.access import AccessPolicy
 from server.backoff import Backoff
@@ -41,9 +43,11 @@ from server.occlusionfeed import OcclusionConfig, OcclusionRunner
 from server.photometry import Photometry, inverse_response_table
 from server.pipeline import LightPipeline
 from server.routes import add_client_routes
+from server.sceneestimate import SceneEstimateError
+from server.scenemeter import scene_meter_for_build
 from server.simsky import SimulatedSky
 from server.sitecamera import SiteCameraFeed
-from server.sources import CameraSource, ReplaySource, SimSource, Source
+from server.sources import CameraSource, ReplaySource, SceneFrames, SimSource, Source
 from server.sunmeter import SunMeter
 from server.temporalfilter import TemporalFilter
 
@@ -111,6 +115,29 @@ def make_sky_source(spec: SourceSpec, settings: Settings, scene: dict) -> Source
         return ReplaySource(spec.target, sky.rate_hz, make_photometry(settings))
     return CameraSource(spec.camera_target, sky.rate_hz, sky.reconnect_min_s,
                         sky.reconnect_max_s)
+
+
+def make_scene_source(settings: Settings, manifest: dict, build_dir: Path,
+                      site_source: Source | None) -> SceneFrames:
+    """``[sky] source = "scene"``: the site camera's frames and the meter that estimates the
+    sun and sky from them (:mod:`server.scenemeter`)."""
+    if site_source is None:
+        raise ConfigError("[sky] source = scene needs a site camera ([site_camera] source or "
+                          "--site-camera)")
+    cfg = settings.scene
+    site = manifest["scene"]
+    try:
+        inverse_response_table(cfg.response)
+        meter = scene_meter_for_build(
+            build_dir, manifest, cfg.view,
+            SunPath(site["latitude_deg"], site["longitude_deg"], site["elevation_m"],
+                    settings.sun.linke_turbidity),
+            cfg.samples, response=cfg.response, radiance_per_unit=cfg.radiance_per_unit,
+            photometric_factor=tuple(cfg.photometric_factor),
+            saturation_level=settings.sky.saturation_level)
+    except (SceneEstimateError, ValueError) as exc:
+        raise ConfigError(f"[sky] source = scene: {exc}") from None
+    return SceneFrames(site_source, meter)
 
 
 def make_site_source(spec: SourceSpec, settings: Settings) -> Source:
@@ -226,12 +253,17 @@ def create_app(
     settings = settings or load_settings()
     manifest = manifest_io.load(build_dir)
     scene = manifest["scene"]
+    if site_source is None and settings.site_camera.source is not None:
+        site_source = make_site_source(settings.site_camera.source, settings)
+    scene_frames: SceneFrames | None = None
+    if sky_source is None and settings.sky.source.kind == "scene":
+        scene_frames = make_scene_source(settings, manifest, build_dir, site_source)
+        sky_source = scene_frames
+        meter = meter or scene_frames.meter
     if sky_source is None:
         sky_source = make_sky_source(settings.sky.source, settings, scene)
     simulated = sky_source.sim if isinstance(sky_source, SimSource) else None
     meter = meter or make_meter(settings, manifest, simulated)
-    if site_source is None and settings.site_camera.source is not None:
-        site_source = make_site_source(settings.site_camera.source, settings)
 
     occlusion, occlusion_off = make_occlusion(settings, manifest, build_dir,
                                               site_source is not None)
@@ -277,6 +309,8 @@ def create_app(
     if site_source is not None:
         site_feed = SiteCameraFeed(site_source, hub, settings.site_camera.jpeg_quality,
                                    settings.site_camera.max_width, occlusion)
+        if scene_frames is not None:
+            site_feed.listeners.append(scene_frames.forward)
     temporal = TemporalFilter(stream.smoothing_s, stream.change_threshold, stream.max_interval_s)
     solid_angles_sr = np.array([light["solid_angle_sr"] for light in manifest["dome"]["lights"]])
     pipeline = LightPipeline(meter, temporal, hub, sky_source, settings.sky.stale_after_s,

@@ -22,6 +22,8 @@ sky sources:
   replay:PATH           a folder of images (in name order) or a video file, looping
   camera:INDEX_OR_URL   a live camera: device index (camera:0), file, or stream URL
                         (camera:rtsp://...); reconnects on its own when it stops
+  scene                 no sky camera: the sun and sky estimated from the site camera's
+                        frames of the build's fixed view (needs --site-camera; [scene])
 
 examples:
   daylit serve build/demo
@@ -54,7 +56,8 @@ def add_subcommands(subparsers) -> None:
     serve.add_argument("--host", help="address to listen on (default 0.0.0.0: all)")
     serve.add_argument("--port", type=int, help="TCP port (default 8000)")
     serve.add_argument("--sky", metavar="SPEC",
-                       help="sky source: sim | replay:PATH | camera:INDEX_OR_URL (default sim)")
+                       help="sky source: sim | scene | replay:PATH | camera:INDEX_OR_URL "
+                       "(default sim)")
     serve.add_argument("--site-camera", metavar="SPEC",
                        help="kiosk site camera: camera:INDEX_OR_URL | replay:PATH (default none)")
     serve.add_argument("--config", metavar="FILE", help="TOML settings file")

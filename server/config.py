@@ -144,6 +144,20 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "noise": Key(0.002, "float", "sensor noise, fraction of full scale", 0.0, 0.2),
         "seed": Key(0, "int", "cloud pattern", 0),
     },
+    "scene": {
+        "view": Key("", "str", "with [sky] source = scene: the build's fixed view the site "
+                    "camera is calibrated to; empty: the first"),
+        "samples": Key(500, "int", "surface pixels per estimate (Jensen et al. 2006 use 500)",
+                       20, 100000),
+        "radiance_per_unit": Key(1.0, "float", "W/(m^2 sr) that a linear pixel value of 1 "
+                                 "stands for: the site camera's fixed exposure (auto-exposure "
+                                 "must be off)", 0.0, None, True),
+        "photometric_factor": Key([1.0, 1.0, 1.0], "rgb", "per-channel factor on linear "
+                                  "values (the site camera's white balance against a grey card)"),
+        "response": Key("srgb", "str", "inverse response of the site camera: srgb | linear | "
+                        "gamma:G", pattern=r"^(srgb|linear|gamma:.+)$",
+                        allowed="srgb, linear or gamma:G"),
+    },
     "site_camera": {
         "source": Key("", "source", "kiosk camera: camera:INDEX_OR_URL | replay:PATH; empty: "
                       "none (kiosks then draw the baked surface images)"),
@@ -173,7 +187,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
 
 @dataclass(frozen=True)
 class SourceSpec:
-    """A parsed ``sim``, ``replay:PATH`` or ``camera:INDEX_OR_URL``."""
+    """A parsed ``sim``, ``scene``, ``replay:PATH`` or ``camera:INDEX_OR_URL``."""
 
     kind: str
     target: str = ""
@@ -190,8 +204,8 @@ class SourceSpec:
 def parse_source(text: str, allow_sim: bool = True) -> SourceSpec:
     """Parse a source spec; raises :class:`ConfigError` naming what is wrong."""
     text = text.strip()
-    if text == "sim" and allow_sim:
-        return SourceSpec("sim")
+    if text in ("sim", "scene") and allow_sim:
+        return SourceSpec(text)
     kind, _, target = text.partition(":")
     if kind == "replay" and target:
         path = Path(target).expanduser()
@@ -200,12 +214,12 @@ def parse_source(text: str, allow_sim: bool = True) -> SourceSpec:
         return SourceSpec("replay", str(path))
     if kind == "camera" and target:
         return SourceSpec("camera", target)
-    choices = ("sim | " if allow_sim else "") + "replay:PATH | camera:INDEX_OR_URL"
+    choices = ("sim | scene | " if allow_sim else "") + "replay:PATH | camera:INDEX_OR_URL"
     raise ConfigError(f"source {text!r} is not one of {choices}")
 
 
 _ALLOWED = {
-    "source": "sim | replay:PATH | camera:INDEX_OR_URL",
+    "source": "sim | scene | replay:PATH | camera:INDEX_OR_URL",
     "rgb": "three positive numbers [r, g, b]",
 }
 

@@ -15,8 +15,9 @@ size's frames from when the matrix is ready. The very first frame's matrix is bu
 
 With a sun meter, each vector is published with the sun (docs/sun.md): version-2 clients get
 the sky without the disc and the sun apart (direction, smoothed normal irradiance, source;
-SUN_ESTIMATED when it is the clear-sky model's), version-1 clients the sky with the sun's
-irradiance folded back into the patch that holds its direction (``r_p += E / omega_p``).
+SUN_ESTIMATED when it is the clear-sky model's or the scene's estimate), version-1 clients the
+sky with the sun's irradiance folded back into the patch that holds its direction
+(``r_p += E / omega_p``).
 """
 
 from __future__ import annotations
@@ -214,7 +215,7 @@ class LightPipeline:
             flags |= Flags.STALE
         if self._saturated.any():
             flags |= Flags.SATURATED
-        if self.sun is not None and self.sun.source == SunSource.MODEL:
+        if self.sun is not None and self.sun.source in (SunSource.MODEL, SunSource.SCENE):
             flags |= Flags.SUN_ESTIMATED
         return flags
 

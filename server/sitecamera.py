@@ -48,8 +48,12 @@ class SiteCameraFeed:
         self.size: tuple[int, int] | None = None
         self.last_frame_wall_s: float | None = None
         self._last_skip_log_s = -1e9
+        # Also handed every frame as it comes (``--sky scene``: the light pipeline).
+        self.listeners: list = []
 
     def deliver(self, frame: Frame) -> None:
+        for listener in self.listeners:
+            listener(frame)
         if self._pending is not None:
             self.frames_replaced += 1
         self.frames_in += 1

@@ -1,4 +1,5 @@
-"""Where sky frames come from: the simulated sky, a replay, or a live camera.
+"""Where sky frames come from: the simulated sky, a replay, a live camera, or the site
+camera's frames for the estimate from the scene (``scene``).
 
 Every source has ``async run(deliver)``: it calls ``deliver(frame)`` for each new frame, as
 fast as its rate allows, and never waits for the consumer (the consumer keeps only the newest
@@ -11,6 +12,7 @@ from __future__ import annotations
 from server.sources.base import Source
 from server.sources.camera import CameraSource
 from server.sources.replay import ReplaySource
+from server.sources.scene import SceneFrames
 from server.sources.sim import SimSource
 
-__all__ = ["CameraSource", "ReplaySource", "SimSource", "Source"]
+__all__ = ["CameraSource", "ReplaySource", "SceneFrames", "SimSource", "Source"]

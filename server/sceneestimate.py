@@ -1,0 +1,534 @@
+"""Sun and sky estimated from what a camera sees of the site (Jensen, Andersen & Madsen 2006).
+
+A Lambertian surface of albedo ``rho`` (RGB) seen by a camera has the radiance
+
+    L = rho / pi * (E_sun * (cos_i * in_sun + B_sun)  +  k * (S + B_sky))
+
+with ``E_sun`` the sun's normal irradiance, ``cos_i`` the cosine between the surface normal and
+the sun, ``in_sun`` whether the sun is unobstructed from the point (a ray cast against the real
+proxies), ``k`` the sky's diffuse horizontal irradiance, ``S`` the sky's irradiance on the
+surface per unit of ``k`` (the model sky's relative radiance over the directions the point sees
+open sky, normalised so that an open horizontal plane gets 1). ``B_sun`` and ``B_sky`` are one
+bounce: over the directions the point sees another surface ``h`` (cosine-weighted mean, per
+channel), ``rho_h cos_h in_sun_h`` and ``rho_h (1 + n_h.up) / 2`` (the surface lit by the sun
+where it is in sun, and by an isotropic sky's view factor of its tilt); directions below the
+horizon that hit nothing count as open, sunlit ground of ``environment_albedo``.
+The model is linear in ``(E_sun, k)`` per RGB channel; a few hundred pixels of known surfaces,
+some in sun and some in shadow, determine both. People, wet patches, a wrong albedo and shadows
+the model does not know are outliers: the solve is robust (RANSAC on the channel sum, then
+iteratively reweighted least squares with Tukey's biweight on relative residuals, per channel).
+Under heavy cloud sunlit and shadowed surfaces look alike and ``E_sun`` goes to about 0.
+
+The sky's angular distribution is a CIE general sky (``daylit.sky.CIESky``) chosen by the
+estimated sun/sky ratio (:func:`sky_type_for_ratio`) and solved again with that shape, blended
+with an isotropic part whose share is fitted from the pixels (followed across frames). Under an
+overcast sky (CIE type 1 chosen) the sun is kept only when it explains the pixels clearly better
+than the sky alone (``sun_significance``): the overcast model's own error, sky brighter toward
+the sun's side, otherwise passes for a weak sun (5-30 % of the sky against Radiance's Perez
+overcast skies).
+
+Everything that depends only on the view (pixels, their surface points, normals, albedos and
+which hemisphere directions see open sky) is computed once by :class:`SceneSamples`; what
+depends on the sun (in sun or not) once per sun position (cached until it moves
+``sun_cache_deg``); the per-frame cost is reading pixels and a small solve.
+
+Directions are site-frame unit vectors (+X east, +Y up, -Z north); irradiances W/m^2; radiances
+W/(m^2 sr). Cameras follow the manifest's views: 3x3 ``K`` (OpenCV: +X right, +Y down, +Z
+forward, pixel centres at +0.5) and 4x4 ``world_from_camera``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import trimesh
+
+from daylit.sky import SUN_SOLID_ANGLE_SR, CIESky, Sky, Sun, azimuth_elevation_from_direction
+from daylit.spherical import normalize
+from server.robustfit import ransac_fit, robust_linear_fit, weighted_nonneg
+
+LUMINANCE_RGB = np.array([0.2126, 0.7152, 0.0722])
+SURFACE_OFFSET_M = 0.01  # rays leave a surface this far along its normal
+OVERCAST_RATIO = 0.5  # E_sun / k below this: an overcast CIE sky (type 1)
+CLEAR_RATIO = 3.0  # at or above: the CIE clear sky (type 12); between: partly cloudy (7)
+MIN_SUNLIT = 10  # fewer usable sunlit samples: the sun cannot be told from the sky
+
+
+class SceneEstimateError(ValueError):
+    """The view cannot support an estimate (no known surface in it, bad inputs)."""
+
+
+@dataclass(frozen=True)
+class PinholeView:
+    """A site camera: ``K`` (3, 3) pixels, ``world_from_camera`` (4, 4), size in pixels."""
+
+    K: np.ndarray
+    world_from_camera: np.ndarray
+    width: int
+    height: int
+
+    @classmethod
+    def from_manifest(cls, view: dict) -> PinholeView:
+        """From a manifest ``views[]`` entry (docs/manifest.md)."""
+        return cls(np.asarray(view["K"], float), np.asarray(view["world_from_camera"], float),
+                   int(view["width"]), int(view["height"]))
+
+    def rays(self, pixels_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """World origins and unit directions (m, 3) through pixel positions ``(m, 2)`` (x, y;
+        a pixel's centre is at its index + 0.5)."""
+        pix = np.column_stack([pixels_xy, np.ones(len(pixels_xy))])
+        cam = pix @ np.linalg.inv(self.K).T
+        dirs = normalize(cam @ self.world_from_camera[:3, :3].T)
+        origins = np.broadcast_to(self.world_from_camera[:3, 3], dirs.shape).copy()
+        return origins, dirs
+
+
+def cosine_directions(count: int, seed: int = 0) -> np.ndarray:
+    """``count`` cosine-distributed unit directions (count, 3) about +Z (stratified)."""
+    rng = np.random.default_rng(seed)
+    side = max(1, int(math.sqrt(count)))
+    u = (np.arange(count) % side + rng.random(count)) / side
+    v = (np.arange(count) // side + rng.random(count)) / math.ceil(count / side)
+    r = np.sqrt(np.clip(u, 0.0, 1.0))
+    phi = 2.0 * math.pi * np.clip(v, 0.0, 1.0)
+    return np.column_stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(1.0 - r * r)])
+
+
+def _frames_about(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit tangents (m, 3) each, orthogonal to the unit ``normals`` (m, 3)."""
+    helper = np.where(np.abs(normals[:, 1:2]) < 0.9, [[0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0]])
+    t = normalize(np.cross(helper, normals))
+    return t, np.cross(normals, t)
+
+
+@dataclass
+class SceneSamples:
+    """The pool of known, diffuse surface pixels a view sees, and what the geometry says of
+    them (computed once per view).
+
+    Attributes (m samples, K hemisphere directions)
+    ----------
+    pixels_xy : (m, 2) int pixel column and row
+    points_m : (m, 3) site points; normals : (m, 3) unit, facing the camera
+    albedo : (m, 3) RGB albedo of the surface each pixel sees
+    hemisphere_dirs : (m, K, 3) cosine-distributed directions about each normal
+    sky_visible : (m, K) bool, the direction sees open sky (nothing hit, above the horizon)
+    bounce_points_m : (n, 3) what the other directions hit (n of them, all samples);
+    bounce_normals : (n, 3) unit; bounce_albedo : (n, 3); bounce_sample : (n,) int, the sample
+    each belongs to (directions below the horizon that hit nothing: open ground far away,
+    normal +Y, point NaN)
+    """
+
+    pixels_xy: np.ndarray
+    points_m: np.ndarray
+    normals: np.ndarray
+    albedo: np.ndarray
+    hemisphere_dirs: np.ndarray
+    sky_visible: np.ndarray
+    bounce_points_m: np.ndarray
+    bounce_normals: np.ndarray
+    bounce_albedo: np.ndarray
+    bounce_sample: np.ndarray
+
+    @property
+    def sky_view(self) -> np.ndarray:
+        """(m,) cosine-weighted fraction of each hemisphere that sees open sky."""
+        return self.sky_visible.mean(axis=1)
+
+    def bounce_terms(self, bounce_lit: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per sample (m, 3) RGB, one bounce, per unit sun normal irradiance and per unit sky
+        horizontal irradiance: ``mean_K rho_h cos_h in_sun_h`` and ``mean_K rho_h (1 + n_hy)
+        / 2``; and ``bounce_cos`` is not needed outside. ``bounce_lit`` (n,) float:
+        ``cos_h * in_sun_h`` of each bounce point."""
+        m, k = self.sky_visible.shape
+        sun = np.zeros((m, 3))
+        sky = np.zeros((m, 3))
+        np.add.at(sun, self.bounce_sample, self.bounce_albedo * bounce_lit[:, None])
+        view = 0.5 * (1.0 + self.bounce_normals[:, 1])
+        np.add.at(sky, self.bounce_sample, self.bounce_albedo * view[:, None])
+        return sun / k, sky / k, np.bincount(self.bounce_sample, minlength=m) / k
+
+
+def _intersector(mesh: trimesh.Trimesh):
+    return trimesh.ray.ray_pyembree.RayMeshIntersector(mesh) if trimesh.ray.has_embree \
+        else trimesh.ray.ray_triangle.RayMeshIntersector(mesh)
+
+
+def prepare_samples(mesh: trimesh.Trimesh, face_albedo: np.ndarray, view: PinholeView,
+                    count: int = 3000, hemisphere_count: int = 96, seed: int = 0,
+                    edge_px: float = 1.5, environment_albedo: float = 0.2) -> SceneSamples:
+    """Pick up to ``count`` random pixels of ``view`` that see a face of ``mesh`` (the real
+    proxies, ground included) away from any edge, with what the geometry says of them.
+
+    ``face_albedo`` (F, 3): each face's RGB albedo. A pixel is kept when the rays through its
+    corners (``edge_px`` away) hit faces of the same plane as its centre (so a 3 x 3 mean of
+    it reads one surface), and its surface faces the camera.
+    """
+    face_albedo = np.asarray(face_albedo, float)
+    if face_albedo.shape != (len(mesh.faces), 3):
+        raise SceneEstimateError(f"face_albedo has shape {face_albedo.shape}, the mesh "
+                                 f"{len(mesh.faces)} faces")
+    rng = np.random.default_rng(seed)
+    hit = _intersector(mesh)
+    margin = 2
+    tries = count * 3
+    xs = rng.integers(margin, view.width - margin, tries)
+    ys = rng.integers(margin, view.height - margin, tries)
+    centres = np.column_stack([xs, ys]).astype(float) + 0.5
+    origins, dirs = view.rays(centres)
+    face = hit.intersects_first(origins, dirs)
+    ok = face >= 0
+    face_normals = mesh.face_normals[np.maximum(face, 0)]
+    ok &= np.einsum("ij,ij->i", face_normals, dirs) < -0.05  # seen from the front
+    for dx, dy in ((-1, -1), (1, -1), (-1, 1), (1, 1)):
+        o, d = view.rays(centres + edge_px * np.array([dx, dy]))
+        f = hit.intersects_first(o, d)
+        same = f >= 0
+        same &= np.einsum("ij,ij->i", mesh.face_normals[np.maximum(f, 0)], face_normals) > 0.999
+        # same plane: the corner's hit lies on the centre face's plane
+        loc, ray_idx, _ = hit.intersects_location(o[ok & same], d[ok & same], multiple_hits=False)
+        keep = np.zeros(len(f), bool)
+        if len(ray_idx):
+            sel = np.flatnonzero(ok & same)[ray_idx]
+            v0 = mesh.vertices[mesh.faces[face[sel], 0]]
+            keep[sel] = np.abs(np.einsum("ij,ij->i", loc - v0, face_normals[sel])) < 0.02
+        ok &= keep
+    idx = np.flatnonzero(ok)[:count]
+    if len(idx) == 0:
+        raise SceneEstimateError("the view sees no surface of the real proxies")
+    # Hit points of the kept centres.
+    loc, ray_idx, _ = hit.intersects_location(origins[idx], dirs[idx], multiple_hits=False)
+    points = np.empty((len(idx), 3))
+    points[ray_idx] = loc
+    normals = face_normals[idx]
+    t, b = _frames_about(normals)
+    local = cosine_directions(hemisphere_count, seed + 1)
+    hemi = (local[None, :, 0:1] * t[:, None] + local[None, :, 1:2] * b[:, None]
+            + local[None, :, 2:3] * normals[:, None])
+    m, k = hemi.shape[:2]
+    start = np.repeat(points + SURFACE_OFFSET_M * normals, k, axis=0)
+    flat = hemi.reshape(-1, 3)
+    first = hit.intersects_first(start, flat)
+    blocked = (first >= 0).reshape(m, k)
+    sky_visible = ~blocked & (hemi[..., 1] > 0.0)
+    # What the other directions see: a face (where it is hit), or far ground.
+    hits = np.flatnonzero(first >= 0)
+    loc, ray_idx, _ = hit.intersects_location(start[hits], flat[hits], multiple_hits=False)
+    hit_points = np.full((len(hits), 3), np.nan)
+    hit_points[ray_idx] = loc
+    found = np.isfinite(hit_points[:, 0])
+    hits, hit_points = hits[found], hit_points[found]
+    far = np.flatnonzero((first < 0) & (flat[:, 1] <= 0.0))
+    bounce_rays = np.concatenate([hits, far])
+    env = np.full(3, environment_albedo)
+    return SceneSamples(
+        pixels_xy=np.column_stack([xs[idx], ys[idx]]),
+        points_m=points, normals=normals, albedo=face_albedo[face[idx]],
+        hemisphere_dirs=hemi, sky_visible=sky_visible,
+        bounce_points_m=np.vstack([hit_points, np.full((len(far), 3), np.nan)]),
+        bounce_normals=np.vstack([mesh.face_normals[first[hits]],
+                                  np.tile([0.0, 1.0, 0.0], (len(far), 1))]),
+        bounce_albedo=np.vstack([face_albedo[first[hits]], np.tile(env, (len(far), 1))]),
+        bounce_sample=bounce_rays // k,
+    )
+
+
+def sky_type_for_ratio(sun_to_sky: float) -> int:
+    """The CIE general sky for a ratio of sun normal irradiance to sky horizontal irradiance:
+    1 (overcast) below ``OVERCAST_RATIO``, 12 (clear) from ``CLEAR_RATIO``, 7 (partly cloudy)
+    between. (Coarse on purpose: the isotropic share fitted beside it adapts the shape.)"""
+    if sun_to_sky < OVERCAST_RATIO:
+        return 1
+    return 12 if sun_to_sky >= CLEAR_RATIO else 7
+
+
+def unit_sky(sky_type: int, sun_dir: np.ndarray) -> tuple[CIESky, float]:
+    """A grey CIE sky of this type for the sun direction, and the factor that scales its
+    radiance to an open horizontal irradiance of 1 W/m^2 (sun excluded)."""
+    az, el = azimuth_elevation_from_direction(sun_dir)
+    sky = CIESky(sky_type=sky_type, sun_azimuth_deg=float(az),
+                 sun_elevation_deg=float(max(el, 0.0)), zenith_radiance=(1.0, 1.0, 1.0))
+    return sky, 1.0 / _horizontal_irradiance(sky)
+
+
+def _horizontal_irradiance(sky: CIESky, steps: int = 48) -> float:
+    """An open horizontal plane's irradiance from a sky's relative luminance (midpoint grid)."""
+    dz = (math.pi / 2) / steps
+    da = 2 * math.pi / (2 * steps)
+    z = (np.arange(steps) + 0.5) * dz
+    a = (np.arange(2 * steps) + 0.5) * da
+    zz, aa = np.meshgrid(z, a, indexing="ij")
+    dirs = np.stack([np.sin(zz) * np.sin(aa), np.cos(zz), -np.sin(zz) * np.cos(aa)], -1)
+    weight = np.cos(zz) * np.sin(zz) * dz * da
+    return float(weight.ravel() @ sky.relative_luminance(dirs.reshape(-1, 3)))
+
+
+@dataclass
+class SceneLight:
+    """One estimate.
+
+    sun_normal_irradiance : (3,) RGB W/m^2 (0 when the sun is down or unseen)
+    sky_horizontal_irradiance : (3,) RGB W/m^2 of an open horizontal plane, sun excluded
+    sky_type : the CIE general sky the shape was taken from
+    sun_direction : (3,) unit site direction
+    sun_observable : False when too few usable samples were in sun to tell the sun from the sky
+    used : samples that entered the solve; inlier_fraction : of them, weight > 0.5
+    model_share : the CIE sky's share of the sky irradiance; the rest is isotropic
+    """
+
+    sun_normal_irradiance: np.ndarray
+    sky_horizontal_irradiance: np.ndarray
+    sky_type: int
+    sun_direction: np.ndarray
+    sun_observable: bool
+    used: int
+    inlier_fraction: float
+    model_share: float = 1.0
+
+    def sky(self) -> EstimatedSky:
+        """The estimated sky (a ``daylit.sky.Sky``: radiance over directions, and the sun)."""
+        return EstimatedSky(self)
+
+
+class EstimatedSky(Sky):
+    """A :class:`SceneLight` as a sky: ``model_share`` of the CIE sky of its type plus the
+    rest uniform, scaled per channel to the estimated horizontal irradiance; the sun a disc of
+    the estimated normal irradiance (none when it is 0)."""
+
+    def __init__(self, light: SceneLight):
+        self.light = light
+        self._shape, self._to_unit = unit_sky(light.sky_type, light.sun_direction)
+        e_sun = np.asarray(light.sun_normal_irradiance, float)
+        self.sun = Sun(light.sun_direction, e_sun / SUN_SOLID_ANGLE_SR) \
+            if e_sun.max() > 0.0 and light.sun_direction[1] > 0.0 else None
+
+    def radiance(self, dirs: np.ndarray) -> np.ndarray:
+        share = self.light.model_share
+        rel = share * self._shape.relative_luminance(dirs) * self._to_unit + (1.0 - share) / \
+            math.pi
+        out = rel[:, None] * np.asarray(self.light.sky_horizontal_irradiance, float)[None]
+        out[dirs[:, 1] < 0.0] = 0.0
+        return out
+
+
+@dataclass
+class SceneEstimator:
+    """Estimates the sun and sky from linear frames of one fixed view.
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh, the real proxies (and the ground) in site metres
+    face_albedo : (F, 3) RGB albedo per face
+    view : PinholeView
+    environment_albedo : albedo of what a surface sees instead of the sky (one bounce)
+    pool : how many candidate pixels to prepare; samples : how many each estimate uses
+    patch_px : half-size of the square of pixels averaged per sample (1: 3 x 3)
+    sun_cache_deg : in-sun flags are cast again when the sun moved more than this
+    share_memory : weight of the past in the sky shape's model share (0: each frame alone)
+    sun_significance : under an overcast sky (CIE type 1 chosen), the sun is kept only if it
+        lowers the weighted squared residual by more than this fraction
+    """
+
+    mesh: trimesh.Trimesh
+    face_albedo: np.ndarray
+    view: PinholeView
+    environment_albedo: float = 0.2
+    pool: int = 3000
+    samples: int = 500
+    patch_px: int = 1
+    seed: int = 0
+    sun_cache_deg: float = 0.05
+    hemisphere_count: int = 96
+    share_memory: float = 0.8
+    sun_significance: float = 0.5
+    _pool: SceneSamples | None = field(default=None, init=False, repr=False)
+    _sun_cache: tuple | None = field(default=None, init=False, repr=False)
+    _rng: np.random.Generator | None = field(default=None, init=False, repr=False)
+    _hit: object = field(default=None, init=False, repr=False)
+    _sky_cache: dict = field(default_factory=dict, init=False, repr=False)
+    _share: dict = field(default_factory=dict, init=False, repr=False)
+
+    @property
+    def pool_samples(self) -> SceneSamples:
+        if self._pool is None:
+            self._pool = prepare_samples(self.mesh, self.face_albedo, self.view, self.pool,
+                                         self.hemisphere_count, self.seed,
+                                         environment_albedo=self.environment_albedo)
+        return self._pool
+
+    def in_sun(self, sun_dir: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """For a sun direction: (m,) bool, each pool sample faces the sun and nothing of the
+        mesh is in between; (m, 3) and (m, 3), the bounce terms per unit sun normal irradiance
+        and per unit sky irradiance (:meth:`SceneSamples.bounce_terms`). Cast again only when
+        the sun moved more than ``sun_cache_deg``."""
+        sun_dir = normalize(np.asarray(sun_dir, float))
+        if self._sun_cache is not None and float(self._sun_cache[0] @ sun_dir) >= math.cos(
+                math.radians(self.sun_cache_deg)):
+            return self._sun_cache[1:]
+        p = self.pool_samples
+        lit = self._unblocked(p.points_m, p.normals, sun_dir)
+        cos_h = np.clip(p.bounce_normals @ sun_dir, 0.0, None)
+        far = ~np.isfinite(p.bounce_points_m[:, 0])
+        bounce = np.zeros(len(cos_h))
+        near = ~far
+        bounce[near] = cos_h[near] * self._unblocked(p.bounce_points_m[near],
+                                                    p.bounce_normals[near], sun_dir)
+        bounce[far] = cos_h[far] if sun_dir[1] > 0.0 else 0.0
+        bounce_sun, bounce_sky, _ = p.bounce_terms(bounce)
+        self._sun_cache = (sun_dir, lit, bounce_sun, bounce_sky)
+        return lit, bounce_sun, bounce_sky
+
+    def sky_term(self, sky_type: int, sun_dir: np.ndarray) -> np.ndarray:
+        """(m,) each pool sample's irradiance from the open sky it sees, for a CIE sky of this
+        type and sun scaled to an open horizontal irradiance of 1 (cached per sun position,
+        like :meth:`in_sun`)."""
+        sun_dir = normalize(np.asarray(sun_dir, float))
+        key = self._sky_cache.get(sky_type)
+        if key is not None and float(key[0] @ sun_dir) >= math.cos(
+                math.radians(self.sun_cache_deg)):
+            return key[1]
+        p = self.pool_samples
+        shape, to_unit = unit_sky(sky_type, sun_dir)
+        hemi = p.hemisphere_dirs
+        rel = shape.relative_luminance(hemi.reshape(-1, 3)).reshape(hemi.shape[:2])
+        term = math.pi * np.mean(rel * p.sky_visible, axis=1) * to_unit
+        self._sky_cache[sky_type] = (sun_dir, term)
+        return term
+
+    def _unblocked(self, points: np.ndarray, normals: np.ndarray, sun_dir: np.ndarray):
+        """(m,) bool: the points face the sun, it is up, and no face of the mesh is between."""
+        facing = normals @ sun_dir > 0.0
+        lit = np.zeros(len(facing), bool)
+        if sun_dir[1] > 0.0 and facing.any():
+            idx = np.flatnonzero(facing)
+            start = points[idx] + SURFACE_OFFSET_M * normals[idx]
+            if self._hit is None:
+                self._hit = _intersector(self.mesh)
+            lit[idx] = ~self._hit.intersects_any(start, np.broadcast_to(sun_dir, start.shape))
+        return lit
+
+    def _sun_needed(self, a_rgb: np.ndarray, sky_col: np.ndarray, values: np.ndarray,
+                    weights: np.ndarray) -> bool:
+        """Whether the sun's term lowers the weighted squared residual (all channels) by more
+        than ``sun_significance`` of what the sky alone leaves."""
+        with_sun = without = 0.0
+        for ch in range(3):
+            both = np.column_stack([a_rgb[:, ch], sky_col[:, ch]])
+            x = weighted_nonneg(both, values[:, ch], weights)
+            with_sun += float(weights @ (values[:, ch] - both @ x) ** 2)
+            k = weighted_nonneg(sky_col[:, ch:ch + 1], values[:, ch], weights)[0]
+            without += float(weights @ (values[:, ch] - k * sky_col[:, ch]) ** 2)
+        return with_sun < (1.0 - self.sun_significance) * without
+
+    def _pick(self, lit: np.ndarray) -> np.ndarray:
+        """``samples`` pool indices, half in sun and half in shadow where the pool has them
+        (the shadowed ones are what tells the sky from the sun)."""
+        groups = [np.flatnonzero(lit), np.flatnonzero(~lit)]
+        want = self.samples // 2
+        small = min(groups, key=len)
+        large = max(groups, key=len)
+        take_small = min(len(small), want)
+        take_large = min(len(large), self.samples - take_small)
+        return np.concatenate([self._rng.choice(small, take_small, replace=False),
+                               self._rng.choice(large, take_large, replace=False)])
+
+    def read_pixels(self, image: np.ndarray, pixels_xy: np.ndarray,
+                    to_linear=None) -> np.ndarray:
+        """The ``(2 patch_px + 1)^2`` pixels about each pixel, (k, m, 3) linear RGB:
+        ``image`` (H, W, >=3) as it is, or through ``to_linear`` (codes (..., 3) -> linear),
+        which then runs on these pixels only, never on the whole frame."""
+        r = self.patch_px
+        dy, dx = np.mgrid[-r:r + 1, -r:r + 1]
+        ys = pixels_xy[None, :, 1] + dy.ravel()[:, None]
+        xs = pixels_xy[None, :, 0] + dx.ravel()[:, None]
+        raw = image[ys, xs, :3]
+        return (to_linear(raw) if to_linear is not None else raw).astype(np.float64)
+
+    def estimate(self, linear: np.ndarray, sun_dir: np.ndarray, radiance_per_unit: float = 1.0,
+                 clip_level: float | None = None, ignore_mask: np.ndarray | None = None,
+                 to_linear=None) -> SceneLight:
+        """One estimate from a frame (H, W, 3) of the view: linear RGB, or codes with
+        ``to_linear`` (codes (..., 3) -> linear RGB; applied to the sampled pixels only).
+
+        ``radiance_per_unit``: W/(m^2 sr) per linear unit (the camera's exposure and
+        photometric factor). Samples any of whose pixels reach ``clip_level`` (linear), or
+        that ``ignore_mask`` (H, W bool, e.g. visitors) marks, are skipped.
+        """
+        linear = np.asarray(linear)
+        if linear.ndim != 3 or linear.shape[:2] != (self.view.height, self.view.width):
+            raise SceneEstimateError(f"frame of shape {linear.shape}; the view is "
+                                     f"{self.view.width}x{self.view.height}")
+        if self._rng is None:
+            self._rng = np.random.default_rng(self.seed + 2)
+        sun_dir = normalize(np.asarray(sun_dir, float))
+        p = self.pool_samples
+        lit, bounce_sun, bounce_sky = self.in_sun(sun_dir)
+        pick = self._pick(lit)
+        xy = p.pixels_xy[pick]
+        patches = self.read_pixels(linear, xy, to_linear)
+        values = patches.mean(axis=0)
+        usable = np.all(np.isfinite(values), axis=1) & (values.min(axis=1) >= 0.0)
+        if clip_level is not None:
+            usable &= patches.max(axis=(0, 2)) < clip_level
+        if ignore_mask is not None:
+            usable &= ~np.asarray(ignore_mask, bool)[xy[:, 1], xy[:, 0]]
+        pick, values = pick[usable], values[usable] * radiance_per_unit
+        if len(pick) < 8:
+            raise SceneEstimateError(f"only {len(pick)} usable samples in the frame")
+        cos_i = np.clip(p.normals[pick] @ sun_dir, 0.0, None) * lit[pick]
+        albedo = p.albedo[pick]
+        b_sun, b_sky = bounce_sun[pick], bounce_sky[pick]
+        sunlit_count = int(np.sum(cos_i > 0.05))
+        sky_type = 12
+        result = None
+        for _ in range(3):
+            s = self.sky_term(sky_type, sun_dir)[pick]
+            # the isotropic part of the sky: what a uniform sky of unit horizontal irradiance
+            # gives (the sky view factor; Perez and Hay-Davies split the sky the same way)
+            u = p.sky_view[pick]
+            # (n, 3): radiance per unit sun normal irradiance, per unit sky irradiance
+            a_rgb = albedo / math.pi * (cos_i[:, None] + b_sun)
+            c_rgb = albedo / math.pi * (s[:, None] + b_sky)
+            u_rgb = albedo / math.pi * (u[:, None] + b_sky)
+            if sunlit_count < MIN_SUNLIT:
+                a_rgb = np.zeros_like(a_rgb)
+            y_sum = values.sum(axis=1)
+            a_sum, c_sum = a_rgb.sum(axis=1), c_rgb.sum(axis=1)
+            inliers = ransac_fit(a_sum, c_sum, y_sum, self._rng)
+            # The weights come from the channel sum (a person in a red coat is an outlier in
+            # every channel); each channel is then one weighted least-squares solve.
+            A_sum = np.column_stack([a_sum, c_sum, u_rgb.sum(axis=1)])
+            x_sum, weights = robust_linear_fit(A_sum, y_sum, inliers)
+            # The sky's shape (the model's share against the isotropic part) from the sum too;
+            # per channel only the sun and the sky's scale.
+            share = x_sum[1] / max(x_sum[1] + x_sum[2], 1e-12) if x_sum[1:].sum() > 0 \
+                else 1.0
+            # The share is poorly determined by one frame's samples (the two columns are
+            # nearly collinear) and the sky's shape changes slowly: follow it across frames.
+            previous = self._share.get(sky_type)
+            model_share = share if previous is None else (
+                self.share_memory * previous + (1.0 - self.share_memory) * share)
+            sky_col = model_share * c_rgb + (1.0 - model_share) * u_rgb
+            sun_rgb = np.zeros(3)
+            sky_rgb = np.zeros(3)
+            for ch in range(3):
+                sun_rgb[ch], sky_rgb[ch] = weighted_nonneg(
+                    np.column_stack([a_rgb[:, ch], sky_col[:, ch]]), values[:, ch], weights)
+            if sky_type == 1 and not self._sun_needed(a_rgb, sky_col, values, weights):
+                # Overcast: a small sun that explains little more than the sky alone is the
+                # sky model's error, not a sun (Jensen et al.: under heavy cloud, none).
+                sun_rgb[:] = 0.0
+                for ch in range(3):
+                    sky_rgb[ch] = weighted_nonneg(sky_col[:, ch:ch + 1], values[:, ch],
+                                                  weights)[0]
+            self._share[sky_type] = model_share
+            result = SceneLight(sun_rgb, sky_rgb, sky_type, sun_dir, sunlit_count >= MIN_SUNLIT,
+                                len(pick), float(np.mean(weights > 0.5)), float(model_share))
+            ratio = float(LUMINANCE_RGB @ sun_rgb) / max(float(LUMINANCE_RGB @ sky_rgb), 1e-9)
+            new_type = sky_type_for_ratio(ratio)
+            if new_type == sky_type:
+                break
+            sky_type = new_type
+        return result

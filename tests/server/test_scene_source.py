@@ -1,0 +1,105 @@
+"""``[sky] source = "scene"`` end to end: a site camera's frame of a small baked site's real
+proxies (tests/sites.py: a building and a wall, seen from the north as a kiosk would), rendered
+by Radiance under a known clear sky, through the real server to a version-2 client.
+
+The frame is an OpenEXR replay (linear, with its capture time as ``capDate``, so the sun is
+where it was for the render); the vector arrives with the sun's source ``scene`` and the
+SUN_ESTIMATED flag, and ``/api/status`` shows the estimate against the render's truth.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("pyradiance")
+
+
+def write_exr(path, rgb: np.ndarray, when_unix_s: float, utc_offset_h: float = 9.0) -> None:
+    """Linear RGB with the capture time as OpenEXR's capDate (local) and utcOffset."""
+    import OpenEXR
+
+    channels = {c: np.ascontiguousarray(rgb[:, :, k].astype(np.float32))
+                for k, c in enumerate("RGB")}
+    local = dt.datetime.fromtimestamp(when_unix_s, dt.UTC) + dt.timedelta(hours=utc_offset_h)
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage,
+              "capDate": local.strftime("%Y:%m:%d %H:%M:%S"),
+              "utcOffset": -utc_offset_h * 3600.0}
+    with OpenEXR.File(header, channels) as f:
+        f.write(str(path))
+
+
+@pytest.fixture(scope="module")
+def scene_build(tmp_path_factory) -> Path:
+    """A real building (8 x 5 x 6 m, albedo 0.55/0.45/0.35) and wall, a small virtual box out
+    of the way, a kiosk view from the north; 40 lights at draft quality (seconds)."""
+    from bake.pipeline import bake
+    from tests.sites import box, make_site, real_box
+
+    root = tmp_path_factory.mktemp("scene")
+    scene = make_site(
+        root / "scene",
+        virtual=[("sign", box([1.0, 1.0, 1.0], [10.0, 0.0, 12.0]), (0.5, 0.5, 0.5))],
+        real=real_box("building", (8.0, 5.0, 6.0), (0.0, 0.0, 0.0), (0.55, 0.45, 0.35))
+        + real_box("wall", (0.4, 2.0, 9.0), (-8.0, 0.0, -6.0), (0.40, 0.42, 0.45)),
+        views="""
+            [[view]]
+            name = "kiosk"
+            width = 320
+            height = 180
+            fov_y_deg = 45.0
+            position_m = [3.0, 7.0, -24.0]
+            look_at_m = [0.0, 0.5, -3.0]
+            """,
+        ground_m=60.0,
+        ground_albedo=(0.22, 0.20, 0.18),
+    )
+    bake(scene, root / "build", progress=False, log=lambda msg: None)
+    return root / "build"
+
+
+@pytest.mark.slow
+async def test_scene_source_streams_the_estimated_sun_and_sky(aiohttp_client, scene_build,
+                                                              tmp_path):
+    from benchmarks.bench_fidelity import SkySpec
+    from daylit.sun import SunSource
+    from server import protocol
+    from server.app import create_app
+    from tests.radiance_frames import render_build_view
+    from tests.server.helpers import first_light_v2, settings_for
+
+    rendered, view = render_build_view(scene_build, SkySpec("clear", 10, 15, "11",
+                                                                 800.0, 80.0), 320, 180)
+    exposure = 0.8 / float(np.percentile(rendered.sun_image, 99.0))
+    folder = tmp_path / "site"
+    folder.mkdir()
+    write_exr(folder / "frame.exr", rendered.sun_image * exposure, rendered.when_unix_s)
+    app = create_app(scene_build, settings_for(
+        tmp_path, sky__source="scene", site_camera__source=f"replay:{folder}",
+        site_camera__rate_hz=5.0, occlusion__enabled=False,
+        scene__radiance_per_unit=1.0 / exposure))
+    client = await aiohttp_client(app)
+    ws, m = await first_light_v2(client)
+    assert m.sun.source == SunSource.SCENE
+    assert m.flags & protocol.Flags.SUN_ESTIMATED and m.sun.estimated
+    sun_w_m2 = float(np.mean(m.sun.normal_irradiance_w_m2))
+    assert sun_w_m2 == pytest.approx(rendered.dni_w_m2, rel=0.15)
+    status = await (await client.get("/api/status")).json()
+    est = status["scene_estimate"]
+    assert status["source"].startswith("scene:")
+    assert np.mean(est["sky_horizontal_irradiance_W_m2"]) == pytest.approx(rendered.dhi_w_m2,
+                                                                            rel=0.15)
+    assert np.all(np.asarray(m.rgb) >= 0.0) and np.asarray(m.rgb).max() > 0.0
+    await ws.close()
+
+
+def test_scene_source_without_a_site_camera_is_a_clear_error(scene_build, tmp_path):
+    from server.app import create_app
+    from server.config import ConfigError
+    from tests.server.helpers import settings_for
+
+    with pytest.raises(ConfigError, match="needs a site camera"):
+        create_app(scene_build, settings_for(tmp_path, sky__source="scene"))

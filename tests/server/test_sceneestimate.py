@@ -1,0 +1,245 @@
+"""The sun and sky estimated from a site camera's frames (server.sceneestimate, issue 16).
+
+Known answers: a linear model with planted outliers; the uniform sky's normalisation (pi);
+and frames rendered by Radiance (tests/radiance_frames.py: gendaylit skies, rtrace, not
+daylit's tracer) of a small site under clear, intermediate and overcast skies at three sun
+positions, through a camera model with noise and JPEG, with a person walking through; a van
+and a wrong albedo the model does not know; a cloud passing over the sun.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from daylit.sky import CIESky
+from daylit.sun import sun_position
+from server.robustfit import robust_linear_fit
+from server.sceneestimate import (
+    SceneEstimateError,
+    SceneEstimator,
+    sky_type_for_ratio,
+    unit_sky,
+)
+
+pytest.importorskip("pyradiance")
+
+HOURS = ("9.5", "12", "14.5")  # decimal hours: see radiance_frames.local_time
+# gendaylit conditions (DNI, DHI W/m^2) for 2026-10-15 at the test site
+SKIES = {"clear": (800.0, 80.0), "intermediate": (400.0, 200.0), "overcast": (0.0, 150.0)}
+FRAMES_PER_CONDITION = 4  # a short stream: noise and JPEG differ frame to frame
+
+
+def test_robust_fit_recovers_a_known_linear_model_despite_outliers():
+    rng = np.random.default_rng(3)
+    n = 500
+    lit = rng.random(n) < 0.5
+    a = np.where(lit, rng.uniform(0.3, 1.0, n), 0.0)
+    c = rng.uniform(0.2, 1.0, n)
+    y = 800.0 * a + 80.0 * c
+    y *= 1.0 + rng.normal(0.0, 0.01, n)
+    bad = rng.random(n) < 0.25  # people, wet patches: far too dark or too bright
+    y[bad] *= rng.choice([0.2, 0.5, 1.8], bad.sum())
+    x, w = robust_linear_fit(np.column_stack([a, c]), y)
+    assert x[0] == pytest.approx(800.0, rel=0.02)
+    assert x[1] == pytest.approx(80.0, rel=0.03)
+    assert np.mean(w[bad] > 0.5) < 0.05  # the outliers were set aside
+
+
+def test_unit_sky_scales_a_uniform_sky_to_unit_horizontal_irradiance():
+    # CIE type 5 is of uniform luminance: radiance L gives E_h = pi L
+    sky, to_unit = unit_sky(5, np.array([0.0, 0.7071, -0.7071]))
+    assert isinstance(sky, CIESky)
+    assert to_unit == pytest.approx(1.0 / math.pi, rel=2e-3)
+
+
+def test_sky_type_follows_the_sun_to_sky_ratio():
+    assert sky_type_for_ratio(0.0) == 1
+    assert sky_type_for_ratio(1.0) == 7
+    assert sky_type_for_ratio(10.0) == 12
+
+
+def test_bad_frames_get_a_clear_error():
+    from tests.radiance_frames import known_site
+
+    site = known_site(64, 36)
+    mesh, albedo = site.mesh_and_albedo()
+    est = SceneEstimator(mesh, albedo, site.view, pool=400)
+    with pytest.raises(SceneEstimateError, match="frame of shape"):
+        est.estimate(np.zeros((10, 10, 3)), np.array([0.0, 1.0, 0.0]))
+    with pytest.raises(SceneEstimateError, match="usable samples"):
+        est.estimate(np.full((36, 64, 3), np.nan), np.array([0.0, 1.0, 0.0]))
+    with pytest.raises(SceneEstimateError, match="face_albedo"):
+        _ = SceneEstimator(mesh, albedo[:-1], site.view).pool_samples
+
+
+# ------------------------------------------------------------------------------------------
+# Against Radiance
+
+
+def _person(k: int):
+    """Where the walking person is in frame ``k`` (walks across the view)."""
+    from tests.radiance_frames import PERSON_ALBEDO, person_mesh
+
+    return ("person", person_mesh((-4.0 + 3.0 * k, 0.0, -11.0)), PERSON_ALBEDO)
+
+
+@pytest.fixture(scope="module")
+def renders():
+    """Every condition rendered once per test run: {(sky, hour): RenderedSky}."""
+    from benchmarks.bench_fidelity import SkySpec
+    from tests.radiance_frames import known_site, render_sky
+
+    site = known_site()
+    out = {}
+    for k, hour in enumerate(HOURS):
+        for name, (dni, dhi) in SKIES.items():
+            spec = SkySpec(name, 10, 15, hour, dni, dhi)
+            out[name, hour] = render_sky(site, spec, extra=[_person(k)])
+    return site, out
+
+
+def _stream(site, rendered, estimator, seed: int, frames: int = FRAMES_PER_CONDITION,
+            sun_factors=None):
+    """Estimates of a stream of camera frames of one rendered condition (the sun scaled by
+    ``sun_factors[i]`` in frame i), with pvlib's sun for the render's time."""
+    from tests.radiance_frames import camera_frame, linearise
+
+    sun = sun_position(34.47, 135.82, 100.0, [rendered.when_unix_s]).direction[0]
+    assert math.degrees(math.acos(min(1.0, float(sun @ rendered.sun_dir)))) < 0.5
+    rng = np.random.default_rng(seed)
+    factors = sun_factors or [1.0] * frames
+    out = []
+    exposure = None
+    for f in factors:
+        codes, exposure = camera_frame(rendered.image(f), rng, exposure=exposure)
+        out.append(estimator.estimate(linearise(codes), sun, 1.0 / exposure, clip_level=0.99))
+    return out
+
+
+def _grey(rgb) -> float:
+    return float(np.mean(rgb))
+
+
+@pytest.mark.slow
+def test_clear_sky_sun_and_sky_within_ten_percent(renders):
+    site, rendered = renders
+    mesh, albedo = site.mesh_and_albedo()
+    for k, hour in enumerate(HOURS):
+        truth = rendered["clear", hour]
+        est = SceneEstimator(mesh, albedo, site.view, seed=k)
+        last = _stream(site, truth, est, seed=k)[-1]
+        sun_err = _grey(last.sun_normal_irradiance) / truth.dni_w_m2 - 1.0
+        sky_err = _grey(last.sky_horizontal_irradiance) / truth.dhi_w_m2 - 1.0
+        assert abs(sun_err) < 0.10, (hour, sun_err, last)
+        assert abs(sky_err) < 0.10, (hour, sky_err, last)
+        assert last.sun_observable and last.sky_type == 12
+
+
+@pytest.mark.slow
+def test_intermediate_sky_global_irradiance_within_ten_percent(renders):
+    """No goal in the issue for the split under an intermediate sky: the bright circumsolar
+    sky of a Perez intermediate sky shades like the sun, and part of it goes to the sun's
+    estimate (about +20 % sun, -25 % sky at noon: docs/benchmarks.md, "Scene estimate").
+    What lights the site, the global horizontal irradiance, must be right within 10 %."""
+    site, rendered = renders
+    mesh, albedo = site.mesh_and_albedo()
+    for k, hour in enumerate(HOURS):
+        truth = rendered["intermediate", hour]
+        est = SceneEstimator(mesh, albedo, site.view, seed=10 + k)
+        last = _stream(site, truth, est, seed=10 + k)[-1]
+        sin_el = float(truth.sun_dir[1])
+        e_sun, e_sky = _grey(last.sun_normal_irradiance), _grey(last.sky_horizontal_irradiance)
+        global_truth = truth.dni_w_m2 * sin_el + truth.dhi_w_m2
+        assert e_sun * sin_el + e_sky == pytest.approx(global_truth, rel=0.10), (hour, last)
+        assert last.sun_observable and e_sun > 0.5 * truth.dni_w_m2, (hour, last)
+
+
+@pytest.mark.slow
+def test_overcast_sun_below_five_percent_of_the_sky(renders):
+    site, rendered = renders
+    mesh, albedo = site.mesh_and_albedo()
+    for k, hour in enumerate(HOURS):
+        truth = rendered["overcast", hour]
+        est = SceneEstimator(mesh, albedo, site.view, seed=20 + k)
+        last = _stream(site, truth, est, seed=20 + k)[-1]
+        sky = _grey(last.sky_horizontal_irradiance)
+        assert _grey(last.sun_normal_irradiance) < 0.05 * sky, (hour, last)
+        assert sky == pytest.approx(truth.dhi_w_m2, rel=0.15)
+        assert last.sky_type == 1
+
+
+@pytest.mark.slow
+def test_cloud_over_the_sun_is_followed_within_two_frames(renders):
+    site, rendered = renders
+    mesh, albedo = site.mesh_and_albedo()
+    truth = rendered["clear", "12"]
+    factors = [1.0, 1.0, 1.0, 0.1, 0.1, 0.1, 1.0, 1.0, 1.0]
+    est = SceneEstimator(mesh, albedo, site.view, seed=5)
+    out = _stream(site, truth, est, seed=5, sun_factors=factors)
+    # before the cloud, and the second and third frames under it and after it: within 10 %
+    # of the clear DNI of the truth of that frame
+    for i in (1, 2, 4, 5, 7, 8):
+        err = abs(_grey(out[i].sun_normal_irradiance) - factors[i] * truth.dni_w_m2)
+        assert err < 0.1 * truth.dni_w_m2, (i, factors[i], out[i])
+    # the first frame after each change already moved most of the way
+    assert _grey(out[3].sun_normal_irradiance) < 0.3 * truth.dni_w_m2
+    assert _grey(out[6].sun_normal_irradiance) > 0.7 * truth.dni_w_m2
+
+
+@pytest.fixture(scope="module")
+def van_render():
+    """Clear sky at 14:30 with a person and a van the model does not know (the van's shadow
+    falls north-east of it, on open ground in view, where the model expects sun)."""
+    from benchmarks.bench_fidelity import SkySpec
+    from tests.radiance_frames import VAN_ALBEDO, known_site, render_sky, van_mesh
+
+    site = known_site()
+    return site, render_sky(site, SkySpec("clear", 10, 15, "14.5", *SKIES["clear"]),
+                            extra=[_person(1), ("van", van_mesh(), VAN_ALBEDO)])
+
+
+def _van_estimate(van_render, building_albedo_scale: float):
+    site, rendered = van_render
+    mesh, albedo = site.mesh_and_albedo({"building": building_albedo_scale})
+    est = SceneEstimator(mesh, albedo, site.view, seed=7)
+    return rendered, _stream(site, rendered, est, seed=7)[-1]
+
+
+@pytest.mark.slow
+def test_an_unknown_van_and_its_shadow_stay_within_fifteen_percent(van_render):
+    rendered, last = _van_estimate(van_render, 1.0)
+    assert _grey(last.sun_normal_irradiance) == pytest.approx(rendered.dni_w_m2, rel=0.15)
+    assert _grey(last.sky_horizontal_irradiance) == pytest.approx(rendered.dhi_w_m2, rel=0.15)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("wrong", [0.7, 1.3])
+def test_a_building_albedo_wrong_by_30_percent_keeps_the_sun_within_fifteen_percent(
+        van_render, wrong):
+    site, rendered = van_render
+    mesh, albedo = site.mesh_and_albedo({"building": wrong})
+    for seed in (7, 8, 9):
+        est = SceneEstimator(mesh, albedo, site.view, seed=seed)
+        last = _stream(site, rendered, est, seed=seed)[-1]
+        assert _grey(last.sun_normal_irradiance) == pytest.approx(rendered.dni_w_m2,
+                                                                  rel=0.15), seed
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="not met yet: the building's shaded face is most of the "
+                   "shadowed pixels in view, so its albedo scales the sky's estimate (0.7x: "
+                   "+48 to +66 % at seeds 7-9; 1.3x: +4 % at seed 7, -38 and -44 % at seeds 8, 9; "
+                   "against Radiance, 2026-11-24)")
+@pytest.mark.parametrize("wrong", [0.7, 1.3])
+def test_a_building_albedo_wrong_by_30_percent_keeps_the_sky_within_fifteen_percent(
+        van_render, wrong):
+    site, rendered = van_render
+    mesh, albedo = site.mesh_and_albedo({"building": wrong})
+    for seed in (7, 8, 9):
+        est = SceneEstimator(mesh, albedo, site.view, seed=seed)
+        last = _stream(site, rendered, est, seed=seed)[-1]
+        assert _grey(last.sky_horizontal_irradiance) == pytest.approx(rendered.dhi_w_m2,
+                                                                      rel=0.15), seed
