@@ -51,6 +51,12 @@ def add_subcommands(subparsers) -> None:
     bake.add_argument(
         "--workers", type=int, metavar="N", help="processes to use (default: one per core)"
     )
+    bake.add_argument(
+        "--cluster",
+        metavar="tcp://HOST:8786",
+        help="trace on the workers of this Dask scheduler instead of local processes (the "
+        "same output byte for byte; each worker needs the same daylit installed)",
+    )
     bake.add_argument("--no-progress", action="store_true", help="no progress bar")
     bake.set_defaults(run=run_bake)
 
@@ -150,6 +156,7 @@ def run_bake(args) -> int:
             workers=args.workers,
             progress=not args.no_progress,
             budget=args.budget,
+            cluster=args.cluster,
         )
     except SceneError as exc:
         print(f"error: {exc}", file=sys.stderr)

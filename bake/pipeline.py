@@ -11,7 +11,8 @@ Stages (each split into chunks of points whose layout does not depend on the wor
    and views are written two at a time in threads: one's single-threaded parts (EXR
    writing, quantizing, checking) run while the other's encoders use the cores.
 
-Chunks run in a process pool and are saved as they finish under ``.<out>.partial/``, keyed by
+Chunks run in a process pool (or on a Dask cluster, ``cluster=ADDRESS``: bake.cluster; the
+same bytes either way) and are saved as they finish under ``.<out>.partial/``, keyed by
 a hash of every input, so an interrupted bake resumes from its finished chunks. The finished
 build is assembled inside the partial folder and renamed into place only when complete
 (:func:`bake.writers.swap_into_place`); a failed or interrupted bake never leaves a
@@ -72,8 +73,13 @@ def bake(
     progress=True,
     log=None,
     budget=None,
+    cluster=None,
 ) -> BakeResult:
-    """Bake a site. Raises ``SceneError`` (bad input, nothing written) or ``BakeError``."""
+    """Bake a site. Raises ``SceneError`` (bad input, nothing written) or ``BakeError``.
+
+    ``cluster``: the address of a Dask scheduler (``tcp://HOST:8786``) whose workers trace
+    the chunks instead of a local pool of ``workers`` processes; it is reached before any
+    work, and a ``BakeError`` says what to do when it cannot be."""
     log = log or (lambda msg: print(msg, file=sys.stderr))
     started = time.perf_counter()
     # Absolute from here on: helpers (the KTX2 decoder under Node) run in other directories.
@@ -82,14 +88,29 @@ def bake(
     site = load_site(scene_dir, lights=lights, quality=quality, budget=budget)
     compressor = Compressor(site, log)
     _check_output(out_dir)
+    client = None
+    if cluster is not None:
+        from bake.cluster import Cluster
+
+        client = Cluster(cluster, log)
+    try:
+        return _bake(site, out_dir, compressor, started, workers, client, progress, log)
+    finally:
+        if client is not None:
+            client.close()
+
+
+def _bake(site, out_dir, compressor, started, workers, cluster, progress, log) -> BakeResult:
+    """The stages of :func:`bake` once the site is loaded and the cluster (if any) reached."""
     settings = site.settings
     dome = Dome.for_light_count(settings.lights)
     if dome.count != settings.lights:
         log(f"dome: {settings.lights} lights asked, the nearest geodesic dome has {dome.count}")
-    workers = workers or os.cpu_count() or 1
+    workers = cluster.threads if cluster else workers or os.cpu_count() or 1
     log(
         f"baking {site.name!r}: {dome.count} lights ({dome.kind}, frequency {dome.frequency}), "
         f"quality {settings.quality}, {workers} workers"
+        + (f" on the cluster {cluster.address}" if cluster else "")
     )
     partial = out_dir.parent / f".{out_dir.name}.partial"
     _prepare_partial(partial, _bake_key(site, dome), log)
@@ -113,7 +134,7 @@ def bake(
     samples = max(2, -(-settings.direct_rays // dome.count))
     work = TraceWork(site, dome, geometry, atlases, view_hits, samples, log)
     with _disk_full_is_a_bake_error(partial):
-        rays, trace_s = work.run(partial, workers, progress, stage_s, log)
+        rays, trace_s = work.run(partial, workers, progress, stage_s, log, cluster)
 
     t0 = time.perf_counter()
     sun_bounce = SunBounce.of(site, dome, atlases)

@@ -1,8 +1,9 @@
 """The points a bake traces and their tracing: the bounce cache's points, every atlas texel
 and view hit, split into chunks (whose layout does not depend on the worker count), traced in
-a process pool of Embree workers and saved as chunk files under the partial folder, so an
-interrupted bake resumes from its finished chunks. Each chunk's random numbers come from
-``(seed, stage, name, chunk)``: results are identical for a seed however many workers ran.
+a process pool of Embree workers (or on a Dask cluster: bake.cluster) and saved as chunk files
+under the partial folder, so an interrupted bake resumes from its finished chunks. Each
+chunk's random numbers come from ``(seed, stage, name, chunk)``: results are identical for a
+seed however many workers ran, and wherever.
 """
 
 from __future__ import annotations
@@ -134,8 +135,9 @@ class TraceWork:
             f"{samples} rays per light and point, {settings.bounce_rays} bounce rays"
         )
 
-    def run(self, partial: Path, workers: int, progress: bool, stage_s: dict, log):
-        """Trace every missing chunk (cache first: the rest gathers its bounce from it).
+    def run(self, partial: Path, workers: int, progress: bool, stage_s: dict, log, cluster=None):
+        """Trace every missing chunk (cache first: the rest gathers its bounce from it), in a
+        pool of ``workers`` processes or on ``cluster`` (a :class:`bake.cluster.Cluster`).
         Returns (rays cast, seconds)."""
         site, geometry = self.site, self.geometry
         bar = tqdm(
@@ -159,11 +161,13 @@ class TraceWork:
         rays = 0
         t0 = time.perf_counter()
         try:
-            rays += _run_sets([self.cache_set], partial, seed, init + (None,), workers, bar)
+            rays += _run_sets([self.cache_set], partial, seed, init, None, workers, bar, cluster)
             cache_file = self._save_cache(partial)
             stage_s["cache"] = time.perf_counter() - t0
             t1 = time.perf_counter()
-            rays += _run_sets(self.point_sets, partial, seed, init + (cache_file,), workers, bar)
+            rays += _run_sets(
+                self.point_sets, partial, seed, init, cache_file, workers, bar, cluster
+            )
             stage_s["trace"] = time.perf_counter() - t1
         except KeyboardInterrupt:
             bar.close()
@@ -236,8 +240,10 @@ def _chunk_path(partial: Path, s: PointSet, index: int) -> Path:
     return partial / "chunks" / f"{s.stage}-{s.name}-{index:05d}{chunkio.SUFFIX}"
 
 
-def _run_sets(sets, partial, seed, init, workers, bar) -> int:
-    """Compute every missing chunk of ``sets`` in a process pool; returns rays cast."""
+def _run_sets(sets, partial, seed, init, cache_file, workers, bar, cluster=None) -> int:
+    """Compute every missing chunk of ``sets`` in a process pool of ``workers`` (or on
+    ``cluster``) with the bounce cache of ``cache_file`` (``None``: none); returns rays
+    cast."""
     todo = []
     for s in sets:
         for index, (start, stop) in enumerate(s.chunks):
@@ -250,9 +256,18 @@ def _run_sets(sets, partial, seed, init, workers, bar) -> int:
             todo.append((stop - start, task))
     if not todo:
         return 0
+    if cluster is not None:
+        cache = None
+        if cache_file is not None:
+            with np.load(cache_file) as data:
+                cache = {name: data[name] for name in data.files}
+        return cluster.run(todo, init, cache, bar)
     rays = 0
     with futures.ProcessPoolExecutor(
-        max_workers=workers, mp_context=_WORKER_CONTEXT, initializer=_init_worker, initargs=init
+        max_workers=workers,
+        mp_context=_WORKER_CONTEXT,
+        initializer=_init_worker,
+        initargs=init + (cache_file,),
     ) as pool:
         pending = {pool.submit(_run_chunk, task): count for count, task in todo}
         try:

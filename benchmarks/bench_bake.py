@@ -7,11 +7,16 @@ Bakes the demo site at the given light counts (final quality by default) and pri
   in the same run on the same geometry with the same number of processes (random occlusion
   rays from points of the site; the goal is at least half);
 - the compact assets: k, error and bytes per stack, what a phone and the kiosk download;
-- optionally (``--etc1s``) the same stacks encoded with ETC1S instead of UASTC.
+- optionally (``--etc1s``) the same stacks encoded with ETC1S instead of UASTC;
+- with ``--cluster-workers N``, instead: the same bake on the local process pool and on a Dask
+  ``LocalCluster`` of N single-threaded worker processes (``daylit bake --cluster``), one after
+  the other in the same run, each stage's seconds and share, and whether every file but the
+  manifest is the same byte for byte.
 
 Usage::
 
     .venv/bin/python benchmarks/bench_bake.py [--lights 160 400] [--quality final] [--etc1s]
+    .venv/bin/python benchmarks/bench_bake.py --lights 160 --quality draft --cluster-workers 2
 
 The machine is shared and noisy: read the ratio, not the seconds. Results go in
 docs/benchmarks.md by hand.
@@ -21,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures as futures
+import hashlib
 import json
 import os
 import shutil
@@ -168,6 +174,57 @@ def print_result(r: dict) -> None:
           f"masters {r['build_bytes'] / 1e6:.0f} MB")
 
 
+def _file_hashes(build: Path) -> dict:
+    """{relative path: SHA-256} of every file of a build but its manifest (which records the
+    run's times)."""
+    return {
+        p.relative_to(build).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(build.rglob("*"))
+        if p.is_file() and p.name != "manifest.json"
+    }
+
+
+def bench_cluster(lights: int, quality: str, workers: int, cluster_workers: int,
+                  keep: Path | None) -> dict:
+    """The demo baked by the local pool of ``workers`` processes, then on a LocalCluster of
+    ``cluster_workers`` single-threaded processes: {"local", "cluster": (seconds, stage
+    seconds)}, "identical": every file but the manifest the same."""
+    from distributed import LocalCluster
+
+    parent = keep or Path(tempfile.mkdtemp(prefix="daylit-bench-"))
+    runs = {}
+    for mode in ("local", "cluster"):
+        out = parent / f"demo-{lights}-{mode}"
+        for path in (out, out.parent / f".{out.name}.partial"):
+            if path.exists():
+                shutil.rmtree(path)
+        common = {"lights": lights, "quality": quality, "progress": False, "log": lambda m: None}
+        if mode == "local":
+            result = bake(REPO / "scenes" / "demo", out, workers=workers, **common)
+        else:
+            with LocalCluster(n_workers=cluster_workers, threads_per_worker=1, processes=True,
+                              dashboard_address=None) as cluster:
+                result = bake(REPO / "scenes" / "demo", out, cluster=cluster.scheduler_address,
+                              **common)
+        runs[mode] = (result.duration_s, result.stage_s, _file_hashes(out))
+    identical = runs["local"][2] == runs["cluster"][2]
+    if not keep:
+        shutil.rmtree(parent, ignore_errors=True)
+    return {"lights": lights, "quality": quality, "workers": workers,
+            "cluster_workers": cluster_workers, "identical": identical,
+            "local": runs["local"][:2], "cluster": runs["cluster"][:2]}
+
+
+def print_cluster(r: dict) -> None:
+    print(f"\n== demo, {r['lights']} lights, {r['quality']}: local pool of {r['workers']} "
+          f"processes against a LocalCluster of {r['cluster_workers']} workers")
+    for mode in ("local", "cluster"):
+        duration, stages = r[mode]
+        shares = ", ".join(f"{name} {s:.1f} s ({s / duration:.0%})" for name, s in stages.items())
+        print(f"{mode:>8}: {duration:.1f} s: {shares}")
+    print(f"every file but the manifest byte-identical: {r['identical']}")
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--lights", type=int, nargs="+", default=[160, 400])
@@ -176,8 +233,18 @@ def main() -> int:
     parser.add_argument("--etc1s", action="store_true", help="also recompress with ETC1S")
     parser.add_argument("--keep", type=Path, help="keep the builds in this folder")
     parser.add_argument("--json", type=Path, help="write the figures as JSON")
+    parser.add_argument("--cluster-workers", type=int, metavar="N",
+                        help="compare the local pool with a Dask LocalCluster of N workers")
     args = parser.parse_args()
     results = []
+    if args.cluster_workers:
+        for lights in args.lights:
+            r = bench_cluster(lights, args.quality, args.workers, args.cluster_workers, args.keep)
+            print_cluster(r)
+            results.append(r)
+        if args.json:
+            args.json.write_text(json.dumps(results, indent=1, default=float))
+        return 0
     for lights in args.lights:
         r = bench_lights(lights, args.quality, args.workers, args.keep)
         print_result(r)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+from pathlib import Path
 
 import numpy as np
 import OpenEXR
@@ -175,3 +176,39 @@ def test_compact_answers_agree_with_the_masters(site, capsys):
         assert c["sun_W_m2"] == m["sun_W_m2"]
         assert np.allclose(c["sun_bounce_W_m2"], m["sun_bounce_W_m2"], rtol=0.05, atol=0.05)
         assert np.allclose(c["sky_W_m2"], m["sky_W_m2"], rtol=0.05)
+
+
+def test_compact_decodes_once_whatever_the_number_of_points(site, capsys, monkeypatch):
+    """``--compact`` decodes each stack's textures and sums its composite once per run, then
+    samples every point from it (it once recomputed the whole atlas per point)."""
+    from bake import compact_reader
+
+    calls = {"decode": 0, "composite": 0}
+    decode, composite = compact_reader.decode, compact_reader.CompactReader.composite
+
+    def counted_decode(files):
+        calls["decode"] += 1
+        return decode(files)
+
+    def counted_composite(self, r, selection):
+        calls["composite"] += 1
+        return composite(self, r, selection)
+
+    monkeypatch.setattr(compact_reader, "decode", counted_decode)
+    monkeypatch.setattr(compact_reader.CompactReader, "composite", counted_composite)
+    # Twelve points on the ground, around three known ones (the working directory is the
+    # fixture's tmp_path).
+    ground = [
+        f"{x + dx},0,{z}" for x, z in ((-20, 15), (0, -5), (12, -5)) for dx in (0, 0.2, 0.4, 0.6)
+    ]
+    Path("many.csv").write_text("\n".join(ground) + "\n")
+    Path("one.csv").write_text(ground[0] + "\n")
+    counts = {}
+    for name in ("one.csv", "many.csv"):
+        calls.update(decode=0, composite=0)
+        results = probe_json(capsys, site, "--points", name, "--sky", "overcast:30", "--compact")
+        assert all(r["receiver"]["atlas"] == "ground" for r in results)
+        counts[name] = dict(calls)
+    assert len(results) == 12
+    assert counts["one.csv"]["decode"] >= 1
+    assert counts["many.csv"] == counts["one.csv"]

@@ -1,0 +1,169 @@
+"""Baking on a Dask cluster (``daylit bake --cluster``): the same bytes as the local process
+pool, resumable locally, and a clear error when the scheduler cannot be reached.
+
+The cluster is a ``LocalCluster`` of two worker processes started here; the workers trace,
+return each chunk's arrays and the baking process saves them (bake.cluster)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import socket
+from pathlib import Path
+
+import pytest
+
+from bake import chunkio, tracework
+from bake.errors import BakeError
+from bake.pipeline import bake
+from daylit.cli import main
+from tests.sites import make_site
+
+pytestmark = pytest.mark.slow
+
+QUIET = {"progress": False, "log": lambda msg: None}
+# Small chunks, so the test scene has several per point set (the layout is the baking
+# process's: it does not depend on where the chunks run).
+RAYS_PER_CHUNK = 60_000
+# What a manifest records about the run rather than the build: times, rays cast by this run.
+RUN_KEYS = {"created_utc", "duration_s", "encode_s", "stage_s", "rays_per_s", "rays", "workers"}
+
+
+def _without_run(value):
+    if isinstance(value, dict):
+        return {k: _without_run(v) for k, v in value.items() if k not in RUN_KEYS}
+    if isinstance(value, list):
+        return [_without_run(v) for v in value]
+    return value
+
+
+def _files(build: Path) -> dict:
+    """{relative path: SHA-256} of every file of a build; ``manifest.json`` as its contents
+    less what it records about the run."""
+    out = {
+        p.relative_to(build).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(build.rglob("*"))
+        if p.is_file() and p.name != "manifest.json"
+    }
+    out["manifest.json"] = _without_run(json.loads((build / "manifest.json").read_text()))
+    return out
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    from distributed import LocalCluster
+
+    with LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+    ) as local:
+        yield local.scheduler_address
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    return make_site(tmp_path_factory.mktemp("cluster") / "scene", lights=40, hull_texel_m=0.25)
+
+
+@pytest.fixture(scope="module")
+def reference(scene, tmp_path_factory):
+    """The scene baked by the local pool of two processes."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(tracework, "RAYS_PER_CHUNK", RAYS_PER_CHUNK)
+        out = tmp_path_factory.mktemp("reference") / "local"
+        bake(scene, out, workers=2, **QUIET)
+    return _files(out)
+
+
+def test_a_cluster_bake_writes_the_same_bytes_as_the_local_pool(
+    scene, reference, cluster, tmp_path, monkeypatch
+):
+    monkeypatch.setattr(tracework, "RAYS_PER_CHUNK", RAYS_PER_CHUNK)
+    messages: list[str] = []
+    result = bake(scene, tmp_path / "out", cluster=cluster, progress=False, log=messages.append)
+    assert any(f"on the cluster {cluster}" in m for m in messages)
+    assert result.rays > 0
+    baked = _files(tmp_path / "out")
+    assert len(reference) >= 10 and any(p.endswith(".ktx2") for p in reference)
+    assert baked.keys() == reference.keys()
+    for path in reference:
+        assert baked[path] == reference[path], path
+    assert not (tmp_path / ".out.partial").exists()
+
+
+def test_an_interrupted_cluster_bake_resumes_locally_to_the_same_bytes(
+    scene, reference, cluster, tmp_path, monkeypatch
+):
+    monkeypatch.setattr(tracework, "RAYS_PER_CHUNK", RAYS_PER_CHUNK)
+    out, partial = tmp_path / "out", tmp_path / ".out.partial"
+    saved: list[Path] = []
+    save_chunk = chunkio.save_chunk
+
+    def ctrl_c_after_three(path, arrays):
+        # The baking process saves the chunks the workers return: Ctrl-C after the third.
+        save_chunk(path, arrays)
+        saved.append(path)
+        if len(saved) == 3:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(chunkio, "save_chunk", ctrl_c_after_three)
+    with pytest.raises(KeyboardInterrupt):
+        bake(scene, out, cluster=cluster, **QUIET)
+    monkeypatch.setattr(chunkio, "save_chunk", save_chunk)
+    assert not out.exists()  # nothing half-written where the build goes
+    kept = sorted((partial / "chunks").glob("*" + chunkio.SUFFIX))
+    assert kept == sorted(saved)
+    assert not list((partial / "chunks").glob("*.tmp"))
+    total = sum(len(s.chunks) for s in _chunked_sets(scene))
+    assert 3 == len(kept) < total  # the interruption left work to do
+
+    messages: list[str] = []
+    result = bake(scene, out, workers=2, progress=False, log=messages.append)
+    assert any("resuming: 3 chunks already baked" in m for m in messages)
+    assert result.rays > 0
+    resumed = _files(out)
+    assert resumed.keys() == reference.keys()
+    for path in reference:
+        assert resumed[path] == reference[path], path
+    assert not partial.exists()
+
+
+def _chunked_sets(scene: Path) -> list:
+    """The point sets of the scene as the bake chunks them (cache set first)."""
+    from bake import pipeline
+    from bake.dome import Dome
+    from bake.irradiance import SceneSet
+    from bake.scene import load_site
+
+    site = load_site(scene)
+    dome = Dome.for_light_count(site.settings.lights)
+    geometry = pipeline._site_geometry(site)
+    scenes = SceneSet.build(geometry, site.ground.albedo)
+    atlases = pipeline._atlases(site, dome, geometry, scenes, lambda m: None)
+    samples = max(2, -(-site.settings.direct_rays // dome.count))
+    work = tracework.TraceWork(site, dome, geometry, atlases, {}, samples, lambda m: None)
+    return [work.cache_set, *work.point_sets]
+
+
+def _closed_port() -> int:
+    """A local port nothing listens on (bound, then released)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_an_unreachable_scheduler_is_a_clear_error_before_any_work(tmp_path, capsys):
+    scene = make_site(tmp_path / "scene")
+    address = f"tcp://127.0.0.1:{_closed_port()}"
+    out = tmp_path / "out"
+    with pytest.raises(BakeError) as caught:
+        bake(scene, out, cluster=address, **QUIET)
+    message = str(caught.value)
+    assert f"cannot reach the Dask scheduler at {address}" in message
+    assert "dask scheduler" in message and "without --cluster" in message
+    assert not out.exists() and not (tmp_path / ".out.partial").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene"]
+
+    status = main(["bake", str(scene), "-o", str(out), "--cluster", address, "--no-progress"])
+    assert status == 2
+    assert f"error: cannot reach the Dask scheduler at {address}" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene"]
