@@ -16,7 +16,8 @@ its own assumptions:
 - People: walkers at several depths (pinhole camera, 1.6-1.85 m tall), head, torso, two
   swinging legs, drawn 3x supersampled (anti-aliased edges), clothes from a fixed palette,
   shaded darker on one side.
-- Sensor: shot plus read noise in linear light, sRGB encoding to 8 bits.
+- Sensor: shot plus read noise in linear light (``noise``: 0.15 codes at mid-grey per unit),
+  sRGB encoding to 8 bits.
 - A passing cloud: a global gain (down to 0.55, slightly bluer) and cast shadows that fade
   while it covers the sun.
 - Camera: +-``jitter_px`` sub-pixel shake per frame (``cv2.warpAffine``, applied to the image
@@ -104,7 +105,10 @@ class HeldoutWalker:
 @dataclass(frozen=True)
 class HeldoutConditions:
     shadow: str = "bluish"  # neutral | bluish
-    noise: float = 0.0  # read noise, codes (shot noise scales with it)
+    # sensor noise scale: read noise (noise / 255) * 0.1 in linear light plus shot noise of
+    # the same size at linear 0.25; at mid-grey (linear 0.2) the standard deviation is
+    # 0.15 * noise codes (noise 1: 0.15 codes, 3: 0.45, 19.6: 3.0)
+    noise: float = 0.0
     cloud: bool = False
     jpeg_quality: int | None = None
     video_fourcc: str | None = None  # e.g. "mp4v"; frames go through an FFmpeg encode/decode
@@ -117,7 +121,8 @@ class HeldoutConditions:
 CONDITIONS: dict[str, HeldoutConditions] = {
     "neutral shadows": HeldoutConditions(shadow="neutral", noise=1.0),
     "bluish shadows": HeldoutConditions(shadow="bluish", noise=1.0),
-    "noise 3 codes": HeldoutConditions(noise=3.0),
+    "noise 0.45 codes": HeldoutConditions(noise=3.0),
+    "noise 3 codes": HeldoutConditions(noise=19.6),
     "passing cloud": HeldoutConditions(noise=1.0, cloud=True),
     "JPEG 75": HeldoutConditions(noise=1.0, jpeg_quality=75),
     "video mp4v": HeldoutConditions(noise=1.0, video_fourcc="mp4v"),
