@@ -87,11 +87,37 @@ class OcclusionEngine:
         self.input_size: tuple[int, int] | None = None  # of the camera's frames
         self._other_size: tuple[int, int] | None = None
         self._other_count = 0
+        self._provisional = False  # built for the view's size before any frame came
         self._skip_warnings = ThrottledWarnings(log, interval_s=10.0)
 
+    def prepare(self) -> None:
+        """Build the pipeline for the view's own size before the first frame comes.
+
+        Building reads the build's depth image (about a second on a loaded machine); done on
+        the first frame, the camera's next frames were dropped meanwhile (newest frame only),
+        and the frames learned as the empty site were then later ones, possibly with people
+        in them. If the camera's frames turn out to have another size, the pipeline is
+        rebuilt for them at once.
+        """
+        if self.processor is not None:
+            return
+        try:
+            self._build(tuple(self.config.view_size))
+            self._provisional = True
+        except Exception:  # the first frame tries again, and its failure is logged per frame
+            log.exception("occlusion: the pipeline could not be built for the view's size")
+            self.processor = None
+
     def relearn(self) -> None:
-        """Forget the background (and everything else): the next frames are learned anew."""
-        self.processor = None
+        """Forget the background (and everything else): the next frames are learned anew.
+
+        The pipeline is rebuilt from its camera and depth image at once (no file read), so no
+        frame is dropped meanwhile."""
+        from server.occlusion import OcclusionProcessor
+
+        old = self.processor
+        if old is not None:
+            self.processor = OcclusionProcessor(old.camera, old.virtual_depth_m, old.settings)
 
     def working_size(self, width: int, height: int) -> tuple[int, int]:
         w = self.config.max_width
@@ -124,9 +150,11 @@ class OcclusionEngine:
         if abs((w / h) / (vw / vh) - 1.0) > ASPECT_TOLERANCE:
             return (f"frames are {w}x{h} but the view {self.config.view_id!r} is {vw}x{vh} "
                     "(another aspect ratio: is [occlusion] view the site camera's view?)")
-        if self.processor is None:
+        if self.processor is None or (self._provisional and input_size != self.input_size):
             self._build(input_size)
+            self._provisional = False
             return None
+        self._provisional = False
         if input_size == self.input_size:
             self._other_size, self._other_count = None, 0
             return None
@@ -224,9 +252,11 @@ def _worker_process(image, capture_time_s, bgr: bool, relearn: bool) -> Occlusio
 
 
 def _worker_ping() -> bool:
-    """Warms the worker up (imports) before the first frame."""
+    """Warms the worker up before the first frame: imports, and the pipeline built for the
+    view's size (:meth:`OcclusionEngine.prepare`)."""
     import server.occlusion  # noqa: F401
 
+    _ENGINE.prepare()
     return True
 
 
@@ -279,11 +309,13 @@ class OcclusionRunner:
         """Start the worker and wait until it is ready (imports done)."""
         if self._executor is None:
             self._start_executor()
+        loop = asyncio.get_running_loop()
+        t0 = time.perf_counter()
         if self.worker == "process":
-            loop = asyncio.get_running_loop()
-            t0 = time.perf_counter()
             await loop.run_in_executor(self._executor, _worker_ping)
             log.info("occlusion worker process ready in %.1f s", time.perf_counter() - t0)
+        else:
+            await loop.run_in_executor(self._executor, self._engine.prepare)
         if self.state == "starting":
             self.state = "learning"
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import os
 import threading
 import time
 from collections.abc import Callable
@@ -23,8 +24,27 @@ from server.sources.base import Deliver, Source
 log = logging.getLogger("daylit.sources")
 
 
-def open_video_capture(target: int | str):
-    """Open a ``cv2.VideoCapture`` (the default ``open_capture`` of :class:`CameraSource`)."""
+# A network stream that stops sending must not block ``read()`` forever: FFmpeg gives up
+# after this long, the source reconnects.
+STREAM_TIMEOUT_MS = 10_000
+
+
+def open_video_capture(target: int | str, timeout_ms: int = STREAM_TIMEOUT_MS):
+    """Open a ``cv2.VideoCapture`` (the default ``open_capture`` of :class:`CameraSource`).
+
+    A device index goes to OpenCV's default backend. A URL (``rtsp://``, ``http://.../mjpeg``,
+    anything with ``://``) goes to OpenCV's FFmpeg backend, as IP cameras deliver MJPEG over
+    HTTP or H.264 over RTSP, with open and read time-outs of ``timeout_ms``; RTSP is read over
+    TCP (UDP drops packets, which smears H.264 frames) unless
+    ``OPENCV_FFMPEG_CAPTURE_OPTIONS`` says otherwise. Files go to the default backend.
+    """
+    if isinstance(target, str) and "://" in target:
+        if target.lower().startswith("rtsp") and \
+                "OPENCV_FFMPEG_CAPTURE_OPTIONS" not in os.environ:
+            os.environ["OPENCV_FFMPEG_CAPTURE_OPTIONS"] = "rtsp_transport;tcp"
+        return cv2.VideoCapture(target, cv2.CAP_FFMPEG,
+                                [cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, int(timeout_ms),
+                                 cv2.CAP_PROP_READ_TIMEOUT_MSEC, int(timeout_ms)])
     cap = cv2.VideoCapture(target)
     if isinstance(target, int):
         cap.set(cv2.CAP_PROP_BUFFERSIZE, 1)  # newest frame, not a queue of old ones

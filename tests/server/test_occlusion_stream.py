@@ -34,12 +34,15 @@ from tests.server.helpers import (
 )
 from tests.server.test_hello_vector import load_hello
 
-EMPTY_FRAMES = 15  # the site is empty for 1.5 s; the first 10 frames are learned
+# The site is empty for 2 s; the first 10 frames the worker gets are learned. The replay plays
+# at 10 frames/s whatever the worker manages (newest frame only): 20 empty frames leave room
+# for a machine that handles only every other frame while it learns.
+EMPTY_FRAMES = 20
 
 
 @pytest.fixture(scope="module")
 def kiosk(demo_draft_build) -> KioskSequence:
-    return KioskSequence(demo_draft_build, frames=35, empty_frames=EMPTY_FRAMES)
+    return KioskSequence(demo_draft_build, frames=40, empty_frames=EMPTY_FRAMES)
 
 
 @pytest.fixture(scope="module")
@@ -104,8 +107,8 @@ async def test_kiosk_gets_each_frame_with_the_mask_of_the_people_in_front(
         assert got[key] == want[key], key
     await web_kiosk.close()
 
-    near_set = near_all = far_set = far_all = 0
-    learning = 0
+    near_cover, far_cover = [], []  # per frame: share of the person's pixels masked
+    learned, empty_people = [], []
     seen = set()
     with caplog.at_level(logging.INFO):
         pairs = await frames_with_masks(ws, 2 * len(kiosk.truths))
@@ -119,23 +122,34 @@ async def test_kiosk_gets_each_frame_with_the_mask_of_the_people_in_front(
         seen.add(i)
         assert i != 20  # the corrupt file was skipped
         if message.flags & Flags.LEARNING:
-            learning += 1
+            learned.append(i)
             assert not mask.any() and people == 0
             continue
         assert message.flags & Flags.REPLAY
+        if i < EMPTY_FRAMES:  # the empty site (the replay loops): nobody, nothing masked
+            empty_people.append((i, people, np.count_nonzero(mask)))
+            continue
         if i < EMPTY_FRAMES + 2:
             continue  # the people are not (wholly) in yet
+        # Each mask against the ground truth of its own frame: how many frames the machine
+        # managed (and which) changes the list's length, not what each entry should be.
         near, far = kiosk.people_pixels(i)
-        near_set += np.count_nonzero(mask[near])
-        near_all += np.count_nonzero(near)
-        far_set += np.count_nonzero(mask[far])
-        far_all += np.count_nonzero(far)
+        if np.count_nonzero(near) >= 40:  # else not (much) over the building in this frame
+            near_cover.append(np.count_nonzero(mask[near]) / np.count_nonzero(near))
+        if np.count_nonzero(far) >= 40:
+            far_cover.append(np.count_nonzero(mask[far]) / np.count_nonzero(far))
         assert people >= 1
-    assert learning >= 10  # the first frames (of the empty site) were learned
+    # The first 10 frames the worker got were learned, all of the empty site: the pipeline is
+    # built before the replay starts, so no frame is dropped while it loads the build.
+    assert len(learned) == 10 and max(learned) < EMPTY_FRAMES, learned
     assert len(seen) >= 25  # the replay went through
-    assert near_all > 500 and far_all > 500
-    assert near_set / near_all > 0.9  # the person in front hides the virtual building
-    assert far_set / far_all < 0.05  # the building hides the person behind it
+    assert len(near_cover) >= 8 and len(far_cover) >= 8, (near_cover, far_cover)
+    assert all(p == 0 and n == 0 for _, p, n in empty_people), empty_people
+    # The person in front hides the virtual building, the building hides the one behind.
+    near_cover, far_cover = np.array(near_cover), np.array(far_cover)
+    assert np.count_nonzero(near_cover < 0.9) <= 1, near_cover
+    assert np.median(near_cover) > 0.95, near_cover
+    assert np.count_nonzero(far_cover > 0.05) <= 1, far_cover
     assert any("skipping" in r.getMessage() and "frame_020" in r.getMessage()
                for r in caplog.records)
 
