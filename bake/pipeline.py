@@ -34,7 +34,7 @@ from dataclasses import dataclass
 from functools import partial as partial_fn
 from pathlib import Path
 
-from bake import basisu, chunkio, lightmap
+from bake import basisu, chunkio, contact, lightmap
 from bake import receivers as rx
 from bake.buildmanifest import build_manifest, write_manifest
 from bake.compressor import Compressor
@@ -260,6 +260,8 @@ def _atlases(site: Site, dome: Dome, geometry: Geometry, scenes: SceneSet, log) 
             settings.max_atlas_size,
         ),
     }
+    for atlas_id in ("ground", "lightmap"):  # buried texels' samples onto contact lines
+        contact.move_buried_samples(atlases[atlas_id], scenes.scenes["all"])
     for atlas_id in [k for k, a in atlases.items() if a.count == 0]:
         log(f"  atlas {atlas_id}: no receivers, left out of the build")
         del atlases[atlas_id]
