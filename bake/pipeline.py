@@ -50,7 +50,7 @@ from bake.writers import SunBounce, swap_into_place, write_atlas, write_view
 from daylit import __version__
 
 # Bump when the meaning of saved chunks changes, so stale partial bakes are not reused.
-CHUNK_FORMAT = 3  # 3: .chunk files of .npy records, traced direct light grey (P, n)
+CHUNK_FORMAT = 4  # 4: buried texels sampled on contact lines (bake.contact); 3: .npy records
 
 
 @dataclass
