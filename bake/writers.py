@@ -15,7 +15,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from bake.contact import continue_into_buried, continued_labels, extrapolate_direct
+from bake.contact import (
+    NEAR_SIGMA_TEXELS,
+    continue_into_buried,
+    continued_labels,
+    extrapolate_direct,
+    near_contact,
+)
 from bake.denoise import fill_from_nearest, smooth_within_labels, surface_labels
 from bake.dome import Dome
 from bake.errors import BakeError
@@ -70,7 +76,7 @@ class SunBounce:
             )
         else:
             part = smooth_bounce(
-                a.to_image(np.ascontiguousarray(bounce[:, lights])), _bounce_labels(a, labels)
+                a.to_image(np.ascontiguousarray(bounce[:, lights])), *_bounce_labels(a, labels)
             )
         part = _dilate(part, coverage, rings=3)
         image = np.zeros((a.height, a.width, len(self.up), 3), dtype=np.float32)
@@ -144,7 +150,7 @@ def _atlas_image(a, config, direct, bounce, coverage, labels) -> np.ndarray:
     # Buried texels along contact lines hold the visible side's light continued (bake.contact).
     image = continue_into_buried(_rgb(a.to_image(direct), config), labels)
     if bounce is not None:
-        image += smooth_bounce(a.to_image(bounce), _bounce_labels(a, labels))
+        image += smooth_bounce(a.to_image(bounce), *_bounce_labels(a, labels))
     return _dilate(image, coverage, rings=3)
 
 
@@ -161,30 +167,40 @@ def _open_labels(a, labels: np.ndarray, direct, config: str) -> np.ndarray:
     return out
 
 
-def _bounce_labels(a, labels: np.ndarray) -> np.ndarray:
+def _bounce_labels(a, labels: np.ndarray) -> tuple:
     """``labels`` from :func:`_open_labels` with the texels moved onto contact lines marked
-    buried too: their bounce was traced at the contact line, not at their centre, so it is
-    continued from the open side's smoothed bounce instead (bake.contact)."""
+    buried too (their bounce was traced at the contact line, not at their centre: kept out
+    of the smoothing, bake.contact), and those texels as (rows, columns) or None."""
     contact = getattr(a, "contact", None)
     if not contact or len(contact["texel"]) == 0:
-        return labels
+        return labels, None
     out = labels.copy()
     x, y = a.texels[contact["texel"], 0], a.texels[contact["texel"], 1]
     moved = out[y, x] >= 0
     out[y[moved], x[moved]] = -2 - out[y[moved], x[moved]]
-    return out
+    return out, (y[moved], x[moved])
 
 
-def smooth_bounce(image: np.ndarray, labels: np.ndarray) -> np.ndarray:
+def smooth_bounce(image: np.ndarray, labels: np.ndarray, moved=None) -> np.ndarray:
     """An atlas's traced bounce (H, W, ...) smoothed within each surface by a local linear
-    fit (:data:`BOUNCE_ORDER`) over its open texels; buried texels (label ``-2 - label``,
-    :func:`_open_labels`) next to open ones hold that fit continued (bake.contact), the
-    others the value of the nearest of those, so bilinear filtering at a wall's foot reads
-    the open side's bounce only (bake.denoise)."""
+    fit (:data:`BOUNCE_ORDER`) over its open texels, with a narrower kernel near contact
+    lines; texels ``moved`` onto contact lines ((rows, columns), marked buried in
+    ``labels``: :func:`_bounce_labels`) keep their traced bounce; other buried texels
+    (label ``-2 - label``, :func:`_open_labels`) next to open ones hold the fit continued,
+    the rest the value of the nearest of those, so bilinear filtering at a wall's foot reads
+    the open side's bounce only (bake.contact, bake.denoise)."""
     smoothed = smooth_within_labels(image, labels, BOUNCE_SIGMA_TEXELS, order=BOUNCE_ORDER)
+    near = near_contact(labels)
+    if near.any():
+        fine = smooth_within_labels(image, labels, NEAR_SIGMA_TEXELS, order=BOUNCE_ORDER)
+        smoothed[near] = fine[near]
     smoothed = continue_into_buried(smoothed, labels)
+    keep = continued_labels(labels)
+    if moved is not None:
+        smoothed[moved] = image[moved]
+        keep[moved] = True
     surface = np.where(labels <= -2, -2 - labels, labels)
-    return fill_from_nearest(smoothed, surface, continued_labels(labels))
+    return fill_from_nearest(smoothed, surface, keep)
 
 
 def _rgb(direct: np.ndarray, config: str) -> np.ndarray:
