@@ -27,8 +27,9 @@ chord** (docs/architecture.md, "Contact lines"; figures in docs/benchmarks.md).
    (``NEAR_SIGMA_TEXELS``), as the bounce bends there (beside a 3 m wall of albedo 0.6 the
    1.5-texel fit read 9-15 % low 5 cm from the wall, the 1-texel one 2-9 %). A moved texel
    keeps the bounce traced at its contact line (a fit continued to its centre read 8 % low
-   there); the other buried texels next to visible ones hold the fit continued
-   (:func:`continue_into_buried`), the rest the nearest of those.
+   there), smoothed along its strip of moved texels only; the other buried texels next to
+   visible ones hold the fit continued (:func:`continue_into_buried`), the rest the nearest
+   of those.
 
 Limits: a wall thinner than a texel has visible texels on both sides of one buried texel,
 which holds one value for both (the side reached soonest); finer texels along contact lines

@@ -185,7 +185,8 @@ def smooth_bounce(image: np.ndarray, labels: np.ndarray, moved=None) -> np.ndarr
     """An atlas's traced bounce (H, W, ...) smoothed within each surface by a local linear
     fit (:data:`BOUNCE_ORDER`) over its open texels, with a narrower kernel near contact
     lines; texels ``moved`` onto contact lines ((rows, columns), marked buried in
-    ``labels``: :func:`_bounce_labels`) keep their traced bounce; other buried texels
+    ``labels``: :func:`_bounce_labels`) keep their traced bounce, smoothed along their strip
+    only (96 rays leave a texel's bounce about 10 % noisy); other buried texels
     (label ``-2 - label``, :func:`_open_labels`) next to open ones hold the fit continued,
     the rest the value of the nearest of those, so bilinear filtering at a wall's foot reads
     the open side's bounce only (bake.contact, bake.denoise)."""
@@ -197,7 +198,13 @@ def smooth_bounce(image: np.ndarray, labels: np.ndarray, moved=None) -> np.ndarr
     smoothed = continue_into_buried(smoothed, labels)
     keep = continued_labels(labels)
     if moved is not None:
-        smoothed[moved] = image[moved]
+        # The moved texels form strips along the contact lines: their bounce, traced there,
+        # is smoothed along each strip only (a strip per surface), never with the open side.
+        surface = np.where(labels <= -2, -2 - labels, labels)
+        strips = np.full(labels.shape, -1, dtype=labels.dtype)
+        strips[moved] = surface[moved]
+        along = smooth_within_labels(image, strips, BOUNCE_SIGMA_TEXELS, order=BOUNCE_ORDER)
+        smoothed[moved] = along[moved]
         keep[moved] = True
     surface = np.where(labels <= -2, -2 - labels, labels)
     return fill_from_nearest(smoothed, surface, keep)
