@@ -1,6 +1,13 @@
 """Issue 20 (part): the ground at the foot of walls and more than one bounce, measured.
 
-Three measurements, printed in one run (docs/benchmarks.md, "Contact lines and bounces"):
+Three measurements, printed in one run (docs/benchmarks.md, "Contact lines and bounces"),
+after the choice of method on the analytic field (``--methods`` prints only that, in a
+second):
+
+0. **The contact-line methods on the analytic field**: the direct light beside an infinite
+   wall of height 2, 3 and 5 m on 0.5 m texels, the foot at 25 places inside a texel, read
+   bilinearly 5 cm, 25 cm and 1 m from the wall; the worst error of each way to fill the
+   buried texel (the set-up of tests/bake/test_contact_fill.py).
 
 1. **Accuracy within 0.5 m of walls**, before and after: an L-shaped courtyard (two 3 m
    walls, 1 m thick, albedo 0.6 everywhere, 0.5 m ground texels as the demo's, 160 lights,
@@ -80,7 +87,11 @@ def errors(build: Build, points, reference) -> np.ndarray:
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--quick", action="store_true", help="40 lights, fewer points/paths")
+    parser.add_argument("--methods", action="store_true", help="only measurement 0")
     args = parser.parse_args()
+    methods_on_the_analytic_wall()
+    if args.methods:
+        return
     lights = 40 if args.quick else 160
     count, paths = (15, 5000) if args.quick else (60, 20000)
     rng = np.random.default_rng(2026)
@@ -120,6 +131,35 @@ def main() -> None:
                   f"{stage.get('cache', 0):5.1f} s, trace {stage.get('trace', 0):5.1f} s, "
                   f"write {stage.get('write', 0):5.1f} s")
     demo_bounces()
+
+
+def methods_on_the_analytic_wall() -> None:
+    import tests.bake.test_contact_fill as field
+    from bake.contact import continue_into_buried, extrapolate_direct
+    from bake.evaluate import _bilinear
+
+    print("0. filling the buried texel, analytic wall field, worst over 25 foot positions")
+    print("   wall  method          5 cm      25 cm     1 m")
+    for h_m in (2.0, 3.0, 5.0):
+        for method in ("dark (before)", "plane", "contact value", "chord (chosen)"):
+            worst = np.zeros(3)
+            for foot in field.FEET_M:
+                moved = method in ("contact value", "chord (chosen)")
+                values, labels, atlas = field._row(foot, h_m, moved=moved)
+                row = 0.5
+                if method == "chord (chosen)":
+                    image = extrapolate_direct(atlas, values[:, None])[None]
+                elif method == "plane":
+                    image = continue_into_buried(
+                        np.repeat(values[None, :, None], 5, 0).astype(np.float32),
+                        np.repeat(labels[None], 5, 0))
+                    row = 2.5
+                else:
+                    image = values[None, :, None]
+                for k, x in enumerate((0.05, 0.25, 1.0)):
+                    e = _bilinear(image, (foot + x) / 0.5, row)[0] / field.wall_foot(x, h_m) - 1
+                    worst[k] = e if abs(e) > abs(worst[k]) else worst[k]
+            print(f"   {h_m:.0f} m   {method:14s} " + " ".join(f"{100 * w:+7.2f}%" for w in worst))
 
 
 def demo_bounces() -> None:
