@@ -123,7 +123,20 @@ class BounceCache:
     bounce: dict | None = None
 
     def __post_init__(self):
-        self._raster = _nearest_point_rasters(self.geometry, self.points, self.faces, self.cell_m)
+        # Points no light reaches with everything present are buried (the ground under a
+        # wall): a hit beside the wall's foot must not read one of them as its nearest, or
+        # the ground's bounce there reads dark (a test bake's ground 5 cm from a wall: 15 %
+        # low on the side whose jittered cache points fell under the wall).
+        lit = np.ones(len(self.points), bool)
+        if "all" in self.E and len(self.points):
+            lit = np.asarray(self.E["all"]).max(axis=1) > 0.0
+            if not lit.any():
+                lit[:] = True
+        keep = np.flatnonzero(lit)
+        raster = _nearest_point_rasters(
+            self.geometry, self.points[keep], self.faces[keep], self.cell_m
+        )
+        self._raster = raster[:-1] + (keep[raster[-1]],)
         # Albedo times irradiance, flattened to (C, n * 3): what one bounce ray picks up.
         # float32, as the gather matrix: the gather streams this whole array once per chunk,
         # and float64 doubled its time (results differ by 1e-6 relative).
