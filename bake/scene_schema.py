@@ -23,7 +23,7 @@ from bake.dome import MAX_LIGHTS, MIN_LIGHTS
 
 # The smallest number of bounces within 1 % of the many-bounce answer on the demo at albedo
 # 0.6 (docs/benchmarks.md, "Bounces").
-DEFAULT_BOUNCES = 3
+DEFAULT_BOUNCES = 4
 QUALITY_DEFAULTS = {
     "draft": {"direct_rays": 160, "bounce_rays": 24, "cache_spacing_m": 1.5,
               "texel_scale": 2.0, "view_scale": 0.5},
