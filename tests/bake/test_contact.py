@@ -137,18 +137,29 @@ def _courtyard_point(courtyard, point, seed):
 
 @pytest.mark.slow
 def test_l_courtyard_with_bounces_is_the_paths(courtyard):
-    """25 cm from both walls of the inner corner, 1 m out along its diagonal, 25 cm from one
-    wall 3 m from the corner, and 25 cm / 1 m from the other."""
-    for k, point in enumerate(([0.25, 0, 0.25], [1.0, 0, 1.0], [3.0, 0, 0.25],
-                               [0.25, 0, 1.0])):
+    """1 m out along the inner corner's diagonal, 25 cm and 5 cm from one wall 3 m from the
+    corner, 25 cm / 1 m from the two walls, and the courtyard's middle."""
+    for k, point in enumerate(([1.0, 0, 1.0], [3.0, 0, 0.25], [3.0, 0, 0.05],
+                               [0.25, 0, 1.0], [5.0, 0, 5.0])):
         baked, expected = _courtyard_point(courtyard, point, 21 + k)
         assert baked == pytest.approx(expected, rel=0.03), point
 
 
 @pytest.mark.slow
 @pytest.mark.xfail(strict=True, reason="known limit (docs/architecture.md, 'Contact lines'): "
-                   "5 cm from both walls of an inner corner three of the four texels read are "
-                   "buried, each extended for one wall alone: about 15 % too bright")
-def test_inner_corner_5_cm_from_both_walls_is_the_paths(courtyard):
-    baked, expected = _courtyard_point(courtyard, [0.05, 0, 0.05], 30)
+                   "near an inner corner three of the four texels read are buried, each "
+                   "extended for one wall alone: 5 cm from both walls 17 % too bright, 25 cm "
+                   "from both 4 %")
+@pytest.mark.parametrize("point", [[0.05, 0, 0.05], [0.25, 0, 0.25]])
+def test_inner_corner_close_to_both_walls_is_the_paths(courtyard, point):
+    baked, expected = _courtyard_point(courtyard, point, 30)
+    assert baked == pytest.approx(expected, rel=0.03)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="open (issue 20): 5 cm from the second wall, 3 m from "
+                   "the corner, the total reads 4.3 % bright (the straight wall's test and the "
+                   "first wall's foot are within 1.2 %); not understood yet")
+def test_second_wall_foot_of_the_courtyard_is_the_paths(courtyard):
+    baked, expected = _courtyard_point(courtyard, [0.05, 0, 3.0], 31)
     assert baked == pytest.approx(expected, rel=0.03)
