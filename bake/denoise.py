@@ -65,7 +65,7 @@ def smooth_within_labels(
         if order == 0:
             weights = [(blur(mask)[inside] ** -1, None)]
         else:
-            weights = _plane_weights(mask.astype(np.float64), inside, blur, sigma_px)
+            weights = plane_weights(mask.astype(np.float64), inside, blur, sigma_px)
         for c0 in range(0, flat.shape[2], MAX_CHANNELS):
             c1 = min(c0 + MAX_CHANNELS, flat.shape[2])
             region = flat[y0:y1, x0:x1, c0:c1] * mask[:, :, None]
@@ -81,11 +81,13 @@ def smooth_within_labels(
     return out.reshape(image.shape)
 
 
-def _plane_weights(mask: np.ndarray, inside: np.ndarray, blur, sigma_px: float) -> list:
+def plane_weights(mask: np.ndarray, inside: np.ndarray, blur, sigma_px: float) -> list:
     """For a Gaussian-weighted plane fit ``a + b (x - x0) + c (y - y0)`` at every texel
     ``(x0, y0)`` of ``mask``: ``a = w_0 G(m v) + w_x G(m x v) + w_y G(m y v)`` (``G`` the blur,
     ``m`` the mask, ``v`` the values). Returns ``[(w_0, None), (w_x, x), (w_y, y)]``, the
-    weights (K,) at the ``inside`` texels and the coordinate images (texels, float64)."""
+    weights (K,) at the ``inside`` texels and the coordinate images (texels, float64).
+    ``inside`` need not lie in the mask: the plane is then continued to those texels
+    (bake.contact)."""
     hh, ww = mask.shape
     yy, xx = np.mgrid[0:hh, 0:ww].astype(np.float64)
     S = {k: blur(mask * f) for k, f in (("1", 1.0), ("x", xx), ("y", yy), ("xx", xx * xx),

@@ -21,6 +21,12 @@ and both configurations at once, and the light-independent parts are exact:
   picks up ``albedo * E_cache / bounce_rays`` from the nearest cache point on the same face, a
   ray that escapes downward meets the infinite ground beyond the modelled extent, lit by the
   open sky. Summing over all lights is one sparse matrix product.
+- **More bounces** (``[quality] bounces = N``): before the receivers gather, the cache points
+  gather from each other the same way (:func:`cache_bounces`): one sparse (C, C) gather
+  matrix ``G`` per configuration, traced once, and ``B_k = G (albedo (E + B_(k-1)))`` plus
+  the open ground's share, ``N - 1`` times. A receiver's gather then reads
+  ``albedo (E + B_(N-1))``, so its bounce holds light reflected 1 to N times (inside a closed
+  box lit with ``E`` everywhere: ``E (rho + ... + rho^N)``).
 
 Light configurations
 --------------------
@@ -103,6 +109,8 @@ class BounceCache:
     E : dict config -> (C, n) float32, direct irradiance at unit patch radiance
     geometry : Geometry, the faces ``faces`` index
     cell_m : float, raster cell of the nearest-point look-up (half the cache spacing)
+    bounce : dict config -> (C, n, 3) float32 or None: the cache points' own indirect
+        irradiance (bounces 1 to N - 1, :func:`cache_bounces`); None for one bounce
     """
 
     points: np.ndarray
@@ -112,17 +120,30 @@ class BounceCache:
     E: dict
     geometry: Geometry
     cell_m: float
+    bounce: dict | None = None
 
     def __post_init__(self):
-        self._raster = _nearest_point_rasters(self.geometry, self.points, self.faces, self.cell_m)
+        # Points no light reaches with everything present are buried (the ground under a
+        # wall): a hit beside the wall's foot must not read one of them as its nearest, or
+        # the ground's bounce there reads dark (a test bake's ground 5 cm from a wall: 15 %
+        # low on the side whose jittered cache points fell under the wall).
+        lit = np.ones(len(self.points), bool)
+        if "all" in self.E and len(self.points):
+            lit = np.asarray(self.E["all"]).max(axis=1) > 0.0
+            if not lit.any():
+                lit[:] = True
+        keep = np.flatnonzero(lit)
+        raster = _nearest_point_rasters(
+            self.geometry, self.points[keep], self.faces[keep], self.cell_m
+        )
+        self._raster = raster[:-1] + (keep[raster[-1]],)
         # Albedo times irradiance, flattened to (C, n * 3): what one bounce ray picks up.
         # float32, as the gather matrix: the gather streams this whole array once per chunk,
         # and float64 doubled its time (results differ by 1e-6 relative).
         # Multiplied in float32 too: a float64 product slowed every worker's start (page
         # faults of its size). Figures: docs/benchmarks.md, "Figures behind choices in the code".
-        albedo32 = self.albedo.astype(np.float32)[:, None, :]
         self._picked_up = {
-            config: (E.astype(np.float32)[:, :, None] * albedo32).reshape(len(self.points), -1)
+            config: picked_up(E, self.albedo, (self.bounce or {}).get(config))
             for config, E in self.E.items()
         }
 
@@ -137,6 +158,51 @@ class BounceCache:
 
     def picked_up(self, config: str) -> np.ndarray:
         return self._picked_up[config]
+
+
+def picked_up(E: np.ndarray, albedo: np.ndarray, bounce: np.ndarray | None) -> np.ndarray:
+    """What a gather ray that hits a cache point picks up: ``albedo (E + bounce)``,
+    (C, n * 3) float32, from direct ``E`` (C, n), ``albedo`` (C, 3) and the point's own
+    indirect irradiance ``bounce`` (C, n, 3) or None."""
+    total = E.astype(np.float32)[:, :, None]
+    if bounce is not None:
+        total = total + bounce.astype(np.float32)
+    return (total * albedo.astype(np.float32)[:, None, :]).reshape(len(E), -1)
+
+
+def cache_bounces(estimator: Estimator, bounces: int, rng, batch: int = 20_000) -> dict | None:
+    """The cache points' own indirect irradiance after ``bounces - 1`` bounces, for every
+    configuration of ``estimator.cache.E``: ``{config: (C, n, 3) float32}``; None when
+    ``bounces <= 1`` (the receivers' gather is then the one bounce).
+
+    Each cache point casts ``estimator.bounce_rays`` gather rays once (one sparse (C, C)
+    matrix per configuration, :meth:`Estimator.gather`); then ``B_k = G (albedo (E +
+    B_(k-1))) + (open ground's share)``, ``B_0 = 0``. Deterministic for a given ``rng``.
+    """
+    cache = estimator.cache
+    if bounces <= 1 or cache is None or estimator.bounce_rays == 0:
+        return None
+    C, n = len(cache.points), estimator.n
+    ground = (estimator.up_irradiance[:, None] * estimator.scenes.ground_albedo[None, :])
+    ground = ground.reshape(1, -1).astype(np.float32)  # (1, n * 3)
+    out = {}
+    for config, E in cache.E.items():
+        rows, downs = [], []
+        for start in range(0, C, batch):
+            stop = min(start + batch, C)
+            gather, down = estimator.gather(
+                cache.points[start:stop], cache.normals[start:stop], config, rng
+            )
+            rows.append(gather)
+            downs.append(down)
+        G = scipy.sparse.vstack(rows, format="csr")
+        G.sum_duplicates()
+        down = np.concatenate(downs).astype(np.float32)[:, None]  # (C, 1)
+        B = None
+        for _ in range(bounces - 1):
+            B = (G @ picked_up(E, cache.albedo, B) + down * ground).reshape(C, n, 3)
+        out[config] = B.astype(np.float32)
+    return out
 
 
 def _nearest_point_rasters(geometry: Geometry, points, faces, cell_m: float) -> tuple:
@@ -373,11 +439,26 @@ class Estimator:
 
     # ---------------------------------------------------------------------------------------
     def bounce(self, points, normals, config: str, rng) -> np.ndarray:
-        """Irradiance after one diffuse bounce, ``(T, n, 3)`` float32 (RGB from albedos)."""
+        """Irradiance after the diffuse bounces, ``(T, n, 3)`` float32 (RGB from albedos):
+        one, or more when the cache carries its own bounce (:func:`cache_bounces`)."""
+        T = len(points)
+        if self.bounce_rays == 0 or T == 0:
+            return np.zeros((T, self.n, 3), dtype=np.float32)
+        gather, down = self.gather(points, normals, config, rng)
+        out = np.asarray(gather @ self.cache.picked_up(config), dtype=np.float32)
+        # Rays that leave the modelled geometry downward meet the open ground beyond it.
+        if np.any(down):
+            ground = self.up_irradiance[:, None] * self.scenes.ground_albedo[None, :]  # (n, 3)
+            out += (down[:, None] * ground.reshape(1, -1)).astype(np.float32)
+        return out.reshape(T, self.n, 3)
+
+    def gather(self, points, normals, config: str, rng):
+        """Cast ``bounce_rays`` cosine-weighted rays from each point (T, 3) into the
+        configuration's scene and return what they hit: ``gather`` (T, C) sparse CSR float32,
+        ``1 / K`` per ray at the cache point nearest its hit (none for back faces and faces
+        without cache points), and ``down`` (T,) float64, the fraction of rays that escape
+        downward (they meet the open ground beyond the modelled extent)."""
         T, K = len(points), self.bounce_rays
-        out = np.zeros((T, self.n * 3), dtype=np.float32)
-        if K == 0 or T == 0:
-            return out.reshape(T, self.n, 3)
         # Cosine-weighted directions around each normal: Malley's method on a shifted lattice.
         origins = self._buffer("bounce origins", (T * K, 3), np.float32)
         dirs = self._buffer("bounce dirs", (T * K, 3), np.float32)
@@ -395,6 +476,7 @@ class Estimator:
         face, distance = scene.first_hit(origins, dirs)
         self.rays_cast = getattr(self, "rays_cast", 0) + len(origins)
         hit = face >= 0
+        C = len(self.cache.points)
         if np.any(hit):
             global_face = self.scenes.face_ids[config][face[hit]]
             hit_points = origins[hit] + distance[hit, None] * dirs[hit]
@@ -413,16 +495,12 @@ class Estimator:
                     np.maximum(index, 0),
                     np.concatenate([[0], np.cumsum(np.bincount(owner[hit], minlength=T))]),
                 ),
-                shape=(T, len(self.cache.points)),
+                shape=(T, C),
             )
-            out += gather @ self.cache.picked_up(config)
-        # Rays that leave the modelled geometry downward meet the open ground beyond it.
+        else:
+            gather = scipy.sparse.csr_matrix((T, C), dtype=np.float32)
         down = ~hit & (dirs[:, 1] < 0.0)
-        if np.any(down):
-            per_point = np.bincount(owner[down], minlength=T) / K  # (T,)
-            ground = self.up_irradiance[:, None] * self.scenes.ground_albedo[None, :]  # (n, 3)
-            out += (per_point[:, None] * ground.reshape(1, -1)).astype(np.float32)
-        return out.reshape(T, self.n, 3)
+        return gather, np.bincount(owner[down], minlength=T) / K
 
     # ---------------------------------------------------------------------------------------
     def basis(self, points, normals, configs, rng) -> dict:

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 from functools import partial as partial_fn
 from pathlib import Path
 
-from bake import basisu, chunkio, lightmap
+from bake import basisu, chunkio, contact, lightmap
 from bake import receivers as rx
 from bake.buildmanifest import build_manifest, write_manifest
 from bake.compressor import Compressor
@@ -51,7 +51,7 @@ from bake.writers import SunBounce, swap_into_place, write_atlas, write_view
 from daylit import __version__
 
 # Bump when the meaning of saved chunks changes, so stale partial bakes are not reused.
-CHUNK_FORMAT = 3  # 3: .chunk files of .npy records, traced direct light grey (P, n)
+CHUNK_FORMAT = 4  # 4: buried texels sampled on contact lines (bake.contact); 3: .npy records
 
 
 @dataclass
@@ -281,6 +281,8 @@ def _atlases(site: Site, dome: Dome, geometry: Geometry, scenes: SceneSet, log) 
             settings.max_atlas_size,
         ),
     }
+    for atlas_id in ("ground", "lightmap"):  # buried texels' samples onto contact lines
+        contact.move_buried_samples(atlases[atlas_id], scenes.scenes["all"])
     for atlas_id in [k for k, a in atlases.items() if a.count == 0]:
         log(f"  atlas {atlas_id}: no receivers, left out of the build")
         del atlases[atlas_id]

@@ -90,6 +90,8 @@ class Atlas:
     texels : (N, 2) int, (x, y) of every texel that gets a value
     points, normals : (N, 3) world-frame sample point and surface normal of each texel
     labels : (N,) int, the flat surface each texel lies on (the bounce is smoothed within one)
+    contact : dict or None, texels whose sample point was moved onto a contact line
+        (bake.contact.move_buried_samples)
     """
 
     id: str
@@ -104,6 +106,8 @@ class Atlas:
     points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     normals: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     labels: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    # Texels moved onto contact lines (bake.contact.move_buried_samples), None before.
+    contact: dict | None = None
 
     @property
     def count(self) -> int:

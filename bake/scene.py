@@ -102,6 +102,7 @@ class Settings:
     quality: str
     direct_rays: int
     bounce_rays: int
+    bounces: int
     cache_spacing_m: float
     texel_scale: float
     view_scale: float
@@ -329,6 +330,7 @@ def _load_settings(root: _Table, file: Path, lights: int | None, quality: str | 
 
     quality_t = root.table("quality")
     default_quality = quality_t.string("default")
+    bounces = quality_t.number("bounces")
     chosen = quality or default_quality
     if chosen not in QUALITY_DEFAULTS:
         raise SceneError("--quality", "", f"must be one of {', '.join(QUALITY_DEFAULTS)}")
@@ -366,6 +368,7 @@ def _load_settings(root: _Table, file: Path, lights: int | None, quality: str | 
         quality=chosen,
         direct_rays=q["direct_rays"],
         bounce_rays=q["bounce_rays"],
+        bounces=bounces,
         cache_spacing_m=q["cache_spacing_m"],
         texel_scale=q["texel_scale"],
         view_scale=q["view_scale"],

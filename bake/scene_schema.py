@@ -21,6 +21,9 @@ import jsonschema
 
 from bake.dome import MAX_LIGHTS, MIN_LIGHTS
 
+# The smallest number of bounces within 1 % of the many-bounce answer on the demo at albedo
+# 0.6 (docs/benchmarks.md, "Bounces").
+DEFAULT_BOUNCES = 4
 QUALITY_DEFAULTS = {
     "draft": {"direct_rays": 160, "bounce_rays": 24, "cache_spacing_m": 1.5,
               "texel_scale": 2.0, "view_scale": 0.5},
@@ -124,6 +127,9 @@ SCHEMA: dict = _table({
     "quality": _table({
         "default": _str("final", "the level used unless --quality says otherwise",
                         choices=tuple(QUALITY_DEFAULTS)),
+        "bounces": _num(DEFAULT_BOUNCES, "diffuse bounces of light between surfaces (1: "
+                        "reflected once); each more costs one sparse product over the bounce "
+                        "cache (docs/benchmarks.md)", 1, 16, integer=True),
         "draft": _quality_level("draft"),
         "final": _quality_level("final"),
     }),

@@ -22,10 +22,10 @@ import numpy as np
 from tqdm import tqdm
 
 from bake import chunkio
-from bake.irradiance import BounceCache, Estimator, SceneSet, cache_points
+from bake.irradiance import BounceCache, Estimator, SceneSet, cache_bounces, cache_points
 
 RAYS_PER_CHUNK = 3_000_000
-STAGE_CODES = {"cache": 1, "atlas": 2, "view": 3}
+STAGE_CODES = {"cache": 1, "atlas": 2, "view": 3, "cache bounces": 4}
 
 
 @dataclass
@@ -72,6 +72,7 @@ def _init_worker(geometry, dome_vertices, ground_albedo, samples, bounce_rays, c
                 {"all": data["E_all"], "real": data["E_real"]},
                 geometry,
                 float(data["cell_m"]),
+                {"all": data["B_all"], "real": data["B_real"]} if "B_all" in data else None,
             )
     _WORKER["estimator"] = Estimator(dome_vertices, scenes, samples, bounce_rays, cache)
 
@@ -184,18 +185,35 @@ class TraceWork:
     def _save_cache(self, partial: Path) -> Path:
         points, normals, faces = self.cache
         E = _load_set(self.cache_set, partial)
+        settings = self.site.settings
         cache_file = partial / "cache.npz"
         tmp = cache_file.with_suffix(".tmp.npz")
-        np.savez(
-            tmp,
+        arrays = dict(
             points=points,
             normals=normals,
             faces=faces,
             albedo=self.geometry.albedo[faces],
             E_all=E["all"],
             E_real=E["real"],
-            cell_m=0.5 * self.site.settings.cache_spacing_m,
+            cell_m=0.5 * settings.cache_spacing_m,
         )
+        # More than one bounce: the cache points' own bounces (bake.irradiance.cache_bounces).
+        bounce = cache_bounces(
+            Estimator(
+                self.dome.vertices,
+                SceneSet.build(self.geometry, self.site.ground.albedo),
+                1,
+                settings.bounce_rays,
+                BounceCache(**{k: arrays[k] for k in ("points", "normals", "faces", "albedo")},
+                            E={"all": E["all"], "real": E["real"]}, geometry=self.geometry,
+                            cell_m=arrays["cell_m"]),
+            ),
+            settings.bounces,
+            np.random.default_rng([settings.seed, STAGE_CODES["cache bounces"]]),
+        )
+        if bounce is not None:
+            arrays.update(B_all=bounce["all"], B_real=bounce["real"])
+        np.savez(tmp, **arrays)
         os.replace(tmp, cache_file)
         return cache_file
 

@@ -15,6 +15,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from bake.contact import (
+    NEAR_SIGMA_TEXELS,
+    continue_into_buried,
+    continued_labels,
+    extrapolate_direct,
+    near_contact,
+)
 from bake.denoise import fill_from_nearest, smooth_within_labels, surface_labels
 from bake.dome import Dome
 from bake.errors import BakeError
@@ -68,7 +75,9 @@ class SunBounce:
                 ).astype(np.float32)
             )
         else:
-            part = smooth_bounce(a.to_image(np.ascontiguousarray(bounce[:, lights])), labels)
+            part = smooth_bounce(
+                a.to_image(np.ascontiguousarray(bounce[:, lights])), *_bounce_labels(a, labels)
+            )
         part = _dilate(part, coverage, rings=3)
         image = np.zeros((a.height, a.width, len(self.up), 3), dtype=np.float32)
         image[:, :, lights] = part
@@ -96,6 +105,8 @@ def write_atlas(a, traced: TracedResults, staging: Path, compressor, sun_bounce)
     images, sun_images = {}, {}
     for stack, config in a.stacks.items():
         direct, bounce = lookup_result(results, f"{a.id}.{stack}", config)
+        if config != "none":  # texels moved onto contact lines: their chord (bake.contact)
+            direct = extrapolate_direct(a, direct)
         images[stack] = _atlas_image(
             a, config, direct, bounce, coverage, _open_labels(a, labels, direct, config)
         )
@@ -136,9 +147,10 @@ def write_atlas(a, traced: TracedResults, staging: Path, compressor, sun_bounce)
 def _atlas_image(a, config, direct, bounce, coverage, labels) -> np.ndarray:
     """An atlas stack (H, W, n, 3): direct plus smoothed bounce, gutters filled. ``labels``
     from :func:`_open_labels` (buried texels -2)."""
-    image = _rgb(a.to_image(direct), config)
+    # Buried texels along contact lines hold the visible side's light continued (bake.contact).
+    image = continue_into_buried(_rgb(a.to_image(direct), config), labels)
     if bounce is not None:
-        image += smooth_bounce(a.to_image(bounce), labels)
+        image += smooth_bounce(a.to_image(bounce), *_bounce_labels(a, labels))
     return _dilate(image, coverage, rings=3)
 
 
@@ -155,14 +167,47 @@ def _open_labels(a, labels: np.ndarray, direct, config: str) -> np.ndarray:
     return out
 
 
-def smooth_bounce(image: np.ndarray, labels: np.ndarray) -> np.ndarray:
+def _bounce_labels(a, labels: np.ndarray) -> tuple:
+    """``labels`` from :func:`_open_labels` with the texels moved onto contact lines marked
+    buried too (their bounce was traced at the contact line, not at their centre: kept out
+    of the smoothing, bake.contact), and those texels as (rows, columns) or None."""
+    contact = getattr(a, "contact", None)
+    if not contact or len(contact["texel"]) == 0:
+        return labels, None
+    out = labels.copy()
+    x, y = a.texels[contact["texel"], 0], a.texels[contact["texel"], 1]
+    moved = out[y, x] >= 0
+    out[y[moved], x[moved]] = -2 - out[y[moved], x[moved]]
+    return out, (y[moved], x[moved])
+
+
+def smooth_bounce(image: np.ndarray, labels: np.ndarray, moved=None) -> np.ndarray:
     """An atlas's traced bounce (H, W, ...) smoothed within each surface by a local linear
-    fit (:data:`BOUNCE_ORDER`) over its open texels; each buried texel (label ``-2 - label``,
-    :func:`_open_labels`) takes the smoothed bounce of the nearest open texel of its surface,
-    so bilinear filtering at a wall's foot reads open values only (bake.denoise)."""
+    fit (:data:`BOUNCE_ORDER`) over its open texels, with a narrower kernel near contact
+    lines; texels ``moved`` onto contact lines ((rows, columns), marked buried in
+    ``labels``: :func:`_bounce_labels`) keep their traced bounce, smoothed along their strip
+    only (96 rays leave a texel's bounce about 10 % noisy); other buried texels
+    (label ``-2 - label``, :func:`_open_labels`) next to open ones hold the fit continued,
+    the rest the value of the nearest of those, so bilinear filtering at a wall's foot reads
+    the open side's bounce only (bake.contact, bake.denoise)."""
     smoothed = smooth_within_labels(image, labels, BOUNCE_SIGMA_TEXELS, order=BOUNCE_ORDER)
+    near = near_contact(labels)
+    if near.any():
+        fine = smooth_within_labels(image, labels, NEAR_SIGMA_TEXELS, order=BOUNCE_ORDER)
+        smoothed[near] = fine[near]
+    smoothed = continue_into_buried(smoothed, labels)
+    keep = continued_labels(labels)
+    if moved is not None:
+        # The moved texels form strips along the contact lines: their bounce, traced there,
+        # is smoothed along each strip only (a strip per surface), never with the open side.
+        surface = np.where(labels <= -2, -2 - labels, labels)
+        strips = np.full(labels.shape, -1, dtype=labels.dtype)
+        strips[moved] = surface[moved]
+        along = smooth_within_labels(image, strips, BOUNCE_SIGMA_TEXELS, order=BOUNCE_ORDER)
+        smoothed[moved] = along[moved]
+        keep[moved] = True
     surface = np.where(labels <= -2, -2 - labels, labels)
-    return fill_from_nearest(smoothed, surface, labels >= 0)
+    return fill_from_nearest(smoothed, surface, keep)
 
 
 def _rgb(direct: np.ndarray, config: str) -> np.ndarray:

@@ -22,6 +22,7 @@ lights = {lights}
 
 [quality]
 default = "draft"
+bounces = {bounces}
 
 [quality.draft]
 direct_rays = {direct_rays}
@@ -63,6 +64,7 @@ def make_site(
     lights: int = 40,
     direct_rays: int = 160,
     bounce_rays: int = 16,
+    bounces: int = 1,
     ground_m: float = 40.0,
     ground_albedo=(0.2, 0.2, 0.2),
     ground_texel_m: float = 1.0,
@@ -74,6 +76,8 @@ def make_site(
     """Write ``root/scene.toml`` and OBJ models; returns the scene folder.
 
     ``virtual`` lists (name, mesh in world coordinates, albedo); by default a 2 m box.
+    ``bounces`` is 1 here (the known answers of most tests are one bounce's), not the
+    format's default.
     """
     root.mkdir(parents=True, exist_ok=True)
     (root / "models").mkdir(exist_ok=True)
@@ -86,6 +90,7 @@ def make_site(
         lights=lights,
         direct_rays=direct_rays,
         bounce_rays=bounce_rays,
+        bounces=bounces,
         ground_m=ground_m,
         ground_albedo=list(ground_albedo),
         ground_texel_m=ground_texel_m,

@@ -58,7 +58,8 @@ def scene_tables() -> list[tuple[Path, str, str]]:
     for name, prop in props.items():
         table = prop["items"] if prop["type"] == "array" else prop
         if name == "quality":
-            table = {**table, "properties": {"default": table["properties"]["default"]}}
+            table = {**table, "properties": {k: v for k, v in table["properties"].items()
+                                             if v.get("type") != "object"}}
             out.append((doc, "scene.quality-levels", _quality_levels(prop)))
         out.append((doc, f"scene.{name}", reference_table(table)))
     out.append((doc, "scene.view.intrinsics",

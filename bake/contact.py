@@ -1,0 +1,248 @@
+"""Contact lines: the texels of a surface that straddle the foot of a wall or a corner.
+
+A receiver's texel is one sample at its centre, and the client reads the surface bilinearly
+between texel centres. Where a wall stands on the ground, the ground texels whose centres lie
+under the wall are *buried*: no light reaches them. Read bilinearly, a visible ground point
+5 cm from the wall's face mixes up to half of such a dark texel into its value: the demo's
+ground was 41 % too dark 5 cm from a wall and 8-9 % within 0.5 m (issue 20).
+
+Method: **buried texel centres moved off the buried region, then extrapolated along the
+chord** (docs/architecture.md, "Contact lines"; figures in docs/benchmarks.md).
+
+1. Before tracing (:func:`move_buried_samples`), a texel whose centre sees only back faces
+   (inside a solid) and has a visible neighbour ``o`` on its surface (8-connected) casts a
+   ray from its centre ``b`` toward ``o``'s centre; where the ray leaves the solid (a back
+   face) at ``c``, just outside it, becomes the texel's sample point. Of several visible
+   neighbours the one reached soonest is used.
+2. After tracing (:func:`extrapolate_direct`), the texel's direct light is the chord through
+   the two traced values, ``E(c)`` at the contact line and ``E(o)``, extended to ``b``:
+   ``E_b = E(o) + (E(c) - E(o)) |o - b| / |o - c|``. Read bilinearly between ``b`` and
+   ``o``, the surface then matches the light field at both ends of its visible part, and in
+   between to within the field's curvature over that part. Worst reading 5 cm from a wall
+   under a uniform sky, the foot anywhere in a 0.5 m texel (docs/benchmarks.md): 0.02 % (3 m
+   wall) and 0.06 % (2 m), against 1.3 % and 3.8 % for a plane continued from the visible
+   texels alone, and 3.4 % and 5.0 % for the value at the contact line alone.
+3. The bounce is smoothed over the visible texels only (bake.denoise), never across the
+   contact line; within ``NEAR_RINGS`` texels of buried ones with a narrower kernel
+   (``NEAR_SIGMA_TEXELS``), as the bounce bends there (beside a 3 m wall of albedo 0.6 the
+   1.5-texel fit read 9-15 % low 5 cm from the wall, the 1-texel one 2-9 %). A moved texel
+   keeps the bounce traced at its contact line (a fit continued to its centre read 8 % low
+   there), smoothed along its strip of moved texels only; the other buried texels next to
+   visible ones hold the fit continued (:func:`continue_into_buried`), the rest the nearest
+   of those.
+
+Limits: a wall thinner than a texel has visible texels on both sides of one buried texel,
+which holds one value for both (the side reached soonest); finer texels along contact lines
+would lift that but need a second texture per atlas in the client and the compressor (not
+taken). Hull planes (3 cm outside the virtual objects) are left as they are.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bake.denoise import MAX_CHANNELS, plane_weights
+
+# False: texels at contact lines are treated as before issue 20 (buried texels dark, their
+# bounce the nearest open texel's): benchmarks/bench_contact.py's "before", in one run.
+ENABLED = True
+PROBE_RAYS = 16  # a texel centre is buried when all its probe rays hit back faces
+OUTSIDE_M = 0.005  # a moved sample point lies this far past where its ray leaves the solid
+MAX_EXIT_FRACTION = 0.9  # beyond this share of the way to the neighbour: left buried
+RINGS = 1  # buried texels within this many texels (8-connected) of visible ones are continued
+FIT_SIGMA_TEXELS = 1.0  # the fit reads mostly the two nearest visible texels in each direction
+NEAR_RINGS = 3  # visible texels this close to buried ones get the narrower bounce smoothing
+NEAR_SIGMA_TEXELS = 1.0
+
+
+def continue_into_buried(image: np.ndarray, labels: np.ndarray,
+                         sigma_px: float = FIT_SIGMA_TEXELS, rings: int = RINGS) -> np.ndarray:
+    """Continue each surface's visible values into its buried texels along contact lines.
+
+    Parameters
+    ----------
+    image : (H, W, ...) float, per-texel values (irradiance per unit light radiance)
+    labels : (H, W) int; a visible texel of surface ``s`` is ``s >= 0``, a buried one
+        ``-2 - s``, no texel -1 (bake.writers._open_labels)
+    sigma_px : the Gaussian of the local plane fit, texels
+    rings : how far (8-connected texels) from a visible texel a buried one is continued
+
+    Returns a new float32 array like ``image``: buried texels within ``rings`` of visible
+    texels of their surface hold the fitted plane's value at their centre (never below 0);
+    every other texel is unchanged.
+    """
+    import cv2
+
+    if not ENABLED:
+        return np.array(image, dtype=np.float32, copy=True)
+    h, w = labels.shape
+    flat = np.ascontiguousarray(image, dtype=np.float32).reshape(h, w, -1)
+    out = flat.copy()
+    radius = int(np.ceil(3.0 * sigma_px))
+    kernel = (2 * radius + 1, 2 * radius + 1)
+
+    def blur(a):
+        b = cv2.GaussianBlur(a, kernel, sigma_px, borderType=cv2.BORDER_CONSTANT)
+        return b.reshape(a.shape)
+
+    surface = np.where(labels <= -2, -2 - labels, labels)
+    for label in np.unique(labels[labels <= -2]):
+        label = -2 - label
+        ys, xs = np.nonzero(surface == label)
+        y0, y1 = max(ys.min() - radius, 0), min(ys.max() + radius + 1, h)
+        x0, x1 = max(xs.min() - radius, 0), min(xs.max() + radius + 1, w)
+        visible = labels[y0:y1, x0:x1] == label
+        if not visible.any():
+            continue
+        near = cv2.dilate(visible.astype(np.uint8), np.ones((3, 3), np.uint8),
+                          iterations=rings) > 0
+        target = near & (labels[y0:y1, x0:x1] == -2 - label)
+        if not target.any():
+            continue
+        # Only the window around the texels to fill is fitted (a ground receiver is large,
+        # its contact lines a small part of it).
+        ty, tx = np.nonzero(target)
+        wy0, wy1 = max(ty.min() - radius, 0), min(ty.max() + radius + 1, y1 - y0)
+        wx0, wx1 = max(tx.min() - radius, 0), min(tx.max() + radius + 1, x1 - x0)
+        target = target[wy0:wy1, wx0:wx1]
+        mask = visible[wy0:wy1, wx0:wx1].astype(np.float64)
+        y0, x0 = y0 + wy0, x0 + wx0
+        y1, x1 = y0 + (wy1 - wy0), x0 + (wx1 - wx0)
+        weights = plane_weights(mask, target, blur, sigma_px)
+        for c0 in range(0, flat.shape[2], MAX_CHANNELS):
+            c1 = min(c0 + MAX_CHANNELS, flat.shape[2])
+            region = flat[y0:y1, x0:x1, c0:c1].astype(np.float64) * mask[:, :, None]
+            value = np.zeros((int(target.sum()), c1 - c0), dtype=np.float64)
+            for weight, coordinate in weights:
+                moment = region if coordinate is None else region * coordinate[:, :, None]
+                value += blur(moment)[target] * weight[:, None]
+            out[y0:y1, x0:x1, c0:c1][target] = np.maximum(value, 0.0)
+    return out.reshape(image.shape)
+
+
+def continued_labels(labels: np.ndarray, rings: int = RINGS) -> np.ndarray:
+    """(H, W) bool: the texels that hold visible values after :func:`continue_into_buried`
+    (visible texels and the buried ones it continued)."""
+    import cv2
+
+    out = labels >= 0
+    if not ENABLED:
+        return out
+    surface = np.where(labels <= -2, -2 - labels, labels)
+    for label in np.unique(labels[labels <= -2]):
+        label = -2 - label
+        visible = (labels == label).astype(np.uint8)
+        near = cv2.dilate(visible, np.ones((3, 3), np.uint8), iterations=rings) > 0
+        out |= near & (surface == label)
+    return out
+
+
+def move_buried_samples(atlas, scene) -> None:
+    """Move the sample points of buried texels next to visible ones onto the contact line
+    (step 1 of the module's method); sets ``atlas.contact`` for :func:`extrapolate_direct`.
+
+    Parameters
+    ----------
+    atlas : bake.receivers.Atlas, its ``points`` (T, 3) changed in place for the moved texels
+    scene : bake.raytrace.RayScene with everything that can bury a texel (configuration all)
+
+    ``atlas.contact``: ``{"texel": (m,) int, "neighbour": (m,) int, "extrapolation": (m,)
+    float}``: the moved texels, the visible neighbour each was moved toward, and
+    ``|o - b| / |o - c|`` (at least 1).
+    """
+    from bake import tracing_loops as loops
+    from bake.irradiance import lattice
+    from bake.raytrace import RAY_OFFSET_M
+
+    empty = {"texel": np.zeros(0, np.int64), "neighbour": np.zeros(0, np.int64),
+             "extrapolation": np.zeros(0)}
+    atlas.contact = empty
+    T = atlas.count
+    if T == 0 or not ENABLED:
+        return
+    points = np.ascontiguousarray(atlas.points, dtype=np.float64)
+    normals = np.ascontiguousarray(atlas.normals, dtype=np.float64)
+    origins = np.empty((T * PROBE_RAYS, 3), np.float32)
+    dirs = np.empty_like(origins)
+    loops.cosine_weighted_rays(points, normals, lattice(PROBE_RAYS), np.zeros((T, 2)),
+                               RAY_OFFSET_M, origins, dirs)
+    face, _ = scene.first_hit(origins, dirs)
+    back = np.zeros(len(face), bool)
+    hit = face >= 0
+    back[hit] = np.einsum("ij,ij->i", dirs[hit], scene.face_normals[face[hit]]) > 0.0
+    buried = back.reshape(T, PROBE_RAYS).all(axis=1)
+    if not buried.any():
+        return
+    index = np.full((atlas.height, atlas.width), -1, np.int64)
+    index[atlas.texels[:, 1], atlas.texels[:, 0]] = np.arange(T)
+    pairs_b, pairs_o = [], []
+    b = np.flatnonzero(buried)
+    x, y = atlas.texels[b, 0], atlas.texels[b, 1]
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            if dx == dy == 0:
+                continue
+            yy, xx = y + dy, x + dx
+            inside = (yy >= 0) & (yy < atlas.height) & (xx >= 0) & (xx < atlas.width)
+            o = np.full(len(b), -1)
+            o[inside] = index[yy[inside], xx[inside]]
+            ok = o >= 0
+            ok[ok] &= ~buried[o[ok]] & (atlas.labels[o[ok]] == atlas.labels[b[ok]])
+            pairs_b.append(b[ok])
+            pairs_o.append(o[ok])
+    pb, po = np.concatenate(pairs_b), np.concatenate(pairs_o)
+    if len(pb) == 0:
+        return
+    span = points[po] - points[pb]
+    length = np.linalg.norm(span, axis=1)
+    direction = span / length[:, None]
+    face, distance = scene.first_hit(points[pb] + RAY_OFFSET_M * normals[pb], direction)
+    leaves = face >= 0
+    leaves[leaves] = np.einsum("ij,ij->i", direction[leaves],
+                               scene.face_normals[face[leaves]]) > 0.0
+    fraction = np.where(leaves, (distance + OUTSIDE_M) / length, np.inf)
+    usable = fraction <= MAX_EXIT_FRACTION
+    pb, po, fraction, direction = pb[usable], po[usable], fraction[usable], direction[usable]
+    length = length[usable]
+    # The neighbour reached soonest, per buried texel (ties: the first in scan order).
+    order = np.lexsort((np.arange(len(pb)), fraction, pb))
+    first = np.ones(len(order), bool)
+    first[1:] = pb[order][1:] != pb[order][:-1]
+    chosen = order[first]
+    texel, neighbour = pb[chosen], po[chosen]
+    f = fraction[chosen]
+    atlas.points = atlas.points.copy()
+    atlas.points[texel] = points[texel] + (f * length[chosen])[:, None] * direction[chosen]
+    atlas.contact = {"texel": texel, "neighbour": neighbour, "extrapolation": 1.0 / (1.0 - f)}
+
+
+def extrapolate_direct(atlas, direct: np.ndarray) -> np.ndarray:
+    """Step 2 of the module's method: the traced direct light (T, ...) of an atlas with each
+    moved texel's value extended along the chord from its neighbour's through its own
+    (traced at the contact line) to its centre. A new array.
+
+    Linear in the lights, so not clamped per light: a low patch toward the wall is hidden at
+    the contact line and seen at the neighbour, and its extended value at the buried centre
+    is below 0; clamped, the reading 5 cm from a wall under a uniform sky was 1.9 % high. Every
+    visible point between the contact line and the neighbour still reads a mix of the two
+    traced values, never below 0."""
+    contact = getattr(atlas, "contact", None)
+    out = np.array(direct, dtype=np.float32, copy=True)
+    if not contact or len(contact["texel"]) == 0:
+        return out
+    b, o = contact["texel"], contact["neighbour"]
+    t = contact["extrapolation"].reshape((-1,) + (1,) * (out.ndim - 1))
+    out[b] = out[o] + (out[b] - out[o]) * t
+    return out
+
+
+def near_contact(labels: np.ndarray, rings: int = NEAR_RINGS) -> np.ndarray:
+    """(H, W) bool: visible texels (label >= 0) within ``rings`` texels (8-connected) of a
+    buried one (label <= -2); none when contact lines are off (:data:`ENABLED`)."""
+    import cv2
+
+    buried = (labels <= -2).astype(np.uint8)
+    if not ENABLED or not buried.any():
+        return np.zeros(labels.shape, bool)
+    grown = cv2.dilate(buried, np.ones((3, 3), np.uint8), iterations=rings) > 0
+    return grown & (labels >= 0)
