@@ -65,16 +65,7 @@ def _estimator(setup: WorkerSetup):
     scenes = SceneSet.build(setup.geometry, setup.ground_albedo)
     cache = None
     if setup.cache is not None:
-        c = setup.cache
-        cache = BounceCache(
-            c["points"],
-            c["normals"],
-            c["faces"],
-            c["albedo"],
-            {"all": c["E_all"], "real": c["E_real"]},
-            setup.geometry,
-            float(c["cell_m"]),
-        )
+        cache = BounceCache.from_arrays(setup.cache, setup.geometry)
     estimator = Estimator(setup.dome_vertices, scenes, setup.samples, setup.bounce_rays, cache)
     with _ESTIMATORS_LOCK:
         _ESTIMATORS[key] = estimator

@@ -147,6 +147,24 @@ class BounceCache:
             for config, E in self.E.items()
         }
 
+    @classmethod
+    def from_arrays(cls, arrays, geometry: Geometry) -> BounceCache:
+        """The cache from the arrays ``cache.npz`` holds (an open ``np.load`` file or a dict
+        of them: ``points``, ``normals``, ``faces``, ``albedo``, ``E_all``, ``E_real``,
+        ``cell_m``, and ``B_all``, ``B_real`` when there is more than one bounce); the local
+        pool's workers and a cluster's both build theirs here."""
+        names = set(getattr(arrays, "files", arrays))
+        return cls(
+            arrays["points"],
+            arrays["normals"],
+            arrays["faces"],
+            arrays["albedo"],
+            {"all": arrays["E_all"], "real": arrays["E_real"]},
+            geometry,
+            float(arrays["cell_m"]),
+            {"all": arrays["B_all"], "real": arrays["B_real"]} if "B_all" in names else None,
+        )
+
     def nearest(self, points: np.ndarray, faces: np.ndarray) -> np.ndarray:
         """The cache point nearest to each point on its face (to within half a raster cell),
         shape ``(m,)`` int; -1 where the face has no cache point (a sliver of ground)."""

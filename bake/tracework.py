@@ -64,16 +64,7 @@ def _init_worker(geometry, dome_vertices, ground_albedo, samples, bounce_rays, c
     cache = None
     if cache_file is not None:
         with np.load(cache_file) as data:
-            cache = BounceCache(
-                data["points"],
-                data["normals"],
-                data["faces"],
-                data["albedo"],
-                {"all": data["E_all"], "real": data["E_real"]},
-                geometry,
-                float(data["cell_m"]),
-                {"all": data["B_all"], "real": data["B_real"]} if "B_all" in data else None,
-            )
+            cache = BounceCache.from_arrays(data, geometry)
     _WORKER["estimator"] = Estimator(dome_vertices, scenes, samples, bounce_rays, cache)
 
 

@@ -61,7 +61,9 @@ def cluster():
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
-    return make_site(tmp_path_factory.mktemp("cluster") / "scene", lights=40, hull_texel_m=0.25)
+    # Two bounces: the workers must get the cache points' own bounces too (B_all, B_real).
+    return make_site(tmp_path_factory.mktemp("cluster") / "scene", lights=40, hull_texel_m=0.25,
+                     bounces=2)
 
 
 @pytest.fixture(scope="module")
