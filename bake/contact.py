@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bake.denoise import MAX_CHANNELS, plane_weights
+from bake.denoise import MAX_CHANNELS, fitted_values, gaussian, plane_weights
 
 # False: texels at contact lines are treated as before issue 20 (buried texels dark, their
 # bounce the nearest open texel's): benchmarks/bench_contact.py's "before", in one run.
@@ -78,13 +78,7 @@ def continue_into_buried(image: np.ndarray, labels: np.ndarray,
     h, w = labels.shape
     flat = np.ascontiguousarray(image, dtype=np.float32).reshape(h, w, -1)
     out = flat.copy()
-    radius = int(np.ceil(3.0 * sigma_px))
-    kernel = (2 * radius + 1, 2 * radius + 1)
-
-    def blur(a):
-        b = cv2.GaussianBlur(a, kernel, sigma_px, borderType=cv2.BORDER_CONSTANT)
-        return b.reshape(a.shape)
-
+    radius, blur = gaussian(sigma_px)
     surface = np.where(labels <= -2, -2 - labels, labels)
     for label in np.unique(labels[labels <= -2]):
         label = -2 - label
@@ -112,10 +106,7 @@ def continue_into_buried(image: np.ndarray, labels: np.ndarray,
         for c0 in range(0, flat.shape[2], MAX_CHANNELS):
             c1 = min(c0 + MAX_CHANNELS, flat.shape[2])
             region = flat[y0:y1, x0:x1, c0:c1].astype(np.float64) * mask[:, :, None]
-            value = np.zeros((int(target.sum()), c1 - c0), dtype=np.float64)
-            for weight, coordinate in weights:
-                moment = region if coordinate is None else region * coordinate[:, :, None]
-                value += blur(moment)[target] * weight[:, None]
+            value = fitted_values(region, weights, blur, target)
             out[y0:y1, x0:x1, c0:c1][target] = np.maximum(value, 0.0)
     return out.reshape(image.shape)
 

@@ -49,13 +49,7 @@ def smooth_within_labels(
     h, w = labels.shape
     flat = np.ascontiguousarray(image, dtype=np.float32).reshape(h, w, -1)
     out = flat.copy()
-    radius = int(np.ceil(3.0 * sigma_px))
-    kernel = (2 * radius + 1, 2 * radius + 1)
-
-    def blur(a):
-        b = cv2.GaussianBlur(a, kernel, sigma_px, borderType=cv2.BORDER_CONSTANT)
-        return b.reshape(a.shape)  # OpenCV drops a single channel axis
-
+    radius, blur = gaussian(sigma_px)
     for label in np.unique(labels[labels >= 0]):
         ys, xs = np.nonzero(labels == label)
         y0, y1 = max(ys.min() - radius, 0), min(ys.max() + radius + 1, h)
@@ -71,14 +65,35 @@ def smooth_within_labels(
             region = flat[y0:y1, x0:x1, c0:c1] * mask[:, :, None]
             if order == 1:  # G(m x v) - x0 G(m v) cancels: float32 loses 1e-4 of v at x ~ 400
                 region = region.astype(np.float64)
-            value = np.zeros((int(inside.sum()), c1 - c0), dtype=np.float64)
-            for weight, coordinate in weights:
-                moment = region if coordinate is None else region * coordinate[:, :, None]
-                value += blur(moment)[inside] * weight[:, None]
+            value = fitted_values(region, weights, blur, inside)
             if order == 1:
                 value = np.maximum(value, 0.0)
             out[y0:y1, x0:x1, c0:c1][inside] = value
     return out.reshape(image.shape)
+
+
+def gaussian(sigma_px: float):
+    """(radius, blur): a Gaussian of ``sigma_px`` texels cut at 3 sigma (``radius`` texels),
+    and ``blur(a)`` applying it to an (h, w) or (h, w, C) array, zero outside the array."""
+    radius = int(np.ceil(3.0 * sigma_px))
+    kernel = (2 * radius + 1, 2 * radius + 1)
+
+    def blur(a):
+        b = cv2.GaussianBlur(a, kernel, sigma_px, borderType=cv2.BORDER_CONSTANT)
+        return b.reshape(a.shape)  # OpenCV drops a single channel axis
+
+    return radius, blur
+
+
+def fitted_values(region: np.ndarray, weights: list, blur, at: np.ndarray) -> np.ndarray:
+    """The local fit's value at the ``at`` texels, (K, C) float64: the sum over ``weights``
+    (:func:`plane_weights`, or one ``(w, None)``) of ``w G(region x coordinate)[at]``;
+    ``region`` (h, w, C) holds the masked values."""
+    value = np.zeros((int(at.sum()), region.shape[2]), dtype=np.float64)
+    for weight, coordinate in weights:
+        moment = region if coordinate is None else region * coordinate[:, :, None]
+        value += blur(moment)[at] * weight[:, None]
+    return value
 
 
 def plane_weights(mask: np.ndarray, inside: np.ndarray, blur, sigma_px: float) -> list:

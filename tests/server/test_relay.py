@@ -43,15 +43,22 @@ def test_malformed_messages_are_refused(data):
         decode(data)
 
 
-def test_a_worker_hub_sends_the_measuring_hubs_bytes():
-    """The measuring hub encodes; the worker's hub gets the same bytes and sequence, and a
-    malformed message in between changes nothing."""
+def linked_hubs() -> tuple[LightHub, LightHub, Inbox]:
+    """A measuring hub whose relay messages go straight into a worker hub's inbox (stale
+    after 3 s): (measuring hub, worker hub, inbox)."""
     measuring = LightHub(lambda streams, version=1: "{}")
     outbox = Outbox()
     outbox.attach(measuring)
     worker = LightHub(lambda streams, version=1: "{}")
     inbox = Inbox(worker, stale_after_s=3.0)
     outbox.listeners.append(lambda kind, message: inbox.apply(message))
+    return measuring, worker, inbox
+
+
+def test_a_worker_hub_sends_the_measuring_hubs_bytes():
+    """The measuring hub encodes; the worker's hub gets the same bytes and sequence, and a
+    malformed message in between changes nothing."""
+    measuring, worker, inbox = linked_hubs()
     rgb = np.arange(120, dtype=np.float32).reshape(40, 3)
     seq = measuring.publish_light(rgb, np.zeros(40, bool), 12.5, 0)
     inbox.apply(b"garbage")
@@ -68,12 +75,7 @@ def test_a_silent_link_resends_the_last_vector_marked_stale(monkeypatch):
     """Past the stale time the worker re-publishes its last vector with the STALE flag (bit 0
     of the uint16 at byte 6, docs/protocol.md), same sequence, every other byte the same;
     once; and the next vector from the measuring process is published as it came."""
-    measuring = LightHub(lambda streams, version=1: "{}")
-    outbox = Outbox()
-    outbox.attach(measuring)
-    worker = LightHub(lambda streams, version=1: "{}")
-    inbox = Inbox(worker, stale_after_s=3.0)
-    outbox.listeners.append(lambda kind, message: inbox.apply(message))
+    measuring, worker, inbox = linked_hubs()
     rgb = np.arange(120, dtype=np.float32).reshape(40, 3)
     seq = measuring.publish_light(rgb, np.zeros(40, bool), 12.5, protocol.Flags.SIMULATED)
     fresh = dict(worker.latest[LIGHT][1])
