@@ -85,7 +85,13 @@ def test_stacks_have_the_dome_size_and_the_atlas_size(demo_draft_build):
         for stack in atlas["stacks"].values():
             data = read_stack_exr(demo_draft_build / stack["master"])
             assert data.shape == (atlas["height"], atlas["width"], n, 3)
-            assert np.all(np.isfinite(data)) and data.min() >= 0.0
+            assert np.all(np.isfinite(data))
+            # Below 0 only in a texel whose centre is buried under a wall and whose value is
+            # its chord extended there (bake.contact, docs/manifest.md): ground and lightmap
+            # texels along contact lines, a few in a hundred; never on hull planes.
+            negative = data.min(axis=(2, 3)) < 0.0
+            limit = 0.0 if atlas["id"] == "hull" else 0.03
+            assert negative.mean() <= limit, (stack["master"], negative.mean())
     for view in manifest["views"]:
         for stack in view["stacks"].values():
             data = read_stack_exr(demo_draft_build / stack["master"])
