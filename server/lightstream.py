@@ -13,9 +13,11 @@ Every message is encoded once per protocol version (:data:`server.protocol.VERSI
 is published, and each client is sent its connection's version: ``?protocol=3`` gets version 3
 (the sun apart, the sky in float16), ``?protocol=2`` version 2 (the sun apart, float32), no
 parameter or ``protocol=1`` version 1 (the sun folded into its patch by the publisher), any
-other value HTTP 400. aiohttp then frames each message per client (``send_bytes``: a 4-byte
-WebSocket header joined to the message; its public API cannot send a pre-built frame), a cost
-measured in docs/benchmarks.md.
+other value HTTP 400. A light vector's WebSocket frame is built once per version too
+(:mod:`server.wsframe`) and written straight to the transport of every client that is idle (its
+sender task waiting, nothing in its write buffer beyond the low-water mark): no task wakes for
+it. A client that is busy or slow is woken instead and its task sends the newest message through
+aiohttp (``send_bytes``), so ordering and the slow-client rules stay as they were.
 
 Per connection (``GET /ws/light``):
 - the Origin must be the page's own or in ``allowed_origins`` (else HTTP 403);
@@ -49,6 +51,7 @@ from aiohttp import WSCloseCode, WSMsgType, web
 from server import protocol
 from server.access import OPERATOR, PRIVATE_STREAMS
 from server.protocol import MessageType, ProtocolError
+from server.wsframe import binary_frame
 
 log = logging.getLogger("daylit.stream")
 
@@ -80,6 +83,9 @@ class Client:
     token_time_s: float = field(default_factory=time.monotonic)
     messages_sent: int = 0
     skipped: int = 0  # newer messages that replaced older ones while the client was slow
+    # The sender task is waiting for something new (not in the middle of a send): a new light
+    # vector may be written for it straight away (LightHub._write_light).
+    idle: bool = False
 
 
 class LightHub:
@@ -120,6 +126,7 @@ class LightHub:
         self._all_closed = asyncio.Event()  # close_all is done
         self.dropped_heartbeat = 0
         self.dropped_slow = 0
+        self.written_direct = 0  # light messages written without waking a sender task
         self.site_camera_available = site_camera_available
         self.occlusion_available = occlusion_available and site_camera_available
         self.clients: set[Client] = set()
@@ -146,10 +153,13 @@ class LightHub:
         """
         if isinstance(data, bytes | bytearray):
             data = dict.fromkeys(protocol.VERSIONS, bytes(data))
-        self.latest[stream] = (sequence, data)
+        entry = self.latest[stream] = (sequence, data)
         self.sequence[stream] = sequence
+        frames = {version: binary_frame(message) for version, message in data.items()} \
+            if stream == LIGHT else None
         for client in self.clients:
-            if stream in client.streams:
+            if stream in client.streams and (
+                    frames is None or not self._write_light(client, entry, frames)):
                 client.wake.set()
         for listener in self.listeners:
             listener(stream, sequence, data)
@@ -342,6 +352,27 @@ class LightHub:
         client.tokens -= 1.0
         return True
 
+    def _write_light(self, client: Client, entry: tuple[int, dict[int, bytes]],
+                     frames: dict[int, bytes]) -> bool:
+        """Write a light vector's pre-built frame to an idle client's transport; False (its
+        sender task must send it) when the client is busy, closing or its buffer is filling.
+
+        Its sender task is waiting and has sent everything before, so the frame goes out in
+        order; ``transport.write`` takes it whole or buffers it."""
+        transport = client.transport
+        if not client.idle or transport is None or client.ws.closed or transport.is_closing():
+            return False
+        try:
+            if transport.get_write_buffer_size() > transport.get_write_buffer_limits()[0]:
+                return False
+        except (AttributeError, NotImplementedError):
+            return False
+        transport.write(frames[client.version])
+        self.written_direct += 1
+        client.sent_light = entry
+        client.messages_sent += 1
+        return True
+
     async def _send(self, client: Client, message: bytes) -> None:
         """Send one message; past ``slow_client_timeout_s`` of waiting, TimeoutError.
 
@@ -363,7 +394,9 @@ class LightHub:
         ws = client.ws
         try:
             while not ws.closed:
+                client.idle = True
                 await client.wake.wait()
+                client.idle = False
                 client.wake.clear()
                 entry = self.latest.get(LIGHT) if LIGHT in client.streams else None
                 if entry is not None and entry is not client.sent_light:

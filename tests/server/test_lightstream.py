@@ -90,6 +90,28 @@ async def test_two_clients_receive_the_same_sequence_numbers(make_client):
     await b.close()
 
 
+@pytest.mark.parametrize("length", [0, 125, 126, 65535, 65536, 300_000])
+async def test_a_frame_built_once_reaches_idle_clients_whole(make_client, length):
+    """Each WebSocket length form (7-bit, 16-bit, 64-bit) written straight to idle clients'
+    transports, as aiohttp's client reader (not our framing) decodes it."""
+    client, app, _ = await make_client()
+    hub = app[HUB]
+    (a, _), (b, _) = await connect(client, "?protocol=2"), await connect(client)
+    first = publish(app, 1.0)  # the sender tasks send the first one and go idle
+    assert (await next_binary(a)).sequence == first == (await next_binary(b)).sequence
+    payloads = {version: bytes([version]) * length for version in protocol.VERSIONS}
+    before = hub.written_direct
+    for seq in (first + 1, first + 2):
+        await asyncio.sleep(0.05)  # the senders are waiting again
+        hub.publish("light", payloads, seq)
+        got_a, got_b = await a.receive(timeout=10), await b.receive(timeout=10)
+        assert got_a.type == got_b.type == WSMsgType.BINARY
+        assert got_a.data == payloads[2] and got_b.data == payloads[1]
+    assert hub.written_direct - before == 4  # no sender task was woken for them
+    await a.close()
+    await b.close()
+
+
 async def test_a_client_that_never_reads_does_not_delay_another(make_client):
     client, app, _ = await make_client()
     hub = app[HUB]
