@@ -37,6 +37,7 @@ import asyncio
 import contextlib
 import os
 import resource
+import signal
 import socket
 import struct
 import subprocess
@@ -378,7 +379,8 @@ async def main_async(levels: list[int], seconds: float, protocols: list[int] | N
             print(f"workers: {workers}, broker: {broker or 'none'}, client processes: "
                   f"{client_processes}\n")
             print(f"{'clients':>7} {'vec/s each':>10} {'p50 ms':>7} {'p99 ms':>7} "
-                  f"{'max ms':>7} {'>=90% of vectors':>16} {'server CPU':>10} {'client CPU':>10}")
+                  f"{'max ms':>7} {'>=90% of vectors':>16} {'server CPU':>10} {'client CPU':>10} "
+                  f"{'msg/s per server core':>21}")
             for n in levels:
                 if client_processes > 1 or workers > 1 or broker:
                     r = await run_level_processes(url, n, seconds, proc.pid, client_processes,
@@ -387,7 +389,8 @@ async def main_async(levels: list[int], seconds: float, protocols: list[int] | N
                     r = await run_level(url, n, seconds, proc.pid)
                 print(f"{r['clients']:7d} {r['rate']:10.2f} {r['p50']:7.1f} {r['p99']:7.1f} "
                       f"{r['max']:7.1f} {r['full']:10d}/{n:<5} {100 * r['server_cpu']:9.0f}% "
-                      f"{100 * r['client_cpu']:9.0f}%", flush=True)
+                      f"{100 * r['client_cpu']:9.0f}% "
+                      f"{r['clients'] * r['rate'] / max(r['server_cpu'], 1e-9):21.0f}", flush=True)
         finally:
             proc.terminate()
             proc.wait(timeout=30)
@@ -433,6 +436,8 @@ def main() -> None:
                         "10,000-client level")
     args = parser.parse_args()
     RATE_HZ = args.rate_hz
+    # SIGTERM (a killed run) unwinds like Ctrl-C, so the server it started is stopped too.
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     # Each client is a socket on both ends (server, its workers and the clients inherit this).
     soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
     resource.setrlimit(resource.RLIMIT_NOFILE, (min(hard, 2 * MAX_CLIENTS + 1024), hard))
