@@ -178,11 +178,6 @@ export function debugApi(app) {
         eye: eye ? { matrixWorld: eye.matrixWorld.toArray(), projection: eye.projectionMatrix.toArray() } : null,
       };
     },
-    /** The camera mode's camera: world matrix (column-major 16) and vertical fov, degrees. */
-    cameraPose() {
-      app.camera.updateMatrixWorld();
-      return { matrixWorld: app.camera.matrixWorld.toArray(), fovDeg: app.camera.fov, aspect: app.camera.aspect };
-    },
     setCamera(position, target) {
       app.view?.dispose?.();
       app.view = null;
