@@ -21,6 +21,7 @@ from tests.web.kioskref import light_message
 pytestmark = [pytest.mark.browser]
 
 SKY = "clear:135,40"
+SKY2 = "clear:200,25"
 SIZE = (640, 360)
 EXPOSURE = 0.5
 URL = f"/?mode=visit&test&exposure={EXPOSURE}"
@@ -56,8 +57,58 @@ def set_pose(page, pose_spec):
     return pose
 
 
-def relight(page, sky):
-    page.evaluate("(r) => window.daylit.debug.relight(r, 1)", sky.ravel().tolist())
+def relight(page, sky, sun=None, sequence=1):
+    page.evaluate("([r, s, n]) => window.daylit.debug.relight(r, n, s)",
+                  [sky.ravel().tolist(), sun, sequence])
+
+
+def sun_of(sky_spec: str) -> dict:
+    """The sun of a clear sky "clear:AZ,EL", as a version-2 light message carries it."""
+    from daylit import sky as skies
+
+    azimuth_deg, elevation_deg = (float(v) for v in sky_spec.split(":")[1].split(","))
+    return {"direction": skies.direction_from_azimuth_elevation(azimuth_deg,
+                                                                elevation_deg).tolist(),
+            "normalIrradiance": skies.clear_sky(azimuth_deg,
+                                                elevation_deg).sun.normal_irradiance.tolist()}
+
+
+def open_ar(new_page, server, sky, sun=None):
+    """An AR page whose session runs with the site placed by a tap at the START pose's floor
+    hit (checked on the way); returns the page and the hit (3,), metres."""
+    ar = new_page(*SIZE)
+    ar.page.add_init_script(xremu.init_script())
+    ar.open(server.url + URL, READY)
+    relight(ar.page, sky, sun)
+    assert ar.page.evaluate("navigator.xr.isSessionSupported('immersive-ar')")
+    button = ar.page.locator('[data-mode="ar"]')
+    assert button.is_visible()
+    button.click()
+    ar.wait("window.daylit.status.mode === 'ar' && window.daylit.debug.xrState().frames > 2")
+    state = ar.page.evaluate("window.daylit.debug.xrState()")
+    assert state["alignment"]["position"] == [0, 0, -10]  # nothing stored yet
+
+    start = set_pose(ar.page, START)
+    hit = xremu.floor_hit_m(start)
+    ar.wait("window.daylit.debug.xrState().reticleVisible")
+    state = ar.page.evaluate("window.daylit.debug.xrState()")
+    np.testing.assert_allclose(state["reticle"], hit, atol=1e-3)
+    assert np.hypot(hit[0] - 0.5, hit[2] - 1.0) > 20  # a precondition: a far tap
+
+    # The tap: a WebXR select (press and release of the controller's trigger).
+    ar.page.evaluate("window.__xr.controllers.right.updateButtonValue('trigger', 1)")
+    set_pose(ar.page, START)
+    ar.page.evaluate("window.__xr.controllers.right.updateButtonValue('trigger', 0)")
+    ar.wait(f"Math.abs(window.daylit.debug.xrState().alignment.position[2] - {hit[2]}) < 1e-3")
+    return ar, hit
+
+
+def visit_from(visit_page, hit, eye):
+    """Draw the visit from the AR eye's pose relative to the site placed at hit: (H, W, 4)."""
+    site_from_eye = np.linalg.inv(xremu.pose_m(hit, np.eye(3))) @ eye
+    visit_page.evaluate("([m, fov]) => window.daylit.debug.setCameraMatrix(m, fov)",
+                        [xremu.column_major(site_from_eye), float(np.degrees(xremu.FOVY_RAD))])
+    return screen(visit_page)
 
 
 def hall_pixels(ar_image: np.ndarray) -> np.ndarray:
@@ -72,33 +123,10 @@ def sky(reference):
     return reference.light_vector(SKY)
 
 
-def test_ar_places_the_hall_on_the_floor_and_holds_it(new_page, web_build, sky):
+def test_ar_places_the_hall_on_the_floor_and_holds_it(new_page, web_build, sky, reference):
     with StubServer(web_build) as server:
         server.push(light_message(sky, 1), remember=True)
-        ar = new_page(*SIZE)
-        ar.page.add_init_script(xremu.init_script())
-        ar.open(server.url + URL, READY)
-        relight(ar.page, sky)
-        assert ar.page.evaluate("navigator.xr.isSessionSupported('immersive-ar')")
-        button = ar.page.locator('[data-mode="ar"]')
-        assert button.is_visible()
-        button.click()
-        ar.wait("window.daylit.status.mode === 'ar' && window.daylit.debug.xrState().frames > 2")
-        state = ar.page.evaluate("window.daylit.debug.xrState()")
-        assert state["alignment"]["position"] == [0, 0, -10]  # nothing stored yet
-
-        start = set_pose(ar.page, START)
-        hit = xremu.floor_hit_m(start)
-        ar.wait("window.daylit.debug.xrState().reticleVisible")
-        state = ar.page.evaluate("window.daylit.debug.xrState()")
-        np.testing.assert_allclose(state["reticle"], hit, atol=1e-3)
-        assert np.hypot(hit[0] - 0.5, hit[2] - 1.0) > 20  # a precondition: a far tap
-
-        # The tap: a WebXR select (press and release of the controller's trigger).
-        ar.page.evaluate("window.__xr.controllers.right.updateButtonValue('trigger', 1)")
-        set_pose(ar.page, START)
-        ar.page.evaluate("window.__xr.controllers.right.updateButtonValue('trigger', 0)")
-        ar.wait(f"Math.abs(window.daylit.debug.xrState().alignment.position[2] - {hit[2]}) < 1e-3")
+        ar, hit = open_ar(new_page, server, sky)
         state = ar.page.evaluate("window.daylit.debug.xrState()")
         site = xremu.from_column_major(state["site"])
         np.testing.assert_allclose(site[:3, 3], hit, atol=1e-3)
@@ -106,8 +134,11 @@ def test_ar_places_the_hall_on_the_floor_and_holds_it(new_page, web_build, sky):
         stored = ar.page.evaluate("JSON.parse(localStorage.getItem('daylit.alignment.xr'))")
         np.testing.assert_allclose(stored["position"], hit, atol=1e-3)
 
+        # New light during the session (the stream's next vector): both pages relit with it.
+        sky2 = reference.light_vector(SKY2)
+        relight(ar.page, sky2, sequence=2)
         visit = new_page(*SIZE).open(server.url + URL, READY)
-        relight(visit.page, sky)
+        relight(visit.page, sky2)
         world_site = np.c_[SITE_POINTS_M + hit, np.ones(len(SITE_POINTS_M))]
         seen = []
         projection = xremu.perspective(xremu.FOVY_RAD, SIZE[0] / SIZE[1], 0.1, 2000)
@@ -129,11 +160,7 @@ def test_ar_places_the_hall_on_the_floor_and_holds_it(new_page, web_build, sky):
 
             # The same pose relative to the site, in the visit: the same hall, the same light.
             ar_image = screen(ar.page, render=False)
-            site_from_eye = np.linalg.inv(xremu.pose_m(hit, np.eye(3))) @ eye
-            visit.page.evaluate("([m, fov]) => window.daylit.debug.setCameraMatrix(m, fov)",
-                                [xremu.column_major(site_from_eye),
-                                 float(np.degrees(xremu.FOVY_RAD))])
-            visit_image = screen(visit.page)
+            visit_image = visit_from(visit.page, hit, eye)
             hall = hall_pixels(ar_image)
             assert hall.mean() > 0.05, hall.mean()  # a precondition: the hall is in view
             diff = np.abs(ar_image[..., :3].astype(int) - visit_image[..., :3].astype(int))[hall]
@@ -147,3 +174,24 @@ def test_ar_places_the_hall_on_the_floor_and_holds_it(new_page, web_build, sky):
         moved_px = np.ptp(np.array(seen), axis=0).max()
         assert moved_px > 30, moved_px  # a precondition: the poses move the hall on the screen
         assert not ar.errors and not visit.errors, ar.errors + visit.errors
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "the sun's shadow lookups (sun.glsl.js) take world positions and the maps are fitted to "
+    "the site at the world origin; AR moves the site (here 23 m): measured mean 19.6 codes, "
+    "99th percentile 127 over the hall (0.2 with the site tapped at the origin)"))
+def test_ar_sun_matches_the_visit(new_page, web_build, sky):
+    """With the sun, the AR frame equals the visit's from the same site-relative pose."""
+    sun = sun_of(SKY)
+    with StubServer(web_build) as server:
+        server.push(light_message(sky, 1), remember=True)
+        ar, hit = open_ar(new_page, server, sky, sun)
+        visit = new_page(*SIZE).open(server.url + URL, READY)
+        relight(visit.page, sky, sun)
+        pose = set_pose(ar.page, POSES[0])
+        ar_image = screen(ar.page, render=False)
+        visit_image = visit_from(visit.page, hit, xremu.left_eye_m(pose))
+        hall = hall_pixels(ar_image)
+        diff = np.abs(ar_image[..., :3].astype(int) - visit_image[..., :3].astype(int))[hall]
+        assert diff.mean() < 1.0 and np.percentile(diff, 99) <= 12, (
+            diff.mean(), np.percentile(diff, 99))
