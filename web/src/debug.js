@@ -62,9 +62,10 @@ export function debugApi(app) {
         return [(v.x + 1) / 2 * rect.width, (1 - v.y) / 2 * rect.height];
       });
     },
-    /** The displayed picture (after tone mapping and sRGB), RGBA8 as base64, rows from the top. */
-    screen() {
-      app.renderFrame();
+    /** The displayed picture (after tone mapping and sRGB), RGBA8 as base64, rows from the top;
+     * render false: the frame last drawn (in AR, the one the XR session's loop drew). */
+    screen(render = true) {
+      if (render) app.renderFrame();
       const gl = app.renderer.getContext();
       const w = gl.drawingBufferWidth;
       const h = gl.drawingBufferHeight;
@@ -145,6 +146,38 @@ export function debugApi(app) {
     setExposure: (e) => { app.fixedExposure = e; },
     /** The visit's camera: its distance to the orbit's target, metres (null outside the visit). */
     orbitDistanceM: () => (app.view?.controls ? app.camera.position.distanceTo(app.view.controls.target) : null),
+    /**
+     * Place the visit's camera by its world matrix (16 numbers, column-major, as three.js and
+     * WebXR write it) and vertical field of view (degrees): the pose an AR test computed.
+     */
+    setCameraMatrix(matrixWorld, fovDeg) {
+      app.view?.dispose?.();
+      app.view = null;
+      new THREE.Matrix4().fromArray(matrixWorld).decompose(app.camera.position, app.camera.quaternion, app.camera.scale);
+      app.camera.fov = fovDeg;
+      app.camera.updateProjectionMatrix();
+      app.camera.updateMatrixWorld();
+    },
+    /**
+     * The AR session as drawn: XR frames seen, the reticle (shown, world position, metres), the
+     * site's world matrix, and the first view's camera (world matrix and projection; the
+     * emulated device draws its left eye), all column-major 16-arrays in the session's
+     * local-floor space.
+     */
+    xrState() {
+      const view = app.view;
+      if (!view?.session) return null;
+      const eye = app.renderer.xr.getCamera().cameras[0];
+      app.site.root.updateMatrixWorld();
+      return {
+        frames: view.frames,
+        reticleVisible: view.reticle.visible,
+        reticle: new THREE.Vector3().setFromMatrixPosition(view.reticle.matrix).toArray(),
+        site: app.site.root.matrixWorld.toArray(),
+        alignment: view.alignment,
+        eye: eye ? { matrixWorld: eye.matrixWorld.toArray(), projection: eye.projectionMatrix.toArray() } : null,
+      };
+    },
     setCamera(position, target) {
       app.view?.dispose?.();
       app.view = null;

@@ -47,6 +47,7 @@ export class XRView {
     this.previousBackground = scene.background;
     scene.background = null; // the passthrough camera shows through
     this._touches = new Map();
+    this.frames = 0;
   }
 
   async init() {
@@ -113,7 +114,9 @@ export class XRView {
   }
 
   update(frame) {
-    if (!frame || !this.hitSource) return;
+    if (!frame) return;
+    this.frames += 1; // XR frames drawn (the tests wait on it)
+    if (!this.hitSource) return;
     const hits = frame.getHitTestResults(this.hitSource);
     if (hits.length) {
       const pose = hits[0].getPose(this.refSpace);

@@ -1,0 +1,148 @@
+"""The camera mode (the fallback without WebXR, iOS's) in headless Chromium: Chromium's fake
+camera plays a Y4M file this test writes (two known colours, left and right), the page gets
+dispatched ``deviceorientation`` events, and: the camera's picture is the background, and as
+the "phone" turns the hall stays fixed to the site, i.e. a site point's screen position is
+the one a pinhole camera turned by the W3C device-orientation angles puts it at (computed
+here from the W3C definition, not from the page), and the drawn hall moves on the screen by
+the homography of the inverse turn (issue 17)."""
+
+from __future__ import annotations
+
+import base64
+
+import cv2
+import numpy as np
+import pytest
+
+from tests.web.harness import CHROMIUM_FLAGS, SCREENSHOTS, StubServer, chromium_path
+from tests.web.kioskref import light_message
+from tests.web.xremu import perspective, project_px
+
+pytestmark = [pytest.mark.browser]
+
+SKY = "clear:135,40"
+SIZE = (640, 360)
+FOVY_DEG = 60.0  # the camera mode's field of view (camera-view.js)
+LEFT_RGB = (200, 80, 40)
+RIGHT_RGB = (40, 90, 200)
+READY = "window.daylit.status.ready && window.daylit.status.mode === 'camera'"
+SITE_POINTS_M = np.array([[0.0, 0.0, 0.0], [0.0, 4.0, 0.0], [6.0, 2.0, -4.0], [-8.0, 5.0, 2.0]])
+
+
+def write_y4m(path, size=SIZE, frames=2):
+    """A 4:2:0 Y4M of LEFT_RGB beside RIGHT_RGB, BT.709 limited range (Chromium's fake camera
+    reads the file as BT.709: written as BT.601, the colours came back 12 codes off)."""
+    w, h = size
+    rgb = np.zeros((h, w, 3), np.float64)
+    rgb[:, : w // 2] = np.array(LEFT_RGB) / 255
+    rgb[:, w // 2:] = np.array(RIGHT_RGB) / 255
+    r, g, b = rgb[..., 0], rgb[..., 1], rgb[..., 2]
+    luma = 0.2126 * r + 0.7152 * g + 0.0722 * b
+    y = 16 + 219 * luma
+    cb = 128 + 224 * (b - luma) / 1.8556
+    cr = 128 + 224 * (r - luma) / 1.5748
+    planes = [np.round(y), np.round(cb[::2, ::2]), np.round(cr[::2, ::2])]
+    frame = b"FRAME\n" + b"".join(p.astype(np.uint8).tobytes() for p in planes)
+    path.write_bytes(f"YUV4MPEG2 W{w} H{h} F30:1 Ip A1:1 C420jpeg\n".encode() + frame * frames)
+
+
+def device_rotation(alpha_deg, beta_deg, gamma_deg) -> np.ndarray:
+    """(3, 3) world-from-device in three.js's frame (x east, y up, z south): the W3C
+    orientation R = Rz(alpha) Rx(beta) Ry(gamma) in the earth frame (x east, y north, z up)."""
+    a, b, g = np.radians([alpha_deg, beta_deg, gamma_deg])
+    rz = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    rx = np.array([[1, 0, 0], [0, np.cos(b), -np.sin(b)], [0, np.sin(b), np.cos(b)]])
+    ry = np.array([[np.cos(g), 0, np.sin(g)], [0, 1, 0], [-np.sin(g), 0, np.cos(g)]])
+    earth_to_three = np.array([[1, 0, 0], [0, 0, 1], [0, -1, 0]])
+    return earth_to_three @ rz @ rx @ ry
+
+
+def orient(page, alpha, beta, gamma):
+    page.evaluate("""([alpha, beta, gamma]) => new Promise((done) => {
+      const angles = { alpha, beta, gamma, absolute: false };
+      dispatchEvent(new DeviceOrientationEvent('deviceorientation', angles));
+      requestAnimationFrame(() => requestAnimationFrame(done));
+    })""", [alpha, beta, gamma])
+
+
+def screen(page) -> np.ndarray:
+    s = page.evaluate("window.daylit.debug.screen()")
+    return np.frombuffer(base64.b64decode(s["data"]), np.uint8).reshape(s["height"], s["width"], 4)
+
+
+def not_camera(image: np.ndarray) -> np.ndarray:
+    """(H, W) bool: pixels far from both camera colours (the hall and its shadows)."""
+    rgb = image[..., :3].astype(int)
+    far = [np.abs(rgb - np.array(c)).max(axis=-1) > 40 for c in (LEFT_RGB, RIGHT_RGB)]
+    return far[0] & far[1]
+
+
+def test_camera_mode_shows_the_camera_and_holds_the_hall(browser, web_build, reference,
+                                                         tmp_path):
+    y4m = tmp_path / "pattern.y4m"
+    write_y4m(y4m)
+    sky = reference.light_vector(SKY)
+    flags = CHROMIUM_FLAGS + [f"--use-file-for-fake-video-capture={y4m}"]
+    with StubServer(web_build) as server:
+        server.push(light_message(sky, 1), remember=True)
+        camera_browser = browser.browser_type.launch(executable_path=chromium_path(),
+                                                     args=flags, headless=True)
+        try:
+            page = camera_browser.new_page(viewport={"width": SIZE[0], "height": SIZE[1]})
+            errors = []
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            page.goto(f"{server.url}/?mode=camera&test&exposure=0.1")
+            page.wait_for_function(READY, timeout=60000)
+            page.evaluate("(r) => window.daylit.debug.relight(r, 1)", sky.ravel().tolist())
+            assert page.evaluate("screen.orientation.angle") == 0  # the expectation assumes it
+            view = server.manifest["views"][0]["world_from_camera"]
+            standpoint = np.array([view[0][3], 1.6, view[2][3]])
+            # Facing the site's origin (alpha turns to the left, from north, -z).
+            alpha0 = float(np.degrees(np.arctan2(standpoint[0], standpoint[2])))
+            projection = perspective(np.radians(FOVY_DEG), SIZE[0] / SIZE[1], 0.1, 2000)
+            images, rotations = [], []
+            for alpha, beta, gamma in [(0, 90, 0), (12, 90, 0), (-10, 90, 0), (5, 80, 6)]:
+                orient(page, alpha0 + alpha, beta, gamma)
+                rot = device_rotation(alpha0 + alpha, beta, gamma)
+                pose = np.eye(4)
+                pose[:3, :3] = rot
+                pose[:3, 3] = standpoint
+                expected = project_px(SITE_POINTS_M, pose, projection, SIZE)
+                drawn = np.array(page.evaluate("(p) => window.daylit.debug.project(p)",
+                                               SITE_POINTS_M.tolist()))
+                np.testing.assert_allclose(drawn, expected, atol=0.5)
+                images.append(screen(page))
+                rotations.append(rot)
+            SCREENSHOTS.mkdir(parents=True, exist_ok=True)
+            cv2.imwrite(str(SCREENSHOTS / "camera-mode.png"),
+                        cv2.cvtColor(images[0], cv2.COLOR_RGBA2BGRA))
+
+            # The camera's picture is the background: the top corners (nothing of the site
+            # there) show the Y4M's two colours.
+            picks = page.evaluate("(p) => window.daylit.debug.pick(p)", [[20, 12], [620, 12]])
+            assert picks == [None, None], picks
+            for image in images[:3]:
+                np.testing.assert_allclose(image[12, 20, :3], LEFT_RGB, atol=8)
+                np.testing.assert_allclose(image[12, 620, :3], RIGHT_RGB, atol=8)
+
+            # The drawn hall moves as the inverse of the turn: first image warped by the
+            # homography K R2^T R1 K^-1 (camera axes) lands on the others.
+            f = SIZE[1] / 2 / np.tan(np.radians(FOVY_DEG) / 2)
+            k = np.array([[f, 0, SIZE[0] / 2], [0, f, SIZE[1] / 2], [0, 0, 1]])
+            flip = np.diag([1, -1, -1])  # three.js camera axes to image axes (y down, z ahead)
+            hall0 = not_camera(images[0])
+            assert 0.05 < hall0.mean() < 0.8, hall0.mean()  # a precondition: the hall in view
+            for image, rot in zip(images[1:], rotations[1:], strict=True):
+                rel = flip @ rot.T @ rotations[0] @ flip
+                h = k @ rel @ np.linalg.inv(k)
+                warped = cv2.warpPerspective(hall0.astype(np.uint8), h, SIZE,
+                                             flags=cv2.INTER_NEAREST).astype(bool)
+                inside = cv2.warpPerspective(np.ones(SIZE[::-1], np.uint8), h, SIZE,
+                                             flags=cv2.INTER_NEAREST).astype(bool)
+                hall = not_camera(image)
+                union = (warped | hall) & inside
+                iou = (warped & hall & inside).sum() / union.sum()
+                assert iou > 0.9, iou
+            assert not errors, errors
+        finally:
+            camera_browser.close()
