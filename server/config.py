@@ -161,7 +161,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "response": Key("srgb", "str", "inverse response of the site camera: srgb | linear | "
                         "gamma:G", pattern=r"^(srgb|linear|gamma:.+)$",
                         allowed="srgb, linear or gamma:G"),
-        "disagreement_factor": Key(1.4, "float", "with [sky] fuse_scene: /api/status warns "
+        "disagreement_factor": Key(1.3, "float", "with [sky] fuse_scene: /api/status warns "
                                    "when the sky camera's sky or sun irradiance and the scene "
                                    "estimate's differ by more than this factor (median of 10 "
                                    "frames)", 1.0, 100.0, True),

@@ -74,7 +74,7 @@ class SceneFusion:
     """
 
     def __init__(self, meter: SceneMeter, dome_vertices: np.ndarray,
-                 disagreement_factor: float = 1.4, max_age_s: float = 5.0,
+                 disagreement_factor: float = 1.3, max_age_s: float = 5.0,
                  rate_hz: float = 2.0):
         self.meter = meter
         self.projected_sr = projected_solid_angles_sr(dome_vertices)

@@ -48,7 +48,7 @@ class _Meter:
 
 
 def _fusion_with(sun_w_m2: float, sky_w_m2: float, observable: bool = True) -> SceneFusion:
-    fusion = SceneFusion(_Meter(), _dome(), disagreement_factor=1.4, max_age_s=5.0)
+    fusion = SceneFusion(_Meter(), _dome(), disagreement_factor=1.3, max_age_s=5.0)
     fusion.latest = SceneLight(np.full(3, sun_w_m2), np.full(3, sky_w_m2), 12,
                                np.array([0.0, 0.6, -0.8]), observable, 500, 0.9)
     fusion.latest_wall_s = 1000.0
@@ -188,7 +188,9 @@ async def test_a_clipped_sun_streams_the_scene_estimate(
     model = float(np.mean(SunPath(34.47, 135.82, 100.0).at(site_view.when_unix_s).dni_rgb_w_m2))
     assert abs(model / truth - 1.0) > 0.15
     # the two agree on the sky: no warning
-    assert 1 / 1.4 < fusion["sky_ratio"] < 1.4 and fusion["warning"] is None
+    # (the estimate's sky runs about 17 % low on this sky, its sun 4 % high: the
+    # circumsolar sky partly taken for the sun; docs/benchmarks.md)
+    assert 1 / 1.3 < fusion["sky_ratio"] < 1.3 and fusion["warning"] is None, fusion
     assert np.mean(fusion["sky_camera"]["sky_horizontal_irradiance_W_m2"]) == pytest.approx(
         110.0, rel=0.10)
     await ws.close()
@@ -202,8 +204,11 @@ async def test_a_drifting_sky_camera_is_reported(aiohttp_client, scene_build, tm
                                 and b["fusion"]["sky_ratio"] is not None
                                 and b["frames_measured"] >= 10)
     fusion = status["fusion"]
-    assert fusion["sky_ratio"] < 1 / 1.4, fusion
+    assert fusion["sky_ratio"] < 1 / 1.3, fusion
     assert "sky horizontal irradiance" in fusion["warning"], fusion
-    # the scene's estimate of the sky is unchanged: the drift is the sky camera's
+    # the scene's estimate of the sky is what it is without the drift (17 % low on this sky):
+    # the drift is the sky camera's
     assert np.mean(fusion["scene"]["sky_horizontal_irradiance_W_m2"]) == pytest.approx(
-        110.0, rel=0.15)
+        110.0, rel=0.20)
+    assert np.mean(fusion["sky_camera"]["sky_horizontal_irradiance_W_m2"]) == pytest.approx(
+        0.6 * 110.0, rel=0.10)
