@@ -212,3 +212,21 @@ async def test_a_drifting_sky_camera_is_reported(aiohttp_client, scene_build, tm
         110.0, rel=0.20)
     assert np.mean(fusion["sky_camera"]["sky_horizontal_irradiance_W_m2"]) == pytest.approx(
         0.6 * 110.0, rel=0.10)
+
+
+@pytest.mark.parametrize("fuse, why", [(True, "no fixed view"), (False, "fuse_scene = false")])
+def test_without_fusion_the_status_says_why(build_dir, tmp_path, fuse, why):
+    import cv2
+
+    from server.app import PIPELINE, create_app
+    from tests.server.helpers import settings_for
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    cv2.imwrite(str(frames / "a.png"), np.full((32, 32, 3), 128, np.uint8))
+    app = create_app(build_dir, settings_for(  # build_dir: a build without a fixed view
+        tmp_path, sky__source=f"replay:{frames}", site_camera__source=f"replay:{frames}",
+        sky__fuse_scene=fuse, occlusion__enabled=False))
+    pipeline = app[PIPELINE]
+    assert pipeline.fusion is None
+    assert why in pipeline.status()["fusion"]["off"]
