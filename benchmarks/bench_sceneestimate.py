@@ -13,6 +13,8 @@
   ``frames`` camera frames each (noise, JPEG 85), the estimate of the last frame of each
   stream against the truth: the sun's normal irradiance and the sky's horizontal irradiance
   (rtrace -I of the sky alone).
+- **The sky camera's measurement of the same skies** (:func:`sky_camera_errors`): a fisheye
+  of each gendaylit sky rendered by Radiance, one 8-bit frame through the server's sky meter.
 - **Accuracy vs samples**: the clear streams again at 100 ... 2000 samples per estimate.
 
 Run (about 5 minutes on the 2-core reference machine; pyradiance is a dev dependency)::
@@ -78,6 +80,41 @@ def stream_errors(site, rendered, samples: int, frames: int, seed: int) -> dict:
         "sun_rel_err": (e_sun / rendered.dni_w_m2 - 1.0) if rendered.dni_w_m2 > 0 else None,
         "sky_rel_err": e_sky / rendered.dhi_w_m2 - 1.0,
         "sun_over_sky": e_sun / max(e_sky, 1e-9), "sky_type": light.sky_type,
+    }
+
+
+def sky_camera_errors(name: str, hour: str, size_px: int = 256, dome_lights: int = 160) -> dict:
+    """The sky camera's measurement of the same sky: a zenith fisheye of the gendaylit sky
+    rendered by Radiance (``tests/radiance_frames.render_sky_camera``), one 8-bit sRGB frame
+    exposed so that the sky's 99th percentile is at 0.8 (the sun clips: the clear-sky model,
+    Linke turbidity 3, times the clear fraction), measured by the server's
+    :class:`server.measure.SkyMeter` over a ``dome_lights`` dome; the sky's horizontal
+    irradiance is its patch radiances times their projected solid angles."""
+    from bake.dome import Dome
+    from benchmarks.bench_fidelity import SkySpec
+    from server.fusion import projected_solid_angles_sr
+    from server.measure import Frame, SkyMeter
+    from server.photometry import Photometry
+    from server.sunmeter import SunMeter
+    from tests.radiance_frames import SITE, local_time, render_sky_camera, srgb_encode
+
+    dni, dhi = SKIES[name]
+    spec = SkySpec(name, 10, 15, hour, dni, dhi)
+    radiance, sky = render_sky_camera(spec, SITE, size_px)
+    exposure = 0.8 / float(np.percentile(radiance[radiance > 0], 99.0))
+    codes = np.round(srgb_encode(radiance * exposure) * 255.0).astype(np.uint8)
+    dome = Dome.for_light_count(dome_lights).vertices
+    meter = SkyMeter(dome, Photometry(exposure=exposure),
+                     sun=SunMeter(34.47, 135.82, 100.0))
+    when_s = local_time(spec, SITE["scene"]["timezone"])
+    m = meter.measure(Frame(codes, when_s, bgr=False, sky_time_s=when_s))
+    e_sky = float(np.mean(projected_solid_angles_sr(dome) @ m.radiance.astype(float)))
+    e_sun = float(np.mean(m.sun.normal_irradiance_w_m2))
+    truth_sun = sky.dni if sky.has_sun else 0.0
+    return {
+        "cam_sun_w_m2": e_sun, "cam_sun_source": m.sun.source.label,
+        "cam_sun_rel_err": (e_sun / truth_sun - 1.0) if truth_sun > 0 else None,
+        "cam_sky_w_m2": e_sky, "cam_sky_truth_w_m2": dhi, "cam_sky_rel_err": e_sky / dhi - 1.0,
     }
 
 
@@ -154,14 +191,19 @@ def main() -> None:
     result = {"timing": timing(site, rendered["clear", "12"], 500, args.repeats)}
     print(json.dumps(result["timing"], indent=1), flush=True)
     per_sky = []
-    for (name, hour), r in rendered.items():
-        e = stream_errors(site, r, 500, args.frames, seed=hash((name, hour)) % 1000)
+    for k, ((name, hour), r) in enumerate(rendered.items()):
+        # (a fixed seed per condition: until 2026-11-24 it was hash((name, hour)), which
+        # Python randomises per process, so runs differed in their camera noise and samples)
+        e = stream_errors(site, r, 500, args.frames, seed=100 + k)
+        e.update(sky_camera_errors(name, hour))
         per_sky.append({"sky": name, "hour": hour, **e})
         sun = "-" if e["sun_rel_err"] is None else f"{100 * e['sun_rel_err']:+.1f} %"
         print(f"{name:12s} {hour}: sun {e['sun_w_m2']:7.1f} (truth {e['sun_truth_w_m2']:6.1f}, "
               f"{sun}), sky {e['sky_w_m2']:6.1f} (truth {e['sky_truth_w_m2']:6.1f}, "
               f"{100 * e['sky_rel_err']:+.1f} %), sun/sky {e['sun_over_sky']:.3f}, CIE type "
-              f"{e['sky_type']}", flush=True)
+              f"{e['sky_type']}; sky camera: sun {e['cam_sun_w_m2']:7.1f} "
+              f"({e['cam_sun_source']}), sky {e['cam_sky_w_m2']:6.1f} (gendaylit DHI "
+              f"{e['cam_sky_truth_w_m2']:.0f}, {100 * e['cam_sky_rel_err']:+.1f} %)", flush=True)
     result["per_sky"] = per_sky
     vs_samples = []
     for n in SAMPLE_COUNTS:

@@ -9,7 +9,9 @@ fail, with a pause that doubles up to 30 s, so the server keeps going for days:
   site camera's frames go there too (:mod:`server.sources.scene`, :mod:`server.scenemeter`);
 - measuring (newest frame -> vector -> hub), and the stale-light watchdog;
 - the site camera, when configured, with occlusion by visitors on its frames
-  (:mod:`server.occlusionfeed`: a worker process, started with the site camera).
+  (:mod:`server.occlusionfeed`: a worker process, started with the site camera), and beside a
+  sky camera the scene estimate of its frames (:mod:`server.fusion`: the sun where the sky
+  camera clips it, and the two sources' disagreement).
 
 When the server stops (SIGTERM, Ctrl-C), ``on_shutdown`` closes every light stream with 1001
 and stops the background tasks before aiohttp closes the remaining connections, so the
@@ -37,6 +39,7 @@ from server.access import AccessPolicy
 from server.backoff import Backoff
 from server.config import ConfigError, Settings, SourceSpec, load_settings
 from server.fisheye import FisheyeCamera, load_calibration
+from server.fusion import SceneFusion
 from server.lightstream import LightHub
 from server.measure import SkyMeter
 from server.occlusionfeed import OcclusionConfig, OcclusionRunner
@@ -44,7 +47,7 @@ from server.photometry import Photometry, inverse_response_table
 from server.pipeline import LightPipeline
 from server.routes import add_client_routes
 from server.sceneestimate import SceneEstimateError
-from server.scenemeter import scene_meter_for_build
+from server.scenemeter import SceneMeter, scene_meter_for_build
 from server.simsky import SimulatedSky
 from server.sitecamera import SiteCameraFeed
 from server.sources import CameraSource, ReplaySource, SceneFrames, SimSource, Source
@@ -117,6 +120,22 @@ def make_sky_source(spec: SourceSpec, settings: Settings, scene: dict) -> Source
                         sky.reconnect_max_s)
 
 
+def make_scene_meter(settings: Settings, manifest: dict, build_dir: Path) -> SceneMeter:
+    """The meter that estimates the sun and sky from the site camera's frames
+    (:mod:`server.scenemeter`, ``[scene]`` settings); :class:`SceneEstimateError` or
+    ``ValueError`` when the build or the settings cannot support one."""
+    cfg = settings.scene
+    site = manifest["scene"]
+    inverse_response_table(cfg.response)
+    return scene_meter_for_build(
+        build_dir, manifest, cfg.view,
+        SunPath(site["latitude_deg"], site["longitude_deg"], site["elevation_m"],
+                settings.sun.linke_turbidity),
+        cfg.samples, response=cfg.response, radiance_per_unit=cfg.radiance_per_unit,
+        photometric_factor=tuple(cfg.photometric_factor),
+        saturation_level=settings.sky.saturation_level)
+
+
 def make_scene_source(settings: Settings, manifest: dict, build_dir: Path,
                       site_source: Source | None) -> SceneFrames:
     """``[sky] source = "scene"``: the site camera's frames and the meter that estimates the
@@ -124,20 +143,32 @@ def make_scene_source(settings: Settings, manifest: dict, build_dir: Path,
     if site_source is None:
         raise ConfigError("[sky] source = scene needs a site camera ([site_camera] source or "
                           "--site-camera)")
-    cfg = settings.scene
-    site = manifest["scene"]
     try:
-        inverse_response_table(cfg.response)
-        meter = scene_meter_for_build(
-            build_dir, manifest, cfg.view,
-            SunPath(site["latitude_deg"], site["longitude_deg"], site["elevation_m"],
-                    settings.sun.linke_turbidity),
-            cfg.samples, response=cfg.response, radiance_per_unit=cfg.radiance_per_unit,
-            photometric_factor=tuple(cfg.photometric_factor),
-            saturation_level=settings.sky.saturation_level)
+        meter = make_scene_meter(settings, manifest, build_dir)
     except (SceneEstimateError, ValueError) as exc:
         raise ConfigError(f"[sky] source = scene: {exc}") from None
     return SceneFrames(site_source, meter)
+
+
+def make_fusion(settings: Settings, manifest: dict, build_dir: Path, sky_kind: str,
+                has_site_camera: bool) -> tuple[SceneFusion | None, str]:
+    """The scene estimate beside a sky camera (``[sky] fuse_scene``), or None and why not."""
+    if not settings.sky.fuse_scene:
+        return None, "[sky] fuse_scene = false"
+    if sky_kind not in ("camera", "replay"):
+        return None, f"the sky source is {sky_kind}, not a sky camera"
+    if not has_site_camera:
+        return None, "no site camera"
+    try:
+        meter = make_scene_meter(settings, manifest, build_dir)
+    except SceneEstimateError as exc:  # e.g. no fixed view: the sky camera alone, as before
+        log.warning("no scene estimate beside the sky camera: %s", exc)
+        return None, str(exc)
+    except ValueError as exc:
+        raise ConfigError(f"[scene]: {exc}") from None
+    return SceneFusion(meter, manifest_io.dome_vertices(manifest),
+                       settings.scene.disagreement_factor, settings.sky.stale_after_s,
+                       settings.sky.rate_hz), ""
 
 
 def make_site_source(spec: SourceSpec, settings: Settings) -> Source:
@@ -260,8 +291,12 @@ def create_app(
         scene_frames = make_scene_source(settings, manifest, build_dir, site_source)
         sky_source = scene_frames
         meter = meter or scene_frames.meter
+    fusion: SceneFusion | None = None
+    fusion_off = "the sky source was given to create_app"
     if sky_source is None:
         sky_source = make_sky_source(settings.sky.source, settings, scene)
+        fusion, fusion_off = make_fusion(settings, manifest, build_dir,
+                                         settings.sky.source.kind, site_source is not None)
     simulated = sky_source.sim if isinstance(sky_source, SimSource) else None
     meter = meter or make_meter(settings, manifest, simulated)
 
@@ -311,10 +346,13 @@ def create_app(
                                    settings.site_camera.max_width, occlusion)
         if scene_frames is not None:
             site_feed.listeners.append(scene_frames.forward)
+        if fusion is not None:
+            site_feed.listeners.append(fusion.deliver)
     temporal = TemporalFilter(stream.smoothing_s, stream.change_threshold, stream.max_interval_s)
     solid_angles_sr = np.array([light["solid_angle_sr"] for light in manifest["dome"]["lights"]])
     pipeline = LightPipeline(meter, temporal, hub, sky_source, settings.sky.stale_after_s,
                              solid_angles_sr)
+    pipeline.fusion, pipeline.fusion_off = fusion, fusion_off
 
     app = web.Application()
     app[SETTINGS] = settings
@@ -344,6 +382,8 @@ async def background_tasks(app: web.Application):
     if feed is not None:
         supervisor.start("site camera", feed.run_source)
         supervisor.start("site camera encoder", feed.run_forever)
+    if pipeline.fusion is not None:
+        supervisor.start("scene estimate", pipeline.fusion.run_forever)
     yield
     await supervisor.stop()
     await app[HUB].close_all()  # already done by close_streams when the server shuts down

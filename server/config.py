@@ -93,6 +93,10 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "rate_hz": Key(2.0, "float", "frames per second of the simulated sky and of replays; "
                        "the most a camera is measured per second", 0.0, 120.0, True),
         "stale_after_s": Key(5.0, "float", "no frame for this long marks the light stale", 0.1),
+        "fuse_scene": Key(True, "bool", "with a sky camera (camera: or replay:) and a site "
+                          "camera: the sun estimated from the site camera's view of the scene "
+                          "where the sky camera clips it, and the two compared in /api/status "
+                          "(docs/server.md, \"Fusion\"); needs a fixed view in the build"),
         "reconnect_min_s": Key(1.0, "float", "first wait before reopening a camera", 0.01),
         "reconnect_max_s": Key(30.0, "float", "longest wait between reopening attempts", 0.01),
         "calibration": Key("", "str", "calibration JSON from `daylit calibrate` (intrinsics "
@@ -145,8 +149,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "seed": Key(0, "int", "cloud pattern", 0),
     },
     "scene": {
-        "view": Key("", "str", "with [sky] source = scene: the build's fixed view the site "
-                    "camera is calibrated to; empty: the first"),
+        "view": Key("", "str", "with [sky] source = scene or fuse_scene: the build's fixed "
+                    "view the site camera is calibrated to; empty: the first"),
         "samples": Key(500, "int", "surface pixels per estimate (Jensen et al. 2006 use 500)",
                        20, 100000),
         "radiance_per_unit": Key(1.0, "float", "W/(m^2 sr) that a linear pixel value of 1 "
@@ -157,6 +161,10 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "response": Key("srgb", "str", "inverse response of the site camera: srgb | linear | "
                         "gamma:G", pattern=r"^(srgb|linear|gamma:.+)$",
                         allowed="srgb, linear or gamma:G"),
+        "disagreement_factor": Key(1.3, "float", "with [sky] fuse_scene: /api/status warns "
+                                   "when the sky camera's sky or sun irradiance and the scene "
+                                   "estimate's differ by more than this factor (median of 10 "
+                                   "frames)", 1.0, 100.0, True),
     },
     "site_camera": {
         "source": Key("", "source", "kiosk camera: camera:INDEX_OR_URL | replay:PATH; empty: "

@@ -15,7 +15,9 @@ size's frames from when the matrix is ready. The very first frame's matrix is bu
 
 With a sun meter, each vector is published with the sun (docs/sun.md): version-2 clients get
 the sky without the disc and the sun apart (direction, smoothed normal irradiance, source;
-SUN_ESTIMATED when it is the clear-sky model's or the scene's estimate), version-1 clients the
+SUN_ESTIMATED when it is the clear-sky model's or the scene's estimate; with a
+:class:`server.fusion.SceneFusion`, the scene's sun replaces the model's where the sky camera
+clipped it), version-1 clients the
 sky with the sun's irradiance folded back into the patch that holds its direction
 (``r_p += E / omega_p``).
 """
@@ -95,6 +97,8 @@ class LightPipeline:
         self.source_error = ""  # why the source's task last failed ("" if it has not)
         self._source_failed_s: float | None = None
         self.started_s = time.time()
+        self.fusion = None  # a server.fusion.SceneFusion beside a sky camera, or None
+        self.fusion_off = ""  # why there is none
 
     # ------------------------------------------------------------------------------- input
 
@@ -179,6 +183,8 @@ class LightPipeline:
     def accept(self, frame: Frame, m: Measurement) -> None:
         """Fold one measurement in and publish if it changed enough (or flags changed)."""
         now = time.time()
+        if self.fusion is not None:  # the scene's sun where the sky camera clipped it
+            m = self.fusion.fuse(m, now)
         self.latest_frame = frame
         self.latest_measurement = m
         self.last_frame_wall_s = now
@@ -306,6 +312,8 @@ class LightPipeline:
             "measure_ms": round(float(np.median(self.measure_ms)), 3) if self.measure_ms
             else None,
             "sun": self.sun_status(),
+            "fusion": {"off": self.fusion_off or "not configured"} if self.fusion is None
+            else self.fusion.status(),
             **self.source.status(),
             "connected": connected and bool(self.source.status().get("connected", True)),
             "last_error": self.last_error() or None,

@@ -22,7 +22,7 @@ import numpy as np
 import trimesh
 
 from daylit.sky import patch_mean_radiance
-from daylit.sun import SunPath, SunSource
+from daylit.sun import ClearSun, SunPath, SunSource
 from server.measure import Frame, FrameError, Measurement
 from server.photometry import inverse_response_table
 from server.sceneestimate import (
@@ -149,9 +149,9 @@ class SceneMeter:
                                interpolation=cv2.INTER_AREA)
         return image, to_linear, clip
 
-    def measure(self, frame: Frame) -> Measurement:
-        """One frame's light vector; :class:`FrameError` for frames that cannot be used."""
-        t0 = time.perf_counter()
+    def estimate(self, frame: Frame) -> tuple[SceneLight, ClearSun]:
+        """One frame's sun and sky (kept as ``latest``), and the sun's position at the frame's
+        time; :class:`FrameError` for frames that cannot be used."""
         image, to_linear, clip = self.pixels(frame)
         when_s = frame.capture_time_s if frame.sky_time_s is None else frame.sky_time_s
         sun = self.sun_path.at(when_s)
@@ -163,6 +163,12 @@ class SceneMeter:
             raise FrameError(str(exc)) from None
         self.latest = light
         self.estimates += 1
+        return light, sun
+
+    def measure(self, frame: Frame) -> Measurement:
+        """One frame's light vector; :class:`FrameError` for frames that cannot be used."""
+        t0 = time.perf_counter()
+        light, sun = self.estimate(frame)
         radiance = patch_mean_radiance(light.sky(), self.dome_vertices, samples_per_side=4,
                                        include_sun=False).astype(np.float32)
         if sun.apparent_elevation_deg > 0.0:

@@ -257,7 +257,7 @@ class CloudySky(Sky):
         return out
 
 
-def _hemisphere_grid(zenith_steps: int = 90, azimuth_steps: int = 180):
+def hemisphere_grid(zenith_steps: int = 90, azimuth_steps: int = 180):
     """Directions (m, 3) and weights ``cos(zenith) dOmega`` (m,) of a midpoint grid over the
     upper hemisphere (the weights add up to pi)."""
     dz = (math.pi / 2) / zenith_steps
@@ -270,7 +270,7 @@ def _hemisphere_grid(zenith_steps: int = 90, azimuth_steps: int = 180):
     return dirs.reshape(-1, 3), weight.ravel()
 
 
-_HEMISPHERE = _hemisphere_grid()
+_HEMISPHERE = hemisphere_grid()
 
 
 def diffuse_horizontal_irradiance(sky: Sky, rgb: bool = False):

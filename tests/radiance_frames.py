@@ -26,6 +26,7 @@ import numpy as np
 import trimesh
 
 from benchmarks.bench_fidelity import (
+    Sky,
     SkySpec,
     gendaylit,
     material,
@@ -255,3 +256,60 @@ def render_build_view(build_dir: Path, spec: SkySpec, width: int, height: int,
         dhi = float(rtrace(sky_only, up, SKY_IRRADIANCE, env).mean())
     when = local_time(spec, manifest["scene"]["timezone"])
     return RenderedSky(image, np.zeros_like(image), sky.dni, dhi, sky.sun_dir, when), view
+
+
+def render_sky_camera(spec: SkySpec, site: dict, size_px: int = 256) -> tuple[np.ndarray,
+                                                                               Sky]:
+    """What a zenith-pointing fisheye sky camera (the ideal 180-degree equidistant lens the
+    server assumes without a calibration, north up) sees of one gendaylit sky: radiance
+    (size_px, size_px, 3) W/(m^2 sr), 0 outside the image circle. The sky is Radiance's
+    (rtrace of the gendaylit sky function at every pixel centre); the sun, much smaller than
+    a pixel, is added to the pixel that holds its direction as its whole energy over that
+    pixel's solid angle (what a pixel integrating the disc reads, far above any clip level).
+    ``site``: ``{"scene": {latitude_deg, longitude_deg, timezone}}``."""
+    from server.fisheye import FisheyeCamera
+
+    _, env = radiance_env()
+    sky = gendaylit(spec, site, env)
+    camera = FisheyeCamera.equidistant(size_px, size_px, 180.0)
+    pixels = camera.pixel_grid()
+    dirs, seen = camera.unproject(pixels)
+    seen &= dirs[:, 1] > 0.0
+    origins = np.zeros((int(seen.sum()), 3))
+    rays = np.hstack([origins, to_radiance(dirs[seen])])
+    image = np.zeros((size_px * size_px, 3))
+    with tempfile.TemporaryDirectory(prefix="daylit-radiance-") as tmp:
+        work = Path(tmp)
+        (work / "sky.rad").write_text(sky_rad(sky.skyfunc))
+        octree = oconv(work / "sky.oct", [work / "sky.rad"], env)
+        image[seen] = rtrace(octree, rays, ["-ab", "0"], env, irradiance=False)
+    image = image.reshape(size_px, size_px, 3)
+    if sky.has_sun:
+        px, ok = camera.project(sky.sun_dir[None, :])
+        if ok[0]:
+            u, v = np.round(px[0]).astype(int)
+            c = np.array([[u, v]], float)
+            du = camera.unproject(c + [0.5, 0.0])[0] - camera.unproject(c - [0.5, 0.0])[0]
+            dv = camera.unproject(c + [0.0, 0.5])[0] - camera.unproject(c - [0.0, 0.5])[0]
+            omega_sr = float(np.linalg.norm(np.cross(du, dv)))
+            image[v, u] += sky.dni / omega_sr
+    return image, sky
+
+
+def write_sky_bracket(folder: Path, radiance: np.ndarray, when_unix_s: float,
+                      exposures_s=(0.001, 0.005), utc_offset_h: float = 9.0) -> None:
+    """A bracket folder (server.brackets) of 8-bit sRGB PNGs of ``radiance`` (H, W, 3) at
+    ``exposures_s`` with a camera of linear value 1 per W/(m^2 sr) in 1 s (``[sky] exposure =
+    1``), and its ``bracket.json`` with the sky's time."""
+    import datetime as dt
+    import json
+
+    folder.mkdir(parents=True, exist_ok=True)
+    names = {}
+    for k, t in enumerate(exposures_s):
+        codes = np.round(srgb_encode(radiance * t) * 255.0).astype(np.uint8)
+        cv2.imwrite(str(folder / f"{k}.png"), codes[:, :, ::-1])
+        names[f"{k}.png"] = t
+    tz = dt.timezone(dt.timedelta(hours=utc_offset_h))
+    when = dt.datetime.fromtimestamp(when_unix_s, tz).isoformat()
+    (folder / "bracket.json").write_text(json.dumps({"exposure_s": names, "time": when}))

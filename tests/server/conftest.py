@@ -1,4 +1,5 @@
-"""Shared fixtures for the light server's tests: a minimal, schema-valid build directory."""
+"""Shared fixtures for the light server's tests: a minimal, schema-valid build directory, and a
+small baked site for the scene estimate's tests."""
 
 from __future__ import annotations
 
@@ -67,3 +68,33 @@ def build_dir(tmp_path) -> Path:
 @pytest.fixture(scope="session")
 def dome160() -> np.ndarray:
     return Dome.for_light_count(160).vertices
+
+
+@pytest.fixture(scope="session")
+def scene_build(tmp_path_factory) -> Path:
+    """A real building (8 x 5 x 6 m, albedo 0.55/0.45/0.35) and wall, a small virtual box out
+    of the way, a kiosk view from the north; 40 lights at draft quality (seconds). For the
+    scene estimate's server tests (test_scene_source, test_fusion)."""
+    from bake.pipeline import bake
+    from tests.sites import box, make_site, real_box
+
+    root = tmp_path_factory.mktemp("scene")
+    scene = make_site(
+        root / "scene",
+        virtual=[("sign", box([1.0, 1.0, 1.0], [10.0, 0.0, 12.0]), (0.5, 0.5, 0.5))],
+        real=real_box("building", (8.0, 5.0, 6.0), (0.0, 0.0, 0.0), (0.55, 0.45, 0.35))
+        + real_box("wall", (0.4, 2.0, 9.0), (-8.0, 0.0, -6.0), (0.40, 0.42, 0.45)),
+        views="""
+            [[view]]
+            name = "kiosk"
+            width = 320
+            height = 180
+            fov_y_deg = 45.0
+            position_m = [3.0, 7.0, -24.0]
+            look_at_m = [0.0, 0.5, -3.0]
+            """,
+        ground_m=60.0,
+        ground_albedo=(0.22, 0.20, 0.18),
+    )
+    bake(scene, root / "build", progress=False, log=lambda msg: None)
+    return root / "build"

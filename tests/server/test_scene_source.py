@@ -10,7 +10,6 @@ SUN_ESTIMATED flag, and ``/api/status`` shows the estimate against the render's 
 from __future__ import annotations
 
 import datetime as dt
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -30,35 +29,6 @@ def write_exr(path, rgb: np.ndarray, when_unix_s: float, utc_offset_h: float = 9
               "utcOffset": -utc_offset_h * 3600.0}
     with OpenEXR.File(header, channels) as f:
         f.write(str(path))
-
-
-@pytest.fixture(scope="module")
-def scene_build(tmp_path_factory) -> Path:
-    """A real building (8 x 5 x 6 m, albedo 0.55/0.45/0.35) and wall, a small virtual box out
-    of the way, a kiosk view from the north; 40 lights at draft quality (seconds)."""
-    from bake.pipeline import bake
-    from tests.sites import box, make_site, real_box
-
-    root = tmp_path_factory.mktemp("scene")
-    scene = make_site(
-        root / "scene",
-        virtual=[("sign", box([1.0, 1.0, 1.0], [10.0, 0.0, 12.0]), (0.5, 0.5, 0.5))],
-        real=real_box("building", (8.0, 5.0, 6.0), (0.0, 0.0, 0.0), (0.55, 0.45, 0.35))
-        + real_box("wall", (0.4, 2.0, 9.0), (-8.0, 0.0, -6.0), (0.40, 0.42, 0.45)),
-        views="""
-            [[view]]
-            name = "kiosk"
-            width = 320
-            height = 180
-            fov_y_deg = 45.0
-            position_m = [3.0, 7.0, -24.0]
-            look_at_m = [0.0, 0.5, -3.0]
-            """,
-        ground_m=60.0,
-        ground_albedo=(0.22, 0.20, 0.18),
-    )
-    bake(scene, root / "build", progress=False, log=lambda msg: None)
-    return root / "build"
 
 
 @pytest.mark.slow
