@@ -58,11 +58,16 @@ def device_rotation(alpha_deg, beta_deg, gamma_deg) -> np.ndarray:
 
 
 def orient(page, alpha, beta, gamma):
-    page.evaluate("""([alpha, beta, gamma]) => new Promise((done) => {
+    """Turn the "phone": the event is sent again until the camera view has read it (its
+    listener may still be on its way in on a loaded machine), then two frames are drawn."""
+    page.wait_for_function("""([alpha, beta, gamma]) => {
       const angles = { alpha, beta, gamma, absolute: false };
       dispatchEvent(new DeviceOrientationEvent('deviceorientation', angles));
-      requestAnimationFrame(() => requestAnimationFrame(done));
-    })""", [alpha, beta, gamma])
+      const o = window.daylit.debug.cameraOrientation();
+      return o !== null && o.alpha === alpha && o.beta === beta && o.gamma === gamma;
+    }""", arg=[alpha, beta, gamma], timeout=30000, polling=100)
+    page.evaluate("""() => new Promise((done) =>
+      requestAnimationFrame(() => requestAnimationFrame(done)))""")
 
 
 def screen(page) -> np.ndarray:

@@ -150,7 +150,7 @@ export class App {
         if (this.site.sky) this.scene.add(this.site.sky);
         this.sunShadows = new SunShadows(this.renderer, this.scene,
           { virtual: this.site.nodes.virtual, real: this.site.nodes.real }, this.site.sun,
-          { groundY: this.site.groundY });
+          { groundY: this.site.groundY, siteRoot: this.site.root });
         this.sunShadows.setMaterials(this.site.sunMaterials());
         await this._enterMode(this.mode);
       }
@@ -396,6 +396,7 @@ export class App {
       return;
     }
     this.view?.update(xrFrame);
+    this.sunShadows?.follow(); // AR places and turns the site: the sun's uniforms follow it
     renderer.setClearColor(0x000000, this.mode === 'ar' ? 0 : 1);
     renderer.render(this.scene, this.camera);
   }

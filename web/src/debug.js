@@ -144,6 +144,12 @@ export function debugApi(app) {
     /** Force the kiosk to pick a frame now (tests step it without waiting for rAF). */
     kioskTick: () => app.kiosk.render({ exposure: app.exposure, strength: 1 }),
     setExposure: (e) => { app.fixedExposure = e; },
+    /** The camera mode's last device orientation read ({alpha, beta, gamma} degrees; null
+     * before the first event or outside the camera mode). */
+    cameraOrientation: () => {
+      const o = app.view?.orientation;
+      return o ? { alpha: o.alpha, beta: o.beta, gamma: o.gamma } : null;
+    },
     /** The visit's camera: its distance to the orbit's target, metres (null outside the visit). */
     orbitDistanceM: () => (app.view?.controls ? app.camera.position.distanceTo(app.view.controls.target) : null),
     /**

@@ -202,22 +202,22 @@ export class SunShadows {
    * @param {THREE.Scene} scene the scene holding the casters
    * @param {{virtual: THREE.Mesh[], real: THREE.Mesh[]}} casters
    * @param {object} uniforms from sunUniforms(), shared with the materials
-   * @param {{groundY?: number}} [options] height of the flat ground (m), whose visibility the
-   *   materials with SUN_GROUND 1 read
+   * @param {{groundY?: number, siteRoot?: THREE.Object3D}} [options] height of the flat ground
+   *   (m), whose visibility the materials with SUN_GROUND 1 read; the object that places the
+   *   site in the world (AR moves and turns it; a child of the scene): the maps are rendered in
+   *   the site's own frame and the materials' uniforms follow the placement (follow())
    */
-  constructor(renderer, scene, casters, uniforms, { groundY = 0 } = {}) {
+  constructor(renderer, scene, casters, uniforms, { groundY = 0, siteRoot = null } = {}) {
     this.renderer = renderer;
     this.scene = scene;
     this.uniforms = uniforms;
+    this.siteRoot = siteRoot;
+    this._placement = null; // the site's placement the uniforms were last set for
     this.maps = {};
-    this.boxes = {};
     for (const [set, meshes] of Object.entries(casters)) for (const m of meshes) m.layers.enable(LAYER[set]);
-    const sets = { all: [...casters.virtual, ...casters.real], real: casters.real };
-    for (const [set, meshes] of Object.entries(sets)) {
-      const box = new THREE.Box3();
-      for (const m of meshes) box.expandByObject(m);
-      if (box.isEmpty()) continue;
-      this.boxes[set] = box;
+    this.casterSets = { all: [...casters.virtual, ...casters.real], real: casters.real };
+    this.boxes = this._boxes();
+    for (const set of Object.keys(this.boxes)) {
       this.maps[set] = new ShadowMap(set === 'all' ? [LAYER.virtual, LAYER.real] : [LAYER.real], groundY);
     }
     this.on = null; // whether the materials are compiled with the sun (SUN 1)
@@ -243,10 +243,47 @@ export class SunShadows {
     this._compileWithSun(on);
     if (!on) return;
     s.normalize();
-    u.sunDirection.value.copy(s);
-    if (this.direction && this.direction.dot(s) > RERENDER_COS) return;
-    this.direction = s;
-    this.render();
+    if (!this.direction || this.direction.dot(s) <= RERENDER_COS) {
+      this.direction = s;
+      this.render();
+    }
+    this._sunDirectionSite = s;
+    this._placement = null;
+    this.follow();
+  }
+
+  /**
+   * Keep the materials' sun uniforms on the site where it is placed in the world (call before
+   * each frame): the maps are in the site's frame, the materials read world positions and
+   * normals, so their matrices are the maps' times site-from-world and the sun's direction
+   * is turned by the placement. Costs nothing while the placement stays.
+   */
+  follow() {
+    const u = this.uniforms;
+    if (!this._sunDirectionSite) return;
+    const worldFromSite = new THREE.Matrix4();
+    if (this.siteRoot) {
+      this.siteRoot.updateMatrix();
+      worldFromSite.copy(this.siteRoot.matrix);
+    }
+    if (this._placement?.equals(worldFromSite)) return;
+    this._placement = worldFromSite;
+    const siteFromWorld = worldFromSite.clone().invert();
+    for (const [set, map] of Object.entries(this.maps)) {
+      u[`sunMatrix${set === 'all' ? 'A' : 'R'}`].value.multiplyMatrices(map.matrix, siteFromWorld);
+    }
+    u.sunDirection.value.copy(this._sunDirectionSite).transformDirection(worldFromSite);
+  }
+
+  /** Each caster set's bounding box (world), for the sets that hold any mesh. */
+  _boxes() {
+    const boxes = {};
+    for (const [set, meshes] of Object.entries(this.casterSets)) {
+      const box = new THREE.Box3();
+      for (const m of meshes) box.expandByObject(m);
+      if (!box.isEmpty()) boxes[set] = box;
+    }
+    return boxes;
   }
 
   /** The materials that draw the sun: compiled with SUN 0 while there is none (night, a
@@ -267,7 +304,20 @@ export class SunShadows {
 
   render() {
     const { renderer, scene, uniforms } = this;
-    const saved = { target: renderer.getRenderTarget(), override: scene.overrideMaterial, auto: scene.matrixWorldAutoUpdate };
+    const saved = { target: renderer.getRenderTarget(), override: scene.overrideMaterial, auto: scene.matrixWorldAutoUpdate, xr: renderer.xr.enabled };
+    // The maps are drawn in the site's own frame: the site put back at the origin meanwhile,
+    // and with the renderer's XR off (while a session presents, three.js draws every render
+    // with the XR camera, not the sun's).
+    const root = this.siteRoot;
+    const placed = root && { p: root.position.clone(), q: root.quaternion.clone(), s: root.scale.clone() };
+    if (placed) {
+      root.position.set(0, 0, 0);
+      root.quaternion.identity();
+      root.scale.set(1, 1, 1);
+      root.updateMatrixWorld(true);
+      for (const [set, box] of Object.entries(this._boxes())) this.boxes[set] = box;
+    }
+    renderer.xr.enabled = false;
     scene.overrideMaterial = this.depthPass;
     this.depthPass.uniforms.toSun.value.copy(this.direction);
     for (const [set, map] of Object.entries(this.maps)) {
@@ -286,6 +336,14 @@ export class SunShadows {
     }
     scene.overrideMaterial = saved.override;
     renderer.setRenderTarget(saved.target);
+    renderer.xr.enabled = saved.xr;
+    if (placed) {
+      root.position.copy(placed.p);
+      root.quaternion.copy(placed.q);
+      root.scale.copy(placed.s);
+      root.updateMatrixWorld(true);
+    }
+    this._placement = null; // the materials' matrices: follow() sets them for the placement
     this.renders += 1;
   }
 
