@@ -3,6 +3,7 @@
 import * as THREE from 'three';
 import { AssetError, Assets } from './assets.js';
 import { CameraView } from './camera-view.js';
+import { HdrFrame } from './hdr.js';
 import { Hud, insecureReason } from './hud.js';
 import { IrradianceTargets } from './irradiance.js';
 import { Kiosk } from './kiosk.js';
@@ -33,6 +34,10 @@ export class App {
     if (!['kiosk', 'visit', 'camera', 'ar'].includes(this.mode)) this.mode = 'visit';
     this.testing = params.has('test');
     this.fixedExposure = params.has('exposure') ? Number(params.get('exposure')) : null;
+    // ?targets=rgbe: a GPU without half-float targets (RGBA8 relight targets, the frame drawn
+    // straight to the screen); ?frame=direct: only the latter. For tests and the benchmark.
+    this.forceRgbe = params.get('targets') === 'rgbe';
+    this.linearFrame = params.get('frame') !== 'direct' && !this.forceRgbe;
     this.smoothingS = Number(params.get('smoothing') ?? 0);
     this.shadingOn = true;
     // Kakuta's two ways to shade the virtual objects; `?shading=hull` starts with hull planes.
@@ -79,6 +84,7 @@ export class App {
     renderer.toneMapping = THREE.NeutralToneMapping;
     renderer.toneMappingExposure = 1;
     this.renderer = renderer;
+    this.hdrSupported = HdrFrame.supported(renderer);
     this.camera = new THREE.PerspectiveCamera(50, 1, 0.1, 2000);
     this.scene = new THREE.Scene();
     this._resize();
@@ -127,7 +133,7 @@ export class App {
       // are the largest download of a phone).
       this._hullStacks = stacks.filter((key) => key.startsWith('hull.'));
       this.relighter = new Relighter(this.renderer, this.assets,
-        { stacks, deferred: this._hullStacks, views: kiosk, dome: !kiosk });
+        { stacks, deferred: this._hullStacks, views: kiosk, dome: !kiosk, rgbe: this.forceRgbe });
       // The kiosk needs the model too, for the sun's shadows in its view (kiosksun.js).
       const [gltf] = await Promise.all([
         this.assets.gltf(manifest.model.path),
@@ -193,6 +199,8 @@ export class App {
     this.sunBounceDrawn = null;
     this.irradiance?.dispose();
     this.irradiance = null;
+    this.hdr?.dispose();
+    this.hdr = null;
     this.kiosk?.dispose();
     this.kiosk = null;
     this.relighter?.dispose();
@@ -397,7 +405,16 @@ export class App {
     }
     this.view?.update(xrFrame);
     renderer.setClearColor(0x000000, this.mode === 'ar' ? 0 : 1);
-    renderer.render(this.scene, this.camera);
+    // Linear HDR, then one display pass (hdr.js); AR's passthrough and GPUs without half-float
+    // targets draw straight to the screen (the shadowing planes' approximate fallback).
+    const linear = this.mode !== 'ar' && !renderer.xr.isPresenting && this.hdrSupported && this.linearFrame;
+    this.site?.setLinearFrame(linear);
+    if (linear) {
+      this.hdr ??= new HdrFrame(renderer);
+      this.hdr.render(this.scene, this.camera, this.site?.view !== 'overlay');
+    } else {
+      renderer.render(this.scene, this.camera);
+    }
   }
 }
 

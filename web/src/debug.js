@@ -104,6 +104,8 @@ export function debugApi(app) {
       gpuBytes: app.sunShadows?.gpuBytes ?? 0,
     }),
     targets: () => Object.keys(app.relighter.targets),
+    /** The relight targets' format (relight.js targetFormat) and whether the frame is linear HDR. */
+    formats: () => ({ rgbe: app.relighter.format.rgbe, linearFrame: !!app.site?.shared.linearOut.value }),
     /** The applied light vector and one target read back in the same instant. */
     snapshot(key) {
       const applied = app.relighter.applied;

@@ -36,6 +36,7 @@ export class Site {
       flatIrradiance: { value: new THREE.Vector3(1, 1, 1) },
       openIrradiance: { value: new THREE.Vector3(1, 1, 1) },
       L: { value: Array.from({ length: 9 }, () => new THREE.Vector3()) },
+      linearOut: { value: 0 }, // 1: drawn into the linear HDR frame (hdr.js; setLinearFrame)
     };
     // The sun (sun.js): direction, irradiance and shadow maps, shared by every material.
     this.sun = sunUniforms();
@@ -153,6 +154,7 @@ export class Site {
       uniforms: {
         ...this.sun, withTex: { value: withTex }, withoutTex: { value: withoutTex }, strength: this.shared.strength,
         brighten: { value: brighten }, alphaOut: { value: alphaOut }, dHasReal: { value: dHasReal },
+        linearOut: alphaOut ? { value: 0 } : this.shared.linearOut,
       },
       vertexShader: uvVertex, fragmentShader: shadowPlaneFragment(decode), defines: { ...defines },
       transparent: true, depthWrite: false, side: THREE.DoubleSide,
@@ -201,13 +203,28 @@ export class Site {
       // the synthesized real surface.
       m.visible = !(visit && wall);
       m.material = visit ? m.userData.receiverMaterial : shadowMaterial(m);
-      m.userData.brightMesh.visible = !visit;
     }
     for (const m of this.nodes.hull) {
       m.visible = shading === 'hull';
       m.material = shadowMaterial(m);
     }
+    this._showBrightening();
     if (this.sky) this.sky.visible = visit;
+  }
+
+  /**
+   * Whether the frame is drawn in linear HDR (hdr.js): the shadowing planes then multiply by
+   * their ratio there, ratio > 1 included, and the additive brightening draws are hidden.
+   */
+  setLinearFrame(on) {
+    this.shared.linearOut.value = on ? 1 : 0;
+    this._showBrightening();
+  }
+
+  _showBrightening() {
+    const direct = this.shared.linearOut.value < 0.5;
+    for (const m of this.nodes.plane) m.userData.brightMesh.visible = direct && this.view !== 'visit';
+    for (const m of this.nodes.hull) m.userData.brightMesh.visible = direct;
   }
 
   /** New light: the uniforms that come from r directly (SH9, open sky). The sun's come from
