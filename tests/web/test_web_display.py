@@ -174,3 +174,76 @@ def test_rgbe_targets_match_half_float(new_page, sun_build, sun_reference):
         negatives += int(strong.sum())
         assert (rgbe[strong] < 0).all(), key
     assert negatives > 0  # the site's targets have negative texels for this to check
+
+
+def meter_level(ground_irradiance, albedo):
+    """The documented meter (docs/web.md, Exposure), written here from Krawczyk, Myszkowski &
+    Seidel 2005 Eq. 11: the open ground's display level for its irradiance (RGB W/m^2)."""
+    luma = np.array([0.2126, 0.7152, 0.0722])
+    radiance = float(luma @ (albedo * ground_irradiance)) / math.pi
+
+    def key(lv):
+        return 1.03 - 2.0 / (2.0 + math.log10(lv + 1.0))
+    return 0.18 * max(key(110.0 * radiance), 0.0) / key(3000.0), radiance
+
+
+def skies(build):
+    """Clear noon (sun 60 degrees up), an overcast noon (CIE overcast, 60 W/m^2 sr at the
+    zenith: ~150 W/m^2 on the ground) and dusk (the clear sky with the sun 1 degree up, dimmed
+    to a fiftieth: ~2 W/m^2, about 200 lux): sky vectors and suns."""
+    from daylit import sky as model
+
+    def clear(azimuth_deg, elevation_deg, scale):
+        c = model.clear_sky(azimuth_deg, elevation_deg)
+        r = model.patch_mean_radiance(c, build.dome_vertices, include_sun=False) * scale
+        s = model.direction_from_azimuth_elevation(azimuth_deg, elevation_deg)
+        dni = c.sun.normal_irradiance * scale
+        return r, {"direction": s.tolist(), "normalIrradiance": dni.tolist()}
+
+    overcast = model.patch_mean_radiance(model.overcast_sky(60.0), build.dome_vertices)
+    return {"clear noon": clear(180.0, 60.0, 1.0), "overcast noon": (overcast, None),
+            "dusk": clear(270.0, 1.0, 0.02)}
+
+
+def test_exposure_follows_the_measured_light(new_page, sun_build, sun_reference):
+    """Automatic exposure (no ?exposure) for three lights: an open ground pixel displayed as
+    the documented meter says (within 3 codes: the level from the open ground's irradiance,
+    computed here, through the display transform), and the picture's mean in the order clear
+    noon > overcast noon > dusk, dusk clearly darker (the client before 2026-11-24 showed all
+    three with the ground at the same level)."""
+    build, _ = sun_reference
+    albedo = np.asarray(build.manifest["ground"]["albedo"])
+    lights = build.manifest["dome"]["lights"]
+    cosine_sr = np.array([light["cosine_weighted_sr"] for light in lights])
+    probe = [[-12.0, 0.0, 5.0]]  # open ground, far from both boxes
+    means, codes, wants = {}, {}, {}
+    with StubServer(sun_build) as server:
+        page = new_page(480, 360).open(f"{server.url}/?mode=visit&test")
+        for name, (r, sun) in skies(build).items():
+            page.page.evaluate("([r, s]) => window.daylit.debug.relight(r, 9, s)",
+                               [np.asarray(r, np.float64).ravel().tolist(), sun])
+            page.page.evaluate("([p, t]) => window.daylit.debug.setCamera(p, t)",
+                               [[-3.0, 18.0, 6.0], [-3.0, 0.0, 0.0]])
+            page.page.evaluate("window.daylit.debug.settleExposure()")
+            sp = SunPage.__new__(SunPage)
+            sp.page = page
+            _, hits, shown = sp.at(probe)
+            means[name] = float(sp.screen().mean())
+            codes[name] = shown[0]
+            open_sky = cosine_sr @ np.asarray(r, np.float64)  # the open ground's sky irradiance
+            sun_e = 0.0 if sun is None else (np.asarray(sun["normalIrradiance"])
+                                             * max(sun["direction"][1], 0.0))
+            level, radiance = meter_level(open_sky + sun_e, albedo)
+            # the pixel's own irradiance: the open ground's (far from the boxes, in full sun)
+            wants[name] = srgb_codes(neutral_tone_map(level / radiance * albedo / math.pi
+                                                      * (open_sky + sun_e)))
+            print(f"{name}: ground {radiance * 110:.1f} cd/m^2, level {level:.3f}, pixel "
+                  f"{shown[0]} reference {np.round(wants[name], 1)}, "
+                  f"picture mean {means[name]:.1f}")
+            assert hits[0] is not None and hits[0]["role"] in ("ground", "shadowing-plane"), hits
+        assert not page.errors, page.errors
+    for name in means:
+        assert np.abs(codes[name] - wants[name]).max() <= 3.0, (name, codes[name], wants[name])
+    assert means["clear noon"] > means["overcast noon"] > means["dusk"], means
+    assert means["dusk"] < means["clear noon"] - 20.0, means
+    assert means["overcast noon"] > 0.8 * means["clear noon"], means  # dimmer, not black

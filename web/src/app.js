@@ -3,6 +3,7 @@
 import * as THREE from 'three';
 import { AssetError, Assets } from './assets.js';
 import { CameraView } from './camera-view.js';
+import { exposureFor } from './exposure.js';
 import { HdrFrame } from './hdr.js';
 import { Hud, insecureReason } from './hud.js';
 import { IrradianceTargets } from './irradiance.js';
@@ -23,7 +24,6 @@ const RELIGHT_THRESHOLD = 1e-3;     // ... until it is within 0.1 % of the measu
 const STALE_AFTER_MS = 16000;       // three missed keep-alives (the server sends every 5 s)
 const RETRY_BOOT_MS = 10000;
 const EXPOSURE_TAU_S = 1.5;
-const DISPLAY_KEY = 0.18;           // open ground is shown at this linear display level
 
 export class App {
   constructor({ canvas, hudRoot, params }) {
@@ -353,9 +353,7 @@ export class App {
       openIrradiance: open,
       flatIrradiance: [mean, mean, mean].map((v) => v * 0.8), // shading off: even, a little dimmer
     });
-    const albedo = this.assets.manifest.ground.albedo;
-    const key = (0.2126 * albedo[0] * ground[0] + 0.7152 * albedo[1] * ground[1] + 0.0722 * albedo[2] * ground[2]) / Math.PI;
-    this._targetExposure = key > 0 ? DISPLAY_KEY / key : 1;
+    this._groundIrradiance = ground; // the exposure's meter reading (_updateExposure)
     if (this.kiosk) this.kiosk.onRelight(sun);
     if (applied.exact && this.firstRelitMs === null) this._firstRelitPending = true;
   }
@@ -363,10 +361,14 @@ export class App {
   _updateExposure(dtS) {
     if (this.fixedExposure !== null) {
       this.exposure = this.fixedExposure;
-    } else if (this._targetExposure) {
+    } else if (this._groundIrradiance && this.assets?.manifest) {
+      // Metered on the open ground (exposure.js): a lightness key in the visit and the kiosk's
+      // synthesized picture, a camera's auto exposure over a camera picture.
+      const meter = this.site?.view === 'overlay' || this.site?.view === 'passthrough' ? 'camera' : 'scene';
+      const target = exposureFor(this._groundIrradiance, this.assets.manifest.ground.albedo, meter);
       const a = this._exposureSet ? 1 - Math.exp(-dtS / EXPOSURE_TAU_S) : 1;
       this._exposureSet = true;
-      this.exposure += a * (this._targetExposure - this.exposure);
+      this.exposure += a * (target - this.exposure);
     }
     if (this.site) this.site.shared.exposure.value = this.exposure;
   }

@@ -145,6 +145,12 @@ export function debugApi(app) {
     /** Force the kiosk to pick a frame now (tests step it without waiting for rAF). */
     kioskTick: () => app.kiosk.render({ exposure: app.exposure, strength: 1 }),
     setExposure: (e) => { app.fixedExposure = e; },
+    /** The automatic exposure at once at its target for the applied light (no adaptation). */
+    settleExposure: () => {
+      app._exposureSet = false;
+      app._updateExposure(0);
+      return app.exposure;
+    },
     /** The visit's camera: its distance to the orbit's target, metres (null outside the visit). */
     orbitDistanceM: () => (app.view?.controls ? app.camera.position.distanceTo(app.view.controls.target) : null),
     setCamera(position, target) {
