@@ -351,6 +351,7 @@ export class App {
     this.site?.setLight({
       L: skySH9(r, this.assets.manifest.dome.lights.map((l) => l.sh9)),
       openIrradiance: open,
+      groundIrradiance: ground,
       flatIrradiance: [mean, mean, mean].map((v) => v * 0.8), // shading off: even, a little dimmer
     });
     this._groundIrradiance = ground; // the exposure's meter reading (_updateExposure)

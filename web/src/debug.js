@@ -53,6 +53,21 @@ export function debugApi(app) {
         return { point: hit.point.toArray(), normal: normal.toArray(), role: info.role, atlas: info.atlas ?? null, name: hit.object.name, albedo };
       });
     },
+    /** Every visible surface along each pixel's ray, nearest first: [{role, atlas, name, distance}]. */
+    pickAll(pixels) {
+      const rect = app.canvas.getBoundingClientRect();
+      const raycaster = new THREE.Raycaster();
+      const meshes = [];
+      app.site.root.traverse((o) => { if (o.isMesh && o.visible && o.userData.daylit) meshes.push(o); });
+      return pixels.map(([x, y]) => {
+        raycaster.setFromCamera(new THREE.Vector2(2 * x / rect.width - 1, 1 - 2 * y / rect.height), app.camera);
+        return raycaster.intersectObjects(meshes, false).map((h) => ({
+          role: h.object.userData.daylit.role, atlas: h.object.userData.daylit.atlas ?? null,
+          name: h.object.name, distance: h.distance, point: h.point.toArray(),
+          normal: h.face.normal.clone().transformDirection(h.object.matrixWorld).toArray(),
+        }));
+      });
+    },
     /** Where world points appear on the canvas: [x, y] CSS pixels from the top left. */
     project(points) {
       const rect = app.canvas.getBoundingClientRect();

@@ -4,21 +4,24 @@
 
 /** Below this fraction of a pixel's largest denominator channel a channel's ratio tapers to 1. */
 export const RATIO_FLOOR = 1e-2;
-/** An absolute floor under it (W/m^2, or the view images' units), for an all-black pixel. */
-export const RATIO_FLOOR_ABS = 1e-6;
+/** ... and below this fraction of the scene's light level (the open ground's irradiance, or
+ * its radiance at the kiosk: the `ratioFloor` uniform is this times it) the whole pixel's. */
+export const RATIO_FLOOR_SCENE = 1e-3;
 /** The largest ratio kept: light bounced off a virtual object never more than quadruples. */
 export const RATIO_MAX = 4.0;
 
 /**
  * safeRatio(num, den), per channel: num / den where den is well above the floor
- * f = RATIO_FLOOR max_c |den_c| + RATIO_FLOOR_ABS; 1 where den <= f (a channel the denominator
- * hardly lights says nothing about the shadow); between f and 2f a smoothstep blend of the two,
- * so no edge appears where a channel crosses the floor. Clamped to [0, RATIO_MAX].
+ * f = max(RATIO_FLOOR max_c |den_c|, ratioFloor); 1 where den <= f (a surface the denominator
+ * hardly lights, or a channel of it, says nothing about a shadow: 0 / tiny would be black);
+ * between f and 2f a smoothstep blend of the two, so no edge appears where the denominator
+ * crosses the floor. Clamped to [0, RATIO_MAX]. Needs `uniform float ratioFloor` (> 0).
  */
 export const SAFE_RATIO = /* glsl */ `
+uniform float ratioFloor; // RATIO_FLOOR_SCENE x the scene's light level (site.js, kiosk.js)
 vec3 safeRatio(vec3 num, vec3 den) {
   vec3 a = abs(den);
-  float f = ${RATIO_FLOOR.toExponential(6)} * max(max(a.r, a.g), a.b) + ${RATIO_FLOOR_ABS.toExponential(6)};
+  float f = max(${RATIO_FLOOR.toExponential(6)} * max(max(a.r, a.g), a.b), max(ratioFloor, 1e-12));
   vec3 w = smoothstep(vec3(f), vec3(2.0 * f), den);
   return clamp(mix(vec3(1.0), num / max(den, vec3(f)), w), 0.0, ${RATIO_MAX.toFixed(1)});
 }

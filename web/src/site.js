@@ -11,6 +11,7 @@ import {
   lightmapFragment, openGroundFragment, plainVertex, receiverFragment, sh9Fragment,
   shadowPlaneFragment, skyFragment, skyVertex, uvVertex,
 } from './materials.glsl.js';
+import { RATIO_FLOOR_SCENE } from './display.glsl.js';
 import { FLOAT_DECODE, RGBE_DECODE } from './relight.glsl.js';
 import { SUN_DEFINES, sunUniforms } from './sun.js';
 
@@ -37,6 +38,7 @@ export class Site {
       openIrradiance: { value: new THREE.Vector3(1, 1, 1) },
       L: { value: Array.from({ length: 9 }, () => new THREE.Vector3()) },
       linearOut: { value: 0 }, // 1: drawn into the linear HDR frame (hdr.js; setLinearFrame)
+      ratioFloor: { value: 1e-6 }, // the shadow ratios' scene floor, W/m^2 (display.glsl.js)
     };
     // The sun (sun.js): direction, irradiance and shadow maps, shared by every material.
     this.sun = sunUniforms();
@@ -154,10 +156,15 @@ export class Site {
       uniforms: {
         ...this.sun, withTex: { value: withTex }, withoutTex: { value: withoutTex }, strength: this.shared.strength,
         brighten: { value: brighten }, alphaOut: { value: alphaOut }, dHasReal: { value: dHasReal },
-        linearOut: alphaOut ? { value: 0 } : this.shared.linearOut,
+        linearOut: alphaOut ? { value: 0 } : this.shared.linearOut, ratioFloor: this.shared.ratioFloor,
       },
       vertexShader: uvVertex, fragmentShader: shadowPlaneFragment(decode), defines: { ...defines },
-      transparent: true, depthWrite: false, side: THREE.DoubleSide,
+      // A hull plane holds the light on its outer side only, and a ray from outside enters a
+      // hull once, through a front face: its back faces would multiply what lies behind a
+      // second time, and a bottom face buried in what the object stands on (the hall's walls
+      // and columns in its podium: ratio 0) pulled over the floor by the polygon offset drew
+      // that floor black. Ground and wall planes are seen from either side.
+      transparent: true, depthWrite: false, side: dHasReal ? THREE.DoubleSide : THREE.FrontSide,
       blending: THREE.CustomBlending, blendEquation: THREE.AddEquation, ...blend,
       blendSrcAlpha: THREE.ZeroFactor, blendDstAlpha: THREE.OneFactor,
       polygonOffset: true, polygonOffsetFactor: -1, polygonOffsetUnits: -4,
@@ -228,8 +235,11 @@ export class Site {
   }
 
   /** New light: the uniforms that come from r directly (SH9, open sky). The sun's come from
-   * SunShadows.setSun. */
-  setLight({ L, openIrradiance, flatIrradiance }) {
+   * SunShadows.setSun. groundIrradiance: the open ground's, sun included (W/m^2, RGB), the
+   * scale of the shadow ratios' floor. */
+  setLight({ L, openIrradiance, flatIrradiance, groundIrradiance = openIrradiance }) {
+    const level = (groundIrradiance[0] + groundIrradiance[1] + groundIrradiance[2]) / 3;
+    this.shared.ratioFloor.value = Math.max(RATIO_FLOOR_SCENE * level, 1e-9);
     this.shared.L.value.forEach((v, j) => v.set(L[3 * j], L[3 * j + 1], L[3 * j + 2]));
     this.shared.openIrradiance.value.set(...openIrradiance);
     this.shared.flatIrradiance.value.set(...flatIrradiance);
