@@ -85,6 +85,7 @@ export class App {
     renderer.toneMappingExposure = 1;
     this.renderer = renderer;
     this.hdrSupported = HdrFrame.supported(renderer);
+    this.hdrSamples = this.mode === 'kiosk' ? 0 : 4; // MSAA of the linear frame, as the canvas's antialias
     this.camera = new THREE.PerspectiveCamera(50, 1, 0.1, 2000);
     this.scene = new THREE.Scene();
     this._resize();
@@ -413,7 +414,7 @@ export class App {
     const linear = this.mode !== 'ar' && !renderer.xr.isPresenting && this.hdrSupported && this.linearFrame;
     this.site?.setLinearFrame(linear);
     if (linear) {
-      this.hdr ??= new HdrFrame(renderer);
+      this.hdr ??= new HdrFrame(renderer, { samples: this.hdrSamples });
       this.hdr.render(this.scene, this.camera, this.site?.view !== 'overlay');
     } else {
       renderer.render(this.scene, this.camera);

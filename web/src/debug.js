@@ -160,6 +160,16 @@ export function debugApi(app) {
     /** Force the kiosk to pick a frame now (tests step it without waiting for rAF). */
     kioskTick: () => app.kiosk.render({ exposure: app.exposure, strength: 1 }),
     setExposure: (e) => { app.fixedExposure = e; },
+    /** Draw in linear HDR (true, where supported; `samples`: its MSAA) or straight to the screen
+     * (the fallback). */
+    setLinearFrame: (on, samples = null) => {
+      app.linearFrame = on;
+      if (samples !== null && samples !== app.hdrSamples) {
+        app.hdrSamples = samples;
+        app.hdr?.dispose();
+        app.hdr = null;
+      }
+    },
     /** The automatic exposure at once at its target for the applied light (no adaptation). */
     settleExposure: () => {
       app._exposureSet = false;
