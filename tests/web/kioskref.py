@@ -48,9 +48,20 @@ def view_inputs(ref, r):
     return view, O, S, mask
 
 
+def safe_ratio(num, den, scene_floor=0.0):
+    """O'/S' per channel as docs/web.md states it: a floor f = max(1e-2 max_c |S'_c|,
+    scene_floor) per pixel, 1 at or below it, num / den from 2f up, a smoothstep blend
+    between; clamped to [0, 4]."""
+    f = np.maximum(1e-2 * np.abs(den).max(axis=-1, keepdims=True), max(scene_floor, 1e-12))
+    t = np.clip((den - f) / f, 0.0, 1.0)
+    w = t * t * (3.0 - 2.0 * t)
+    return np.clip(1.0 + w * (num / np.maximum(den, f) - 1.0), 0.0, 4.0)
+
+
 def eq9(O, S, mask, P, k):
-    safe = np.where(S > 1e-6, S, 1.0)
-    ratio = np.where(S > 1e-6, O / safe, 1.0)
+    # the scene floor: 1e-3 of S' over the real pixels (the client samples them on a grid)
+    real = S[mask == 0] @ np.array([0.2126, 0.7152, 0.0722])
+    ratio = safe_ratio(O, S, 1e-3 * float(real.mean()) if real.size else 0.0)
     M = mask[..., None]
     return np.where(M == 255, k * O, np.where(M == 128, P, P * ratio))
 

@@ -30,6 +30,11 @@ def shot(page, name):
     png = page.page.screenshot()
     mean, std = picture_stats(png)
     assert 20 < mean < 235 and std > 10, (name, mean, std)  # a picture, not a blank canvas
+    # No surface drawn pure black (the hull planes' bottom faces buried in the hall's podium,
+    # pulled over its floor, drew it 0, 0, 0 once the planes multiplied in linear light).
+    img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+    black = float((img.sum(axis=-1) == 0).mean())
+    assert black < 1e-4, (name, black)
     page.screenshot(name)
 
 

@@ -15,7 +15,7 @@ import math
 import numpy as np
 import pytest
 
-from tests.web.harness import StubServer
+from tests.web.harness import StubServer, srgb_to_linear
 from tests.web.sunsite import (
     SUN_AZIMUTH_DEG,
     SUN_DNI,
@@ -182,11 +182,11 @@ def test_penumbra_of_the_shadow_tip(new_page, sun_build, sun_reference):
 
 
 def test_overlay_ratio_real_and_virtual_shadows(new_page, sun_build, sun_reference):
-    """Over a camera picture (a uniform grey here), the ground planes multiply it by the
-    ratio. Where the real shadow lies the sun adds nothing: in the overlap the ratio is the
-    sky's own (the virtual box hides part of the sky there, 30 % this close to it), within 1.5 %
-    as displayed, so the virtual shadow does not darken the real one a second time; in the
-    virtual shadow alone it is about sky / (sun + sky)."""
+    """Over a camera picture (a uniform grey here), the ground planes multiply its linear
+    values by the ratio. Where the real shadow lies the sun adds nothing: in the overlap the
+    ratio is the sky's own (the virtual box hides part of the sky there, 30 % this close to
+    it), within 1.5 % as displayed, so the virtual shadow does not darken the real one a
+    second time; in the virtual shadow alone it is about sky / (sun + sky)."""
     build, casters = sun_reference
     s, r = sun_and_sky(build)
     grey = 0.9  # bright: the 8-bit steps of the factor are small against it
@@ -205,7 +205,8 @@ def test_overlay_ratio_real_and_virtual_shadows(new_page, sun_build, sun_referen
         assert all(h is not None and h["role"] == "shadowing-plane" for h in hits), hits
         background = np.median(sp.screen().reshape(-1, 3), axis=0)  # most of it: ratio 1
         assert np.abs(background - 255 * grey).max() <= 1.0, background
-        ratio_shown = (shown / background) ** 2.2
+        # The picture's linear values times the ratio (hdr.js: multiplied in linear light).
+        ratio_shown = srgb_to_linear(shown) / srgb_to_linear(background)
         pts = np.array([h["point"] for h in hits])
         nrm = np.array([h["normal"] for h in hits])
         sky_i = np.array([build.irradiance(p, n, r, source="compact")["with"]
@@ -227,7 +228,7 @@ def test_overlay_ratio_real_and_virtual_shadows(new_page, sun_build, sun_referen
                     assert np.abs(relative - 1.0).max() < 0.015, (points[k], relative)
                 if name == "virtual only":
                     assert sun["visible_with"][k] == 0.0 and sun["visible_without"][k] == 1.0
-                tolerance = 0.01 + 0.02 * ratio[k].max()  # 8-bit codes of a power-2.2 factor
+                tolerance = 0.01 + 0.02 * ratio[k].max()  # 8-bit codes of the product
                 assert np.abs(ratio_shown[k] - ratio[k]).max() < tolerance, (
                     name, points[k], ratio_shown[k], ratio[k])
                 k += 1

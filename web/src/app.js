@@ -3,6 +3,8 @@
 import * as THREE from 'three';
 import { AssetError, Assets } from './assets.js';
 import { CameraView } from './camera-view.js';
+import { exposureFor } from './exposure.js';
+import { HdrFrame } from './hdr.js';
 import { Hud, insecureReason } from './hud.js';
 import { IrradianceTargets } from './irradiance.js';
 import { Kiosk } from './kiosk.js';
@@ -22,7 +24,6 @@ const RELIGHT_THRESHOLD = 1e-3;     // ... until it is within 0.1 % of the measu
 const STALE_AFTER_MS = 16000;       // three missed keep-alives (the server sends every 5 s)
 const RETRY_BOOT_MS = 10000;
 const EXPOSURE_TAU_S = 1.5;
-const DISPLAY_KEY = 0.18;           // open ground is shown at this linear display level
 
 export class App {
   constructor({ canvas, hudRoot, params }) {
@@ -33,6 +34,10 @@ export class App {
     if (!['kiosk', 'visit', 'camera', 'ar'].includes(this.mode)) this.mode = 'visit';
     this.testing = params.has('test');
     this.fixedExposure = params.has('exposure') ? Number(params.get('exposure')) : null;
+    // ?targets=rgbe: a GPU without half-float targets (RGBA8 relight targets, the frame drawn
+    // straight to the screen); ?frame=direct: only the latter. For tests and the benchmark.
+    this.forceRgbe = params.get('targets') === 'rgbe';
+    this.linearFrame = params.get('frame') !== 'direct' && !this.forceRgbe;
     this.smoothingS = Number(params.get('smoothing') ?? 0);
     this.shadingOn = true;
     // Kakuta's two ways to shade the virtual objects; `?shading=hull` starts with hull planes.
@@ -79,6 +84,8 @@ export class App {
     renderer.toneMapping = THREE.NeutralToneMapping;
     renderer.toneMappingExposure = 1;
     this.renderer = renderer;
+    this.hdrSupported = HdrFrame.supported(renderer);
+    this.hdrSamples = HdrFrame.defaultSamples(renderer, this.mode === 'kiosk');
     this.camera = new THREE.PerspectiveCamera(50, 1, 0.1, 2000);
     this.scene = new THREE.Scene();
     this._resize();
@@ -127,7 +134,7 @@ export class App {
       // are the largest download of a phone).
       this._hullStacks = stacks.filter((key) => key.startsWith('hull.'));
       this.relighter = new Relighter(this.renderer, this.assets,
-        { stacks, deferred: this._hullStacks, views: kiosk, dome: !kiosk });
+        { stacks, deferred: this._hullStacks, views: kiosk, dome: !kiosk, rgbe: this.forceRgbe });
       // The kiosk needs the model too, for the sun's shadows in its view (kiosksun.js).
       const [gltf] = await Promise.all([
         this.assets.gltf(manifest.model.path),
@@ -193,6 +200,8 @@ export class App {
     this.sunBounceDrawn = null;
     this.irradiance?.dispose();
     this.irradiance = null;
+    this.hdr?.dispose();
+    this.hdr = null;
     this.kiosk?.dispose();
     this.kiosk = null;
     this.relighter?.dispose();
@@ -343,11 +352,10 @@ export class App {
     this.site?.setLight({
       L: skySH9(r, this.assets.manifest.dome.lights.map((l) => l.sh9)),
       openIrradiance: open,
+      groundIrradiance: ground,
       flatIrradiance: [mean, mean, mean].map((v) => v * 0.8), // shading off: even, a little dimmer
     });
-    const albedo = this.assets.manifest.ground.albedo;
-    const key = (0.2126 * albedo[0] * ground[0] + 0.7152 * albedo[1] * ground[1] + 0.0722 * albedo[2] * ground[2]) / Math.PI;
-    this._targetExposure = key > 0 ? DISPLAY_KEY / key : 1;
+    this._groundIrradiance = ground; // the exposure's meter reading (_updateExposure)
     if (this.kiosk) this.kiosk.onRelight(sun);
     if (applied.exact && this.firstRelitMs === null) this._firstRelitPending = true;
   }
@@ -355,10 +363,14 @@ export class App {
   _updateExposure(dtS) {
     if (this.fixedExposure !== null) {
       this.exposure = this.fixedExposure;
-    } else if (this._targetExposure) {
+    } else if (this._groundIrradiance && this.assets?.manifest) {
+      // Metered on the open ground (exposure.js): a lightness key in the visit and the kiosk's
+      // synthesized picture, a camera's auto exposure over a camera picture.
+      const meter = this.site?.view === 'overlay' || this.site?.view === 'passthrough' ? 'camera' : 'scene';
+      const target = exposureFor(this._groundIrradiance, this.assets.manifest.ground.albedo, meter);
       const a = this._exposureSet ? 1 - Math.exp(-dtS / EXPOSURE_TAU_S) : 1;
       this._exposureSet = true;
-      this.exposure += a * (this._targetExposure - this.exposure);
+      this.exposure += a * (target - this.exposure);
     }
     if (this.site) this.site.shared.exposure.value = this.exposure;
   }
@@ -398,7 +410,16 @@ export class App {
     this.view?.update(xrFrame);
     this.sunShadows?.follow(); // AR places and turns the site: the sun's uniforms follow it
     renderer.setClearColor(0x000000, this.mode === 'ar' ? 0 : 1);
-    renderer.render(this.scene, this.camera);
+    // Linear HDR, then one display pass (hdr.js); AR's passthrough and GPUs without half-float
+    // targets draw straight to the screen (the shadowing planes' approximate fallback).
+    const linear = this.mode !== 'ar' && !renderer.xr.isPresenting && this.hdrSupported && this.linearFrame;
+    this.site?.setLinearFrame(linear);
+    if (linear) {
+      this.hdr ??= new HdrFrame(renderer, { samples: this.hdrSamples });
+      this.hdr.render(this.scene, this.camera, this.site?.view !== 'overlay');
+    } else {
+      renderer.render(this.scene, this.camera);
+    }
   }
 }
 

@@ -53,6 +53,21 @@ export function debugApi(app) {
         return { point: hit.point.toArray(), normal: normal.toArray(), role: info.role, atlas: info.atlas ?? null, name: hit.object.name, albedo };
       });
     },
+    /** Every visible surface along each pixel's ray, nearest first: [{role, atlas, name, distance}]. */
+    pickAll(pixels) {
+      const rect = app.canvas.getBoundingClientRect();
+      const raycaster = new THREE.Raycaster();
+      const meshes = [];
+      app.site.root.traverse((o) => { if (o.isMesh && o.visible && o.userData.daylit) meshes.push(o); });
+      return pixels.map(([x, y]) => {
+        raycaster.setFromCamera(new THREE.Vector2(2 * x / rect.width - 1, 1 - 2 * y / rect.height), app.camera);
+        return raycaster.intersectObjects(meshes, false).map((h) => ({
+          role: h.object.userData.daylit.role, atlas: h.object.userData.daylit.atlas ?? null,
+          name: h.object.name, distance: h.distance, point: h.point.toArray(),
+          normal: h.face.normal.clone().transformDirection(h.object.matrixWorld).toArray(),
+        }));
+      });
+    },
     /** Where world points appear on the canvas: [x, y] CSS pixels from the top left. */
     project(points) {
       const rect = app.canvas.getBoundingClientRect();
@@ -105,6 +120,8 @@ export function debugApi(app) {
       gpuBytes: app.sunShadows?.gpuBytes ?? 0,
     }),
     targets: () => Object.keys(app.relighter.targets),
+    /** The relight targets' format (relight.js targetFormat) and whether the frame is linear HDR. */
+    formats: () => ({ rgbe: app.relighter.format.rgbe, linearFrame: !!app.site?.shared.linearOut.value }),
     /** The applied light vector and one target read back in the same instant. */
     snapshot(key) {
       const applied = app.relighter.applied;
@@ -149,6 +166,22 @@ export function debugApi(app) {
     cameraOrientation: () => {
       const o = app.view?.orientation;
       return o ? { alpha: o.alpha, beta: o.beta, gamma: o.gamma } : null;
+    },
+    /** Draw in linear HDR (true, where supported; `samples`: its MSAA) or straight to the screen
+     * (the fallback). */
+    setLinearFrame: (on, samples = null) => {
+      app.linearFrame = on;
+      if (samples !== null && samples !== app.hdrSamples) {
+        app.hdrSamples = samples;
+        app.hdr?.dispose();
+        app.hdr = null;
+      }
+    },
+    /** The automatic exposure at once at its target for the applied light (no adaptation). */
+    settleExposure: () => {
+      app._exposureSet = false;
+      app._updateExposure(0);
+      return app.exposure;
     },
     /** The visit's camera: its distance to the orbit's target, metres (null outside the visit). */
     orbitDistanceM: () => (app.view?.controls ? app.camera.position.distanceTo(app.view.controls.target) : null),

@@ -8,8 +8,14 @@
 // With a sun (kiosksun.js), O' and S' include its direct term: O' = O_sky + E_sun O_sun and
 // S' = S_sky + E_sun S_sun, O_sun and S_sun the view's sun images per unit normal irradiance
 // (albedo / pi cos V, with V past every caster, resp. past the real proxies alone).
+// The ratio O'/S' per channel has a relative floor with a smooth taper (display.glsl.js
+// safeRatio). The synthesized picture (no live frame) goes through the visit's display
+// transform (the exposure, Khronos PBR Neutral, sRGB); over a live frame P is the camera's own
+// display-referred picture and k O' is in its units, so only sRGB encoding follows.
 // uv: (0, 0) is the top-left corner of the view image; every texture here stores rows top
 // first (no flips anywhere), so uv samples the same pixel in all of them.
+
+import { NEUTRAL_TONE_MAP, SAFE_RATIO } from './display.glsl.js';
 
 export const kioskVertex = /* glsl */ `
 in vec3 position;
@@ -37,11 +43,13 @@ uniform float hasFrame;
 uniform float hasOcclusion;
 uniform float cameraScale;    // k: camera units per unit radiance
 uniform float strength;       // 1: virtual shadows on real pixels, 0: off (A/B)
-uniform float outputScale;    // display exposure
-uniform float encodeOutput;   // 1: sRGB for the screen, 0: linear (read back by tests)
+uniform float outputScale;    // display exposure (synthesized picture)
+uniform float encodeOutput;   // 1: for the screen (tone map when synthesized, sRGB), 0: linear (read back by tests)
 in vec2 vUv;
 out vec4 outColor;
 ${decode}
+${SAFE_RATIO}
+${NEUTRAL_TONE_MAP}
 vec3 srgbEncode(vec3 c) {
   c = clamp(c, 0.0, 1.0);
   return mix(c * 12.92, 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055, step(0.0031308, c));
@@ -57,8 +65,7 @@ void main() {
   float m = texture(maskTex, vUv).r;
   bool isVirtual = m > 0.75;
   bool isSky = m > 0.25 && !isVirtual;
-  vec3 ratio = vec3(S.r > 1e-6 ? O.r / S.r : 1.0, S.g > 1e-6 ? O.g / S.g : 1.0, S.b > 1e-6 ? O.b / S.b : 1.0);
-  ratio = mix(vec3(1.0), ratio, strength);
+  vec3 ratio = mix(vec3(1.0), safeRatio(O, S), strength);
   vec3 c;
   if (hasFrame > 0.5) {
     vec3 P = texture(frameTex, vUv).rgb;
@@ -72,6 +79,7 @@ void main() {
     else c = cameraScale * S * ratio;
   }
   c *= outputScale;
-  outColor = vec4(encodeOutput > 0.5 ? srgbEncode(c) : c, 1.0);
+  if (encodeOutput > 0.5) c = srgbEncode(hasFrame > 0.5 ? c : neutralToneMap(c));
+  outColor = vec4(c, 1.0);
 }
 `;

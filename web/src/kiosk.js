@@ -4,6 +4,7 @@
 // (issue 6), each mask paired with the frame of the same capture time.
 import * as THREE from 'three';
 import { FullscreenPass, makeTarget } from './relight.js';
+import { RATIO_FLOOR_SCENE } from './display.glsl.js';
 import { FLOAT_DECODE, RGBE_DECODE } from './relight.glsl.js';
 import { kioskFragment, kioskVertex } from './kiosk.glsl.js';
 
@@ -51,6 +52,7 @@ export class Kiosk {
       strength: { value: 1 },
       outputScale: { value: 1 },
       encodeOutput: { value: 1 },
+      ratioFloor: { value: 1e-6 }, // O'/S''s scene floor: RATIO_FLOOR_SCENE x mean S' (onRelight)
       viewport: { value: new THREE.Vector4(0, 0, 1, 1) },
     };
     this.pass = new FullscreenPass({
@@ -174,6 +176,8 @@ export class Kiosk {
       }
     }
     this.sLowRes = samples;
+    const meanS = samples.reduce((sum, [, , v]) => sum + v, 0) / Math.max(samples.length, 1);
+    this.uniforms.ratioFloor.value = Math.max(RATIO_FLOOR_SCENE * meanS, 1e-12);
   }
 
   _maskPixels() {

@@ -3,6 +3,7 @@
 // maps (sun.js). Output is linear radiance times the exposure, then three.js's tone mapping
 // and sRGB encoding.
 import { SH9_IRRADIANCE_C } from './lightmath.js';
+import { SAFE_RATIO } from './display.glsl.js';
 import { sunShadowChunk } from './sun.glsl.js';
 
 const common = /* glsl */ `
@@ -163,11 +164,15 @@ void main() {
  * real proxies (ground and wall planes), 1 where it holds nothing (hull planes). Inside a real
  * shadow the ratio is the sky's alone: a virtual shadow never darkens what the real scene
  * already shadows.
- * Over a camera picture drawn into the frame (camera mode) the plane multiplies it by
- * ratio^(1/2.2) per channel (blending DstColor, Zero, on sRGB-encoded colour); over a
+ * The ratio has a relative floor with a smooth taper where `absent` is small (safeRatio,
+ * display.glsl.js).
+ * Drawn into the linear HDR frame (hdr.js; linearOut = 1) the plane multiplies the radiance
+ * under it by the ratio per channel (blending DstColor, Zero), ratio > 1 included: exact, and
+ * the brightening draw is hidden. Without a half-float frame (the fallback: drawn straight to
+ * the screen, after tone mapping and sRGB) it multiplies the encoded picture by
+ * ratio^(1/2.2) per channel, and where ratio > 1 a second, additive draw of the same plane
+ * (brighten = 1) adds the excess (blending DstColor, One): approximate (docs/web.md). Over a
  * passthrough (AR, transparent frame) it can only be black with alpha 1 - luminance ratio.
- * Where ratio > 1 (light bounced off a virtual object) a second, additive draw of the same
- * plane (brighten = 1) adds the excess (blending DstColor, One).
  */
 export const shadowPlaneFragment = (decode) => /* glsl */ `
 ${decode}
@@ -177,7 +182,9 @@ uniform float strength;      // 1 shown, 0 hidden (the A/B switch)
 uniform float brighten;      // 0: the darkening draw, 1: the brightening draw
 uniform float alphaOut;      // 1: black with alpha (AR), 0: a factor to multiply by
 uniform float dHasReal;      // 1: d holds the real proxies (ground, walls); 0: nothing (hull)
+uniform float linearOut;     // 1: drawn into the linear HDR frame (hdr.js): the ratio itself
 varying vec2 vUv;
+${SAFE_RATIO}
 varying vec3 vNormalW;
 varying vec3 vPositionW;
 ${sunCommon}
@@ -188,8 +195,11 @@ void main() {
   float vr = sunVisibilityReal(vPositionW, n);
   vec3 present = decodeTarget(texture2D(withTex, vUv)) + S * all;
   vec3 absent = decodeTarget(texture2D(withoutTex, vUv)) + S * mix(1.0, vr, dHasReal);
-  vec3 ratio = mix(vec3(1.0), present / max(absent, vec3(1e-6)), step(vec3(1e-6), absent));
-  ratio = mix(vec3(1.0), clamp(ratio, 0.0, 4.0), strength);
+  vec3 ratio = mix(vec3(1.0), safeRatio(present, absent), strength);
+  if (linearOut > 0.5) {
+    gl_FragColor = vec4(brighten > 0.5 ? vec3(0.0) : ratio, 1.0);
+    return;
+  }
   vec3 encoded = pow(ratio, vec3(1.0 / 2.2));
   if (brighten > 0.5) {
     gl_FragColor = vec4(max(encoded - 1.0, 0.0), 1.0);

@@ -45,22 +45,37 @@ ${gain ? `  vec3 g = texelFetch(gainTex, ivec3(p, 0), 0).rgb * gainScale[0] + ga
 `;
 }
 
-// Fallback for GPUs that cannot render to half-float targets: a shared exponent in alpha
-// (RGBE, exponent bias 128) in an RGBA8 target. Negative values (noise of the compact data
-// near zero) are clamped to 0 there.
+// Fallback for GPUs that cannot render to half-float targets: a signed shared exponent in an
+// RGBA8 target (docs/web.md). rgb hold |v| / 2^e (8 bits each), alpha holds e + 16 (5 bits,
+// e in -16..15: 1.5e-5 to 32768) plus a sign bit per channel (bits 5, 6, 7 for r, g, b), so
+// negative values (light bounced off a virtual object, compact data's noise near zero) are kept.
+// Error: at most half a step of the mantissa, 1/255 of the pixel's largest magnitude.
 export const RGBE_ENCODE = /* glsl */ `
 vec4 encodeRGBE(vec3 v) {
-  v = max(v, vec3(0.0));
-  float m = max(max(v.r, v.g), v.b);
+  vec3 a = abs(v);
+  float m = max(max(a.r, a.g), a.b);
   if (m < 1e-30) return vec4(0.0);
-  float e = ceil(log2(m));
-  return vec4(v / exp2(e), (e + 128.0) / 255.0);
+  float e = clamp(ceil(log2(m)), -16.0, 15.0);
+  vec3 negative = vec3(lessThan(v, vec3(0.0)));
+  float signs = negative.r + 2.0 * negative.g + 4.0 * negative.b;
+  return vec4(min(a / exp2(e), vec3(1.0)), (e + 16.0 + 32.0 * signs) / 255.0);
 }
 `;
 
 export const RGBE_DECODE = /* glsl */ `
-vec3 decodeTarget(vec4 t) { return t.a == 0.0 ? vec3(0.0) : t.rgb * exp2(t.a * 255.0 - 128.0); }
+vec3 decodeTarget(vec4 t) {
+  float a = floor(t.a * 255.0 + 0.5);
+  float signs = floor(a / 32.0);
+  vec3 negative = vec3(mod(signs, 2.0), mod(floor(signs / 2.0), 2.0), floor(signs / 4.0));
+  return t.rgb * (1.0 - 2.0 * negative) * exp2(a - 32.0 * signs - 16.0);
+}
 `;
+
+/** The RGBE_DECODE of one RGBA8 pixel in JavaScript (read-backs): [r, g, b]. */
+export function decodeRGBE(r, g, b, a) {
+  const scale = 2 ** ((a & 31) - 16) / 255;
+  return [r, g, b].map((c, ch) => ((a >> (5 + ch)) & 1 ? -c : c) * scale);
+}
 
 export const FLOAT_DECODE = /* glsl */ `
 vec3 decodeTarget(vec4 t) { return t.rgb; }

@@ -22,15 +22,16 @@
 import * as THREE from 'three';
 import { baseCoefficients, selectionWeights, selectLights, stackWeights } from './lightmath.js';
 import {
-  domeSkyFragment, relightFragment, relightVertex, skyInvWidth2, viewSkyFragment,
+  decodeRGBE, domeSkyFragment, relightFragment, relightVertex, skyInvWidth2, viewSkyFragment,
 } from './relight.glsl.js';
 
 const LIGHT_CACHE_PER_STACK = 12; // selected_lights per vector (0 or 1); the sun moves one patch in tens of minutes
 
-/** Render-target format: half float where the GPU can render to it, else RGBE in RGBA8. */
-export function targetFormat(renderer) {
+/** Render-target format: half float where the GPU can render to it, else (or with `rgbe`, a
+ * test's stand-in for such a GPU) signed RGBE in RGBA8 (relight.glsl.js). */
+export function targetFormat(renderer, rgbe = false) {
   const ext = renderer.extensions;
-  const halfFloat = ext.has('EXT_color_buffer_float') || ext.has('EXT_color_buffer_half_float');
+  const halfFloat = !rgbe && (ext.has('EXT_color_buffer_float') || ext.has('EXT_color_buffer_half_float'));
   return { type: halfFloat ? THREE.HalfFloatType : THREE.UnsignedByteType, rgbe: !halfFloat };
 }
 
@@ -210,16 +211,17 @@ export class Relighter {
   /**
    * @param {THREE.WebGLRenderer} renderer
    * @param {import('./assets.js').Assets} assets with its manifest loaded
-   * @param {{stacks?: string[], deferred?: string[], views?: boolean, dome?: boolean}} which
-   *   stacks to relight (default: every stack of every atlas and view); `deferred` ones get
-   *   their target now but load nothing until `activate` asks for them (the hull planes,
-   *   needed only in hull-plane mode, are a phone's largest download)
+   * @param {{stacks?: string[], deferred?: string[], views?: boolean, dome?: boolean,
+   *   rgbe?: boolean}} which stacks to relight (default: every stack of every atlas and view);
+   *   `deferred` ones get their target now but load nothing until `activate` asks for them
+   *   (the hull planes, needed only in hull-plane mode, are a phone's largest download);
+   *   `rgbe`: RGBA8 targets even where half float would do (tests)
    */
   constructor(renderer, assets, which = {}) {
     this.renderer = renderer;
     this.assets = assets;
     this.manifest = assets.manifest;
-    this.format = targetFormat(renderer);
+    this.format = targetFormat(renderer, which.rgbe ?? false);
     this.m = this.manifest.compression.selected_lights;
     this.selectionWeights = selectionWeights(
       this.manifest.dome.lights.map((l) => l.solid_angle_sr),
@@ -393,9 +395,7 @@ export class Relighter {
       gl.readPixels(0, 0, width, height, gl.RGBA, gl.UNSIGNED_BYTE, bytes);
       out = new Float32Array(4 * width * height);
       for (let p = 0; p < width * height; p++) {
-        const a = bytes[4 * p + 3];
-        const f = a === 0 ? 0 : 2 ** (a - 128) / 255;
-        for (let ch = 0; ch < 3; ch++) out[4 * p + ch] = bytes[4 * p + ch] * f;
+        out.set(decodeRGBE(bytes[4 * p], bytes[4 * p + 1], bytes[4 * p + 2], bytes[4 * p + 3]), 4 * p);
         out[4 * p + 3] = 1;
       }
     } else {

@@ -11,6 +11,7 @@ import {
   lightmapFragment, openGroundFragment, plainVertex, receiverFragment, sh9Fragment,
   shadowPlaneFragment, skyFragment, skyVertex, uvVertex,
 } from './materials.glsl.js';
+import { RATIO_FLOOR_SCENE } from './display.glsl.js';
 import { FLOAT_DECODE, RGBE_DECODE } from './relight.glsl.js';
 import { SUN_DEFINES, sunUniforms } from './sun.js';
 
@@ -36,6 +37,8 @@ export class Site {
       flatIrradiance: { value: new THREE.Vector3(1, 1, 1) },
       openIrradiance: { value: new THREE.Vector3(1, 1, 1) },
       L: { value: Array.from({ length: 9 }, () => new THREE.Vector3()) },
+      linearOut: { value: 0 }, // 1: drawn into the linear HDR frame (hdr.js; setLinearFrame)
+      ratioFloor: { value: 1e-6 }, // the shadow ratios' scene floor, W/m^2 (display.glsl.js)
     };
     // The sun (sun.js): direction, irradiance and shadow maps, shared by every material.
     this.sun = sunUniforms();
@@ -153,9 +156,15 @@ export class Site {
       uniforms: {
         ...this.sun, withTex: { value: withTex }, withoutTex: { value: withoutTex }, strength: this.shared.strength,
         brighten: { value: brighten }, alphaOut: { value: alphaOut }, dHasReal: { value: dHasReal },
+        linearOut: alphaOut ? { value: 0 } : this.shared.linearOut, ratioFloor: this.shared.ratioFloor,
       },
       vertexShader: uvVertex, fragmentShader: shadowPlaneFragment(decode), defines: { ...defines },
-      transparent: true, depthWrite: false, side: THREE.DoubleSide,
+      // A hull plane holds the light on its outer side only, and a ray from outside enters a
+      // hull once, through a front face: its back faces would multiply what lies behind a
+      // second time, and a bottom face buried in what the object stands on (the hall's walls
+      // and columns in its podium: ratio 0) pulled over the floor by the polygon offset drew
+      // that floor black. Ground and wall planes are seen from either side.
+      transparent: true, depthWrite: false, side: dHasReal ? THREE.DoubleSide : THREE.FrontSide,
       blending: THREE.CustomBlending, blendEquation: THREE.AddEquation, ...blend,
       blendSrcAlpha: THREE.ZeroFactor, blendDstAlpha: THREE.OneFactor,
       polygonOffset: true, polygonOffsetFactor: -1, polygonOffsetUnits: -4,
@@ -201,18 +210,36 @@ export class Site {
       // the synthesized real surface.
       m.visible = !(visit && wall);
       m.material = visit ? m.userData.receiverMaterial : shadowMaterial(m);
-      m.userData.brightMesh.visible = !visit;
     }
     for (const m of this.nodes.hull) {
       m.visible = shading === 'hull';
       m.material = shadowMaterial(m);
     }
+    this._showBrightening();
     if (this.sky) this.sky.visible = visit;
   }
 
+  /**
+   * Whether the frame is drawn in linear HDR (hdr.js): the shadowing planes then multiply by
+   * their ratio there, ratio > 1 included, and the additive brightening draws are hidden.
+   */
+  setLinearFrame(on) {
+    this.shared.linearOut.value = on ? 1 : 0;
+    this._showBrightening();
+  }
+
+  _showBrightening() {
+    const direct = this.shared.linearOut.value < 0.5;
+    for (const m of this.nodes.plane) m.userData.brightMesh.visible = direct && this.view !== 'visit';
+    for (const m of this.nodes.hull) m.userData.brightMesh.visible = direct;
+  }
+
   /** New light: the uniforms that come from r directly (SH9, open sky). The sun's come from
-   * SunShadows.setSun. */
-  setLight({ L, openIrradiance, flatIrradiance }) {
+   * SunShadows.setSun. groundIrradiance: the open ground's, sun included (W/m^2, RGB), the
+   * scale of the shadow ratios' floor. */
+  setLight({ L, openIrradiance, flatIrradiance, groundIrradiance = openIrradiance }) {
+    const level = (groundIrradiance[0] + groundIrradiance[1] + groundIrradiance[2]) / 3;
+    this.shared.ratioFloor.value = Math.max(RATIO_FLOOR_SCENE * level, 1e-9);
     this.shared.L.value.forEach((v, j) => v.set(L[3 * j], L[3 * j + 1], L[3 * j + 2]));
     this.shared.openIrradiance.value.set(...openIrradiance);
     this.shared.flatIrradiance.value.set(...flatIrradiance);
