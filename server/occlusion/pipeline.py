@@ -334,13 +334,14 @@ class OcclusionProcessor:
         bg.update(corrected, near == 0)
         self._previous_exclude = shrink(near * np.uint8(255), s.detect_scale) > 0
         u8 = np.uint8(255)
-        back = self.registration.to_frame if s.register else (lambda m: m)
+        masks = (mask, person.view(np.uint8) * u8, shadow.view(np.uint8) * u8,
+                 foreground.view(np.uint8) * u8)
+        if s.register:  # back into the frame's own grid
+            masks = self.registration.to_frame(*masks)
         result = OcclusionResult(
-            index, t, mask=back(mask), person_mask=back(person.view(np.uint8) * u8),
-            shadow_mask=back(shadow.view(np.uint8) * u8),
-            foreground_mask=back(foreground.view(np.uint8) * u8),
-            people=people, gain_bgr=gain.copy(), shift_px=shift, regions=boxes,
-            timings_ms=timings,
+            index, t, mask=masks[0], person_mask=masks[1], shadow_mask=masks[2],
+            foreground_mask=masks[3], people=people, gain_bgr=gain.copy(), shift_px=shift,
+            regions=boxes, timings_ms=timings,
         )
         lap("update")
         return result

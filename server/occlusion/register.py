@@ -130,11 +130,13 @@ class Registration:
             return frame_bgr
         return shift_image(frame_bgr, dx, dy)
 
-    def to_frame(self, mask: np.ndarray) -> np.ndarray:
-        """A (H, W) uint8 mask (0/255) in the background's grid back to the frame's (moved by
-        ``+d``; bilinear, then 255 where at least 128)."""
+    def to_frame(self, *masks: np.ndarray) -> list[np.ndarray]:
+        """(H, W) uint8 masks (0/255) in the background's grid back to the frame's (moved by
+        ``+d``; bilinear, then 255 where above 127), all in one resampling."""
         dx, dy = self.shift_px
         if np.hypot(dx, dy) < self.settings.register_min_shift_px:
-            return mask
-        moved = shift_image(mask, -dx, -dy)
-        return np.where(moved >= 128, np.uint8(255), np.uint8(0))
+            return list(masks)
+        stack = cv2.merge(masks) if len(masks) > 1 else masks[0]
+        moved = shift_image(stack, -dx, -dy)
+        _, moved = cv2.threshold(moved, 127, 255, cv2.THRESH_BINARY)
+        return list(cv2.split(moved)) if len(masks) > 1 else [moved]
