@@ -2,7 +2,8 @@
 
 This is the one class the light server calls. Per frame::
 
-    frame --check--> coarse copy --gain--> reference illumination --difference--> regions
+    frame --check--> coarse copy --gain--> reference illumination --shift (register.py)-->
+          background's pixel grid --difference--> regions
           --graph cut (segment.py, shadows inside)--> people --foot line (depth.py)-->
           depth per person --vs virtual depth--> occlusion mask (+ slow background update)
 
@@ -35,6 +36,7 @@ import numpy as np
 from server.occlusion.background import BackgroundModel, shrink
 from server.occlusion.colour import Transfer, apply_table
 from server.occlusion.depth import Person, PerspectiveCamera, find_people, occlusion_mask
+from server.occlusion.register import Registration
 from server.occlusion.segment import Segmenter, regions_of_interest
 from server.occlusion.settings import OcclusionSettings
 from server.throttledlog import ThrottledWarnings
@@ -59,6 +61,8 @@ class OcclusionResult:
     foreground_mask : (H, W) uint8, 255 on people and their shadows (before shadow removal)
     people : one :class:`~server.occlusion.depth.Person` per region, with depth
     gain_bgr : (3,) daylight gain of this frame over the background model (linear light)
+    shift_px : (2,) camera shake ``(dx, dy)``: the scene moved by this against the background
+        (pixels; zero when ``register`` is off). The masks are in the frame's own grid.
     regions : the regions of interest the graph cut ran in, (y0, y1, x0, x1) pixels
     timings_ms : wall time of each stage and ``total``, milliseconds
     """
@@ -74,6 +78,7 @@ class OcclusionResult:
     foreground_mask: np.ndarray | None = None
     people: list[Person] = field(default_factory=list)
     gain_bgr: np.ndarray | None = None
+    shift_px: np.ndarray | None = None
     regions: list[tuple[int, int, int, int]] = field(default_factory=list)
     timings_ms: dict[str, float] = field(default_factory=dict)
 
@@ -122,6 +127,7 @@ class OcclusionProcessor:
         self.transfer = Transfer(self.settings.response)
         self.background = BackgroundModel(self.width, self.height, self.settings, self.transfer)
         self.segmenter = Segmenter(self.settings, self.background, self.transfer)
+        self.registration = Registration(self.settings)
         self.frame_index = 0
         self._learning: list[np.ndarray] = []
         self._previous_exclude: np.ndarray | None = None  # coarse people + shadows, last frame
@@ -176,7 +182,7 @@ class OcclusionProcessor:
                 self._log_skip(str(exc))
         if not good:
             raise ValueError("no usable frame to learn the background from")
-        n = self.background.learn(good)
+        n = self._learn(good)
         self.segmenter.reset()
         self._previous_exclude = None
         self._learning = []
@@ -241,12 +247,30 @@ class OcclusionProcessor:
     def _learn_step(self, image: np.ndarray, index: int, t: float | None) -> OcclusionResult:
         self._learning.append(image)
         if len(self._learning) >= self.settings.learn_frames:
-            self.background.learn(self._learning)
+            self._learn(self._learning)
             self._learning = []
             log.info("background learned from %d frames", self.settings.learn_frames)
         zero = np.zeros((self.height, self.width), dtype=np.uint8)
         return OcclusionResult(index, t, learning=True, mask=zero, person_mask=zero,
                                shadow_mask=zero, foreground_mask=zero)
+
+    def _learn(self, frames: list[np.ndarray]) -> int:
+        """Learn the background; with ``register``, from frames aligned to their first median
+        (a shaking camera's learning frames would otherwise blur every edge)."""
+        if self.settings.register and len(frames) >= 2:
+            first = np.median(np.stack(frames), axis=0).astype(np.float32)
+            self.registration.set_reference(first)
+            aligned = []
+            for frame in frames:
+                self.registration.shift_px[:] = 0.0
+                self.registration.estimate(frame)
+                aligned.append(self.registration.align(frame))
+            frames = aligned
+        n = self.background.learn(frames)
+        self.registration.shift_px[:] = 0.0
+        if self.settings.register:
+            self.registration.set_reference(self.background.mean)
+        return n
 
     def _segment(self, image: np.ndarray, index: int, t: float | None) -> OcclusionResult:
         s = self.settings
@@ -265,8 +289,16 @@ class OcclusionProcessor:
         gain = bg.estimate_gain(coarse, self._previous_exclude)
         table = self.transfer.gain_table(gain)
         corrected = apply_table(image, table)
-        coarse_corrected = apply_table(coarse, table)
         lap("gain")
+        # 1b. Camera shake: the frame resampled into the background's grid.
+        shift = np.zeros(2)
+        if s.register:
+            shift = self.registration.estimate(corrected, self._previous_exclude).copy()
+            corrected = self.registration.align(corrected)
+            coarse_corrected = shrink(corrected, s.detect_scale)
+        else:
+            coarse_corrected = apply_table(coarse, table)
+        lap("register")
         # 2. Regions of interest: coarse background difference plus last frame's people.
         if s.full_frame:
             boxes = [(0, self.height, 0, self.width)]
@@ -287,7 +319,8 @@ class OcclusionProcessor:
         labels, people = find_people(person, s.min_person_px, s.foot_min_px, boxes)
         person = labels > 0
         for p in people:
-            u, v = p.foot_px
+            u, v = p.foot_px[0] + shift[0], p.foot_px[1] + shift[1]  # in the frame's grid
+            p.foot_px = (u, v)
             p.depth_m = self.camera.foot_depth_m(u, v)
             if isinstance(self.camera, PerspectiveCamera) and np.isfinite(p.depth_m):
                 point = self.camera.ground_hit(u, v)[0][0]
@@ -300,13 +333,18 @@ class OcclusionProcessor:
         near = cv2.dilate(busy.view(np.uint8), np.ones((2 * s.bg_protect_px + 1,) * 2, np.uint8))
         bg.update(corrected, near == 0)
         self._previous_exclude = shrink(near * np.uint8(255), s.detect_scale) > 0
-        lap("update")
         u8 = np.uint8(255)
-        return OcclusionResult(
-            index, t, mask=mask, person_mask=person.view(np.uint8) * u8,
-            shadow_mask=shadow.view(np.uint8) * u8, foreground_mask=foreground.view(np.uint8) * u8,
-            people=people, gain_bgr=gain.copy(), regions=boxes, timings_ms=timings,
+        masks = (mask, person.view(np.uint8) * u8, shadow.view(np.uint8) * u8,
+                 foreground.view(np.uint8) * u8)
+        if s.register:  # back into the frame's own grid
+            masks = self.registration.to_frame(*masks)
+        result = OcclusionResult(
+            index, t, mask=masks[0], person_mask=masks[1], shadow_mask=masks[2],
+            foreground_mask=masks[3], people=people, gain_bgr=gain.copy(), shift_px=shift,
+            regions=boxes, timings_ms=timings,
         )
+        lap("update")
+        return result
 
 
 def read_depth_exr(path: Path | str) -> np.ndarray:

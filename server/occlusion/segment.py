@@ -202,6 +202,34 @@ class Segmenter:
     def reset(self) -> None:
         self.history[:] = 0
 
+    def _codec_aware(self, codes: np.ndarray, box: Box) -> tuple[np.ndarray, np.ndarray]:
+        """Squared Mahalanobis distance (h, w) and ``0.5 sum_c ln(2 pi var_c)`` (h, w) of a
+        box whose variance includes the codec's error.
+
+        A block codec (JPEG, MPEG: 8x8 luma, 16x16 chroma blocks at 4:2:0) spreads the error of
+        coding a change over the whole block it falls in, as ringing around a person's rim.
+        Its variance, per pixel and equal in the three channels, is taken as
+        ``codec_error_fraction`` times the mean squared change (frame minus background,
+        averaged over the channels) in the ``codec_block_px`` square around the pixel: next
+        to a person it is large, on the quiet site it is the sensor noise's small share. Used
+        only when the learned frames were block-coded (``blockiness`` at least
+        ``codec_blockiness_min``): on frames that never were, it would only hide people's
+        low-contrast pixels next to their high-contrast ones.
+        """
+        s = self.settings
+        bg = self.background
+        y0, y1, x0, x1 = box
+        diff = cv2.subtract(codes, bg.mean[y0:y1, x0:x1], dtype=cv2.CV_32F)
+        sq = cv2.multiply(diff, diff)
+        k = s.codec_block_px
+        spread = cv2.blur(cv2.transform(sq, _SUM3 / 3.0), (k, k),
+                          borderType=cv2.BORDER_REPLICATE) * np.float32(s.codec_error_fraction)
+        var = bg.var[y0:y1, x0:x1] + (bg.edge_var[y0:y1, x0:x1] if bg.edge_var is not None
+                                      else 0.0) + spread[..., None]
+        d2 = cv2.transform(sq / var, _SUM3)
+        log_norm = 0.5 * np.log((2.0 * np.pi) ** 3 * (var[..., 0] * var[..., 1] * var[..., 2]))
+        return d2, log_norm
+
     def colour_terms(self, corrected: np.ndarray, box: Box) -> dict:
         """The colour costs ``U^C`` of one region and its shadow features (before the cut).
 
@@ -216,9 +244,13 @@ class Segmenter:
         y0, y1, x0, x1 = box
         codes = corrected[y0:y1, x0:x1]
         h, w = codes.shape[:2]
-        d2 = squared_distance(codes, bg.mean[y0:y1, x0:x1], bg.inv_var[y0:y1, x0:x1])
+        if s.codec_error_fraction > 0.0 and bg.blockiness >= s.codec_blockiness_min:
+            d2, log_norm = self._codec_aware(codes, box)
+        else:
+            d2 = squared_distance(codes, bg.mean[y0:y1, x0:x1], bg.inv_var[y0:y1, x0:x1])
+            log_norm = bg.log_norm[y0:y1, x0:x1]
         d2 = d2.reshape(h, w)
-        log_pixel = -0.5 * d2 - bg.log_norm[y0:y1, x0:x1]
+        log_pixel = -0.5 * d2 - log_norm
         idx = colour_index(codes.reshape(-1, 3), s.lut_bits).reshape(h, w)
         if self._log_global_w is not None:
             log_bg = np.logaddexp(self._log_global_w + bg.global_table[idx],

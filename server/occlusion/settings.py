@@ -67,6 +67,31 @@ SCHEMA: dict = {
                      "computed on linear values"},
         "learn_frames": _int(10, "frames of the empty site averaged (per-pixel median) "
                              "before segmenting", minimum=1),
+        # Camera shake (register.py)
+        "register": {"type": "boolean", "default": True,
+                     "description": "register each frame to the background (one sub-pixel "
+                     "translation) before comparing; off for a camera known to be still"},
+        "register_scale": _int(2, "the registration works on grey frames shrunk by this "
+                               "factor", minimum=1),
+        "register_blur_px": _num(2.0, "standard deviation, frame pixels, of the Gaussian blur "
+                                 "before registration", minimum=0),
+        "register_iterations": _int(3, "Gauss-Newton steps per frame at most", minimum=1),
+        "register_max_shift_px": _num(8.0, "a larger estimated shift is rejected (the last "
+                                      "one is kept), frame pixels", exclusiveMinimum=0),
+        "register_min_shift_px": _num(0.05, "below this shift, frame pixels, the frame is "
+                                      "compared as it is (no resampling)", minimum=0),
+        "register_tolerance_px": _num(0.1, "registration uncertainty, pixels: the background's "
+                                      "variance gets (gradient x this)^2 added, so edges of "
+                                      "fixed objects tolerate the residual shift", minimum=0),
+        # Codec error (segment.py)
+        "codec_error_fraction": _num(0.1, "variance of a block codec's error near a change, "
+                                     "as a share of the mean squared change around the pixel "
+                                     "(0: off)", minimum=0),
+        "codec_block_px": _int(16, "side, pixels, of the square that share of the change is "
+                               "averaged over (16: a 4:2:0 chroma block)", minimum=1),
+        "codec_blockiness_min": _num(1.1, "the codec's error is modelled only when the "
+                                     "learned frames' block-boundary step ratio "
+                                     "(background.blockiness) is at least this", minimum=0),
         # Background model (background.py)
         "bg_rate": _num(0.02, "per-frame update rate of the per-pixel background mean and "
                         "variance where the final label is background (time constant 1 / "
@@ -134,7 +159,7 @@ SCHEMA: dict = {
                     exclusiveMinimum=0),
         "shadow_ratio": _numbers([0.15, 0.92], 2, "(lo, hi) of a shadow's luminance over the "
                                  "background's (hi < 1: darker), lo < hi", minimum=0),
-        "shadow_min_blue_shift": _num(0.08, "least drop of ln(G/B) below the background's "
+        "shadow_min_blue_shift": _num(0.0, "least drop of ln(G/B) below the background's "
                                       "in shadow (lit by the bluer sky alone); 0: the paper's "
                                       "two conditions alone", minimum=0),
         "shadow_signature": {"type": "boolean", "default": True,
@@ -145,6 +170,11 @@ SCHEMA: dict = {
                                             "of sun plus sky and of sky alone, from which "
                                             "the first expected blue shift follows (Wien)",
                                             exclusiveMinimum=0),
+        "shadow_penumbra": {"type": "boolean", "default": False,
+                            "description": "a pixel darkened less than the frame's shadows "
+                            "may be their penumbra (blue shift scaled to its darkening); "
+                            "false: its darkening must be the shadows' within "
+                            "shadow_dark_tolerance"},
         "shadow_search": _num(0.25, "half width, ln units, of the blue shifts searched "
                               "around the last estimate", minimum=0),
         "shadow_shift_tolerance": _num(0.1, "a shadow's blue shift is within this of the "
@@ -185,6 +215,18 @@ class OcclusionSettings:
     response: object = _default("response")
     learn_frames: int = _default("learn_frames")
 
+    register: bool = _default("register")
+    register_scale: int = _default("register_scale")
+    register_blur_px: float = _default("register_blur_px")
+    register_iterations: int = _default("register_iterations")
+    register_max_shift_px: float = _default("register_max_shift_px")
+    register_min_shift_px: float = _default("register_min_shift_px")
+    register_tolerance_px: float = _default("register_tolerance_px")
+
+    codec_error_fraction: float = _default("codec_error_fraction")
+    codec_block_px: int = _default("codec_block_px")
+    codec_blockiness_min: float = _default("codec_blockiness_min")
+
     bg_rate: float = _default("bg_rate")
     bg_update_bands: int = _default("bg_update_bands")
     bg_protect_px: int = _default("bg_protect_px")
@@ -217,6 +259,7 @@ class OcclusionSettings:
     shadow_min_blue_shift: float = _default("shadow_min_blue_shift")
     shadow_signature: bool = _default("shadow_signature")
     daylight_temperatures_k: tuple[float, float] = _default("daylight_temperatures_k")
+    shadow_penumbra: bool = _default("shadow_penumbra")
     shadow_search: float = _default("shadow_search")
     shadow_shift_tolerance: float = _default("shadow_shift_tolerance")
     shadow_dark_tolerance: float = _default("shadow_dark_tolerance")

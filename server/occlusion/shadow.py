@@ -29,6 +29,7 @@ Inputs are linear BGR (the order OpenCV frames come in).
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -149,23 +150,34 @@ class ShadowSignature:
         """Re-estimate from a frame's candidate pixels (the tuple of :func:`shadow_features`)."""
         s = self.settings
         blue, dark = features[2], features[3]
-        ok = paper_test(features, s) & (np.abs(blue - self.blue) < s.shadow_search)
+        # Blue shifts from slightly negative (a neutral shadow, with noise) to beyond the last
+        # estimate and the Planckian prediction: neutral and bluish skies alike.
+        lo_b = -0.1
+        hi_b = max(self.blue, expected_blue_shift(s)) + s.shadow_search
+        ok = paper_test(features, s) & (blue > lo_b) & (blue < hi_b)
+        # The umbra sets the signature; the penumbra (less dark) is matched to it in cost().
+        if self.dark is not None:
+            ok &= dark < 0.5 * self.dark
         if np.count_nonzero(ok) < 30:
             return
         b, d = blue[ok], dark[ok]
-        step_b, step_d = s.shadow_shift_tolerance / 2, s.shadow_dark_tolerance / 2
-        lo_b, lo_d = self.blue - s.shadow_search, float(d.min())
-        nb = int(2 * s.shadow_search / step_b) + 1
+        # Fine bins in darkening, unsmoothed: a shadow darkens all the ground it falls on by
+        # one factor (a sharp peak), a garment over textured ground by as many factors as the
+        # ground has shades (a spread one), even when the two share their chromaticity.
+        step_b, step_d = s.shadow_shift_tolerance / 2, s.shadow_dark_tolerance / 6
+        lo_d = float(d.min())
+        nb = int((hi_b - lo_b) / step_b) + 1
         nd = int((float(d.max()) - lo_d) / step_d) + 1
         hist = np.zeros((nb + 2, nd + 2))
         ib = np.clip(((b - lo_b) / step_b).astype(int), 0, nb - 1) + 1
         id_ = np.clip(((d - lo_d) / step_d).astype(int), 0, nd - 1) + 1
         np.add.at(hist, (ib, id_), 1.0)
-        smooth = sum(np.roll(np.roll(hist, i, 0), j, 1) for i in (-1, 0, 1) for j in (-1, 0, 1))
-        # The peak most consistent with the last estimate, not merely the largest: a dark grey
-        # coat can outnumber its owner's shadow in one frame.
+        smooth = sum(np.roll(hist, i, 0) for i in (-1, 0, 1))
+        # The peak most consistent with the last estimate, not merely the largest:
+        # a dark grey coat can outnumber its owner's shadow in one frame.
         centres = lo_b + (np.arange(nb + 2) - 0.5) * step_b
-        prior = np.exp(-0.5 * ((centres - self.blue) / (0.5 * s.shadow_search)) ** 2)
+        prior = (np.exp(-0.5 * ((centres - self.blue) / (0.5 * s.shadow_search)) ** 2)
+                 if self.updates else np.ones(nb + 2))
         pb, pd = np.unravel_index(int(np.argmax(smooth * prior[:, None])), smooth.shape)
         cb, cd = lo_b + (pb - 0.5) * step_b, lo_d + (pd - 0.5) * step_d
         near = np.abs(b - cb) < s.shadow_shift_tolerance
@@ -201,10 +213,23 @@ class ShadowSignature:
         m2 = (f.f_change / tol_f) ** 2
         if s.shadow_signature:
             tol_b = s.shadow_shift_tolerance if self.updates else s.shadow_search
-            m2 += ((f.blue - self.blue) / _tolerance(tol_b, f.blue_noise)) ** 2
-            if self.dark is not None:
+            blue = self.blue
+            if self.dark is not None and not s.shadow_penumbra:
                 tol_d = _tolerance(s.shadow_dark_tolerance, f.dark_noise)
                 m2 += ((f.dark - self.dark) / tol_d) ** 2
+            elif self.dark is not None:
+                # Penumbra: covered a share c of the way, the ground is lit by
+                # 1 - c (1 - r) per channel (r the umbra's ratio), so a pixel darker by
+                # less than the umbra is also less blue. c from the darkening, then the blue
+                # shift it implies; darker than the umbra counts as deviation.
+                r_g = math.exp(self.dark)
+                r_b = r_g * math.exp(self.blue)
+                c = np.clip((1.0 - np.exp(f.dark)) / max(1.0 - r_g, 1e-3), 0.0, 1.0)
+                blue = (np.log(np.maximum(1.0 - c * (1.0 - r_b), 1e-3))
+                        - np.log(np.maximum(1.0 - c * (1.0 - r_g), 1e-3)))
+                tol_d = _tolerance(s.shadow_dark_tolerance, f.dark_noise)
+                m2 += (np.minimum(f.dark - self.dark, 0.0) / tol_d) ** 2
+            m2 += ((f.blue - blue) / _tolerance(tol_b, f.blue_noise)) ** 2
         cost = s.shadow_cost + s.shadow_slope * m2
         return np.where(gate, cost, np.inf).astype(np.float32)
 

@@ -138,6 +138,7 @@ class HeldoutFrame:
     person: np.ndarray  # (H, W) bool
     shadow: np.ndarray  # (H, W) bool
     people: int
+    shift_px: tuple[float, float] = (0.0, 0.0)  # camera shake: the scene moved by (dx, dy)
 
 
 @dataclass
@@ -344,10 +345,12 @@ class HeldoutSequence:
             person_lin = col_s * 1.1
             img = lit * (1.0 - cov_s[..., None]) + person_lin
             img = img * gain
+            shift = (0.0, 0.0)
             person = cov_s >= 0.5
             shadow = (sh_s >= 0.5) & ~person & (shadow_strength > 0.5)
             if cond.jitter_px > 0:
                 dx, dy = rng.uniform(-cond.jitter_px, cond.jitter_px, 2)
+                shift = (float(dx), float(dy))
                 m = np.float32([[1, 0, dx], [0, 1, dy]])
                 img = cv2.warpAffine(img, m, area, flags=cv2.INTER_LINEAR,
                                      borderMode=cv2.BORDER_REFLECT)
@@ -364,7 +367,7 @@ class HeldoutSequence:
                                                        cond.jpeg_quality])
                 codes = cv2.imdecode(buf, cv2.IMREAD_COLOR)
             raw.append(codes)
-            truths.append((person, shadow, count))
+            truths.append((person, shadow, count, shift))
         if cond.video_fourcc is not None:
             writer_path = os.path.join(tempfile.mkdtemp(), "heldout.mp4")
             wr = cv2.VideoWriter(writer_path, cv2.CAP_FFMPEG,
@@ -387,5 +390,5 @@ class HeldoutSequence:
             if len(decoded) != len(raw):
                 raise RuntimeError(f"video round trip gave {len(decoded)} of {len(raw)} frames")
             raw = decoded
-        for codes, (person, shadow, count) in zip(raw, truths, strict=True):
-            yield HeldoutFrame(codes, person, shadow, count)
+        for codes, (person, shadow, count, shift) in zip(raw, truths, strict=True):
+            yield HeldoutFrame(codes, person, shadow, count, shift)

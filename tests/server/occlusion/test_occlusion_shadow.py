@@ -127,3 +127,36 @@ def test_dark_pixels_are_never_shadow():
     s = OcclusionSettings()
     lit, shade = sunlit_and_shadowed(np.array([[0.01, 0.008, 0.002]]))
     assert not paper_test(shadow_features(shade, lit, s), s).any()
+
+
+@pytest.mark.parametrize("umbra_bgr", [(0.4, 0.4, 0.4), (0.51, 0.40, 0.35)])
+def test_neutral_and_bluish_shadows_are_learned(umbra_bgr):
+    """Ground under a shadow covering a share c of the sun is lit 1 - c (1 - r) per channel
+    (r the umbra's ratio, neutral or bluish; heldout.py draws them so): the signature is
+    learned from such pixels (umbra and penumbra) over varied paving, and the umbra then costs
+    about ``shadow_cost``; with ``shadow_penumbra`` every c from 0.2 to 1 does. A garment
+    as dark but of another chromaticity costs more."""
+    rng = np.random.default_rng(5)
+    ground = rng.uniform(0.08, 0.5, (4000, 3))  # varied paving, linear BGR
+    r = np.asarray(umbra_bgr)
+    c = np.concatenate([np.ones(2500), rng.uniform(0.1, 1.0, 1500)])  # umbra and penumbra
+    shaded = ground * (1.0 - c[:, None] * (1.0 - r[None, :]))
+    for penumbra in (False, True):
+        s = OcclusionSettings(shadow_penumbra=penumbra)
+        sig = ShadowSignature(s)
+        for _ in range(3):
+            sig.update(shadow_features(shaded, ground, s))
+        assert sig.blue == pytest.approx(np.log(r[0] / r[1]), abs=0.03)
+        assert sig.dark == pytest.approx(np.log(r[1]), abs=0.1)  # luminance, mostly green
+        cost = sig.cost(shadow_features(shaded, ground, s))
+        cheap = cost < s.shadow_cost + s.shadow_slope
+        assert cheap[c == 1.0].all()
+        if penumbra:
+            assert cheap[c > 0.2].all(), cost[c > 0.2].max()
+        else:  # only near the umbra's darkening
+            assert not cheap[c < 0.3].any()
+        # As dark as the umbra, but green-tinted or red-tinted against its background.
+        for tint in ((0.35, 0.45, 0.35), (0.3, 0.35, 0.5)):
+            garment = ground * np.asarray(tint)[None, :]
+            other = sig.cost(shadow_features(garment, ground, s))
+            assert np.all(other > s.shadow_cost + 2 * s.shadow_slope), np.min(other)

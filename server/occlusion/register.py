@@ -1,0 +1,142 @@
+"""Global sub-pixel registration of a shaking camera's frames to the background model.
+
+A site camera on a pole in the wind moves by fractions of a pixel from frame to frame. Compared
+pixel by pixel with a still background, every edge of a fixed object then differs by up to its
+contrast per pixel of shift, and becomes a phantom person. Each frame is therefore registered
+to the background first: one translation ``d = (dx, dy)`` pixels, such that
+``frame(x + d) ~ background(x)`` (the scene moved by ``+d`` in the frame), and the frame is
+resampled by ``-d`` into the background's pixel grid before it is compared.
+
+The translation is found by Gauss-Newton (Lucas-Kanade with the inverse-compositional trick:
+the background's gradients and their 2x2 normal matrix are computed once per background) on
+grey images shrunk by ``register_scale`` and blurred by a Gaussian of ``register_blur_px``
+(frame pixels), so that the linearisation holds over a few pixels and block artefacts of
+codecs average out. Each iteration resamples the frame by the current estimate; pixels whose
+residual is larger than ``3 x 1.4826 MAD`` of all residuals (people, their shadows, moving
+leaves) are left out of the next step, as are the people of the previous frame
+(``exclude``). The estimate starts from the previous frame's shift, so a camera that drifts
+slowly is followed over many pixels (at most ``register_max_shift_px``, beyond which the
+estimate is rejected and the last one kept).
+
+Arrays: ``reference`` (h, w) float32 grey codes at the registration scale, ``gx``, ``gy`` its
+gradients (codes per shrunk pixel); frames (H, W, 3) uint8 BGR at full resolution.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from server.occlusion.settings import OcclusionSettings
+
+
+def shift_image(image: np.ndarray, dx_px: float, dy_px: float,
+                interpolation: int = cv2.INTER_LINEAR) -> np.ndarray:
+    """``out(x, y) = image(x + dx, y + dy)``: (H, W[, C]) in, same shape and dtype out.
+
+    Samples outside the image repeat the border row/column (a shaking camera's border).
+    """
+    h, w = image.shape[:2]
+    m = np.float32([[1, 0, dx_px], [0, 1, dy_px]])
+    return cv2.warpAffine(image, m, (w, h), flags=interpolation | cv2.WARP_INVERSE_MAP,
+                          borderMode=cv2.BORDER_REPLICATE)
+
+
+class Registration:
+    """The camera's shift against its background, frame by frame; see the module notes.
+
+    Attributes
+    ----------
+    shift_px : (2,) float64, the last frame's ``(dx, dy)``, full-resolution pixels
+    residual_px : the last Gauss-Newton step's size, pixels (how far from converged)
+    """
+
+    def __init__(self, settings: OcclusionSettings):
+        self.settings = settings
+        self.scale = max(1, int(settings.register_scale))
+        self.reference: np.ndarray | None = None
+        self.gx: np.ndarray | None = None
+        self.gy: np.ndarray | None = None
+        self.shift_px = np.zeros(2)
+        self.residual_px = 0.0
+
+    def _grey(self, bgr: np.ndarray) -> np.ndarray:
+        """(H, W, 3) BGR (uint8 or float32 codes) -> (h, w) float32, shrunk and blurred."""
+        s = self.scale
+        if s > 1:  # shrink first (block mean), then grey: the same numbers, a quarter the work
+            h, w = bgr.shape[0] // s, bgr.shape[1] // s
+            bgr = cv2.resize(bgr[: h * s, : w * s], (w, h), interpolation=cv2.INTER_AREA)
+        grey = cv2.cvtColor(bgr.astype(np.float32, copy=False), cv2.COLOR_BGR2GRAY)
+        sigma = self.settings.register_blur_px / s
+        if sigma > 0:
+            grey = cv2.GaussianBlur(grey, (0, 0), sigma)
+        return grey
+
+    def set_reference(self, mean_bgr: np.ndarray) -> None:
+        """Take (H, W, 3) float32 BGR codes (the background mean) as the reference."""
+        ref = self._grey(mean_bgr)
+        self.reference = ref
+        # Central differences, codes per shrunk pixel (Scharr/32 is as exact and smoother).
+        self.gx = cv2.Scharr(ref, cv2.CV_32F, 1, 0, scale=1.0 / 32.0)
+        self.gy = cv2.Scharr(ref, cv2.CV_32F, 0, 1, scale=1.0 / 32.0)
+        b = 2 + int(np.ceil(self.settings.register_max_shift_px / self.scale))
+        self._inside = np.zeros(ref.shape, dtype=bool)  # away from the border
+        self._inside[b:-b, b:-b] = True
+
+    def estimate(self, frame_bgr: np.ndarray, exclude: np.ndarray | None = None) -> np.ndarray:
+        """``(dx, dy)`` full-resolution pixels of ``frame_bgr`` (H, W, 3) against the reference.
+
+        ``exclude`` (h', w') bool, any resolution: pixels not to use (resized to the
+        registration scale). Returns the shift, also kept in ``shift_px``.
+        """
+        s = self.settings
+        grey = self._grey(frame_bgr)
+        use = self._inside.copy()
+        if exclude is not None and exclude.any():
+            ex = cv2.resize(exclude.view(np.uint8), use.shape[::-1],
+                            interpolation=cv2.INTER_NEAREST) > 0
+            if np.count_nonzero(use & ~ex) > 0.2 * use.size:
+                use &= ~ex
+        d = self.shift_px / self.scale  # shrunk pixels
+        step = np.zeros(2)
+        limit = None
+        for _ in range(s.register_iterations):
+            moved = shift_image(grey, d[0], d[1])
+            r = cv2.subtract(moved, self.reference)
+            if limit is None:  # outliers by the residuals at the starting shift
+                mad = float(np.median(np.abs(r[use][::7]))) if use.any() else 0.0
+                limit = 3.0 * 1.4826 * mad + 1e-3
+            ok = use & (np.abs(r) < limit)
+            gx, gy, rr = self.gx[ok], self.gy[ok], r[ok]
+            a = np.array([[gx @ gx, gx @ gy], [gx @ gy, gy @ gy]], dtype=np.float64)
+            if np.linalg.cond(a) > 1e6:
+                break
+            # moved(x) ~ reference(x - (d_true - d)): r = -grad . (d_true - d)
+            step = -np.linalg.solve(a, np.array([gx @ rr, gy @ rr], dtype=np.float64))
+            d = d + step
+            if np.hypot(*step) * self.scale < 0.01:
+                break
+        d_px = d * self.scale
+        self.residual_px = float(np.hypot(*step) * self.scale)
+        if np.all(np.isfinite(d_px)) and np.hypot(*d_px) <= s.register_max_shift_px:
+            self.shift_px = d_px
+        return self.shift_px
+
+    def align(self, frame_bgr: np.ndarray) -> np.ndarray:
+        """The frame resampled into the background's grid by the last shift (a copy when the
+        shift is under ``register_min_shift_px``, an interpolation otherwise)."""
+        dx, dy = self.shift_px
+        if np.hypot(dx, dy) < self.settings.register_min_shift_px:
+            return frame_bgr
+        return shift_image(frame_bgr, dx, dy)
+
+    def to_frame(self, *masks: np.ndarray) -> list[np.ndarray]:
+        """(H, W) uint8 masks (0/255) in the background's grid back to the frame's (moved by
+        ``+d``; bilinear, then 255 where above 127), all in one resampling."""
+        dx, dy = self.shift_px
+        if np.hypot(dx, dy) < self.settings.register_min_shift_px:
+            return list(masks)
+        stack = cv2.merge(masks) if len(masks) > 1 else masks[0]
+        moved = shift_image(stack, -dx, -dy)
+        _, moved = cv2.threshold(moved, 127, 255, cv2.THRESH_BINARY)
+        return list(cv2.split(moved)) if len(masks) > 1 else [moved]
