@@ -9,7 +9,9 @@ Stages (each split into chunks of points whose layout does not depend on the wor
 3. **write** — stacks into EXR masters and compact textures (bake.writers,
    bake.compressor), masks, ``site.glb``, ``manifest.json`` (bake.buildmanifest). Atlases
    and views are written two at a time in threads: one's single-threaded parts (EXR
-   writing, quantizing, checking) run while the other's encoders use the cores.
+   writing, quantizing, checking) run while the other's encoders use the cores. With a
+   cluster the compact textures are made on its workers (bake.compressjobs), as many units
+   at a time as it has threads.
 
 Chunks run in a process pool (or on a Dask cluster, ``cluster=ADDRESS``: bake.cluster; the
 same bytes either way) and are saved as they finish under ``.<out>.partial/``, keyed by
@@ -86,7 +88,6 @@ def bake(
     # The scene's path stays as given: it is only read here, and messages name it as typed.
     out_dir = Path(out_dir).absolute()
     site = load_site(scene_dir, lights=lights, quality=quality, budget=budget)
-    compressor = Compressor(site, log)
     _check_output(out_dir)
     client = None
     if cluster is not None:
@@ -94,6 +95,7 @@ def bake(
 
         client = Cluster(cluster, log)
     try:
+        compressor = Compressor(site, log, client)
         return _bake(site, out_dir, compressor, started, workers, client, progress, log)
     finally:
         if client is not None:
@@ -162,7 +164,7 @@ def _bake(site, out_dir, compressor, started, workers, cluster, progress, log) -
     ]
     try:
         with _disk_full_is_a_bake_error(partial):
-            entries = _run_two_at_a_time(units)
+            entries = _run_units(units, _units_at_once(cluster, len(units)))
     except KeyboardInterrupt:
         log(
             f"interrupted while writing: every traced chunk is kept in {partial}; run the same "
@@ -294,13 +296,23 @@ def _atlases(site: Site, dome: Dome, geometry: Geometry, scenes: SceneSet, log) 
     return atlases
 
 
-def _run_two_at_a_time(units: list) -> list:
-    """Run the write units (callables returning a manifest entry) in two threads; their
-    entries in the order given. On a failure or Ctrl-C no other unit starts, the running one
-    stops at its next encoder call (:func:`bake.basisu.stop_encoding`), and the error is
-    raised once it has stopped: nothing writes into the staging folder afterwards."""
+def _units_at_once(cluster, units: int) -> int:
+    """Write units run at a time: two on this machine (one's single-threaded parts while the
+    other's encoders use the cores); with a cluster, whose workers compress, as many as it
+    has threads (each running unit holds its stacks in this process's memory)."""
+    if cluster is None:
+        return 2
+    return max(2, min(units, cluster.threads))
+
+
+def _run_units(units: list, at_once: int) -> list:
+    """Run the write units (callables returning a manifest entry) in ``at_once`` threads;
+    their entries in the order given. On a failure or Ctrl-C no other unit starts, the
+    running ones stop at their next encoder call or cluster wait
+    (:func:`bake.basisu.stop_encoding`), and the error is raised once they have stopped:
+    nothing writes into the staging folder afterwards."""
     basisu.allow_encoding()
-    with futures.ThreadPoolExecutor(max_workers=2, thread_name_prefix="write") as pool:
+    with futures.ThreadPoolExecutor(max_workers=at_once, thread_name_prefix="write") as pool:
         running = [pool.submit(unit) for unit in units]
         try:
             return [future.result() for future in running]
