@@ -204,8 +204,6 @@ class Cluster:
         arguments (a unit's stacks) are sent to the scheduler's choice of worker. Waits in
         short steps: when the bake is stopped (:func:`bake.basisu.stop_encoding`: another
         unit failed, or Ctrl-C) the job is cancelled and CompressionError raised."""
-        from distributed import wait
-
         from bake import basisu
 
         basisu.check_not_stopped()
@@ -216,11 +214,9 @@ class Cluster:
         try:
             while True:
                 try:
-                    wait(future, timeout=_POLL_S)
-                    break
+                    return future.result(timeout=_POLL_S)
                 except TimeoutError:
                     basisu.check_not_stopped()
-            return future.result()
         finally:
             self.client.cancel([future, *data])
 

@@ -19,6 +19,7 @@ import tempfile
 from pathlib import Path
 
 from bake import basisu
+from bake.blasthreads import set_blas_threads
 
 
 def encoder_problem() -> str | None:
@@ -50,6 +51,7 @@ def compress_stacks_job(images, prefix, skies, S, S_inv, selection, settings):
     ``{relative path: bytes}`` of every file written."""
     from bake import compress
 
+    set_blas_threads(1)  # as the baking process's write stage (bake.blasthreads)
     with tempfile.TemporaryDirectory(prefix="daylit-compress-") as tmp:
         out = Path(tmp)
         results = compress.compress_stacks(
@@ -65,6 +67,7 @@ def sun_bounce_job(image, name, lights, settings):
     None, {relative path: bytes})``."""
     from bake import sunbounce
 
+    set_blas_threads(1)
     with tempfile.TemporaryDirectory(prefix="daylit-compress-") as tmp:
         out = Path(tmp)
         result = sunbounce.compress_sun_bounce(image, name, out, lights, settings)

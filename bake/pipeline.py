@@ -39,6 +39,7 @@ from pathlib import Path
 
 from bake import basisu, chunkio, contact, lightmap
 from bake import receivers as rx
+from bake.blasthreads import one_blas_thread
 from bake.buildmanifest import build_manifest, write_manifest
 from bake.compressor import Compressor
 from bake.dome import Dome
@@ -139,43 +140,46 @@ def _bake(site, out_dir, compressor, started, workers, cluster, progress, log) -
         rays, trace_s = work.run(partial, workers, progress, stage_s, log, cluster)
 
     t0 = time.perf_counter()
-    sun_bounce = SunBounce.of(site, dome, atlases)
-    compressor.start(site, dome, work.stack_names + sun_bounce.stack_names, progress=progress)
-    sun_bounce.lights = compressor.selection.selectable
-    staging = partial / "build"
-    if staging.exists():
-        shutil.rmtree(staging)
-    (staging / "exr").mkdir(parents=True)
-    if site.views:
-        (staging / "views").mkdir()
-    # Each unit loads its own traced arrays when it starts and lets go of them when done:
-    # loading every set first held them all at once (the peak memory: docs/benchmarks.md).
-    traced = TracedResults(work.point_sets, partial)
-    units = [
-        partial_fn(write_atlas, a, traced, staging, compressor, sun_bounce)
-        for a in atlases.values()
-    ]
-    units += [
-        partial_fn(
-            write_view, view, view_hits[view.name], traced, geometry, dome, site, staging,
-            compressor,
-        )
-        for view in site.views
-    ]
-    try:
-        with _disk_full_is_a_bake_error(partial):
-            entries = _run_units(units, _units_at_once(cluster, len(units)))
-    except KeyboardInterrupt:
-        log(
-            f"interrupted while writing: every traced chunk is kept in {partial}; run the same "
-            "command again to resume"
-        )
-        raise
-    manifest_atlases, manifest_views = entries[: len(atlases)], entries[len(atlases) :]
-    lightmap_parts = site.virtual + [proxy.part for proxy in site.real]
-    albedo_by_part = {p.name: p.albedo.mean(axis=0) for p in lightmap_parts}
-    nodes = write_site_glb(staging / "site.glb", site, atlases, albedo_by_part)
-    compressor.close()
+    # One BLAS thread: the compact textures' bytes then do not depend on the core count, and
+    # a cluster's workers (one thread) write the same ones (bake.blasthreads).
+    with one_blas_thread():
+        sun_bounce = SunBounce.of(site, dome, atlases)
+        compressor.start(site, dome, work.stack_names + sun_bounce.stack_names, progress=progress)
+        sun_bounce.lights = compressor.selection.selectable
+        staging = partial / "build"
+        if staging.exists():
+            shutil.rmtree(staging)
+        (staging / "exr").mkdir(parents=True)
+        if site.views:
+            (staging / "views").mkdir()
+        # Each unit loads its own traced arrays when it starts and lets go of them when done:
+        # loading every set first held them all at once (the peak memory: docs/benchmarks.md).
+        traced = TracedResults(work.point_sets, partial)
+        units = [
+            partial_fn(write_atlas, a, traced, staging, compressor, sun_bounce)
+            for a in atlases.values()
+        ]
+        units += [
+            partial_fn(
+                write_view, view, view_hits[view.name], traced, geometry, dome, site, staging,
+                compressor,
+            )
+            for view in site.views
+        ]
+        try:
+            with _disk_full_is_a_bake_error(partial):
+                entries = _run_units(units, _units_at_once(cluster, len(units)))
+        except KeyboardInterrupt:
+            log(
+                f"interrupted while writing: every traced chunk is kept in {partial}; run the same "
+                "command again to resume"
+            )
+            raise
+        manifest_atlases, manifest_views = entries[: len(atlases)], entries[len(atlases) :]
+        lightmap_parts = site.virtual + [proxy.part for proxy in site.real]
+        albedo_by_part = {p.name: p.albedo.mean(axis=0) for p in lightmap_parts}
+        nodes = write_site_glb(staging / "site.glb", site, atlases, albedo_by_part)
+        compressor.close()
     stage_s["write"] = time.perf_counter() - t0
     duration = time.perf_counter() - started
     manifest = build_manifest(
