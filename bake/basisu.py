@@ -108,7 +108,8 @@ def allow_encoding() -> None:
     _stop.clear()
 
 
-def _check_not_stopped() -> None:
+def check_not_stopped() -> None:
+    """Raise CompressionError once :func:`stop_encoding` was called."""
     if _stop.is_set():
         raise CompressionError("stopped: the bake was interrupted or another stack failed")
 
@@ -128,13 +129,13 @@ _POLL_S = 2.0
 def _run_encoders(commands: list[list[str]]) -> None:
     """Run encoder commands side by side, restarting any that hangs; raise
     :class:`CompressionError` if any failed or kept hanging."""
-    _check_not_stopped()
+    check_not_stopped()
     running = [(c, _start_encoder(c)) for c in commands]
     failures = []
     for command, process in running:
         for attempt in range(ENCODER_ATTEMPTS):
             if attempt:
-                _check_not_stopped()
+                check_not_stopped()
                 process = _start_encoder(command)
             output = _wait_while_busy(process)
             if output is not None:
@@ -188,7 +189,7 @@ def decode(files: list[Path]) -> list[np.ndarray]:
     ``(layers, H, W, 4)`` uint8 arrays, one per file."""
     if not files:
         return []
-    _check_not_stopped()
+    check_not_stopped()
     tool = REPO_ROOT / "tools" / "decode_ktx2.mjs"
     with tempfile.TemporaryDirectory() as tmp:
         outs = [Path(tmp) / f"{i}.bin" for i in range(len(files))]

@@ -28,6 +28,7 @@ from bake.errors import BakeError
 
 CONNECT_TIMEOUT_S = 10
 WORKERS_TIMEOUT_S = 60
+_POLL_S = 1.0  # how often a compression job's wait checks whether the bake was stopped
 
 
 @dataclass
@@ -141,6 +142,16 @@ class Cluster:
                 + ", ".join(f"{w}: {v}" for w, v in sorted(wrong.items()))
                 + ". Install the same daylit on every worker. Nothing was written."
             )
+        from bake.compressjobs import encoder_problem
+
+        problems = {w: p for w, p in self.client.run(encoder_problem).items() if p is not None}
+        if problems:
+            raise BakeError(
+                f"workers of {self.address} cannot compress the build's textures (the write "
+                "stage runs on the workers too): "
+                + "; ".join(f"{w}: {p}" for w, p in sorted(problems.items()))
+                + ". Nothing was written."
+            )
         log(f"  cluster {self.address}: {len(found)} workers, {self.threads} threads")
 
     @property
@@ -187,6 +198,27 @@ class Cluster:
         finally:
             self.client.cancel([shared])
         return rays
+
+    def compress(self, job, *args):
+        """Run a compression job (bake.compressjobs) on a worker and return its result; the
+        arguments (a unit's stacks) are sent to the scheduler's choice of worker. Waits in
+        short steps: when the bake is stopped (:func:`bake.basisu.stop_encoding`: another
+        unit failed, or Ctrl-C) the job is cancelled and CompressionError raised."""
+        from bake import basisu
+
+        basisu.check_not_stopped()
+        data = self.client.scatter(list(args), hash=False)
+        future = self.client.submit(
+            job, *data, key=f"daylit-{job.__name__}-{uuid.uuid4().hex[:12]}", pure=False
+        )
+        try:
+            while True:
+                try:
+                    return future.result(timeout=_POLL_S)
+                except TimeoutError:
+                    basisu.check_not_stopped()
+        finally:
+            self.client.cancel([future, *data])
 
     def close(self) -> None:
         self.client.close()

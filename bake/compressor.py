@@ -1,6 +1,7 @@
 """The bake's compression orchestration: prepares the site's test skies, prior and light
 selection once, runs bake.compress (and bake.sunbounce) on each stack as the write stage
-assembles it (from two threads), and keeps and prints the compression report.
+assembles it (from two threads), here or on a Dask cluster's workers (bake.compressjobs), and
+keeps and prints the compression report.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from bake import basisu, compress, sunbounce, testskies
+from bake import basisu, compress, compressjobs, sunbounce, testskies
 from bake.dome import Dome
 from bake.downloads import download_bytes
 from bake.errors import BakeError
@@ -24,9 +25,13 @@ SELECTION_RULE = (
 
 
 class Compressor:
-    """Runs ``bake.compress`` on each stack as it is assembled and keeps the report."""
+    """Runs ``bake.compress`` on each stack as it is assembled and keeps the report. With a
+    ``cluster`` (:class:`bake.cluster.Cluster`) the stacks are compressed on its workers
+    (bake.compressjobs), which return the files' bytes; they are written into the staging
+    folder here, the same bytes as a local bake's."""
 
-    def __init__(self, site: Site, log):
+    def __init__(self, site: Site, log, cluster=None):
+        self.cluster = cluster
         c = site.settings.compression
         self.settings = compress.Settings(
             budget=c["budget"],
@@ -38,7 +43,8 @@ class Compressor:
         self.rows: dict[str, dict] = {}  # stack name -> report row (written from two threads)
         self.stack_names: list[str] = []
         self.bar = None
-        basisu.basisu_binary()  # fail before baking, not after, when the encoder is missing
+        if cluster is None:  # fail before baking, not after, when the encoder is missing
+            basisu.basisu_binary()  # (a cluster's workers are checked as it is reached)
 
     def start(self, site: Site, dome: Dome, stack_names: list[str], progress: bool) -> None:
         """Prepare the test skies, prior and light selection; show a progress bar over the
@@ -78,10 +84,19 @@ class Compressor:
         ``I`` and ``d`` together (shadow ratio). Returns {name: compact manifest entry}. Safe
         to call from several threads at once (each with its own stacks)."""
         try:
-            results = compress.compress_stacks(
-                images, prefix, staging, self.skies, self.S, self.S_inv, self.selection,
-                self.settings,
-            )
+            if self.cluster is None:
+                results = compress.compress_stacks(
+                    images, prefix, staging, self.skies, self.S, self.S_inv, self.selection,
+                    self.settings,
+                )
+            else:
+                results, files = self.cluster.compress(
+                    compressjobs.compress_stacks_job, images, prefix, self.skies, self.S,
+                    self.S_inv, self.selection, self.settings,
+                )
+                compressjobs.write_files(staging, files)
+                for _, result in results:
+                    result.files = [staging / p for p in result.files]
         except basisu.CompressionError as exc:
             raise BakeError(str(exc)) from None
         self.bar.update(len(results))  # tqdm locks its own updates
@@ -106,9 +121,18 @@ class Compressor:
         image per light the sun can be in (:func:`bake.sunbounce.compress_sun_bounce`); its
         compact entry, or None when it is zero everywhere (then the master is dropped too)."""
         try:
-            result = sunbounce.compress_sun_bounce(
-                image, name, staging, self.selection.selectable, self.settings
-            )
+            if self.cluster is None:
+                result = sunbounce.compress_sun_bounce(
+                    image, name, staging, self.selection.selectable, self.settings
+                )
+            else:
+                result, files = self.cluster.compress(
+                    compressjobs.sun_bounce_job, image, name, self.selection.selectable,
+                    self.settings,
+                )
+                compressjobs.write_files(staging, files)
+                if result is not None:
+                    result.files = [staging / p for p in result.files]
         except basisu.CompressionError as exc:
             raise BakeError(str(exc)) from None
         self.bar.update(1)

@@ -9,7 +9,9 @@ Stages (each split into chunks of points whose layout does not depend on the wor
 3. **write** — stacks into EXR masters and compact textures (bake.writers,
    bake.compressor), masks, ``site.glb``, ``manifest.json`` (bake.buildmanifest). Atlases
    and views are written two at a time in threads: one's single-threaded parts (EXR
-   writing, quantizing, checking) run while the other's encoders use the cores.
+   writing, quantizing, checking) run while the other's encoders use the cores. With a
+   cluster the compact textures are made on its workers (bake.compressjobs), as many units
+   at a time as it has threads.
 
 Chunks run in a process pool (or on a Dask cluster, ``cluster=ADDRESS``: bake.cluster; the
 same bytes either way) and are saved as they finish under ``.<out>.partial/``, keyed by
@@ -37,6 +39,7 @@ from pathlib import Path
 
 from bake import basisu, chunkio, contact, lightmap
 from bake import receivers as rx
+from bake.blasthreads import one_blas_thread
 from bake.buildmanifest import build_manifest, write_manifest
 from bake.compressor import Compressor
 from bake.dome import Dome
@@ -86,7 +89,6 @@ def bake(
     # The scene's path stays as given: it is only read here, and messages name it as typed.
     out_dir = Path(out_dir).absolute()
     site = load_site(scene_dir, lights=lights, quality=quality, budget=budget)
-    compressor = Compressor(site, log)
     _check_output(out_dir)
     client = None
     if cluster is not None:
@@ -94,6 +96,7 @@ def bake(
 
         client = Cluster(cluster, log)
     try:
+        compressor = Compressor(site, log, client)
         return _bake(site, out_dir, compressor, started, workers, client, progress, log)
     finally:
         if client is not None:
@@ -137,43 +140,46 @@ def _bake(site, out_dir, compressor, started, workers, cluster, progress, log) -
         rays, trace_s = work.run(partial, workers, progress, stage_s, log, cluster)
 
     t0 = time.perf_counter()
-    sun_bounce = SunBounce.of(site, dome, atlases)
-    compressor.start(site, dome, work.stack_names + sun_bounce.stack_names, progress=progress)
-    sun_bounce.lights = compressor.selection.selectable
-    staging = partial / "build"
-    if staging.exists():
-        shutil.rmtree(staging)
-    (staging / "exr").mkdir(parents=True)
-    if site.views:
-        (staging / "views").mkdir()
-    # Each unit loads its own traced arrays when it starts and lets go of them when done:
-    # loading every set first held them all at once (the peak memory: docs/benchmarks.md).
-    traced = TracedResults(work.point_sets, partial)
-    units = [
-        partial_fn(write_atlas, a, traced, staging, compressor, sun_bounce)
-        for a in atlases.values()
-    ]
-    units += [
-        partial_fn(
-            write_view, view, view_hits[view.name], traced, geometry, dome, site, staging,
-            compressor,
-        )
-        for view in site.views
-    ]
-    try:
-        with _disk_full_is_a_bake_error(partial):
-            entries = _run_two_at_a_time(units)
-    except KeyboardInterrupt:
-        log(
-            f"interrupted while writing: every traced chunk is kept in {partial}; run the same "
-            "command again to resume"
-        )
-        raise
-    manifest_atlases, manifest_views = entries[: len(atlases)], entries[len(atlases) :]
-    lightmap_parts = site.virtual + [proxy.part for proxy in site.real]
-    albedo_by_part = {p.name: p.albedo.mean(axis=0) for p in lightmap_parts}
-    nodes = write_site_glb(staging / "site.glb", site, atlases, albedo_by_part)
-    compressor.close()
+    # One BLAS thread: the compact textures' bytes then do not depend on the core count, and
+    # a cluster's workers (one thread) write the same ones (bake.blasthreads).
+    with one_blas_thread():
+        sun_bounce = SunBounce.of(site, dome, atlases)
+        compressor.start(site, dome, work.stack_names + sun_bounce.stack_names, progress=progress)
+        sun_bounce.lights = compressor.selection.selectable
+        staging = partial / "build"
+        if staging.exists():
+            shutil.rmtree(staging)
+        (staging / "exr").mkdir(parents=True)
+        if site.views:
+            (staging / "views").mkdir()
+        # Each unit loads its own traced arrays when it starts and lets go of them when done:
+        # loading every set first held them all at once (the peak memory: docs/benchmarks.md).
+        traced = TracedResults(work.point_sets, partial)
+        units = [
+            partial_fn(write_atlas, a, traced, staging, compressor, sun_bounce)
+            for a in atlases.values()
+        ]
+        units += [
+            partial_fn(
+                write_view, view, view_hits[view.name], traced, geometry, dome, site, staging,
+                compressor,
+            )
+            for view in site.views
+        ]
+        try:
+            with _disk_full_is_a_bake_error(partial):
+                entries = _run_units(units, _units_at_once(cluster, len(units)))
+        except KeyboardInterrupt:
+            log(
+                f"interrupted while writing: every traced chunk is kept in {partial}; run the same "
+                "command again to resume"
+            )
+            raise
+        manifest_atlases, manifest_views = entries[: len(atlases)], entries[len(atlases) :]
+        lightmap_parts = site.virtual + [proxy.part for proxy in site.real]
+        albedo_by_part = {p.name: p.albedo.mean(axis=0) for p in lightmap_parts}
+        nodes = write_site_glb(staging / "site.glb", site, atlases, albedo_by_part)
+        compressor.close()
     stage_s["write"] = time.perf_counter() - t0
     duration = time.perf_counter() - started
     manifest = build_manifest(
@@ -294,13 +300,23 @@ def _atlases(site: Site, dome: Dome, geometry: Geometry, scenes: SceneSet, log) 
     return atlases
 
 
-def _run_two_at_a_time(units: list) -> list:
-    """Run the write units (callables returning a manifest entry) in two threads; their
-    entries in the order given. On a failure or Ctrl-C no other unit starts, the running one
-    stops at its next encoder call (:func:`bake.basisu.stop_encoding`), and the error is
-    raised once it has stopped: nothing writes into the staging folder afterwards."""
+def _units_at_once(cluster, units: int) -> int:
+    """Write units run at a time: two on this machine (one's single-threaded parts while the
+    other's encoders use the cores); with a cluster, whose workers compress, as many as it
+    has threads (each running unit holds its stacks in this process's memory)."""
+    if cluster is None:
+        return 2
+    return max(2, min(units, cluster.threads))
+
+
+def _run_units(units: list, at_once: int) -> list:
+    """Run the write units (callables returning a manifest entry) in ``at_once`` threads;
+    their entries in the order given. On a failure or Ctrl-C no other unit starts, the
+    running ones stop at their next encoder call or cluster wait
+    (:func:`bake.basisu.stop_encoding`), and the error is raised once they have stopped:
+    nothing writes into the staging folder afterwards."""
     basisu.allow_encoding()
-    with futures.ThreadPoolExecutor(max_workers=2, thread_name_prefix="write") as pool:
+    with futures.ThreadPoolExecutor(max_workers=at_once, thread_name_prefix="write") as pool:
         running = [pool.submit(unit) for unit in units]
         try:
             return [future.result() for future in running]

@@ -58,10 +58,14 @@ class SunBounce:
         ] if enabled else []
         return cls(enabled, dome.cosine_weighted_sr, np.asarray(site.ground.albedo), names)
 
-    def image(self, a, config, bounce, coverage, labels) -> np.ndarray:
+    def image(self, a, config, smoothed, coverage) -> np.ndarray:
         """The one-bounce part of an atlas stack (H, W, n, 3), exactly as
-        :func:`_atlas_image` adds it (smoothed within each surface, gutters filled), for the
-        lights the sun can be in; zero in the other columns (light i stays column i).
+        :func:`_atlas_image` adds it (``smoothed``: the stack's bounce as
+        :func:`smooth_bounce` gave it, (H, W, n, 3); gutters filled here), for the lights
+        the sun can be in; zero in the other columns (light i stays column i). The smoothing
+        is done once for both: it treats each light's column on its own (Gaussian blurs and
+        per-texel arithmetic), so its columns are those a smoothing of the sun's columns
+        alone gave, bit for bit (tests/bake/test_sun_bounce.py).
         ``"none"`` (a hull plane's ``d``) has the open ground's bounce in closed form,
         ``albedo E_up_i (1 - n_y) / 2`` (:meth:`Estimator.basis`)."""
         lights = self.lights
@@ -75,9 +79,7 @@ class SunBounce:
                 ).astype(np.float32)
             )
         else:
-            part = smooth_bounce(
-                a.to_image(np.ascontiguousarray(bounce[:, lights])), *_bounce_labels(a, labels)
-            )
+            part = smoothed[:, :, lights]  # a copy: the gutters are filled in it
         part = _dilate(part, coverage, rings=3)
         image = np.zeros((a.height, a.width, len(self.up), 3), dtype=np.float32)
         image[:, :, lights] = part
@@ -107,9 +109,14 @@ def write_atlas(a, traced: TracedResults, staging: Path, compressor, sun_bounce)
         direct, bounce = lookup_result(results, f"{a.id}.{stack}", config)
         if config != "none":  # texels moved onto contact lines: their chord (bake.contact)
             direct = extrapolate_direct(a, direct)
-        images[stack] = _atlas_image(
-            a, config, direct, bounce, coverage, _open_labels(a, labels, direct, config)
+        open_labels = _open_labels(a, labels, direct, config)
+        # Smoothed once, for the stack and its sun-bounce stack (it took a quarter of the
+        # write stage's time when done for each: docs/benchmarks.md).
+        smoothed = (
+            None if bounce is None
+            else smooth_bounce(a.to_image(bounce), *_bounce_labels(a, open_labels))
         )
+        images[stack] = _atlas_image(a, config, direct, smoothed, coverage, open_labels)
         rel = f"exr/{a.id}.{stack}.exr"
         write_stack_exr(staging / rel, images[stack])
         entry["stacks"][stack] = {
@@ -118,9 +125,8 @@ def write_atlas(a, traced: TracedResults, staging: Path, compressor, sun_bounce)
             "channels": CHANNEL_PATTERN,
         }
         if sun_bounce.enabled and (bounce is not None or config == "none"):
-            sun_images[stack] = sun_bounce.image(
-                a, config, bounce, coverage, _open_labels(a, labels, direct, config)
-            )
+            sun_images[stack] = sun_bounce.image(a, config, smoothed, coverage)
+        del smoothed
     del results, direct, bounce  # the images hold what compression needs
     # Shadowing atlases show I / d: their two stacks are compressed together for it.
     for stack, compact in compressor.run(images, a.id, staging).items():
@@ -144,13 +150,14 @@ def write_atlas(a, traced: TracedResults, staging: Path, compressor, sun_bounce)
     return entry
 
 
-def _atlas_image(a, config, direct, bounce, coverage, labels) -> np.ndarray:
-    """An atlas stack (H, W, n, 3): direct plus smoothed bounce, gutters filled. ``labels``
-    from :func:`_open_labels` (buried texels -2)."""
+def _atlas_image(a, config, direct, smoothed, coverage, labels) -> np.ndarray:
+    """An atlas stack (H, W, n, 3): direct plus the bounce ``smoothed`` (H, W, n, 3, from
+    :func:`smooth_bounce`, or None), gutters filled. ``labels`` from :func:`_open_labels`
+    (buried texels -2)."""
     # Buried texels along contact lines hold the visible side's light continued (bake.contact).
     image = continue_into_buried(_rgb(a.to_image(direct), config), labels)
-    if bounce is not None:
-        image += smooth_bounce(a.to_image(bounce), *_bounce_labels(a, labels))
+    if smoothed is not None:
+        image += smoothed
     return _dilate(image, coverage, rings=3)
 
 

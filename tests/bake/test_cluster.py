@@ -1,8 +1,11 @@
 """Baking on a Dask cluster (``daylit bake --cluster``): the same bytes as the local process
-pool, resumable locally, and a clear error when the scheduler cannot be reached.
+pool, resumable locally, and a clear error when the scheduler cannot be reached or its
+workers cannot compress.
 
 The cluster is a ``LocalCluster`` of two worker processes started here; the workers trace,
-return each chunk's arrays and the baking process saves them (bake.cluster)."""
+return each chunk's arrays and the baking process saves them (bake.cluster); they compress
+the stacks and return the files' bytes, which the baking process writes
+(bake.compressjobs)."""
 
 from __future__ import annotations
 
@@ -13,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from bake import chunkio, tracework
+from bake import basisu, chunkio, compress, compressjobs, sunbounce, tracework
 from bake.errors import BakeError
 from bake.pipeline import bake
 from daylit.cli import main
@@ -80,6 +83,13 @@ def test_a_cluster_bake_writes_the_same_bytes_as_the_local_pool(
     scene, reference, cluster, tmp_path, monkeypatch
 ):
     monkeypatch.setattr(tracework, "RAYS_PER_CHUNK", RAYS_PER_CHUNK)
+
+    def not_here(*args, **kwargs):
+        raise AssertionError("compressed in the baking process, not on a worker")
+
+    # The workers (other processes) compress; the baking process only writes their bytes.
+    monkeypatch.setattr(compress, "compress_stacks", not_here)
+    monkeypatch.setattr(sunbounce, "compress_sun_bounce", not_here)
     messages: list[str] = []
     result = bake(scene, tmp_path / "out", cluster=cluster, progress=False, log=messages.append)
     assert any(f"on the cluster {cluster}" in m for m in messages)
@@ -169,3 +179,41 @@ def test_an_unreachable_scheduler_is_a_clear_error_before_any_work(tmp_path, cap
     assert status == 2
     assert f"error: cannot reach the Dask scheduler at {address}" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scene"]
+
+
+def test_workers_that_cannot_compress_are_a_clear_error_before_any_work(
+    tmp_path, monkeypatch, capsys
+):
+    from distributed import LocalCluster
+
+    scene = make_site(tmp_path / "scene")
+    out = tmp_path / "out"
+    # Workers in this process (threads), so that they see a checkout without `npm ci`.
+    checkout = tmp_path / "checkout"
+    monkeypatch.setattr(basisu, "REPO_ROOT", checkout)
+    with LocalCluster(
+        n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None
+    ) as local:
+        with pytest.raises(BakeError) as caught:
+            bake(scene, out, cluster=local.scheduler_address, **QUIET)
+        message = str(caught.value)
+        assert "cannot compress" in message and "the basisu encoder is missing" in message
+        assert f"run `npm ci` in {checkout}" in message and "Nothing was written" in message
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["scene"]
+
+        status = main(["bake", str(scene), "-o", str(out), "--cluster",
+                       local.scheduler_address, "--no-progress"])
+    assert status == 2
+    assert "the basisu encoder is missing" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene"]
+
+
+def test_this_machine_can_compress_and_a_job_writes_inside_the_build_only(tmp_path):
+    assert compressjobs.encoder_problem() is None  # what the cluster tests' workers have
+    written = compressjobs.write_files(tmp_path, {"ktx2/a.ktx2": b"abc", "v/b.bin": b"d"})
+    assert [p.read_bytes() for p in written] == [b"abc", b"d"]
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["a.ktx2", "b.bin", "ktx2", "v"]
+    for bad in ("../escape.ktx2", "/tmp/escape.ktx2"):
+        with pytest.raises(ValueError, match="outside the build"):
+            compressjobs.write_files(tmp_path / "build", {bad: b"x"})
+    assert not (tmp_path / "escape.ktx2").exists()

@@ -359,3 +359,36 @@ def test_compact_oracle_agrees_with_the_masters(sun_site_build):
     compact = build.sun_bounce(points, normals, sun, 800.0, source="compact")
     assert np.allclose(compact["with"], master["with"], rtol=0.05, atol=0.05)
     assert np.allclose(compact["without"], master["without"], rtol=0.05, atol=0.05)
+
+
+@pytest.mark.parametrize("moved", [False, True])
+def test_one_smoothing_serves_the_stack_and_its_sun_bounce_bit_for_bit(moved):
+    """The write stage smooths an atlas stack's bounce once and takes the sun-bounce stack's
+    columns from it (bake.writers.SunBounce.image): the same bits as smoothing those columns
+    alone, as it did before, with channel groups split differently (more than
+    ``MAX_CHANNELS``), buried texels along a contact line and texels moved onto it."""
+    from bake.denoise import MAX_CHANNELS
+    from bake.writers import smooth_bounce
+
+    rng = np.random.default_rng(7)
+    h, w, n = 36, 44, 70  # 210 channels: groups of 128 + 82 in all, 123 for the subset
+    bounce = rng.gamma(2.0, 0.05, size=(h, w, n, 3)).astype(np.float32)
+    labels = np.full((h, w), -1, dtype=np.int64)
+    labels[2:30, 3:40] = 0
+    labels[12:20, 15:26] = -2  # buried under a wall standing on surface 0
+    labels[31:35, 5:42] = 1
+    rows = cols = None
+    if moved:  # the ring of texels at the wall's foot, moved onto the contact line
+        ring = np.zeros((h, w), bool)
+        ring[11:21, 14:27] = True
+        ring[12:20, 15:26] = False
+        rows, cols = np.nonzero(ring & (labels == 0))
+        labels[rows, cols] = -2
+    lights = np.sort(rng.choice(n, size=41, replace=False))
+    assert n * 3 > MAX_CHANNELS and len(lights) * 3 < n * 3
+    moved_at = None if rows is None else (rows, cols)
+    once = smooth_bounce(bounce, labels, moved_at)[:, :, lights]
+    alone = smooth_bounce(np.ascontiguousarray(bounce[:, :, lights]), labels, moved_at)
+    assert once.dtype == alone.dtype == np.float32
+    assert np.array_equal(once, alone)
+    assert not np.array_equal(alone, bounce[:, :, lights])  # it did smooth

@@ -1,4 +1,4 @@
-"""The write stage runs atlases and views two at a time (bake.pipeline._run_two_at_a_time)."""
+"""The write stage runs atlases and views two at a time (bake.pipeline._run_units)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 
 from bake import basisu, compress, quantize
 from bake.errors import BakeError
-from bake.pipeline import _run_two_at_a_time
+from bake.pipeline import _run_units
 
 
 def test_entries_come_back_in_the_order_given_whatever_finishes_first():
@@ -24,7 +24,7 @@ def test_entries_come_back_in_the_order_given_whatever_finishes_first():
 
         return run
 
-    entries = _run_two_at_a_time([unit("hull", 0.3), unit("ground", 0.0), unit("kiosk", 0.0)])
+    entries = _run_units([unit("hull", 0.3), unit("ground", 0.0), unit("kiosk", 0.0)], 2)
     assert entries == ["hull", "ground", "kiosk"]
     # The slow first unit did not hold up the others: they ran on the other thread meanwhile.
     assert len({thread for _, thread in started}) == 2
@@ -59,7 +59,7 @@ def test_a_failure_stops_the_other_units_encoders_and_is_raised_once_they_stoppe
         return "other"
 
     with pytest.raises(BakeError, match="basisu failed"):
-        _run_two_at_a_time([fails, encodes_until_stopped])
+        _run_units([fails, encodes_until_stopped], 2)
     assert finished.is_set()  # nothing still writes into the staging folder after the error
     assert refused and refused[0].startswith("stopped")
 
@@ -68,4 +68,4 @@ def test_a_failure_stops_the_other_units_encoders_and_is_raised_once_they_stoppe
         basisu.encode([png], tmp_path, compress.Settings(), array=False)
         return (tmp_path / "layer.ktx2").is_file()
 
-    assert _run_two_at_a_time([encodes]) == [True]
+    assert _run_units([encodes], 2) == [True]
