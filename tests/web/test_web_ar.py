@@ -24,7 +24,10 @@ SKY = "clear:135,40"
 SKY2 = "clear:200,25"
 SIZE = (640, 360)
 EXPOSURE = 0.5
-URL = f"/?mode=visit&test&exposure={EXPOSURE}"
+# AR draws straight to the screen (its passthrough: docs/web.md, "How the picture is
+# displayed"), so the visit it is compared with does too (`frame=direct`): the same
+# compositing and the canvas's own antialiasing on both sides.
+URL = f"/?mode=visit&test&exposure={EXPOSURE}&frame=direct"
 READY = "window.daylit.status.ready"
 # The device where the visitor taps (looking 4 degrees down: the floor 23 m ahead), then
 # where it walks and turns to, hall in view: (position m, yaw deg, pitch deg, roll deg).
