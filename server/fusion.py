@@ -37,6 +37,7 @@ import numpy as np
 from daylit.spherical import PatchLookup
 from daylit.sun import SunSource
 from server.measure import Frame, FrameError, Measurement
+from server.newest import Newest
 from server.sceneestimate import SceneLight
 from server.scenemeter import SceneMeter
 from server.simsky import hemisphere_grid
@@ -89,25 +90,19 @@ class SceneFusion:
         self.sky_camera: dict | None = None  # the newest sky-camera figures compared
         self._sun_ratios: collections.deque[float] = collections.deque(maxlen=WINDOW)
         self._sky_ratios: collections.deque[float] = collections.deque(maxlen=WINDOW)
-        self._pending: Frame | None = None
-        self._new = asyncio.Event()
+        self._frames: Newest[Frame] = Newest()
         self._warned = ""
 
     # ------------------------------------------------------------------------------ input
 
     def deliver(self, frame: Frame) -> None:
         """The site camera feed's listener: keep the newest frame (never blocks)."""
-        self._pending = frame
-        self._new.set()
+        self._frames.put(frame)
 
     async def run_forever(self) -> None:
         """Estimate the newest site-camera frame on a worker thread, at most ``rate_hz``."""
         while True:
-            await self._new.wait()
-            self._new.clear()
-            frame, self._pending = self._pending, None
-            if frame is None:
-                continue
+            frame = await self._frames.take()
             t0 = time.monotonic()
             try:
                 light, _ = await asyncio.to_thread(self.meter.estimate, frame)

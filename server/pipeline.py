@@ -37,6 +37,7 @@ from daylit.spherical import PatchLookup, solid_angle
 from daylit.sun import SunSource
 from server.lightstream import LightHub
 from server.measure import Frame, FrameError, Measurement, SkyMeter
+from server.newest import Newest
 from server.protocol import Flags, fold_sun
 from server.sources.base import Source
 from server.sunmeter import SunMeasurement
@@ -83,8 +84,7 @@ class LightPipeline:
         self.frames_replaced = 0
         self.measure_ms: collections.deque[float] = collections.deque(maxlen=50)
         self._frame_times: collections.deque[float] = collections.deque(maxlen=64)
-        self._pending: Frame | None = None
-        self._new = asyncio.Event()
+        self._frames: Newest[Frame] = Newest()
         self._saturated = np.zeros(0, dtype=bool)
         self.sun: SunMeasurement | None = None  # the newest frame's sun
         self.sun_ms: collections.deque[float] = collections.deque(maxlen=50)
@@ -104,11 +104,9 @@ class LightPipeline:
 
     def deliver(self, frame: Frame) -> None:
         """Called by the source for each frame; never blocks, keeps only the newest."""
-        if self._pending is not None:
+        if self._frames.put(frame):
             self.frames_replaced += 1  # measuring is slower than the source: drop the older
-        self._pending = frame
         self.frames_in += 1
-        self._new.set()
 
     # ---------------------------------------------------------------------------- tasks
 
@@ -155,10 +153,8 @@ class LightPipeline:
 
     async def measure_forever(self) -> None:
         while True:
-            await self._new.wait()
-            self._new.clear()
-            frame, self._pending = self._pending, None
-            if frame is None or self._new_size(frame):
+            frame = await self._frames.take()
+            if self._new_size(frame):
                 continue
             t0 = time.perf_counter()
             try:

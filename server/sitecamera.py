@@ -21,6 +21,7 @@ import numpy as np
 
 from server.lightstream import LightHub
 from server.measure import Frame
+from server.newest import Newest
 from server.occlusionfeed import OcclusionRunner
 from server.protocol import Flags
 from server.sources.base import Source
@@ -38,8 +39,7 @@ class SiteCameraFeed:
         self.jpeg_quality = jpeg_quality
         self.max_width = max_width
         self.occlusion = occlusion
-        self._pending: Frame | None = None
-        self._new = asyncio.Event()
+        self._frames: Newest[Frame] = Newest()
         self.ready = asyncio.Event()
         self.frames = 0
         self.frames_in = 0
@@ -54,11 +54,9 @@ class SiteCameraFeed:
     def deliver(self, frame: Frame) -> None:
         for listener in self.listeners:
             listener(frame)
-        if self._pending is not None:
+        if self._frames.put(frame):
             self.frames_replaced += 1
         self.frames_in += 1
-        self._pending = frame
-        self._new.set()
 
     def encode(self, frame: Frame) -> bytes:
         image = frame.image
@@ -87,12 +85,7 @@ class SiteCameraFeed:
             await self.occlusion.start()
         self.ready.set()
         while True:
-            await self._new.wait()
-            self._new.clear()
-            frame, self._pending = self._pending, None
-            if frame is None:
-                continue
-            await self.handle(frame)
+            await self.handle(await self._frames.take())
 
     async def handle(self, frame: Frame) -> bool:
         """Encode one frame (and find its mask) and publish it; False if it was skipped."""
