@@ -11,6 +11,18 @@ function toBase64(floats) {
 }
 
 export function debugApi(app) {
+  /** For each canvas pixel [x, y] (CSS px), `perPixel(hits, raycaster)` of the visible site's
+   * surfaces along its ray (three's Raycaster, nearest first). */
+  const siteHits = (pixels, perPixel) => {
+    const rect = app.canvas.getBoundingClientRect();
+    const raycaster = new THREE.Raycaster();
+    const meshes = [];
+    app.site.root.traverse((o) => { if (o.isMesh && o.visible && o.userData.daylit) meshes.push(o); });
+    return pixels.map(([x, y]) => {
+      raycaster.setFromCamera(new THREE.Vector2(2 * x / rect.width - 1, 1 - 2 * y / rect.height), app.camera);
+      return perPixel(raycaster.intersectObjects(meshes, false), raycaster);
+    });
+  };
   return Object.freeze({
     /**
      * Relight with r (flat n x 3 array: the sky) and, optionally, the sun ({direction: [x, y,
@@ -36,13 +48,7 @@ export function debugApi(app) {
      * null over the sky. The tests evaluate the oracle there.
      */
     pick(pixels) {
-      const rect = app.canvas.getBoundingClientRect();
-      const raycaster = new THREE.Raycaster();
-      const meshes = [];
-      app.site.root.traverse((o) => { if (o.isMesh && o.visible && o.userData.daylit) meshes.push(o); });
-      return pixels.map(([x, y]) => {
-        raycaster.setFromCamera(new THREE.Vector2(2 * x / rect.width - 1, 1 - 2 * y / rect.height), app.camera);
-        const hits = raycaster.intersectObjects(meshes, false);
+      return siteHits(pixels, (hits, raycaster) => {
         if (!hits.length) return null;
         // Coplanar surfaces: the shadowing plane is drawn over the open ground (polygon offset).
         const hit = hits.find((h) => h.distance < hits[0].distance + 1e-3 && h.object.userData.daylit.role === 'shadowing-plane') ?? hits[0];
@@ -55,18 +61,11 @@ export function debugApi(app) {
     },
     /** Every visible surface along each pixel's ray, nearest first: [{role, atlas, name, distance}]. */
     pickAll(pixels) {
-      const rect = app.canvas.getBoundingClientRect();
-      const raycaster = new THREE.Raycaster();
-      const meshes = [];
-      app.site.root.traverse((o) => { if (o.isMesh && o.visible && o.userData.daylit) meshes.push(o); });
-      return pixels.map(([x, y]) => {
-        raycaster.setFromCamera(new THREE.Vector2(2 * x / rect.width - 1, 1 - 2 * y / rect.height), app.camera);
-        return raycaster.intersectObjects(meshes, false).map((h) => ({
-          role: h.object.userData.daylit.role, atlas: h.object.userData.daylit.atlas ?? null,
-          name: h.object.name, distance: h.distance, point: h.point.toArray(),
-          normal: h.face.normal.clone().transformDirection(h.object.matrixWorld).toArray(),
-        }));
-      });
+      return siteHits(pixels, (hits) => hits.map((h) => ({
+        role: h.object.userData.daylit.role, atlas: h.object.userData.daylit.atlas ?? null,
+        name: h.object.name, distance: h.distance, point: h.point.toArray(),
+        normal: h.face.normal.clone().transformDirection(h.object.matrixWorld).toArray(),
+      })));
     },
     /** Where world points appear on the canvas: [x, y] CSS pixels from the top left. */
     project(points) {
