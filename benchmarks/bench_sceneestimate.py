@@ -147,11 +147,17 @@ def timing(site, rendered, samples: int, repeats: int) -> dict:
     sun_cast_s = time.perf_counter() - t0
     linear = linearise(codes)
     est.estimate(linear, sun, 1.0 / exposure, clip_level=0.99)  # warm (sky-term cache)
-    times = []
+    # baseline in the same run: the stated albedos used as they are (no surface scales)
+    stated = SceneEstimator(mesh, albedo, view, samples=samples, learn_albedo=False)
+    stated.estimate(linear, sun, 1.0 / exposure, clip_level=0.99)
+    times, stated_times = [], []
     for _ in range(repeats):
         t0 = time.perf_counter()
         est.estimate(linear, sun, 1.0 / exposure, clip_level=0.99)
         times.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        stated.estimate(linear, sun, 1.0 / exposure, clip_level=0.99)
+        stated_times.append(time.perf_counter() - t0)
     meter = SceneMeter(est, Dome.for_light_count(160).vertices, sun_path,
                        radiance_per_unit=1.0 / exposure, saturation_level=0.99)
     frame = Frame(codes, rendered.when_unix_s, bgr=False)
@@ -170,6 +176,7 @@ def timing(site, rendered, samples: int, repeats: int) -> dict:
         "sun_cast_s": sun_cast_s,
         "estimate_ms_median": 1e3 * float(np.median(times)),
         "estimates_per_s": 1.0 / float(np.median(times)),
+        "baseline_stated_albedo_ms_median": 1e3 * float(np.median(stated_times)),
         "meter_ms_median": 1e3 * float(np.median(meter_times)),
         "meter_per_s": 1.0 / float(np.median(meter_times)),
         "baseline_linearise_ms_median": 1e3 * float(np.median(lut_times)),

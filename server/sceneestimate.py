@@ -48,6 +48,7 @@ import trimesh
 from daylit.sky import SUN_SOLID_ANGLE_SR, CIESky, Sky, Sun, azimuth_elevation_from_direction
 from daylit.spherical import normalize
 from server.robustfit import ransac_fit, robust_linear_fit, weighted_nonneg
+from server.surfacescale import SurfaceScales, surfaces_by_albedo
 
 LUMINANCE_RGB = np.array([0.2126, 0.7152, 0.0722])
 SURFACE_OFFSET_M = 0.01  # rays leave a surface this far along its normal
@@ -131,6 +132,7 @@ class SceneSamples:
     bounce_normals: np.ndarray
     bounce_albedo: np.ndarray
     bounce_sample: np.ndarray
+    surface: np.ndarray
 
     @property
     def sky_view(self) -> np.ndarray:
@@ -232,6 +234,7 @@ def prepare_samples(mesh: trimesh.Trimesh, face_albedo: np.ndarray, view: Pinhol
                                   np.tile([0.0, 1.0, 0.0], (len(far), 1))]),
         bounce_albedo=np.vstack([face_albedo[first[hits]], np.tile(env, (len(far), 1))]),
         bounce_sample=bounce_rays // k,
+        surface=surfaces_by_albedo(face_albedo)[face[idx]],
     )
 
 
@@ -329,6 +332,8 @@ class SceneEstimator:
     share_memory : weight of the past in the sky shape's model share (0: each frame alone)
     sun_significance : under an overcast sky (CIE type 1 chosen), the sun is kept only if it
         lowers the weighted squared residual by more than this fraction
+    learn_albedo : learn each surface's albedo scale from the frames (server.surfacescale):
+        one surface with a wrong stated albedo no longer scales the estimate
     """
 
     mesh: trimesh.Trimesh
@@ -343,7 +348,9 @@ class SceneEstimator:
     hemisphere_count: int = 96
     share_memory: float = 0.8
     sun_significance: float = 0.5
+    learn_albedo: bool = True
     _pool: SceneSamples | None = field(default=None, init=False, repr=False)
+    _surface_scales: SurfaceScales | None = field(default=None, init=False, repr=False)
     _sun_cache: tuple | None = field(default=None, init=False, repr=False)
     _rng: np.random.Generator | None = field(default=None, init=False, repr=False)
     _hit: object = field(default=None, init=False, repr=False)
@@ -357,6 +364,12 @@ class SceneEstimator:
                                          self.hemisphere_count, self.seed,
                                          environment_albedo=self.environment_albedo)
         return self._pool
+
+    @property
+    def _scales(self) -> SurfaceScales:
+        if self._surface_scales is None:
+            self._surface_scales = SurfaceScales(self.pool_samples.surface)
+        return self._surface_scales
 
     def in_sun(self, sun_dir: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """For a sun direction: (m,) bool, each pool sample faces the sun and nothing of the
@@ -478,9 +491,11 @@ class SceneEstimator:
         if len(pick) < 8:
             raise SceneEstimateError(f"only {len(pick)} usable samples in the frame")
         cos_i = np.clip(p.normals[pick] @ sun_dir, 0.0, None) * lit[pick]
-        albedo = p.albedo[pick]
+        stated_albedo = p.albedo[pick]
+        surface = p.surface[pick]
         b_sun, b_sky = bounce_sun[pick], bounce_sky[pick]
         sunlit_count = int(np.sum(cos_i > 0.05))
+        y_sum = values.sum(axis=1)
         sky_type = 12
         result = None
         for _ in range(3):
@@ -488,19 +503,28 @@ class SceneEstimator:
             # the isotropic part of the sky: what a uniform sky of unit horizontal irradiance
             # gives (the sky view factor; Perez and Hay-Davies split the sky the same way)
             u = p.sky_view[pick]
-            # (n, 3): radiance per unit sun normal irradiance, per unit sky irradiance
-            a_rgb = albedo / math.pi * (cos_i[:, None] + b_sun)
-            c_rgb = albedo / math.pi * (s[:, None] + b_sky)
-            u_rgb = albedo / math.pi * (u[:, None] + b_sky)
+            # (n, 3): radiance per unit sun normal irradiance and albedo, per unit sky
+            # irradiance and albedo
+            per_albedo = [(cos_i[:, None] + b_sun) / math.pi, (s[:, None] + b_sky) / math.pi,
+                          (u[:, None] + b_sky) / math.pi]
             if sunlit_count < MIN_SUNLIT:
-                a_rgb = np.zeros_like(a_rgb)
-            y_sum = values.sum(axis=1)
-            a_sum, c_sum = a_rgb.sum(axis=1), c_rgb.sum(axis=1)
-            inliers = ransac_fit(a_sum, c_sum, y_sum, self._rng)
+                per_albedo[0] = np.zeros_like(per_albedo[0])
+            albedo = stated_albedo * self._scales.of(surface)[:, None]
+            a_rgb, c_rgb, u_rgb = (albedo * t for t in per_albedo)
+            inliers = ransac_fit(a_rgb.sum(axis=1), c_rgb.sum(axis=1), y_sum, self._rng)
             # The weights come from the channel sum (a person in a red coat is an outlier in
             # every channel); each channel is then one weighted least-squares solve.
-            A_sum = np.column_stack([a_sum, c_sum, u_rgb.sum(axis=1)])
+            A_sum = np.column_stack([t.sum(axis=1) for t in (a_rgb, c_rgb, u_rgb)])
             x_sum, weights = robust_linear_fit(A_sum, y_sum, inliers)
+            if self.learn_albedo:
+                # a wrong albedo on one surface: its scale from these samples, then the fit
+                # again with it
+                stated = np.column_stack([(stated_albedo * t).sum(axis=1) for t in per_albedo])
+                self._scales.refit(surface, stated, y_sum)
+                albedo = stated_albedo * self._scales.of(surface)[:, None]
+                a_rgb, c_rgb, u_rgb = (albedo * t for t in per_albedo)
+                A_sum = np.column_stack([t.sum(axis=1) for t in (a_rgb, c_rgb, u_rgb)])
+                x_sum, weights = robust_linear_fit(A_sum, y_sum, weights)
             # The sky's shape (the model's share against the isotropic part) from the sum too;
             # per channel only the sun and the sky's scale.
             share = x_sum[1] / max(x_sum[1] + x_sum[2], 1e-12) if x_sum[1:].sum() > 0 \
@@ -531,4 +555,6 @@ class SceneEstimator:
             if new_type == sky_type:
                 break
             sky_type = new_type
+        if self.learn_albedo:
+            self._scales.end_frame()
         return result

@@ -238,10 +238,6 @@ def test_a_building_albedo_wrong_by_30_percent_keeps_the_sun_within_fifteen_perc
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="not met yet: the building's shaded face is most of the "
-                   "shadowed pixels in view, so its albedo scales the sky's estimate (0.7x: "
-                   "+48 to +66 % at seeds 7-9; 1.3x: +4 % at seed 7, -38 and -44 % at seeds 8, 9; "
-                   "against Radiance, 2026-11-24)")
 def test_a_building_albedo_wrong_by_30_percent_keeps_the_sky_within_fifteen_percent(
         wrong_albedo_estimates):
     rendered, lasts = wrong_albedo_estimates
