@@ -371,6 +371,20 @@ class SceneEstimator:
             self._surface_scales = SurfaceScales(self.pool_samples.surface)
         return self._surface_scales
 
+    def surface_report(self) -> list[dict]:
+        """Per surface (one stated albedo): its stated RGB albedo, share of the view's known
+        pixels, the albedo scale learned from the frames and whether it is used (it is more
+        than ``ALBEDO_TRUST`` off the stated albedo)."""
+        p, scales = self.pool_samples, self._scales
+        stated = np.zeros((len(scales.scale), 3))
+        stated[p.surface] = p.albedo
+        share = scales.area / max(float(scales.area.sum()), 1.0)
+        return [{"albedo": [round(float(v), 4) for v in stated[k]],
+                 "share_of_view": round(float(share[k]), 4),
+                 "learned_scale": round(float(scales.scale[k]), 4),
+                 "used": bool(scales.rescaled[k])}
+                for k in range(len(scales.scale)) if scales.area[k] > 0]
+
     def in_sun(self, sun_dir: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """For a sun direction: (m,) bool, each pool sample faces the sun and nothing of the
         mesh is in between; (m, 3) and (m, 3), the bounce terms per unit sun normal irradiance
@@ -421,6 +435,17 @@ class SceneEstimator:
                 self._hit = _intersector(self.mesh)
             lit[idx] = ~self._hit.intersects_any(start, np.broadcast_to(sun_dir, start.shape))
         return lit
+
+    def _model_share(self, sky_type: int, x_sum: np.ndarray) -> float:
+        """The sky's shape, the model's share against the isotropic part, from a fit ``x_sum``
+        (sun, model sky, isotropic sky) of the channel sum; per channel only the sun and the
+        sky's scale are solved. The share is poorly determined by one frame's samples (the two
+        columns are nearly collinear) and the sky's shape changes slowly: it is followed across
+        frames (kept by :meth:`estimate`)."""
+        share = x_sum[1] / max(x_sum[1] + x_sum[2], 1e-12) if x_sum[1:].sum() > 0 else 1.0
+        previous = self._share.get(sky_type)
+        return float(share if previous is None else (
+            self.share_memory * previous + (1.0 - self.share_memory) * share))
 
     def _sun_needed(self, a_rgb: np.ndarray, sky_col: np.ndarray, values: np.ndarray,
                     weights: np.ndarray) -> bool:
@@ -518,22 +543,18 @@ class SceneEstimator:
             x_sum, weights = robust_linear_fit(A_sum, y_sum, inliers)
             if self.learn_albedo:
                 # a wrong albedo on one surface: its scale from these samples, then the fit
-                # again with it
-                stated = np.column_stack([(stated_albedo * t).sum(axis=1) for t in per_albedo])
-                self._scales.refit(surface, stated, y_sum)
+                # again with it. The sky as one term of this fit's shape: the model and the
+                # isotropic sky differ most on walls, and two free sky terms would let a
+                # wall's scale take up the difference.
+                share = self._model_share(sky_type, x_sum)
+                sun_t = (stated_albedo * per_albedo[0]).sum(axis=1)
+                sky_t = (stated_albedo * (share * per_albedo[1] + (1.0 - share) * per_albedo[2]))
+                self._scales.refit(surface, np.column_stack([sun_t, sky_t.sum(axis=1)]), y_sum)
                 albedo = stated_albedo * self._scales.of(surface)[:, None]
                 a_rgb, c_rgb, u_rgb = (albedo * t for t in per_albedo)
                 A_sum = np.column_stack([t.sum(axis=1) for t in (a_rgb, c_rgb, u_rgb)])
                 x_sum, weights = robust_linear_fit(A_sum, y_sum, weights)
-            # The sky's shape (the model's share against the isotropic part) from the sum too;
-            # per channel only the sun and the sky's scale.
-            share = x_sum[1] / max(x_sum[1] + x_sum[2], 1e-12) if x_sum[1:].sum() > 0 \
-                else 1.0
-            # The share is poorly determined by one frame's samples (the two columns are
-            # nearly collinear) and the sky's shape changes slowly: follow it across frames.
-            previous = self._share.get(sky_type)
-            model_share = share if previous is None else (
-                self.share_memory * previous + (1.0 - self.share_memory) * share)
+            model_share = self._model_share(sky_type, x_sum)
             sky_col = model_share * c_rgb + (1.0 - model_share) * u_rgb
             sun_rgb = np.zeros(3)
             sky_rgb = np.zeros(3)

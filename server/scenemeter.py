@@ -194,6 +194,7 @@ class SceneMeter:
                 "sun_observable": light.sun_observable,
                 "samples_used": light.used,
                 "inlier_fraction": round(light.inlier_fraction, 3),
+                "surfaces": self.estimator.surface_report(),
             })
         return out
 

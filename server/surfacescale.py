@@ -115,13 +115,14 @@ class SurfaceScales:
         lo = np.concatenate([np.zeros(q), np.full(len(free), 1.0 / SCALE_LIMITS[1])])
         hi = np.concatenate([np.full(q, np.inf), np.full(len(free), 1.0 / SCALE_LIMITS[0])])
         fit = lsq_linear(np.vstack(rows), np.concatenate(rhs), bounds=(lo, hi))
-        new = self.kept.copy()
-        new[free] = 1.0 / fit.x[q:]
-        # the level: the median of the scales over what the view sees is held at 1
-        order = np.argsort(new)
-        cumulative = np.cumsum(self.area[order])
-        level = float(new[order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
-        self.scale = np.clip(new / level, *SCALE_LIMITS)
+        # the level, in the solve's own units: the median of the free surfaces' scales over
+        # what the view sees of them is held at 1 (the held ones keep theirs)
+        solved = 1.0 / fit.x[q:]
+        order = np.argsort(solved)
+        cumulative = np.cumsum(self.area[free][order])
+        level = float(solved[order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
+        self.scale = self.kept.copy()
+        self.scale[free] = np.clip(solved / level, *SCALE_LIMITS)
         off = np.abs(np.log(self.scale))
         self.rescaled = np.where(self.rescaled, off > 0.5 * np.log1p(ALBEDO_TRUST),
                                  off > np.log1p(ALBEDO_TRUST))

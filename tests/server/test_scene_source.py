@@ -63,6 +63,11 @@ async def test_scene_source_streams_the_estimated_sun_and_sky(aiohttp_client, sc
     assert np.mean(est["sky_horizontal_irradiance_W_m2"]) == pytest.approx(rendered.dhi_w_m2,
                                                                             rel=0.15)
     assert np.all(np.asarray(m.rgb) >= 0.0) and np.asarray(m.rgb).max() > 0.0
+    # the build's albedos are right: each surface's learned scale near 1 and none used
+    surfaces = est["surfaces"]
+    assert len(surfaces) >= 2
+    assert sum(s["share_of_view"] for s in surfaces) == pytest.approx(1.0, abs=1e-3)
+    assert all(not s["used"] and abs(s["learned_scale"] - 1.0) < 0.15 for s in surfaces), surfaces
     await ws.close()
 
 

@@ -80,3 +80,11 @@ def test_surfaces_are_the_faces_of_one_stated_albedo():
     albedo = np.array([[0.2, 0.2, 0.2], [0.5, 0.4, 0.3], [0.2, 0.2, 0.2], [0.5, 0.4, 0.3]])
     s = surfaces_by_albedo(albedo)
     assert s[0] == s[2] and s[1] == s[3] and s[0] != s[1]
+
+
+def test_a_surface_seen_in_too_few_samples_keeps_its_albedo():
+    # surface 2 has fewer samples than a scale needs: it keeps its stated albedo (1) while
+    # the others' scales are solved and levelled (a wall sliver in the kiosk's view)
+    scales = _learn([1.0, 1.0 / 0.7, 1.0], sizes=(300, 120, 5))
+    assert scales.scale[2] == 1.0 and not scales.rescaled[2]
+    assert scales.scale[1] == pytest.approx(1.0 / 0.7, rel=0.03)
