@@ -47,7 +47,12 @@ export class Assets {
   async loadManifest() {
     let response;
     try {
-      response = await fetch(this.manifestUrl, { cache: 'no-cache' });
+      // index.html asked for it before the modules came: take that request, once.
+      const early = globalThis.daylitEarly;
+      globalThis.daylitEarly = null;
+      const same = early && new URL(early.url, location.href).href === new URL(this.manifestUrl, location.href).href;
+      response = same ? await early.response.catch(() => null) : null;
+      response ??= await fetch(this.manifestUrl, { cache: 'no-cache' });
     } catch (err) {
       throw new AssetError('the build manifest', `network error (${err.message})`);
     }
@@ -157,7 +162,8 @@ export class Assets {
     this.onProgress?.(this.bytesLoaded);
   }
 
-  /** Set up the Basis transcoder for this renderer (once). */
+  /** Set up the Basis transcoder for this renderer (once) and start fetching it (its wasm is
+   * the largest file before the first picture: not after the manifest, beside it). */
   initTextures(renderer) {
     this.ktx2 = new KTX2Loader().setTranscoderPath(TRANSCODER_PATH).detectSupport(renderer);
     if (this.exactTextures) {
@@ -167,6 +173,7 @@ export class Assets {
         if (key.endsWith('Supported')) this.ktx2.workerConfig[key] = false;
       }
     }
+    this.ktx2.init().catch(() => {}); // a failure is reported by the first texture's parse
   }
 
   /** A KTX2 texture (2D, or a 2D array for several layers), linear, unfiltered reads. */

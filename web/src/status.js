@@ -20,6 +20,8 @@ export function makeStatus(source) {
     ready: () => source.ready,
     bytesLoaded: () => source.assets?.bytesLoaded ?? 0,
     firstRelitMs: () => source.firstRelitMs,
+    exactRelitMs: () => source.exactRelitMs,
+    coarse: () => source.relighter?.coarse ?? false,
     siteCameraFrames: () => source.kiosk?.framesShown ?? 0,
     occlusionMasks: () => source.stream?.messages.occlusion ?? 0,
     contextLost: () => source.contextLost,
