@@ -49,6 +49,7 @@ export class App {
     this.frameMs = 0;
     this.firstRelitMs = null; // the first relit frame (from a coarse start, if the build has one)
     this.exactRelitMs = null; // the first exactly relit frame (every layer, every light image)
+    this.firstRelitBytes = null;
     this.smoother = new LightSmoother(this.smoothingS);
     this.light = null; // the newest message
     this.saturated = null;
@@ -396,6 +397,7 @@ export class App {
     if (this._firstRelitPending && this.relighter?.applied) {
       this._firstRelitPending = false;
       this.firstRelitMs = performance.now();
+      this.firstRelitBytes = this.assets.bytesLoaded; // what that picture waited for
     }
     if (this._exactRelitPending && this.relighter?.applied) {
       this._exactRelitPending = false;

@@ -42,6 +42,7 @@ export class Assets {
     // 'sha256' where SubtleCrypto is available (a secure context), else 'length'.
     this.verification = globalThis.crypto?.subtle ? 'sha256' : 'length';
     this.ktx2 = null;
+    this._inFlight = new Map(); // path -> Promise of its bytes, while on the way
   }
 
   async loadManifest() {
@@ -83,8 +84,18 @@ export class Assets {
     return u.href;
   }
 
-  /** A build file's bytes, checked against the manifest (fetched again once on a mismatch). */
-  async bytes(path) {
+  /** A build file's bytes, checked against the manifest (fetched again once on a mismatch).
+   * Asked for twice at once (the ground's two stacks share their gain), it is fetched once. */
+  bytes(path) {
+    let pending = this._inFlight.get(path);
+    if (!pending) {
+      pending = this._bytes(path).finally(() => this._inFlight.delete(path));
+      this._inFlight.set(path, pending);
+    }
+    return pending.then((buffer) => buffer.slice(0)); // each user its own copy (workers take them)
+  }
+
+  async _bytes(path) {
     const entry = this.files.get(path);
     let buffer = await this._fetch(path, 'default');
     let problem = entry ? await this._mismatch(entry, buffer) : null;

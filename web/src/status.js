@@ -21,6 +21,7 @@ export function makeStatus(source) {
     bytesLoaded: () => source.assets?.bytesLoaded ?? 0,
     firstRelitMs: () => source.firstRelitMs,
     exactRelitMs: () => source.exactRelitMs,
+    firstRelitBytes: () => source.firstRelitBytes,
     coarse: () => source.relighter?.coarse ?? false,
     siteCameraFrames: () => source.kiosk?.framesShown ?? 0,
     occlusionMasks: () => source.stream?.messages.occlusion ?? 0,
