@@ -4,6 +4,7 @@ import * as THREE from 'three';
 import { AssetError, Assets } from './assets.js';
 import { CameraView } from './camera-view.js';
 import { exposureFor } from './exposure.js';
+import { GpuMemoryMeter } from './gpumemory.js';
 import { HdrFrame } from './hdr.js';
 import { Hud, insecureReason } from './hud.js';
 import { IrradianceTargets } from './irradiance.js';
@@ -81,6 +82,8 @@ export class App {
       preserveDrawingBuffer: this.testing, // screenshots in tests
       powerPreference: 'high-performance',
     });
+    // Counts every texture and render target from here on (docs/web.md, "GPU memory").
+    this.gpuMemory = new GpuMemoryMeter(renderer.getContext());
     renderer.setPixelRatio(Math.min(devicePixelRatio, 2));
     renderer.outputColorSpace = THREE.SRGBColorSpace;
     renderer.toneMapping = THREE.NeutralToneMapping;
