@@ -17,6 +17,10 @@ demo: setup
 		echo "Baking the demo site into $(DEMO_BUILD) at draft quality (first run only)..."; \
 		$(BIN)/daylit bake scenes/demo -o $(DEMO_BUILD) --quality draft; \
 	fi
+	@if [ ! -d $(DEMO_BUILD)/coarse ]; then \
+		echo "Adding a coarse start for phones on slow links (docs/web.md, Slow links)..."; \
+		$(BIN)/python -m bake.coarse $(DEMO_BUILD); \
+	fi
 	$(BIN)/daylit serve $(DEMO_BUILD)
 
 test: setup

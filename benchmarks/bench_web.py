@@ -66,9 +66,9 @@ def first_load(browser, build: Path, sky_dir: Path, size) -> dict:
         ctx = browser.new_context(viewport={"width": size[0], "height": size[1]})
         page = ctx.new_page()
         page.goto(f"{server.url}/?mode=visit&exposure=0.02")
-        page.wait_for_function("window.daylit.status.firstRelitMs !== null", timeout=180000)
+        page.wait_for_function("window.daylit.status.exactRelitMs !== null", timeout=180000)
         out = {
-            "first_relit_ms": page.evaluate("window.daylit.status.firstRelitMs"),
+            "first_relit_ms": page.evaluate("window.daylit.status.exactRelitMs"),
             "bytes_loaded": page.evaluate("window.daylit.status.bytesLoaded"),
             "bytes_transferred": page.evaluate("""performance.getEntriesByType('resource')
                 .reduce((s, e) => s + (e.transferSize || 0), 0)"""),
@@ -89,7 +89,7 @@ class Subject:
         page = self.page = self.ctx.new_page()
         page.goto(f"{self.server.url}/?mode=visit&test&exposure=0.02")
         page.wait_for_function("window.daylit.status.ready && window.daylit.status.lightsExact"
-                               " && window.daylit.status.firstRelitMs !== null", timeout=180000)
+                               " && window.daylit.status.exactRelitMs !== null", timeout=180000)
         from daylit import sky as skies
 
         azimuth_deg, elevation_deg = (float(v) for v in SKY.split(":")[1].split(","))

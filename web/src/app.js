@@ -4,6 +4,7 @@ import * as THREE from 'three';
 import { AssetError, Assets } from './assets.js';
 import { CameraView } from './camera-view.js';
 import { exposureFor } from './exposure.js';
+import { GpuMemoryMeter } from './gpumemory.js';
 import { HdrFrame } from './hdr.js';
 import { Hud, insecureReason } from './hud.js';
 import { IrradianceTargets } from './irradiance.js';
@@ -47,7 +48,9 @@ export class App {
     this.contextLost = false;
     this.fps = 0;
     this.frameMs = 0;
-    this.firstRelitMs = null;
+    this.firstRelitMs = null; // the first relit frame (from a coarse start, if the build has one)
+    this.exactRelitMs = null; // the first exactly relit frame (every layer, every light image)
+    this.firstRelitBytes = null;
     this.smoother = new LightSmoother(this.smoothingS);
     this.light = null; // the newest message
     this.saturated = null;
@@ -79,6 +82,8 @@ export class App {
       preserveDrawingBuffer: this.testing, // screenshots in tests
       powerPreference: 'high-performance',
     });
+    // Counts every texture and render target from here on (docs/web.md, "GPU memory").
+    this.gpuMemory = new GpuMemoryMeter(renderer.getContext());
     renderer.setPixelRatio(Math.min(devicePixelRatio, 2));
     renderer.outputColorSpace = THREE.SRGBColorSpace;
     renderer.toneMapping = THREE.NeutralToneMapping;
@@ -122,9 +127,9 @@ export class App {
     try {
       this.assets = new Assets(this.params.get('manifest') ?? '/build/manifest.json',
         { exactTextures: this.params.get('textures') !== 'gpu', onProgress: loading });
+      this.assets.initTextures(this.renderer);
       const manifest = await this.assets.loadManifest();
       document.title = `${manifest.scene.name} under the live sky · daylit`;
-      this.assets.initTextures(this.renderer);
       const kiosk = this.mode === 'kiosk';
       const view = manifest.views.find((v) => v.id === (this.params.get('view') ?? manifest.views[0]?.id));
       if (kiosk && !view) throw new AssetError('the manifest', 'the build has no fixed view for a kiosk');
@@ -134,7 +139,8 @@ export class App {
       // are the largest download of a phone).
       this._hullStacks = stacks.filter((key) => key.startsWith('hull.'));
       this.relighter = new Relighter(this.renderer, this.assets,
-        { stacks, deferred: this._hullStacks, views: kiosk, dome: !kiosk, rgbe: this.forceRgbe });
+        { stacks, deferred: this._hullStacks, views: kiosk, dome: !kiosk, rgbe: this.forceRgbe,
+          coarse: this.params.get('start') !== 'full' });
       // The kiosk needs the model too, for the sun's shadows in its view (kiosksun.js).
       const [gltf] = await Promise.all([
         this.assets.gltf(manifest.model.path),
@@ -142,7 +148,9 @@ export class App {
         this.shadingMode === 'hull' ? this.relighter.activate(this._hullStacks) : null,
       ]);
       this.relighter.onApplied = (applied) => this._onApplied(applied);
-      // Everything is here: the loading note goes (before the mode, whose note must stay).
+      this.relighter.onRefineError = (err) => this.hud.setMessage(`${err.message}. Showing the coarse light meanwhile.`, 'warn');
+      // Everything is here (or a coarse start: the status line counts the rest): the loading
+      // note goes (before the mode, whose note must stay).
       this.assets.onProgress = null;
       this.hud.setMessage(null);
       if (this.stream.hello) this._onHello(); // a kiosk's note that outlasts the loading
@@ -357,7 +365,8 @@ export class App {
     });
     this._groundIrradiance = ground; // the exposure's meter reading (_updateExposure)
     if (this.kiosk) this.kiosk.onRelight(sun);
-    if (applied.exact && this.firstRelitMs === null) this._firstRelitPending = true;
+    if (this.firstRelitMs === null) this._firstRelitPending = true;
+    if (applied.exact && this.exactRelitMs === null) this._exactRelitPending = true;
   }
 
   _updateExposure(dtS) {
@@ -388,9 +397,14 @@ export class App {
     this._updateExposure(dt);
     this.renderFrame(xrFrame);
     this.frameMs = performance.now() - t0;
-    if (this._firstRelitPending) {
+    if (this._firstRelitPending && this.relighter?.applied) {
       this._firstRelitPending = false;
       this.firstRelitMs = performance.now();
+      this.firstRelitBytes = this.assets.bytesLoaded; // what that picture waited for
+    }
+    if (this._exactRelitPending && this.relighter?.applied) {
+      this._exactRelitPending = false;
+      this.exactRelitMs = performance.now();
     }
     this.hud.update();
   }

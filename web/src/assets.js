@@ -42,12 +42,18 @@ export class Assets {
     // 'sha256' where SubtleCrypto is available (a secure context), else 'length'.
     this.verification = globalThis.crypto?.subtle ? 'sha256' : 'length';
     this.ktx2 = null;
+    this._inFlight = new Map(); // path -> Promise of its bytes, while on the way
   }
 
   async loadManifest() {
     let response;
     try {
-      response = await fetch(this.manifestUrl, { cache: 'no-cache' });
+      // index.html asked for it before the modules came: take that request, once.
+      const early = globalThis.daylitEarly;
+      globalThis.daylitEarly = null;
+      const same = early && new URL(early.url, location.href).href === new URL(this.manifestUrl, location.href).href;
+      response = same ? await early.response.catch(() => null) : null;
+      response ??= await fetch(this.manifestUrl, { cache: 'no-cache' });
     } catch (err) {
       throw new AssetError('the build manifest', `network error (${err.message})`);
     }
@@ -78,8 +84,18 @@ export class Assets {
     return u.href;
   }
 
-  /** A build file's bytes, checked against the manifest (fetched again once on a mismatch). */
-  async bytes(path) {
+  /** A build file's bytes, checked against the manifest (fetched again once on a mismatch).
+   * Asked for twice at once (the ground's two stacks share their gain), it is fetched once. */
+  bytes(path) {
+    let pending = this._inFlight.get(path);
+    if (!pending) {
+      pending = this._bytes(path).finally(() => this._inFlight.delete(path));
+      this._inFlight.set(path, pending);
+    }
+    return pending.then((buffer) => buffer.slice(0)); // each user its own copy (workers take them)
+  }
+
+  async _bytes(path) {
     const entry = this.files.get(path);
     let buffer = await this._fetch(path, 'default');
     let problem = entry ? await this._mismatch(entry, buffer) : null;
@@ -157,7 +173,8 @@ export class Assets {
     this.onProgress?.(this.bytesLoaded);
   }
 
-  /** Set up the Basis transcoder for this renderer (once). */
+  /** Set up the Basis transcoder for this renderer (once) and start fetching it (its wasm is
+   * the largest file before the first picture: not after the manifest, beside it). */
   initTextures(renderer) {
     this.ktx2 = new KTX2Loader().setTranscoderPath(TRANSCODER_PATH).detectSupport(renderer);
     if (this.exactTextures) {
@@ -167,6 +184,7 @@ export class Assets {
         if (key.endsWith('Supported')) this.ktx2.workerConfig[key] = false;
       }
     }
+    this.ktx2.init().catch(() => {}); // a failure is reported by the first texture's parse
   }
 
   /** A KTX2 texture (2D, or a 2D array for several layers), linear, unfiltered reads. */

@@ -122,6 +122,13 @@ export function debugApi(app) {
     /** The relight targets' format (relight.js targetFormat) and whether the frame is linear HDR. */
     formats: () => ({ rgbe: app.relighter.format.rgbe, linearFrame: !!app.site?.shared.linearOut.value }),
     /** The applied light vector and one target read back in the same instant. */
+    /** GPU allocations (gpumemory.js) logged from gpuLog(true) to gpuLog(false), which
+     * returns them: [[GL target, 'storage' or 'target:level', bytes]]. */
+    gpuLog(start) {
+      const log = app.gpuMemory.log ?? null;
+      app.gpuMemory.log = start ? [] : null;
+      return log;
+    },
     snapshot(key) {
       const applied = app.relighter.applied;
       const { width, height, data } = app.relighter.read(key);

@@ -83,6 +83,18 @@ class FullscreenPass {
 
 export { FullscreenPass, makeTarget };
 
+/** A one-layer KTX2 array comes out of KTX2Loader as a 2D texture: the same level data as a
+ * 2D array of one layer, which the relight shader samples. */
+function asArray(texture) {
+  if (texture.isCompressedArrayTexture || texture.isDataArrayTexture) return texture;
+  const array = new THREE.CompressedArrayTexture(texture.mipmaps, texture.image.width, texture.image.height, 1, texture.format, texture.type);
+  array.name = texture.name;
+  array.colorSpace = texture.colorSpace;
+  array.generateMipmaps = false;
+  array.needsUpdate = true;
+  return array;
+}
+
 /** One compact stack: its textures, V, light-image cache, target and shader. */
 class RelightStack {
   constructor(assets, key, compact, width, height, format, selectedCount) {
@@ -96,6 +108,7 @@ class RelightStack {
     this.m = compact.selected_lights ?? selectedCount; // this stack's selected lights
     this.slots = this.m * this.levels;
     this.k = compact.v.shape[1];
+    this.coarse = false; // drawing from the coarse start (loadCoarse) until load replaces it
     this.lights = new Map(); // light index -> [texture per level]
     this.pending = new Map(); // light index -> Promise
     this.target = makeTarget(width, height, format);
@@ -103,26 +116,56 @@ class RelightStack {
     this.applied = null; // {sequence, exact}
   }
 
+  /** The full stack: every base layer (replaces a coarse start, if any). */
   async load() {
     const loads = [this.assets.texture(this.compact.ktx2), this.assets.float32(this.compact.v.path)];
     // Builds from 2026-11-24: base layers past the first few in a second, ETC1S array, whose
     // layers follow the first array's in compact.layers (docs/compact-assets.md).
     loads.push(this.compact.etc1s ? this.assets.texture(this.compact.etc1s.ktx2) : null);
-    if (this.compact.gain) loads.push(this.assets.texture(this.compact.gain.ktx2));
+    loads.push(this.gain ?? (this.compact.gain ? this.assets.texture(this.compact.gain.ktx2) : null));
     const [base, V, etc1s, gain] = await Promise.all(loads);
-    const [n, k] = this.compact.v.shape;
-    if (V.length !== n * k) throw new Error(`${this.compact.v.path}: ${V.length} values, expected ${n} x ${k}`);
+    this._setUp({ base, V, k: this.compact.v.shape[1], etc1s, gain, layers: this.compact.layers, coarse: false });
+  }
+
+  /**
+   * A coarse start (bake/coarse.py, `compact.coarse`): the first few base layers and their V
+   * columns, a few hundred kilobytes, drawn until `load` brings the full stack. False if the
+   * build has none for this stack.
+   */
+  async loadCoarse() {
+    const coarse = this.compact.coarse;
+    if (!coarse) return false;
+    const [base, V, gain] = await Promise.all([
+      this.assets.texture(coarse.ktx2), this.assets.float32(coarse.v.path),
+      this.compact.gain ? this.assets.texture(this.compact.gain.ktx2) : null,
+    ]);
+    this._setUp({ base: asArray(base), V, k: coarse.v.shape[1], etc1s: null, gain, layers: this.compact.layers.slice(0, coarse.layers), coarse: true });
+    return true;
+  }
+
+  /** Textures in place, uniforms and the pass built (again, when the full stack replaces
+   * the coarse one; the coarse textures are freed). */
+  _setUp({ base, V, k, etc1s, gain, layers, coarse }) {
+    const [n] = this.compact.v.shape;
+    const path = coarse ? this.compact.coarse.v.path : this.compact.v.path;
+    if (V.length !== n * k) throw new Error(`${path}: ${V.length} values, expected ${n} x ${k}`);
+    const old = [this.base, this.etc1s].filter((t) => t && t !== base && t !== etc1s);
+    this.pass?.dispose();
+    for (const t of old) t.dispose();
     this.base = base;
     this.V = V;
+    this.k = k;
     this.etc1s = etc1s ?? null;
     this.gain = gain ?? null;
+    this.coarse = coarse;
+    this.layers = { ...this.compact, layers }; // what stackWeights reads: the layers drawn
     for (const t of [base, etc1s, gain]) if (t) t.minFilter = t.magFilter = THREE.NearestFilter;
-    this.dummy = new THREE.DataTexture(new Uint8Array(4), 1, 1);
+    this.dummy ??= new THREE.DataTexture(new Uint8Array(4), 1, 1);
     this.dummy.needsUpdate = true;
     const uniforms = {
       baseTex: { value: base },
       ...(etc1s ? { etc1sTex: { value: etc1s } } : {}),
-      layerWeight: { value: Array.from({ length: this.compact.layers.length }, () => new THREE.Vector3()) },
+      layerWeight: { value: Array.from({ length: layers.length }, () => new THREE.Vector3()) },
       constantTerm: { value: new THREE.Vector3() },
     };
     if (this.slots) {
@@ -130,15 +173,15 @@ class RelightStack {
       for (let s = 0; s < this.slots; s++) uniforms[`slot${s}`] = { value: this.dummy };
     }
     if (this.gain) {
-      const layers = this.compact.gain.layers;
+      const gainLayers = this.compact.gain.layers;
       uniforms.gainTex = { value: this.gain };
-      uniforms.gainScale = { value: layers.map((l) => new THREE.Vector3(...l.scale)) };
-      uniforms.gainOffset = { value: layers.map((l) => new THREE.Vector3(...l.offset)) };
+      uniforms.gainScale = { value: gainLayers.map((l) => new THREE.Vector3(...l.scale)) };
+      uniforms.gainOffset = { value: gainLayers.map((l) => new THREE.Vector3(...l.offset)) };
     }
     this.pass = new FullscreenPass({
       uniforms,
       fragmentShader: relightFragment({
-        layers: this.compact.layers.length, etc1sLayers: this.compact.etc1s?.layers ?? 0,
+        layers: layers.length, etc1sLayers: etc1s ? this.compact.etc1s.layers : 0,
         slots: this.slots, gain: !!this.gain, encodeRGBE: this.format.rgbe,
       }),
     });
@@ -178,7 +221,7 @@ class RelightStack {
   render(renderer, r, selected) {
     const loaded = selected.filter((i) => this.lights.has(i));
     const c = baseCoefficients(this.V, this.k, r, loaded); // lights not loaded stay in r'
-    const w = stackWeights(this.compact, c, r, loaded);
+    const w = stackWeights(this.layers, c, r, loaded);
     const u = this.pass.mesh.material.uniforms;
     u.layerWeight.value.forEach((v, j) => v.set(w.layerWeights[3 * j], w.layerWeights[3 * j + 1], w.layerWeights[3 * j + 2]));
     u.constantTerm.value.set(...w.constant);
@@ -191,7 +234,7 @@ class RelightStack {
       else v.set(w.slotWeights[3 * s], w.slotWeights[3 * s + 1], w.slotWeights[3 * s + 2]);
     }
     this.pass.render(renderer, this.target);
-    return loaded.length === selected.length;
+    return loaded.length === selected.length && !this.coarse;
   }
 
   dispose() {
@@ -258,6 +301,29 @@ export class Relighter {
     this.lastRelightMs = 0;
     this.waitingForLights = 0;
     this.onApplied = null; // callback after a relight
+    this.coarseStart = which.coarse ?? true;
+    this._toRefine = null; // stacks drawn from their coarse start, to load in full
+    this.refined = null; // Promise: every stack loaded in full (after the first picture)
+    this.onRefineError = null; // (err): a full stack failed; the coarse one stays, tried again
+  }
+
+  /** True while some stack is drawn from its coarse start. */
+  get coarse() {
+    return [...this.stacks.values()].some((s) => s.pass && s.coarse);
+  }
+
+  /** Fetch the full stacks (once the first picture is drawn) and draw each as it arrives. */
+  _refine() {
+    const stacks = this._toRefine;
+    this._toRefine = null;
+    const redraw = () => {
+      if (this.latest) this.update(this.latest.r, this.latest.sequence, true);
+    };
+    this.refined = Promise.all(stacks.map((s) => s.load().then(redraw))).catch((err) => {
+      this._toRefine = stacks.filter((s) => s.coarse); // tried again after the next light
+      this.refined = null;
+      this.onRefineError?.(err);
+    });
   }
 
   /** The stacks that are loaded and relit (every one but the deferred not yet activated). */
@@ -265,8 +331,22 @@ export class Relighter {
     return [...this.stacks.values()].filter((s) => s.pass);
   }
 
+  /**
+   * Load the stacks (not the deferred ones) and the sky passes. With `coarse` (the default)
+   * and a build whose every such stack has a coarse start (bake/coarse.py), only those load
+   * now; the full stacks are fetched once the first picture is drawn (so that they do not
+   * share a slow link with it) and each replaces its coarse one as it arrives, drawn again
+   * with the newest light (`refined` settles when all have: docs/web.md, "A coarse start").
+   */
   async load() {
-    await Promise.all([...this.stacks.values()].filter((s) => !this.deferred.has(s.key)).map((s) => s.load()));
+    const now = [...this.stacks.values()].filter((s) => !this.deferred.has(s.key));
+    const coarse = this.coarseStart && now.length > 0 && now.every((s) => s.compact.coarse);
+    if (coarse) {
+      await Promise.all(now.map((s) => s.loadCoarse()));
+      this._toRefine = now;
+    } else {
+      await Promise.all(now.map((s) => s.load()));
+    }
     const n = this.n;
     this.lightData = new Float32Array(4 * n * 2);
     this.manifest.dome.lights.forEach((l, i) => this.lightData.set([...l.centroid, 1], 4 * (n + i)));
@@ -357,8 +437,9 @@ export class Relighter {
     renderer.autoClear = autoClear;
     this.relights += 1;
     this.lastRelightMs = performance.now() - t0; // CPU side only; the GPU runs on
-    this.applied = { sequence, exact, selected, perStack, r };
+    this.applied = { sequence, exact, coarse: this.coarse, selected, perStack, r };
     this.onApplied?.(this.applied);
+    if (this._toRefine && !this.refined) this._refine();
   }
 
   /**

@@ -20,6 +20,14 @@ export function makeStatus(source) {
     ready: () => source.ready,
     bytesLoaded: () => source.assets?.bytesLoaded ?? 0,
     firstRelitMs: () => source.firstRelitMs,
+    exactRelitMs: () => source.exactRelitMs,
+    firstRelitBytes: () => source.firstRelitBytes,
+    // GPU memory the client allocated (gpumemory.js), bytes: textures and render targets'
+    // textures, renderbuffers (depth, multisampled colour), the canvas's drawing buffer.
+    gpuTextureBytes: () => source.gpuMemory?.textureBytes ?? 0,
+    gpuRenderbufferBytes: () => source.gpuMemory?.renderbufferBytes ?? 0,
+    gpuDrawingBufferBytes: () => source.gpuMemory?.drawingBufferBytes() ?? 0,
+    coarse: () => source.relighter?.coarse ?? false,
     siteCameraFrames: () => source.kiosk?.framesShown ?? 0,
     occlusionMasks: () => source.stream?.messages.occlusion ?? 0,
     contextLost: () => source.contextLost,

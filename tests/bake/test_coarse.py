@@ -1,0 +1,84 @@
+"""The coarse start (bake/coarse.py): each cut array holds exactly the full array's first
+layers, decoded by three.js's Basis transcoder (an independent KTX2 reader), V its first
+columns, and the manifest lists the new files with their true size and SHA-256."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bake import basisu
+from bake.coarse import CoarseError, add_coarse, coarse_count, read_ktx2_level
+from daylit import manifest as manifest_io
+from tests.coarsebuild import coarse_copy
+
+
+@pytest.fixture(scope="module")
+def build(request, tmp_path_factory):
+    existing = os.environ.get("DAYLIT_WEB_BUILD")
+    source = Path(existing) if existing else request.getfixturevalue("demo_draft_build")
+    return coarse_copy(source, tmp_path_factory.mktemp("coarse") / "build", 60_000)
+
+
+def test_cut_arrays_hold_the_first_layers_texel_for_texel(build):
+    manifest = json.loads((build / "manifest.json").read_text())
+    stacks = [s["compact"] for a in manifest["atlases"] for s in a["stacks"].values()]
+    assert stacks and all("coarse" in c for c in stacks)
+    files = [build / p for c in stacks for p in (c["ktx2"], c["coarse"]["ktx2"])]
+    decoded = basisu.decode(files)
+    for i, compact in enumerate(stacks):
+        full, cut = decoded[2 * i], decoded[2 * i + 1]
+        n = compact["coarse"]["layers"]
+        assert cut.shape == (n, *full.shape[1:]), compact["ktx2"]
+        assert 1 <= n <= coarse_count(compact["layers"])
+        np.testing.assert_array_equal(cut, full[:n], err_msg=compact["ktx2"])
+        rows, k = compact["v"]["shape"]
+        V = np.fromfile(build / compact["v"]["path"], "<f4").reshape(rows, k)
+        kc = compact["coarse"]["v"]["shape"][1]
+        assert kc == 1 + max(layer["coefficient"] for layer in compact["layers"][:n])
+        Vc = np.fromfile(build / compact["coarse"]["v"]["path"], "<f4").reshape(rows, kc)
+        np.testing.assert_array_equal(Vc, V[:, :kc])
+        # Within the budget (60 kB here), unless one layer alone is more.
+        size = (build / compact["coarse"]["ktx2"]).stat().st_size
+        assert size <= 60_000 or n == 1, (compact["ktx2"], size, n)
+
+
+def test_manifest_lists_the_new_files_truly(build):
+    manifest = json.loads((build / "manifest.json").read_text())
+    manifest_io.validate(manifest)
+    listed = {f["path"]: f for f in manifest["files"]}
+    coarse = sorted(p.relative_to(build).as_posix() for p in (build / "coarse").iterdir())
+    assert coarse and all(p.startswith("coarse/") for p in coarse)
+    for path in coarse:
+        data = (build / path).read_bytes()
+        assert listed[path]["bytes"] == len(data)
+        assert listed[path]["sha256"] == hashlib.sha256(data).hexdigest()
+    # Nothing else changed in the list.
+    source = [f for f in manifest["files"] if not f["path"].startswith("coarse/")]
+    assert len(source) == len(manifest["files"]) - len(coarse)
+
+
+def test_a_file_that_is_not_a_uastc_array_is_refused_clearly(tmp_path, build):
+    with pytest.raises(CoarseError, match="not a KTX2"):
+        read_ktx2_level(b"PNG...", "x.ktx2")
+    manifest = json.loads((build / "manifest.json").read_text())
+    gain = next(s["compact"]["gain"]["ktx2"] for a in manifest["atlases"]
+                for s in a["stacks"].values() if "gain" in s["compact"])
+    data = bytearray((build / gain).read_bytes())
+    data[44:48] = (0).to_bytes(4, "little")  # supercompression: none
+    with pytest.raises(CoarseError, match="Zstandard"):
+        read_ktx2_level(bytes(data), gain)
+    # A build left as it was when a stack cannot be cut: the manifest is not rewritten.
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    m = {"atlases": [{"id": "a", "stacks": {"I": {"compact": {"ktx2": "x.ktx2"}}}}]}
+    (broken / "x.ktx2").write_bytes(b"not a texture")
+    (broken / "manifest.json").write_text(json.dumps(m))
+    with pytest.raises(CoarseError):
+        add_coarse(broken)
+    assert json.loads((broken / "manifest.json").read_text()) == m
