@@ -88,6 +88,15 @@ class Client:
     idle: bool = False
 
 
+
+def _flowing(transport) -> bool:
+    """Whether a write to ``transport`` goes out without waiting: its buffer is at or below the
+    low-water mark. False for no transport or one without write-buffer limits."""
+    try:
+        return transport.get_write_buffer_size() <= transport.get_write_buffer_limits()[0]
+    except (AttributeError, NotImplementedError):
+        return False
+
 class LightHub:
     """The newest message of each stream and the clients that receive them.
 
@@ -362,10 +371,7 @@ class LightHub:
         transport = client.transport
         if not client.idle or transport is None or client.ws.closed or transport.is_closing():
             return False
-        try:
-            if transport.get_write_buffer_size() > transport.get_write_buffer_limits()[0]:
-                return False
-        except (AttributeError, NotImplementedError):
+        if not _flowing(transport):
             return False
         transport.write(frames[client.version])
         self.written_direct += 1
@@ -380,12 +386,7 @@ class LightHub:
         high-water mark until it drains to the low one): below the low mark it returns at
         once, so it is awaited bare; ``asyncio.wait_for`` starts a task of its own each call,
         which cost more than the send itself (docs/benchmarks.md)."""
-        transport = client.transport
-        try:
-            flowing = transport.get_write_buffer_size() <= transport.get_write_buffer_limits()[0]
-        except (AttributeError, NotImplementedError):  # no transport, or one without limits
-            flowing = False
-        if flowing:
+        if _flowing(client.transport):
             await client.ws.send_bytes(message)
         else:
             await asyncio.wait_for(client.ws.send_bytes(message), self.slow_client_timeout_s)
