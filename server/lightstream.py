@@ -88,7 +88,6 @@ class Client:
     idle: bool = False
 
 
-
 def _flowing(transport) -> bool:
     """Whether a write to ``transport`` goes out without waiting: its buffer is at or below the
     low-water mark. False for no transport or one without write-buffer limits."""
@@ -96,6 +95,7 @@ def _flowing(transport) -> bool:
         return transport.get_write_buffer_size() <= transport.get_write_buffer_limits()[0]
     except (AttributeError, NotImplementedError):
         return False
+
 
 class LightHub:
     """The newest message of each stream and the clients that receive them.
