@@ -261,13 +261,14 @@ export class SunShadows {
   follow() {
     const u = this.uniforms;
     if (!this._sunDirectionSite) return;
-    const worldFromSite = new THREE.Matrix4();
+    // one matrix kept for the check: no allocation per frame while the placement stays
+    const worldFromSite = (this._worldFromSite ??= new THREE.Matrix4()).identity();
     if (this.siteRoot) {
       this.siteRoot.updateMatrix();
       worldFromSite.copy(this.siteRoot.matrix);
     }
     if (this._placement?.equals(worldFromSite)) return;
-    this._placement = worldFromSite;
+    this._placement = worldFromSite.clone();
     const siteFromWorld = worldFromSite.clone().invert();
     for (const [set, map] of Object.entries(this.maps)) {
       u[`sunMatrix${set === 'all' ? 'A' : 'R'}`].value.multiplyMatrices(map.matrix, siteFromWorld);
