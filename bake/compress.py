@@ -45,8 +45,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from bake.basisu import decode, encode
+from bake.basisu import encode
 from bake.compact_reader import CompactReader
+from bake.ktx2decoder import decode
 from bake.lowrank import (
     Factors,
     RatioRefinement,
