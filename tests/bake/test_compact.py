@@ -359,22 +359,27 @@ def _ratio_refinement(role: str, X: float) -> lowrank.RatioRefinement:
     )
 
 
+def _layer_major(losses: np.ndarray) -> np.ndarray:
+    """(T, 3, k) -> (k, T, 3), what RatioRefinement.layers and layers_to_refine take."""
+    return np.ascontiguousarray(np.moveaxis(losses, -1, 0))
+
+
 def test_ratio_refinement_leaves_unrefined_only_what_the_ratio_can_afford():
     """Base layers whose coarse loss moves the shadow ratio stay refined; the small ones go
     unrefined while their *summed* move at every texel stays within the tolerance."""
     V = np.ones((1, 4), np.float32)  # c_j = 1 for every layer
     f = lowrank.Factors(4, np.zeros((4, 3, 4), np.float32), V, {})
-    losses = np.zeros((4, 3, 4), np.float32)
+    losses = np.zeros((4, 3, 4), np.float32)  # (T, 3, k) here, layer-major (k, T, 3) given
     losses[0, :, 0] = 0.01  # moves delta's ratio by 0.01: refined
     losses[1, :, 1:] = 0.0008  # three small ones at one texel: 0.0024 together, one too many
     delta = _ratio_refinement("delta", X=0.5)
-    assert delta.layers(losses, f) == [0, 3]
+    assert delta.layers(_layer_major(losses), f) == [0, 3]
     losses[1, :, 3] = -0.0008  # opposite sign: the three sum to 0.0008
-    assert delta.layers(losses, f) == [0]
+    assert delta.layers(_layer_major(losses), f) == [0]
     # In d's layers a loss moves the ratio by -X e / D^2: half as much with X = 0.5.
     losses[1, :, 3] = 0.0008
-    assert _ratio_refinement("d", X=0.5).layers(losses, f) == [0]
-    assert _ratio_refinement("d", X=2.0).layers(losses, f) == [0, 2, 3]
+    assert _ratio_refinement("d", X=0.5).layers(_layer_major(losses), f) == [0]
+    assert _ratio_refinement("d", X=2.0).layers(_layer_major(losses), f) == [0, 2, 3]
 
 
 def test_unit_gain_spectrum_matches_the_general_gram_matrices():
