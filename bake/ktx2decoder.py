@@ -116,22 +116,28 @@ class Decoder:
 _lock = threading.Lock()
 _idle: list[Decoder] = []
 _generation = 0  # raised by close_decoders: decoders busy then are closed when given back
-_launches = 0
+_started: list[subprocess.Popen] = []  # every decoder process started here
 
 
 def launches() -> int:
     """Decoder processes started by this Python process so far."""
-    return _launches
+    return len(_started)
+
+
+def running() -> int:
+    """Decoder processes of this Python process still running (none after a bake)."""
+    return sum(p.poll() is None for p in _started)
 
 
 def _take() -> tuple[Decoder, int]:
-    global _launches
     with _lock:
         if _idle:
             return _idle.pop(), _generation
         generation = _generation
-        _launches += 1
-    return Decoder(), generation
+    decoder = Decoder()
+    with _lock:
+        _started.append(decoder.process)
+    return decoder, generation
 
 
 def _give_back(decoder: Decoder, generation: int) -> None:
