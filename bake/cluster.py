@@ -17,6 +17,7 @@ runs.
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import uuid
 from dataclasses import dataclass
@@ -221,4 +222,13 @@ class Cluster:
             self.client.cancel([future, *data])
 
     def close(self) -> None:
-        self.client.close()
+        """End the workers' KTX2 decoders (bake.ktx2decoder: kept from job to job during the
+        bake) and disconnect; the workers themselves go on."""
+        from bake.ktx2decoder import close_decoders
+
+        try:
+            # After a failure the error that matters is the one being raised, not this one.
+            with contextlib.suppress(Exception):
+                self.client.run(close_decoders)
+        finally:
+            self.client.close()

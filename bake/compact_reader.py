@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bake.basisu import decode
+from bake.ktx2decoder import decode
 from daylit.selection import Selection
 
 

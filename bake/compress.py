@@ -45,8 +45,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from bake.basisu import decode, encode
+from bake.basisu import encode
 from bake.compact_reader import CompactReader
+from bake.ktx2decoder import decode
 from bake.lowrank import (
     Factors,
     RatioRefinement,
@@ -264,7 +265,7 @@ def compress_stack(
         if refine_all:
             refine = list(range(f.k))
         else:
-            losses = np.stack([x[valid] for x in lost], axis=-1)  # (T, 3, k)
+            losses = np.stack([x[valid] for x in lost])  # (k, T, 3): a block per layer
             refine = layers_to_refine(
                 losses, f, skies, selection, settings, None if ratio is None else ratio.means
             )

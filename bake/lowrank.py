@@ -273,9 +273,11 @@ def factor(M, S, S_inv, skies, selection, settings, min_k: int = 0) -> Factors:
 
 def layers_to_refine(losses, f, skies, selection, settings, means=None) -> list[int]:
     """Base layers whose coarse encoding loses more than a tenth of the budget on a sky,
-    measured on the normalized values (relative to each texel's level): ``losses`` (T, 3, k)
-    what each layer's coarse encoding lost at the valid texels; ``means`` the composite's
-    mean on each sky to measure against (default: this stack's base composite)."""
+    measured on the normalized values (relative to each texel's level): ``losses`` (k, T, 3)
+    what each layer's coarse encoding lost at the valid texels, layer-major so that each
+    layer's losses are one contiguous block (a (T, 3, k) slice per layer and sky strode
+    through memory: docs/benchmarks.md, "One Node decoder per writing thread"); ``means`` the
+    composite's mean on each sky to measure against (default: this stack's base composite)."""
     refine = set()
     for s, sky in enumerate(skies):
         rest = sky.r.copy()
@@ -283,7 +285,7 @@ def layers_to_refine(losses, f, skies, selection, settings, means=None) -> list[
         c = f.V.T @ rest  # (k, 3)
         mean = np.abs(np.einsum("tck,kc->tc", f.U, c)).mean() if means is None else means[s]
         for j in range(f.k):
-            loss = losses[:, :, j] * c[j]
+            loss = losses[j] * c[j]
             if np.sqrt((loss**2).mean()) > 0.1 * settings.budget * mean:
                 refine.add(j)
     return sorted(refine)
@@ -324,15 +326,15 @@ class RatioRefinement:
         return tuple(cls(role, rests, lit, d, delta, means) for role in ("d", "delta"))
 
     def moves(self, losses: np.ndarray, V: np.ndarray, j: int) -> list[np.ndarray]:
-        """Layer j's move of the ratio on each sky (L,) float32, from ``losses`` (T, 3, k)."""
+        """Layer j's move of the ratio on each sky (L,) float32, from ``losses`` (k, T, 3)."""
         out = []
         for rest, lit, D, X in zip(self.rests, self.lit, self.d, self.delta, strict=True):
-            change = (losses[:, :, j] * (V[:, j] @ rest).astype(np.float32))[lit]
+            change = (losses[j] * (V[:, j] @ rest).astype(np.float32))[lit]
             out.append(change / D if self.role == "delta" else -X * change / D**2)
         return out
 
     def layers(self, losses: np.ndarray, f: Factors) -> list[int]:
-        """The layers to refine, given their coarse ``losses`` (T, 3, k).
+        """The layers to refine, given their coarse ``losses`` (k, T, 3).
 
         One layer's moves are held at a time: all k at once are k x skies x texels values,
         which raised the bake's peak memory (docs/benchmarks.md,

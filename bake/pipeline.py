@@ -46,6 +46,7 @@ from bake.dome import Dome
 from bake.errors import BakeError
 from bake.gltf import write_site_glb
 from bake.irradiance import SceneSet
+from bake.ktx2decoder import close_decoders
 from bake.raytrace import Geometry, RayScene
 from bake.scene import Site, load_site
 from bake.tracework import TracedResults, TraceWork
@@ -314,16 +315,20 @@ def _run_units(units: list, at_once: int) -> list:
     their entries in the order given. On a failure or Ctrl-C no other unit starts, the
     running ones stop at their next encoder call or cluster wait
     (:func:`bake.basisu.stop_encoding`), and the error is raised once they have stopped:
-    nothing writes into the staging folder afterwards."""
+    nothing writes into the staging folder afterwards. The KTX2 decoders the units started
+    (one per thread, bake.ktx2decoder) end with them, whether they succeeded or not."""
     basisu.allow_encoding()
-    with futures.ThreadPoolExecutor(max_workers=at_once, thread_name_prefix="write") as pool:
-        running = [pool.submit(unit) for unit in units]
-        try:
-            return [future.result() for future in running]
-        except BaseException:
-            basisu.stop_encoding()
-            pool.shutdown(wait=True, cancel_futures=True)
-            raise
+    try:
+        with futures.ThreadPoolExecutor(max_workers=at_once, thread_name_prefix="write") as pool:
+            running = [pool.submit(unit) for unit in units]
+            try:
+                return [future.result() for future in running]
+            except BaseException:
+                basisu.stop_encoding()
+                pool.shutdown(wait=True, cancel_futures=True)
+                raise
+    finally:
+        close_decoders()
 
 
 def _check_output(out_dir: Path) -> None:

@@ -12,9 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
-from bake.basisu import decode, encode
+from bake.basisu import encode
 from bake.compact_reader import CompactReader
 from bake.compress import CompactStack
+from bake.ktx2decoder import decode
 from bake.quantize import quantized_png, refinement_png
 
 SUN_BOUNCE_DECODE_CHUNK = 16  # light images decoded at a time (memory: the lightmap is large)

@@ -29,6 +29,7 @@ sys.path.insert(0, str(REPO))
 import bake.basisu as basisu  # noqa: E402
 import bake.compact_reader as compact_reader  # noqa: E402
 import bake.compress as compress  # noqa: E402
+import bake.ktx2decoder as ktx2decoder  # noqa: E402
 import bake.lowrank as lowrank  # noqa: E402
 import bake.pipeline as pipeline  # noqa: E402
 import bake.quantize as quantize  # noqa: E402
@@ -87,7 +88,7 @@ def _try_wait(self, wait_flags):
 def instrument() -> None:
     subprocess.Popen._try_wait = _try_wait
     _wrap(basisu, "_run_encoders")
-    _wrap(basisu, "decode", compress, sunbounce, compact_reader)
+    _wrap(ktx2decoder, "decode", compress, sunbounce, compact_reader)
     for name in ("quantized_png", "refinement_png"):
         _wrap(quantize, name, compress, sunbounce)
     for name in ("factors", "rms_rank", "ratio_rank", "layers_to_refine"):

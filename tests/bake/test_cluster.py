@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from bake import basisu, chunkio, compress, compressjobs, sunbounce, tracework
+from bake import basisu, chunkio, compress, compressjobs, ktx2decoder, sunbounce, tracework
 from bake.errors import BakeError
 from bake.pipeline import bake
 from daylit.cli import main
@@ -90,8 +90,18 @@ def test_a_cluster_bake_writes_the_same_bytes_as_the_local_pool(
     # The workers (other processes) compress; the baking process only writes their bytes.
     monkeypatch.setattr(compress, "compress_stacks", not_here)
     monkeypatch.setattr(sunbounce, "compress_sun_bounce", not_here)
+    from distributed import Client
+
     messages: list[str] = []
-    result = bake(scene, tmp_path / "out", cluster=cluster, progress=False, log=messages.append)
+    with Client(cluster) as client:
+        launched_before = client.run(ktx2decoder.launches)
+        result = bake(scene, tmp_path / "out", cluster=cluster, progress=False,
+                      log=messages.append)
+        launched = client.run(ktx2decoder.launches)
+        running = client.run(ktx2decoder.running)
+    # The workers decoded with a Node process each (one thread each), all ended with the bake.
+    assert 1 <= sum(launched[w] - launched_before[w] for w in launched) <= len(launched)
+    assert set(running.values()) == {0}
     assert any(f"on the cluster {cluster}" in m for m in messages)
     assert result.rays > 0
     baked = _files(tmp_path / "out")

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bake import basisu, compact_reader, compress, lowrank, quantize, testskies
+from bake import basisu, compact_reader, compress, ktx2decoder, lowrank, quantize, testskies
 from bake.evaluate import Build
 from daylit import sky as skies
 from daylit.selection import Selection, select_lights
@@ -359,22 +359,27 @@ def _ratio_refinement(role: str, X: float) -> lowrank.RatioRefinement:
     )
 
 
+def _layer_major(losses: np.ndarray) -> np.ndarray:
+    """(T, 3, k) -> (k, T, 3), what RatioRefinement.layers and layers_to_refine take."""
+    return np.ascontiguousarray(np.moveaxis(losses, -1, 0))
+
+
 def test_ratio_refinement_leaves_unrefined_only_what_the_ratio_can_afford():
     """Base layers whose coarse loss moves the shadow ratio stay refined; the small ones go
     unrefined while their *summed* move at every texel stays within the tolerance."""
     V = np.ones((1, 4), np.float32)  # c_j = 1 for every layer
     f = lowrank.Factors(4, np.zeros((4, 3, 4), np.float32), V, {})
-    losses = np.zeros((4, 3, 4), np.float32)
+    losses = np.zeros((4, 3, 4), np.float32)  # (T, 3, k) here, layer-major (k, T, 3) given
     losses[0, :, 0] = 0.01  # moves delta's ratio by 0.01: refined
     losses[1, :, 1:] = 0.0008  # three small ones at one texel: 0.0024 together, one too many
     delta = _ratio_refinement("delta", X=0.5)
-    assert delta.layers(losses, f) == [0, 3]
+    assert delta.layers(_layer_major(losses), f) == [0, 3]
     losses[1, :, 3] = -0.0008  # opposite sign: the three sum to 0.0008
-    assert delta.layers(losses, f) == [0]
+    assert delta.layers(_layer_major(losses), f) == [0]
     # In d's layers a loss moves the ratio by -X e / D^2: half as much with X = 0.5.
     losses[1, :, 3] = 0.0008
-    assert _ratio_refinement("d", X=0.5).layers(losses, f) == [0]
-    assert _ratio_refinement("d", X=2.0).layers(losses, f) == [0, 2, 3]
+    assert _ratio_refinement("d", X=0.5).layers(_layer_major(losses), f) == [0]
+    assert _ratio_refinement("d", X=2.0).layers(_layer_major(losses), f) == [0, 2, 3]
 
 
 def test_unit_gain_spectrum_matches_the_general_gram_matrices():
@@ -405,7 +410,7 @@ def test_separate_textures_are_encoded_side_by_side_each_into_its_own_file(tmp_p
     out = tmp_path / "out"
     out.mkdir()
     basisu.encode(pngs, out, compress.Settings(), array=False, level=1)
-    decoded = basisu.decode([out / f"layer{j}.ktx2" for j in range(5)])
+    decoded = ktx2decoder.decode([out / f"layer{j}.ktx2" for j in range(5)])
     for image, d in zip(images, decoded, strict=True):
         assert d.shape == (1, 40, 48, 4)
         error = np.abs(d[0, :, :, :3].astype(int) - image.astype(int))
