@@ -131,6 +131,7 @@ class OcclusionProcessor:
         self.frame_index = 0
         self._learning: list[np.ndarray] = []
         self._previous_exclude: np.ndarray | None = None  # coarse people + shadows, last frame
+        self._previous_people: np.ndarray | None = None  # coarse people alone, last frame
         self._skip_warnings = ThrottledWarnings(log, interval_s=1.0)
 
     # -------------------------------------------------------------------------- construction
@@ -185,6 +186,7 @@ class OcclusionProcessor:
         n = self._learn(good)
         self.segmenter.reset()
         self._previous_exclude = None
+        self._previous_people = None
         self._learning = []
         return n
 
@@ -305,8 +307,8 @@ class OcclusionProcessor:
         else:
             diff = cv2.absdiff(coarse_corrected.astype(np.float32), bg.coarse_mean)
             candidates = diff.mean(axis=2) > s.detect_threshold
-            if self._previous_exclude is not None:
-                candidates |= self._previous_exclude
+            if self._previous_people is not None:  # people standing still stay in a region
+                candidates |= self._previous_people
             candidates = cv2.dilate(candidates.view(np.uint8), np.ones((3, 3), np.uint8))
             boxes = regions_of_interest(candidates, s.detect_scale, s.roi_pad_px,
                                         s.min_region_px, (self.height, self.width))
@@ -333,6 +335,10 @@ class OcclusionProcessor:
         near = cv2.dilate(busy.view(np.uint8), np.ones((2 * s.bg_protect_px + 1,) * 2, np.uint8))
         bg.update(corrected, near == 0)
         self._previous_exclude = shrink(near * np.uint8(255), s.detect_scale) > 0
+        # Regions follow last frame's people, not its shadow labels: a codec's scattered
+        # specks taken as shadow would otherwise keep the regions as large as the frame.
+        self._previous_people = shrink(person.view(np.uint8) * np.uint8(255),
+                                       s.detect_scale) > 0
         u8 = np.uint8(255)
         masks = (mask, person.view(np.uint8) * u8, shadow.view(np.uint8) * u8,
                  foreground.view(np.uint8) * u8)
