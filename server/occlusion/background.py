@@ -203,6 +203,10 @@ class BackgroundModel:
 
     # ------------------------------------------------------------------------------ updating
 
+    def next_band(self) -> tuple[int, int]:
+        """Rows ``(y0, y1)`` the next :meth:`update` will visit."""
+        return self._bands[self._band]
+
     def update(self, corrected_bgr: np.ndarray, background: np.ndarray) -> tuple[int, int]:
         """Slowly blend the next band of rows toward the frame where ``background`` is True.
 
