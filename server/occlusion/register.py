@@ -24,6 +24,8 @@ gradients (codes per shrunk pixel); frames (H, W, 3) uint8 BGR at full resolutio
 
 from __future__ import annotations
 
+import math
+
 import cv2
 import numpy as np
 
@@ -98,6 +100,7 @@ class Registration:
         b = 2 + int(np.ceil(self.settings.register_max_shift_px / self.scale))
         self._inside = np.zeros(ref.shape, dtype=bool)  # away from the border
         self._inside[b:-b, b:-b] = True
+        self._sample = np.flatnonzero(self._inside)[::7]  # the pixels the MAD is taken over
 
     def estimate(self, frame_bgr: np.ndarray, exclude: np.ndarray | None = None,
                  shrunk: bool = False) -> np.ndarray:
@@ -119,19 +122,32 @@ class Registration:
         d = self.shift_px / self.scale  # shrunk pixels
         step = np.zeros(2)
         limit = None
+        gx, gy = self.gx.ravel(), self.gy.ravel()
+        use_f = use.view(np.uint8).astype(np.float32).ravel()
         for _ in range(s.register_iterations):
             moved = shift_image(grey, d[0], d[1])
             r = cv2.subtract(moved, self.reference)
+            abs_r = np.abs(r)
             if limit is None:  # outliers by the residuals at the starting shift
-                mad = float(np.median(np.abs(r[use][::7]))) if use.any() else 0.0
+                sample = abs_r.ravel()[self._sample][use.ravel()[self._sample]]
+                mad = float(np.median(sample)) if sample.size else 0.0
                 limit = 3.0 * 1.4826 * mad + 1e-3
-            ok = use & (np.abs(r) < limit)
-            gx, gy, rr = self.gx[ok], self.gy[ok], r[ok]
-            a = np.array([[gx @ gx, gx @ gy], [gx @ gy, gy @ gy]], dtype=np.float64)
-            if np.linalg.cond(a) > 1e6:
+            # Weights 1 on the pixels used, 0 elsewhere: sums by BLAS dot products rather
+            # than gathers of the used pixels (the same sums, a third of the time).
+            _, w = cv2.threshold(abs_r, limit, 1.0, cv2.THRESH_BINARY_INV)
+            w = w.ravel()
+            w *= use_f
+            gxw, gyw, rr = gx * w, gy * w, r.ravel()
+            # The 2x2 normal equations in closed form (numpy's cond and solve cost more in
+            # call overhead than the sums themselves).
+            axx, axy, ayy = float(gxw @ gx), float(gxw @ gy), float(gyw @ gy)
+            half_trace, det = 0.5 * (axx + ayy), axx * ayy - axy * axy
+            root = math.sqrt(max(half_trace * half_trace - det, 0.0))
+            if not half_trace - root > 1e-6 * (half_trace + root):  # condition number > 1e6
                 break
+            bx, by = float(gxw @ rr), float(gyw @ rr)
             # moved(x) ~ reference(x - (d_true - d)): r = -grad . (d_true - d)
-            step = -np.linalg.solve(a, np.array([gx @ rr, gy @ rr], dtype=np.float64))
+            step = -np.array([ayy * bx - axy * by, axx * by - axy * bx]) / det
             d = d + step
             if np.hypot(*step) * self.scale < 0.01:
                 break
