@@ -287,7 +287,13 @@ class OcclusionProcessor:
             tick = now
 
         # 1. Daylight: gain from the coarse frame, and its table to reference illumination.
-        coarse = shrink(image, s.detect_scale)
+        reg = self.registration
+        if s.register and s.detect_scale % reg.scale == 0:
+            half = reg.shrink(image)  # the registration's copy; halving is OpenCV's fast case
+            coarse = shrink(half, s.detect_scale // reg.scale)
+        else:
+            half = reg.shrink(image) if s.register else None
+            coarse = shrink(image, s.detect_scale)
         gain = bg.estimate_gain(coarse, self._previous_exclude)
         table = self.transfer.gain_table(gain)
         coarse_corrected = apply_table(coarse, table)
@@ -295,9 +301,8 @@ class OcclusionProcessor:
         # 1b. Camera shake: the shift of the frame (shrunk to the registration scale, then
         # corrected) against the background; the coarse copy moved into the background's grid.
         shift = np.zeros(2)
-        reg = self.registration
         if s.register:
-            shrunk = apply_table(reg.shrink(image), table)
+            shrunk = apply_table(half, table)
             shift = reg.estimate(shrunk, self._previous_exclude, shrunk=True).copy()
             if reg.moved and s.detect_scale % reg.scale == 0:
                 # Resampled at the registration scale, then block means: resampling the
