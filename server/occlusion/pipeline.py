@@ -43,6 +43,8 @@ from server.throttledlog import ThrottledWarnings
 
 log = logging.getLogger("daylit.occlusion")
 
+_MEAN3 = np.full((1, 3), 1.0 / 3.0, dtype=np.float32)  # cv2.transform: mean of the channels
+
 
 @dataclass
 class OcclusionResult:
@@ -320,7 +322,7 @@ class OcclusionProcessor:
             boxes = [(0, self.height, 0, self.width)]
         else:
             diff = cv2.absdiff(coarse_corrected.astype(np.float32), bg.coarse_mean)
-            candidates = diff.mean(axis=2) > s.detect_threshold
+            candidates = cv2.transform(diff, _MEAN3) > s.detect_threshold
             if self._previous_people is not None:  # people standing still stay in a region
                 candidates |= self._previous_people
             candidates = cv2.dilate(candidates.view(np.uint8), np.ones((3, 3), np.uint8))

@@ -230,13 +230,17 @@ class Registration:
         height, width = masks[0].shape
         m = self.margin_px()
         out = [np.zeros_like(k) for k in masks]
-        stack = cv2.merge(masks) if len(masks) > 1 else masks[0]
         for y0, y1, x0, x1 in rects:
             y0, y1 = max(0, y0 - m), min(height, y1 + m)
             x0, x1 = max(0, x0 - m), min(width, x1 + m)
-            # out(x, y) = stack(x - dx, y - dy): the whole stack is the source, so the
-            # border is repeated exactly as in shift_image.
-            mat = np.float32([[1, 0, x0 + subpixel(-dx)], [0, 1, y0 + subpixel(-dy)]])
+            # The source window reaches m further, or to the frame's border, repeated there
+            # exactly as in shift_image: out(x, y) = stack(x - dx, y - dy).
+            sy0, sy1 = max(0, y0 - m), min(height, y1 + m)
+            sx0, sx1 = max(0, x0 - m), min(width, x1 + m)
+            crops = [k[sy0:sy1, sx0:sx1] for k in masks]
+            stack = cv2.merge(crops) if len(masks) > 1 else crops[0]
+            mat = np.float32([[1, 0, x0 - sx0 + subpixel(-dx)],
+                              [0, 1, y0 - sy0 + subpixel(-dy)]])
             part = cv2.warpAffine(stack, mat, (x1 - x0, y1 - y0),
                                   flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                                   borderMode=cv2.BORDER_REPLICATE)
