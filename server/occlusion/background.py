@@ -15,8 +15,8 @@ Arrays (H, W full resolution; h, w = H // s, W // s at the detection scale s):
 - ``mean`` (H, W, 3) float32, BGR codes (0-255) in the reference illumination;
 - ``var`` (H, W, 3) float32, codes^2; ``edge_var`` (H, W, 3) float32 codes^2, the variance a
   residual camera shake of ``register_tolerance_px`` gives at the mean's edges (None when not
-  registering); ``inv_var`` the reciprocal of their sum; ``log_norm`` (H, W) float32,
-  ``0.5 sum_c ln(2 pi var_c)``;
+  registering); ``total_var`` (H, W, 3) float32 their sum, ``inv_var`` its reciprocal;
+  ``log_norm`` (H, W) float32, ``0.5 sum_c ln(2 pi total_var_c)``;
 - ``mean_u8`` (H, W, 3) uint8, the mean rounded to codes; ``linear`` (H, W, 3) float32 its
   linear light (for the shadow test; rounding changes it by under 1 % above code 50);
 - ``coarse_mean``, ``coarse_linear`` (h, w, 3) float32, block means of the above.
@@ -79,6 +79,7 @@ class BackgroundModel:
         self.blockiness = 1.0  # of the learned frames (blockiness()): codec-coded above ~1.1
         self.var: np.ndarray | None = None
         self.inv_var: np.ndarray | None = None
+        self.total_var: np.ndarray | None = None
         self.log_norm: np.ndarray | None = None
         self.linear: np.ndarray | None = None
         self.coarse_mean: np.ndarray | None = None
@@ -156,15 +157,18 @@ class BackgroundModel:
         """Recompute the derived arrays for rows ``y0:y1`` (multiples of the scale)."""
         if self.inv_var is None:
             self.inv_var = np.empty_like(self.var)
+            self.total_var = np.empty_like(self.var)
             self.log_norm = np.empty(self.var.shape[:2], dtype=np.float32)
             self.mean_u8 = np.empty(self.mean.shape, dtype=np.uint8)
             self.linear = np.empty_like(self.mean)
             h, w = self.height // self.scale, self.width // self.scale
             self.coarse_mean = np.empty((h, w, 3), dtype=np.float32)
             self.coarse_linear = np.empty((h, w, 3), dtype=np.float32)
-        var = self.var[y0:y1]
+        var = self.total_var[y0:y1]
         if self.edge_var is not None:
-            var = var + self.edge_var[y0:y1]
+            np.add(self.var[y0:y1], self.edge_var[y0:y1], out=var)
+        else:
+            var[:] = self.var[y0:y1]
         np.divide(1.0, var, out=self.inv_var[y0:y1])
         prod = var[..., 0] * var[..., 1] * var[..., 2]
         self.log_norm[y0:y1] = 0.5 * np.log((2.0 * np.pi) ** 3 * prod)
@@ -202,6 +206,10 @@ class BackgroundModel:
         return self.gain_bgr
 
     # ------------------------------------------------------------------------------ updating
+
+    def next_band(self) -> tuple[int, int]:
+        """Rows ``(y0, y1)`` the next :meth:`update` will visit."""
+        return self._bands[self._band]
 
     def update(self, corrected_bgr: np.ndarray, background: np.ndarray) -> tuple[int, int]:
         """Slowly blend the next band of rows toward the frame where ``background`` is True.

@@ -36,12 +36,14 @@ import numpy as np
 from server.occlusion.background import BackgroundModel, shrink
 from server.occlusion.colour import Transfer, apply_table
 from server.occlusion.depth import Person, PerspectiveCamera, find_people, occlusion_mask
-from server.occlusion.register import Registration
+from server.occlusion.register import Registration, shift_image
 from server.occlusion.segment import Segmenter, regions_of_interest
 from server.occlusion.settings import OcclusionSettings
 from server.throttledlog import ThrottledWarnings
 
 log = logging.getLogger("daylit.occlusion")
+
+_MEAN3 = np.full((1, 3), 1.0 / 3.0, dtype=np.float32)  # cv2.transform: mean of the channels
 
 
 @dataclass
@@ -131,6 +133,7 @@ class OcclusionProcessor:
         self.frame_index = 0
         self._learning: list[np.ndarray] = []
         self._previous_exclude: np.ndarray | None = None  # coarse people + shadows, last frame
+        self._previous_people: np.ndarray | None = None  # coarse people alone, last frame
         self._skip_warnings = ThrottledWarnings(log, interval_s=1.0)
 
     # -------------------------------------------------------------------------- construction
@@ -185,6 +188,7 @@ class OcclusionProcessor:
         n = self._learn(good)
         self.segmenter.reset()
         self._previous_exclude = None
+        self._previous_people = None
         self._learning = []
         return n
 
@@ -284,32 +288,50 @@ class OcclusionProcessor:
             timings[name] = 1e3 * (now - tick)
             tick = now
 
-        # 1. Daylight: gain from the coarse frame, then the frame in reference illumination.
-        coarse = shrink(image, s.detect_scale)
+        # 1. Daylight: gain from the coarse frame, and its table to reference illumination.
+        reg = self.registration
+        if s.register and s.detect_scale % reg.scale == 0:
+            half = reg.shrink(image)  # the registration's copy; halving is OpenCV's fast case
+            coarse = shrink(half, s.detect_scale // reg.scale)
+        else:
+            half = reg.shrink(image) if s.register else None
+            coarse = shrink(image, s.detect_scale)
         gain = bg.estimate_gain(coarse, self._previous_exclude)
         table = self.transfer.gain_table(gain)
-        corrected = apply_table(image, table)
+        coarse_corrected = apply_table(coarse, table)
         lap("gain")
-        # 1b. Camera shake: the frame resampled into the background's grid.
+        # 1b. Camera shake: the shift of the frame (shrunk to the registration scale, then
+        # corrected) against the background; the coarse copy moved into the background's grid.
         shift = np.zeros(2)
         if s.register:
-            shift = self.registration.estimate(corrected, self._previous_exclude).copy()
-            corrected = self.registration.align(corrected)
-            coarse_corrected = shrink(corrected, s.detect_scale)
-        else:
-            coarse_corrected = apply_table(coarse, table)
+            shrunk = apply_table(half, table)
+            shift = reg.estimate(shrunk, self._previous_exclude, shrunk=True).copy()
+            if reg.moved and s.detect_scale % reg.scale == 0:
+                # Resampled at the registration scale, then block means: resampling the
+                # coarse copy itself blurs edges into candidates (8 regions a frame, not 2).
+                k = 1.0 / reg.scale
+                coarse_corrected = shrink(shift_image(shrunk, shift[0] * k, shift[1] * k),
+                                          s.detect_scale // reg.scale)
+            elif reg.moved:
+                coarse_corrected = shrink(reg.align_rects(image, [(0, self.height, 0,
+                                                                   self.width)], table),
+                                          s.detect_scale)
         lap("register")
         # 2. Regions of interest: coarse background difference plus last frame's people.
         if s.full_frame:
             boxes = [(0, self.height, 0, self.width)]
         else:
             diff = cv2.absdiff(coarse_corrected.astype(np.float32), bg.coarse_mean)
-            candidates = diff.mean(axis=2) > s.detect_threshold
-            if self._previous_exclude is not None:
-                candidates |= self._previous_exclude
+            candidates = cv2.transform(diff, _MEAN3) > s.detect_threshold
+            if self._previous_people is not None:  # people standing still stay in a region
+                candidates |= self._previous_people
             candidates = cv2.dilate(candidates.view(np.uint8), np.ones((3, 3), np.uint8))
             boxes = regions_of_interest(candidates, s.detect_scale, s.roi_pad_px,
                                         s.min_region_px, (self.height, self.width))
+        # The frame in reference illumination and the background's grid, computed only where
+        # it is read: the regions and the band of rows the slow update visits next.
+        y0, y1 = bg.next_band()
+        corrected = reg.align_rects(image, [*boxes, (y0, y1, 0, self.width)], table)
         lap("regions")
         # 3. Graph cut of Eq. 6 inside the regions, shadows joining the background.
         person, shadow, foreground = self.segmenter.segment(corrected, boxes)
@@ -333,11 +355,15 @@ class OcclusionProcessor:
         near = cv2.dilate(busy.view(np.uint8), np.ones((2 * s.bg_protect_px + 1,) * 2, np.uint8))
         bg.update(corrected, near == 0)
         self._previous_exclude = shrink(near * np.uint8(255), s.detect_scale) > 0
+        # Regions follow last frame's people, not its shadow labels: a codec's scattered
+        # specks taken as shadow would otherwise keep the regions as large as the frame.
+        self._previous_people = shrink(person.view(np.uint8) * np.uint8(255),
+                                       s.detect_scale) > 0
         u8 = np.uint8(255)
         masks = (mask, person.view(np.uint8) * u8, shadow.view(np.uint8) * u8,
                  foreground.view(np.uint8) * u8)
         if s.register:  # back into the frame's own grid
-            masks = self.registration.to_frame(*masks)
+            masks = reg.to_frame_in(boxes, *masks)  # zero outside the regions
         result = OcclusionResult(
             index, t, mask=masks[0], person_mask=masks[1], shadow_mask=masks[2],
             foreground_mask=masks[3], people=people, gain_bgr=gain.copy(), shift_px=shift,

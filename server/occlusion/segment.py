@@ -224,8 +224,7 @@ class Segmenter:
         k = s.codec_block_px
         spread = cv2.blur(cv2.transform(sq, _SUM3 / 3.0), (k, k),
                           borderType=cv2.BORDER_REPLICATE) * np.float32(s.codec_error_fraction)
-        var = bg.var[y0:y1, x0:x1] + (bg.edge_var[y0:y1, x0:x1] if bg.edge_var is not None
-                                      else 0.0) + spread[..., None]
+        var = bg.total_var[y0:y1, x0:x1] + spread[..., None]
         d2 = cv2.transform(sq / var, _SUM3)
         log_norm = 0.5 * np.log((2.0 * np.pi) ** 3 * (var[..., 0] * var[..., 1] * var[..., 2]))
         return d2, log_norm
@@ -305,13 +304,22 @@ class Segmenter:
         # is background whatever its neighbours do (it matches its background Gaussian).
         if s.full_frame:
             free = None  # the unoptimised baseline: every pixel is a node
+            part = (slice(None), slice(None))
         else:
             maybe = (different | (hist >= 2)).view(np.uint8)
             k = 2 * s.band_px + 1
-            free = cv2.dilate(maybe, np.ones((k, k), np.uint8)).view(bool)
-        w_right, w_down = contrast_weights(terms["codes"], s.spatial_weight,
+            free = cv2.dilate(maybe, np.ones((k, k), np.uint8))
+            # The graph only over the free pixels' bounding rectangle and a 1-pixel rim (the
+            # fixed neighbours whose edges become unary costs): the same cut, less to build.
+            x, y, w, h = cv2.boundingRect(free)
+            if w == 0:
+                return np.zeros(different.shape, dtype=bool), shadow
+            part = (slice(max(0, y - 1), y + h + 1), slice(max(0, x - 1), x + w + 1))
+            free = free[part].view(bool)
+        w_right, w_down = contrast_weights(terms["codes"][part], s.spatial_weight,
                                            self.background.mean_contrast)
-        person = graph_cut(cost_fg, cost_bg, w_right, w_down, free)
+        person = np.zeros(different.shape, dtype=bool)
+        person[part] = graph_cut(cost_fg[part], cost_bg[part], w_right, w_down, free)
         return person, shadow & ~person
 
     def segment(self, corrected: np.ndarray, boxes: list[Box]) -> tuple[np.ndarray, np.ndarray,

@@ -96,7 +96,7 @@ SCHEMA: dict = {
         "bg_rate": _num(0.02, "per-frame update rate of the per-pixel background mean and "
                         "variance where the final label is background (time constant 1 / "
                         "bg_rate frames)", exclusiveMinimum=0, exclusiveMaximum=1),
-        "bg_update_bands": _int(4, "the slow update visits one of this many row bands per "
+        "bg_update_bands": _int(8, "the slow update visits one of this many row bands per "
                                 "frame (rate bg_rate * bands each; bg_rate * bands < 1)",
                                 minimum=1),
         "bg_protect_px": _int(3, "no update this close to a person or shadow, pixels",

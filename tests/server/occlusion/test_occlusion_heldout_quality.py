@@ -22,6 +22,8 @@ W, H = 512, 256
 # quarter of the pixels and the outer penumbra (kept: shadow_penumbra is off) weighs more;
 # three fall short (measured: bluish keeps 0.21 of the shadow, the shake gives IoU 0.88 and
 # keeps 0.25, JPEG 75 keeps 0.13): those hold the level reached, with margin.
+REGION_SHARE_MAX = 0.25  # of the frame, median over frames with people (measured: see the test)
+
 GOALS = {
     "neutral shadows": (0.9, 0.1),
     "bluish shadows": (0.9, 0.25),
@@ -58,3 +60,27 @@ def test_people_without_their_shadows_on_heldout_frames(name):
     assert statistics.median(ious) >= iou_min, statistics.median(ious)
     assert kept / shadow <= kept_max, kept / shadow
     assert phantoms == [0] * len(phantoms)
+
+
+def test_regions_stay_around_the_people_in_codec_frames():
+    """A video codec's scattered errors, labelled shadow by the cut, must not feed the next
+    frame's regions of interest: they did, and one region grew to half the frame (the cut's
+    cost with it, 73 ms at 1024x512). The regions follow the coarse difference and last
+    frame's people only. At 1024x512, where the regions grew (at 512x256 they did not)."""
+    w, h = 2 * W, 2 * H
+    seq = HeldoutSequence(width=w, height=h, duration_s=4.0).with_conditions(
+        CONDITIONS["video mp4v"])
+    proc = OcclusionProcessor(make_camera(w, h))
+    shares, ious = [], []
+    for f in seq.frames():
+        r = proc.process(f.image)
+        if r.learning or not f.person.any():
+            continue
+        area = sum((y1 - y0) * (x1 - x0) for y0, y1, x0, x1 in r.regions)
+        shares.append(area / (w * h))
+        m = r.person_mask > 0
+        ious.append(np.count_nonzero(m & f.person) / np.count_nonzero(m | f.person))
+    assert len(shares) >= 20
+    print(f"region share median {statistics.median(shares):.3f}, IoU {statistics.median(ious):.3f}")
+    assert statistics.median(shares) <= REGION_SHARE_MAX, statistics.median(shares)
+    assert statistics.median(ious) >= 0.9, statistics.median(ious)

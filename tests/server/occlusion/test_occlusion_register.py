@@ -74,3 +74,32 @@ def test_no_phantom_people_from_a_shaking_camera(shaking):
     assert (shifts.max(axis=0) - shifts.min(axis=0)).max() < 0.1
     unregistered, _ = _phantoms(OcclusionSettings(register=False), frames)
     assert sum(unregistered) > 0  # the test can fail: without registration, edges are people
+
+
+@pytest.mark.parametrize("dx, dy", [(0.37, -0.42), (-2.6, 1.3), (0.01, 0.02)])
+def test_resampling_in_rectangles_equals_the_whole_frame(dx, dy):
+    """The pipeline resamples only its regions and the update band: inside every rectangle it
+    must give the same codes as the whole-frame cv2.LUT + warp, at the frame's borders too."""
+    rng = np.random.default_rng(7)
+    frame = rng.integers(0, 256, (H, W, 3), dtype=np.uint8)
+    table = rng.integers(0, 256, (256, 1, 3), dtype=np.uint8)
+    reg = Registration(OcclusionSettings())
+    reg.shift_px[:] = (dx, dy)
+    rects = [(0, 40, 0, 60), (100, 180, 200, 320), (H - 30, H, W - 50, W), (60, 61, 5, 500)]
+    got = reg.align_rects(frame, rects, table)
+    whole = cv2.LUT(frame, table)
+    if np.hypot(dx, dy) >= reg.settings.register_min_shift_px:
+        whole = shift_image(whole, dx, dy)
+    inside = np.zeros((H, W), dtype=bool)
+    for y0, y1, x0, x1 in rects:
+        inside[y0:y1, x0:x1] = True
+        np.testing.assert_array_equal(got[y0:y1, x0:x1], whole[y0:y1, x0:x1])
+    assert not got[~inside].any()  # nothing computed outside (zeros)
+    # masks back to the frame's grid: zero outside the rects in, the whole-frame result out
+    masks = [np.zeros((H, W), np.uint8) for _ in range(3)]
+    for k, (y0, y1, x0, x1) in enumerate(rects[:3]):
+        masks[k][y0 + 3 : y1 - 3, x0 + 3 : x1 - 3] = rng.integers(0, 2, (y1 - y0 - 6,
+                                                                         x1 - x0 - 6)) * 255
+    masks[0][rects[1][0] + 5, rects[1][2] + 5] = 255  # two masks in one rect
+    np.testing.assert_array_equal(np.array(reg.to_frame_in(rects, *masks)),
+                                  np.array(reg.to_frame(*masks)))
