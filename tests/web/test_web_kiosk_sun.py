@@ -193,6 +193,47 @@ def test_kiosk_sun_displayed_against_the_oracle(new_page, sun_build, sun_referen
             k += 1
 
 
+def build_without_the_views_sun_bounce(build_dir, root):
+    """A build as made before 2026-11-25: the same files, the manifest without
+    ``views[i].sun_bounce`` (its files stay listed and served; no client asks for them)."""
+    import json
+    import shutil
+
+    shutil.copytree(build_dir, root)  # (the test server does not follow symbolic links)
+    manifest = json.loads((build_dir / "manifest.json").read_text())
+    for view in manifest["views"]:
+        assert view.pop("sun_bounce", None) is not None
+    (root / "manifest.json").write_text(json.dumps(manifest))
+    return root
+
+
+def test_kiosk_on_a_build_without_the_views_sun_bounce(new_page, sun_build, sun_reference,
+                                                        tmp_path):
+    """An older build (no sun-bounce images of the view) still loads: the kiosk draws the sun's
+    direct term alone, as before (within 2.5 codes of the oracle without the bounce, so well
+    below it on the shaded south faces), and the debug status says why."""
+    build, casters = sun_reference
+    s, r = sun_and_sky(build)
+    O_nb, _, _, _, pixels, _, _ = expected(build, casters, r, s, bounce=False)
+    O_want = expected(build, casters, r, s)[0]
+    old = build_without_the_views_sun_bounce(sun_build, tmp_path / "old")
+    with StubServer(old, KIOSK_HELLO) as server:
+        page = open_kiosk(server, new_page, r, seq=3, size=SIZE, query=f"&exposure={EXPOSURE}",
+                          message=sun_message(r, 3, s))
+        page.page.evaluate("window.daylit.debug.waitSunBounce()")
+        note = page.page.evaluate("window.daylit.status.kioskSunBounce")
+        shown = screen(page)[pixels[:, 1], pixels[:, 0]]
+        assert not page.errors, page.errors
+    print(note)
+    assert note.startswith("absent"), note
+    before = srgb_codes(neutral_tone_map(EXPOSURE * O_nb))
+    want = srgb_codes(neutral_tone_map(EXPOSURE * O_want))
+    assert np.abs(shown - before).max() <= 2.5, np.abs(shown - before).max(axis=1)
+    shade = np.array([g in ("virtual south", "real south") for g in probe_table()[0]])
+    print("south faces, oracle with the bounce minus shown:", (want - shown)[shade].min(axis=1))
+    assert ((want - shown)[shade] > 8).all()
+
+
 def test_kiosk_sun_ratio_over_the_live_frame(new_page, sun_build, sun_reference):
     """With a live frame (a uniform grey) real pixels show P O'/S': in the virtual box's
     shadow alone about sky / (sun + sky) of the picture, in the overlap with the real shadow
