@@ -116,10 +116,14 @@ class Compressor:
             out[name] = result.entry
         return out
 
-    def run_sun_bounce(self, image: np.ndarray, name: str, staging: Path) -> dict | None:
-        """Compress one sun-bounce stack ``name`` (``<atlas>.sun_bounce.<stack>``) into one
-        image per light the sun can be in (:func:`bake.sunbounce.compress_sun_bounce`); its
-        compact entry, or None when it is zero everywhere (then the master is dropped too)."""
+    def run_sun_bounce(
+        self, image: np.ndarray, name: str, staging: Path, master: str | None = None
+    ) -> dict | None:
+        """Compress one sun-bounce stack ``name`` (``<atlas or view>.sun_bounce.<stack>``)
+        into one image per light the sun can be in
+        (:func:`bake.sunbounce.compress_sun_bounce`); its compact entry, or None when it is
+        zero everywhere (then the master, ``master`` relative to ``staging``, by default
+        ``exr/<name>.exr``, is dropped too)."""
         try:
             if self.cluster is None:
                 result = sunbounce.compress_sun_bounce(
@@ -137,7 +141,7 @@ class Compressor:
             raise BakeError(str(exc)) from None
         self.bar.update(1)
         if result is None:
-            (staging / "exr" / f"{name}.exr").unlink(missing_ok=True)
+            (staging / (master or f"exr/{name}.exr")).unlink(missing_ok=True)
             return None
         self.rows[name] = {
             "stack": name,

@@ -83,7 +83,8 @@ def sun_patches_over(manifest: dict, start: str, end: str, step: str = STEP) -> 
 
 def sun_bounce_bytes(manifest: dict, atlases: list[dict], patches: list[int]) -> int:
     """Bytes of the sun-bounce images a client fetches for the sun in each of ``patches``:
-    light ``p``'s files (both levels) of every sun-bounce stack of ``atlases``."""
+    light ``p``'s files (both levels) of every sun-bounce stack of ``atlases`` (atlas or
+    view entries)."""
     sizes = {f["path"]: f["bytes"] for f in manifest["files"]}
     total = 0
     for atlas in atlases:
@@ -117,6 +118,9 @@ def download_bytes(manifest: dict, build_dir: Path, visit_lights: int | None = N
       sun is in over the visit (``visit_sun``: the patches, computed if not given);
       ``sun_bounce_day`` from sunrise to sunset (``day_sun``); ``sun_bounce_hull_visit`` what
       hull-plane mode adds over the visit. Zero for a build without sun-bounce stacks.
+      ``kiosk_sun_bounce_start`` and ``kiosk_sun_bounce_day``: the same for the kiosk (the
+      fixed views' ``O`` and ``S``, at sunrise's patch and from sunrise to sunset); zero for
+      a build made before 2026-11-25.
 
     Also ``visit_lights``, ``day_lights``, ``visit_sun_patches`` and ``day_sun_patches``,
     the counts used."""
@@ -163,7 +167,7 @@ def download_bytes(manifest: dict, build_dir: Path, visit_lights: int | None = N
         f["bytes"] for f in manifest["files"]
         if f["path"].startswith(("ktx2/", "v/")) or f["path"] == manifest["model"]["path"]
     )
-    if any("sun_bounce" in a for a in manifest["atlases"]):
+    if any("sun_bounce" in o for o in manifest["atlases"] + manifest["views"]):
         if visit_sun is None:
             visit_sun = sun_patches_over(manifest, *VISIT)
         if day_sun is None:
@@ -182,6 +186,8 @@ def download_bytes(manifest: dict, build_dir: Path, visit_lights: int | None = N
         "sun_bounce_visit": sun_bounce_bytes(manifest, default, visit_sun),
         "sun_bounce_day": sun_bounce_bytes(manifest, default, day_sun),
         "sun_bounce_hull_visit": sun_bounce_bytes(manifest, hull, visit_sun),
+        "kiosk_sun_bounce_start": sun_bounce_bytes(manifest, manifest["views"], day_sun[:1]),
+        "kiosk_sun_bounce_day": sun_bounce_bytes(manifest, manifest["views"], day_sun),
         "visit_sun_patches": len(visit_sun),
         "day_sun_patches": len(day_sun),
     }

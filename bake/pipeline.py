@@ -163,7 +163,7 @@ def _bake(site, out_dir, compressor, started, workers, cluster, progress, log) -
         units += [
             partial_fn(
                 write_view, view, view_hits[view.name], traced, geometry, dome, site, staging,
-                compressor,
+                compressor, sun_bounce,
             )
             for view in site.views
         ]

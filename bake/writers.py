@@ -47,7 +47,7 @@ class SunBounce:
     enabled: bool
     up: np.ndarray  # (n,)
     albedo: np.ndarray  # (3,)
-    stack_names: list  # <atlas>.sun_bounce.<stack>, the report's rows
+    stack_names: list  # <atlas or view>.sun_bounce.<stack>, the report's rows
     lights: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
 
     @classmethod
@@ -55,6 +55,8 @@ class SunBounce:
         enabled = site.settings.bounce_rays > 0
         names = [
             f"{a.id}.sun_bounce.{stack}" for a in atlases.values() for stack in a.stacks
+        ] + [
+            f"{view.name}.sun_bounce.{stack}" for view in site.views for stack in ("O", "S")
         ] if enabled else []
         return cls(enabled, dome.cosine_weighted_sr, np.asarray(site.ground.albedo), names)
 
@@ -84,6 +86,19 @@ class SunBounce:
         image = np.zeros((a.height, a.width, len(self.up), 3), dtype=np.float32)
         image[:, :, lights] = part
         return image
+
+    def view_image(self, view, hits, smoothed: np.ndarray) -> np.ndarray:
+        """The one-bounce part of a fixed view's O or S stack (H, W, n, 3) radiance, exactly
+        as :func:`write_view` adds it: ``albedo / pi`` times the bounce ``smoothed`` (P, n, 3,
+        from :func:`view_smoothed`) at the pixels that see a surface, for the lights the sun
+        can be in; zero in the other columns, on the sky and on the open ground past the
+        site (its radiance in the view is the dome's direct light alone, no bounce)."""
+        image = np.zeros((view.height * view.width, len(self.up), 3), dtype=np.float32)
+        lights = self.lights
+        image[hits.surface[:, None], lights[None, :]] = (
+            hits.albedo[:, None, :] / np.pi * smoothed[:, lights]
+        )
+        return image.reshape(view.height, view.width, len(self.up), 3)
 
 
 def write_atlas(a, traced: TracedResults, staging: Path, compressor, sun_bounce) -> dict:
@@ -224,10 +239,13 @@ def _rgb(direct: np.ndarray, config: str) -> np.ndarray:
 
 
 def write_view(
-    view, hits: dict, traced: TracedResults, geometry, dome, site, staging: Path, compressor
+    view, hits: dict, traced: TracedResults, geometry, dome, site, staging: Path, compressor,
+    sun_bounce=None,
 ) -> dict:
     """Assemble a view's O and S (direct plus smoothed bounce), mask and virtual depth, write
-    them and the compact textures; returns the view's manifest entry."""
+    them and the compact textures, and their sun-bounce stacks (the bounce alone, the sun's
+    lights only: :meth:`SunBounce.view_image`, for the kiosk's sun: docs/sun.md); returns the
+    view's manifest entry."""
     entry = {
         "id": view.name,
         "width": view.width,
@@ -239,11 +257,16 @@ def write_view(
     }
     up = dome.cosine_weighted_sr
     results = traced.load(view.name)
+    sun_images = {}
     for stack, config in (("O", "all"), ("S", "real")):
         direct, bounce = lookup_result(results, f"{view.name}.{stack}", config)
         E = _rgb(direct, config)
         if bounce is not None:
-            E += view_smoothed(view, hits[stack], bounce, geometry)
+            smoothed = view_smoothed(view, hits[stack], bounce, geometry)
+            E += smoothed
+            if sun_bounce is not None and sun_bounce.enabled:
+                sun_images[stack] = sun_bounce.view_image(view, hits[stack], smoothed)
+            del smoothed
         image = radiance_image(view, hits[stack], E, up, site.ground.albedo)
         rel = f"views/{view.name}.{stack}.exr"
         write_stack_exr(staging / rel, image)
@@ -253,6 +276,22 @@ def write_view(
             "channels": CHANNEL_PATTERN,
             "compact": compressor.run({stack: image}, view.name, staging)[stack],
         }
+    sun_entries = {}
+    for stack in list(sun_images):
+        image = sun_images.pop(stack)
+        name = f"{view.name}.sun_bounce.{stack}"
+        rel = f"views/{name}.exr"
+        write_stack_exr(staging / rel, image)
+        compact = compressor.run_sun_bounce(image, name, staging, master=rel)
+        if compact is not None:
+            sun_entries[stack] = {
+                "master": rel,
+                "quantity": "radiance",
+                "channels": CHANNEL_PATTERN,
+                "compact": compact,
+            }
+    if sun_entries:
+        entry["sun_bounce"] = sun_entries
     entry["mask"] = f"views/{view.name}.mask.png"
     _write_png(staging / entry["mask"], mask_image(view, hits["O"]))
     entry["depth"] = f"views/{view.name}.depth.exr"

@@ -88,7 +88,8 @@ def test_a_visit_selects_the_suns_patches_and_a_day_more(demo_draft_build):
 
 def test_the_suns_bounce_is_one_lights_images_per_stack_per_patch(tmp_path):
     """The sun's bounce: light p's two files of each sun-bounce stack for each patch p the
-    sun is in; the hull's only in hull-plane mode; a light without files counts nothing."""
+    sun is in; the hull's only in hull-plane mode; a light without files counts nothing;
+    the kiosk's, of its view's O and S, apart."""
     pattern = "ktx2/{atlas}.sun_bounce.{stack}.L{{index:04d}}{suffix}.ktx2"
 
     def sun_stack(atlas: str, stack: str) -> dict:
@@ -99,7 +100,8 @@ def test_the_suns_bounce_is_one_lights_images_per_stack_per_patch(tmp_path):
         }}}
 
     sizes = {"site.glb": 1000}
-    for atlas, stack, base in (("ground", "I", 100), ("ground", "d", 200), ("hull", "I", 300)):
+    for atlas, stack, base in (("ground", "I", 100), ("ground", "d", 200), ("hull", "I", 300),
+                               ("kiosk", "O", 400), ("kiosk", "S", 500)):
         for p in (0, 1):
             for suffix, extra in (("", 0), ("r", 5)):
                 name = pattern.format(atlas=atlas, stack=stack, suffix=suffix).format(index=p)
@@ -113,11 +115,15 @@ def test_the_suns_bounce_is_one_lights_images_per_stack_per_patch(tmp_path):
              "sun_bounce": {"I": sun_stack("ground", "I"), "d": sun_stack("ground", "d")}},
             {"id": "hull", "stacks": {}, "sun_bounce": {"I": sun_stack("hull", "I")}},
         ],
-        "views": [],
+        "views": [{"id": "kiosk", "stacks": {},
+                   "sun_bounce": {"O": sun_stack("kiosk", "O"), "S": sun_stack("kiosk", "S")}}],
     }
     (tmp_path / "manifest.json").write_text(json.dumps(manifest))
     got = downloads.download_bytes(manifest, tmp_path, visit_lights=0, day_lights=0,
                                    visit_sun=[1, 0], day_sun=[1, 0, 2])
+    kiosk = {p: (400 + 10 * p) * 2 + 5 + (500 + 10 * p) * 2 + 5 for p in (0, 1)}
+    assert got["kiosk_sun_bounce_start"] == kiosk[1]  # sunrise's patch
+    assert got["kiosk_sun_bounce_day"] == kiosk[0] + kiosk[1]
     one = {p: (100 + 10 * p) * 2 + 5 + (200 + 10 * p) * 2 + 5 for p in (0, 1)}
     assert got["sun_bounce_start"] == one[1]  # the sun's patch at the visit's start
     assert got["sun_bounce_visit"] == one[0] + one[1]

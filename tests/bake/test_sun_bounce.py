@@ -17,6 +17,8 @@ Known answers need no bake output to compare with:
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -24,6 +26,7 @@ from bake.compact_reader import CompactReader
 from bake.evaluate import Build, ProbeError
 from daylit.sky import direction_from_azimuth_elevation, sun_positions
 from daylit.spherical import clipped_cosine_integral
+from daylit.stackio import read_stack_exr
 from tests.sites import box, make_site
 
 ALBEDO = 0.3
@@ -392,3 +395,64 @@ def test_one_smoothing_serves_the_stack_and_its_sun_bounce_bit_for_bit(moved):
     assert once.dtype == alone.dtype == np.float32
     assert np.array_equal(once, alone)
     assert not np.array_equal(alone, bounce[:, :, lights])  # it did smooth
+
+
+# --------------------------------------------------------------------------------------------
+# The fixed views' sun bounce (the kiosk's: docs/sun.md, "The kiosk's sun bounce")
+
+
+@pytest.fixture(scope="module")
+def view_site_build(tmp_path_factory) -> Path:
+    """The kiosk sun tests' site (tests/web/sunsite.py: a virtual and a real box, a view
+    looking down on them), draft; DAYLIT_SUN_BUILD names an existing bake of it instead."""
+    import os
+
+    from tests.web.sunsite import bake_sun_site
+
+    existing = os.environ.get("DAYLIT_SUN_BUILD")
+    if existing:
+        return Path(existing)
+    return bake_sun_site(tmp_path_factory.mktemp("viewsite"))
+
+
+def test_views_sun_bounce_against_an_independent_ray_cast(view_site_build):
+    """The view's O and S sun-bounce stacks: radiance, one image per sun-path light within
+    the budget of its master (decoded as the client decodes it, as the bake measured), none
+    for the other lights; and at pixels on the boxes' south faces (the sun due east: in
+    shade, lit by the sunlit ground before them) the master's column of the sun's patch, times
+    E_sun / solid_angle_p and pi / albedo, within 10 % of the sun's one-bounce irradiance that
+    the test's own ray caster gives there (tests/web/sunbounceref.py: trimesh, not the bake's
+    tracer; it gives albedo E_up / 2 before open ground exactly)."""
+    from tests.web.sunsite import SUN_DNI, sun_and_sky
+    from tests.web.test_web_kiosk_sun import probe_table, sun_bounce_oracle, view_pixels
+
+    build = Build(view_site_build)
+    view = build.manifest["views"][0]
+    lights = build.selection.selectable.tolist()
+    assert set(view["sun_bounce"]) == {"O", "S"}
+    for stack, entry in view["sun_bounce"].items():
+        assert entry["quantity"] == "radiance"
+        table = entry["compact"]["lights"]
+        assert [i for i, s in enumerate(table["scale"]) if s is not None] == lights
+        assert entry["compact"]["error"]["max"] <= BUDGET, (stack, entry["compact"]["error"])
+        reader = CompactReader(build.dir, entry["compact"], (view["height"], view["width"]))
+        master = read_stack_exr(build.dir / entry["master"])
+        assert not master[:, :, [i for i in range(build.light_count) if i not in lights]].any()
+        errors = [column_error(reader.lights([p])[p], master, p) for p in lights]
+        assert max(errors) == pytest.approx(entry["compact"]["error"]["max"], abs=1e-5)
+    s, _ = sun_and_sky(build)
+    groups, points, normals, albedo = probe_table()
+    south = [k for k, g in enumerate(groups) if g.endswith("south")]
+    groups = [groups[k] for k in south]
+    pixels, seen = view_pixels(build, points[south], normals[south])
+    want_with, want_without = sun_bounce_oracle(build, seen, normals[south], groups, s)
+    p = build.sun_patch(s)
+    weight = np.asarray(SUN_DNI) / build.solid_angles[p] * np.pi / albedo[south][:, None]
+    for stack, want in (("O", want_with), ("S", want_without)):
+        column = read_stack_exr(build.dir / view["sun_bounce"][stack]["master"])[:, :, p]
+        got = column[pixels[:, 1], pixels[:, 0]] * weight
+        for k, g in enumerate(groups):
+            if stack == "S" and g.startswith("virtual"):
+                continue  # S sees past the virtual box
+            print(f"{stack} {g}: {got[k].round(1)} W/m^2, ray cast {want[k].round(1)}")
+            assert np.allclose(got[k], want[k], rtol=0.10), (stack, g, got[k], want[k])

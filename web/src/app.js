@@ -155,8 +155,11 @@ export class App {
       this.hud.setMessage(null);
       if (this.stream.hello) this._onHello(); // a kiosk's note that outlasts the loading
       if (kiosk) {
+        // The view's sun bounce (its O and S images of the sun's patch, fetched when the sun
+        // enters a patch, as the visit's atlases'); a build before 2026-11-25 has none.
+        this.sunBounce = new SunBounce(this.renderer, this.assets, this.relighter.format, { view });
         this.kiosk = new Kiosk(this.renderer, this.relighter, view,
-          new KioskSun(this.renderer, gltf, manifest, view, this.relighter.format));
+          new KioskSun(this.renderer, gltf, manifest, view, this.relighter.format), this.sunBounce);
       } else {
         this.sunBounce = new SunBounce(this.renderer, this.assets, this.relighter.format);
         this.irradiance = new IrradianceTargets(this.renderer, this.relighter, this.sunBounce);
@@ -349,7 +352,10 @@ export class App {
     // (debug.relight) can wait for the bounce too.
     const drawing = this.sunBounce?.update(sun) ?? null;
     this.irradiance?.update();
-    this.sunBounceDrawn = drawing?.then(() => this.irradiance?.update(), (err) => {
+    this.sunBounceDrawn = drawing?.then(() => {
+      this.irradiance?.update();
+      this.kiosk?.onRelight(sun); // S' with the bounce, for the camera scale
+    }, (err) => {
       this.hud.setMessage(`${err.message}. The sun's bounce follows with the next light.`, 'warn');
       setTimeout(() => this.hud.setMessage(null), 5000);
     }) ?? Promise.resolve();

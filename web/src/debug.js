@@ -99,6 +99,10 @@ export function debugApi(app) {
         app.site.setMode('visit', app.shadingMode);
       }
     },
+    /** Wait until the sun's bounce of the newest light is drawn (its images fetched). */
+    async waitSunBounce() {
+      await app.sunBounceDrawn;
+    },
     /** Wait until the sun's bounce is drawn for the applied sun; its patch (-1: none). */
     async sunBounce() {
       const sun = app._pendingSun;

@@ -7,7 +7,10 @@
 // pixels become k O' and sky pixels k sum r phi (relight.js).
 // With a sun (kiosksun.js), O' and S' include its direct term: O' = O_sky + E_sun O_sun and
 // S' = S_sky + E_sun S_sun, O_sun and S_sun the view's sun images per unit normal irradiance
-// (albedo / pi cos V, with V past every caster, resp. past the real proxies alone).
+// (albedo / pi cos V, with V past every caster, resp. past the real proxies alone), and its
+// bounce: O' += B_O and S' += B_S, the view's sun-bounce images of the sun's patch times
+// E_sun / solid_angle_p (sunbounce.js; black when the build has none), so the ratio on real
+// pixels includes the bounce in both.
 // The ratio O'/S' per channel has a relative floor with a smooth taper (display.glsl.js
 // safeRatio). The synthesized picture (no live frame) goes through the visit's display
 // transform (the exposure, Khronos PBR Neutral, sRGB); over a live frame P is the camera's own
@@ -35,6 +38,8 @@ uniform sampler2D sTex;       // S'
 uniform sampler2D sunOTex;    // O_sun: albedo / pi cos V per unit normal irradiance
 uniform sampler2D sunSTex;    // S_sun: the same with V_r (the real proxies only)
 uniform vec3 sunIrradiance;   // E_sun, RGB W/m^2; 0 when there is no sun to draw
+uniform sampler2D bounceOTex; // B_O: the sun's bounce with the virtual objects, radiance (relight format)
+uniform sampler2D bounceSTex; // B_S: without them
 uniform sampler2D skyTex;     // sum r phi on sky pixels
 uniform sampler2D maskTex;    // 255 virtual, 128 sky, 0 real
 uniform sampler2D frameTex;   // P, sRGB-decoded by the GPU (SRGB8_ALPHA8)
@@ -62,6 +67,8 @@ void main() {
     O += sunIrradiance * decodeTarget(texture(sunOTex, vUv));
     S += sunIrradiance * decodeTarget(texture(sunSTex, vUv));
   }
+  O += decodeTarget(texture(bounceOTex, vUv));
+  S += decodeTarget(texture(bounceSTex, vUv));
   float m = texture(maskTex, vUv).r;
   bool isVirtual = m > 0.75;
   bool isSky = m > 0.25 && !isVirtual;

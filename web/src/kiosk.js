@@ -19,12 +19,16 @@ export class Kiosk {
   /**
    * @param {import('./kiosksun.js').KioskSun} [sun] the view's sun term (null: no sun drawn,
    *   O' and S' from the basis alone)
+   * @param {import('./sunbounce.js').SunBounce} [bounce] the view's sun bounce (its targets
+   *   `${view.id}.O`, `${view.id}.S`; null, or a build without them: none added); the caller
+   *   owns it (updates and disposes it)
    */
-  constructor(renderer, relighter, view, sun = null) {
+  constructor(renderer, relighter, view, sun = null, bounce = null) {
     this.renderer = renderer;
     this.relighter = relighter;
     this.view = view;
     this.sun = sun;
+    this.bounce = bounce;
     const t = relighter.targets;
     const decode = relighter.format.rgbe ? RGBE_DECODE : FLOAT_DECODE;
     this.frameTex = new THREE.Texture();
@@ -42,6 +46,8 @@ export class Kiosk {
       sunOTex: { value: sun?.targets.O.texture ?? this.black },
       sunSTex: { value: sun?.targets.S.texture ?? this.black },
       sunIrradiance: { value: new THREE.Vector3() },
+      bounceOTex: { value: bounce?.texture(`${view.id}.O`) ?? this.black },
+      bounceSTex: { value: bounce?.texture(`${view.id}.S`) ?? this.black },
       skyTex: { value: t[`${view.id}.sky`].texture },
       maskTex: { value: relighter.viewSky.get(view.id).mask },
       frameTex: { value: this.frameTex },
@@ -68,6 +74,20 @@ export class Kiosk {
     this.framesShown = 0;
     this.framesDecoded = 0;
     this.sLowRes = null; // S' on a coarse grid, for the camera scale
+  }
+
+  /** For the debug status: whether the sun's bounce is in O' and S'. */
+  get sunBounceNote() {
+    if (!this.hasSunBounce) {
+      return 'absent: the build has no sun-bounce images of this view (baked before 2026-11-25); the sun\'s direct term alone';
+    }
+    return this.bounce.stacks.get(`${this.view.id}.O`).light != null ? 'drawn' : 'none';
+  }
+
+  /** Whether the build has the view's sun-bounce images (absent in builds before 2026-11-25:
+   * the kiosk then draws the sun's direct term alone, as before). */
+  get hasSunBounce() {
+    return !!(this.bounce?.texture(`${this.view.id}.O`) && this.bounce?.texture(`${this.view.id}.S`));
   }
 
   /** A site-camera JPEG arrived (type-2 message). */
@@ -149,9 +169,10 @@ export class Kiosk {
   }
 
   /**
-   * After each relight, with the sun applied with it ({direction, normalIrradiance} or null):
-   * the view's sun images (rendered again only when the sun moved), and S' on a coarse grid
-   * for the camera scale.
+   * After each relight, with the sun applied with it ({direction, normalIrradiance} or null),
+   * and again once the sun's bounce for it is drawn (app.js): the view's sun images (rendered
+   * again only when the sun moved), and S' (sky, sun, bounce) on a coarse grid for the camera
+   * scale.
    */
   onRelight(sun = null) {
     const drawn = this.sun ? this.sun.setSun(sun) : false;
@@ -163,6 +184,13 @@ export class Kiosk {
       const sunS = this.relighter.readTarget(this.sun.targets.S).data;
       for (let p = 0; p < width * height; p++) {
         for (let c = 0; c < 3; c++) data[4 * p + c] += E.getComponent(c) * sunS[4 * p + c];
+      }
+    }
+    const bounceS = this.bounce?.stacks.get(`${this.view.id}.S`);
+    if (bounceS?.light != null) { // the sun's bounce drawn for a patch (else the target is zero)
+      const b = this.relighter.readTarget(bounceS.target).data;
+      for (let p = 0; p < width * height; p++) {
+        for (let c = 0; c < 3; c++) data[4 * p + c] += b[4 * p + c];
       }
     }
     const maskData = this._maskPixels();

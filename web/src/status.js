@@ -35,6 +35,9 @@ export function makeStatus(source) {
     integrity: () => source.assets?.verification ?? null,
     refetched: () => [...(source.assets?.refetched ?? [])],
     siteCameraDenied: () => source.stream?.siteCameraDenied ?? false,
+    // The kiosk's sun bounce: 'drawn' (the view's images of the sun's patch are in O' and S'),
+    // 'none' (no sun, or its patch has none), 'absent: ...' (a build before 2026-11-25).
+    kioskSunBounce: () => source.kiosk?.sunBounceNote ?? null,
   };
   const status = {};
   for (const [name, get] of Object.entries(fields)) {

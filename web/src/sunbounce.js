@@ -1,6 +1,7 @@
 // The sun's bounce (docs/sun.md, item 5): sunlight reflected once off sunlit ground, walls and
 // models. The bake keeps, for every patch the sun can be in, that patch's one-bounce image of
-// each atlas stack (manifest `atlases[i].sun_bounce[stack]`, images only, no low-rank base);
+// each atlas stack (manifest `atlases[i].sun_bounce[stack]`, images only, no low-rank base)
+// and of each fixed view's O and S (`views[i].sun_bounce[stack]`, radiance: the kiosk's);
 // the sun's bounce is the image of the patch that holds the sun times E_sun / solid_angle_p
 // (the bounce is smooth over neighbouring patches, so spreading the sun over its patch is
 // harmless here, unlike for its direct term). One image (two refinement levels) per stack is
@@ -117,23 +118,26 @@ export class SunBounce {
    * @param {THREE.WebGLRenderer} renderer
    * @param {import('./assets.js').Assets} assets with its manifest loaded
    * @param {{rgbe: boolean, type: number}} format the relight targets' format
+   * @param {{view?: object}} [options] view: a fixed view of the manifest (the kiosk's):
+   *   its O and S stacks' bounce (`views[i].sun_bounce`, radiance) instead of the atlases'
    */
-  constructor(renderer, assets, format) {
+  constructor(renderer, assets, format, { view = null } = {}) {
     this.renderer = renderer;
     this.lights = assets.manifest.dome.lights;
     this.stacks = new Map();
-    for (const atlas of assets.manifest.atlases) {
-      for (const [name, entry] of Object.entries(atlas.sun_bounce ?? {})) {
+    for (const owner of view ? [view] : assets.manifest.atlases) {
+      for (const [name, entry] of Object.entries(owner.sun_bounce ?? {})) {
         if (!entry.compact?.lights) continue; // a base-only form this client does not read
-        const key = `${atlas.id}.${name}`;
-        this.stacks.set(key, new BounceStack(assets, key, entry.compact, atlas.width, atlas.height, format));
+        const key = `${owner.id}.${name}`;
+        this.stacks.set(key, new BounceStack(assets, key, entry.compact, owner.width, owner.height, format));
       }
     }
     this.patch = null;
     this._asked = 0;
   }
 
-  /** The target of an atlas stack ('ground.I'), or null when the build has none. */
+  /** The target of an atlas or view stack ('ground.I', 'kiosk.O'), or null when the build
+   * has none. */
   texture(key) {
     return this.stacks.get(key)?.target.texture ?? null;
   }
