@@ -108,7 +108,7 @@ def download_bytes(manifest: dict, build_dir: Path, visit_lights: int | None = N
       light selected meanwhile (``visit_lights`` of them per stack that selects any;
       computed if not given);
     - ``phone_hull``: ``phone`` plus the hull planes, fetched when hull-plane mode is chosen;
-    - ``kiosk``: the manifest and the fixed views (the kiosk draws no model);
+    - ``kiosk``: the manifest, the GLB (its sun's shadows) and the fixed views;
     - ``kiosk_day``: the kiosk from sunrise to sunset (:data:`KIOSK_DAY`, ``day_lights``
       per view stack that selects lights);
     - ``all``: every compact file (GLB, KTX2, V) and the manifest: what a server offers;
@@ -177,8 +177,8 @@ def download_bytes(manifest: dict, build_dir: Path, visit_lights: int | None = N
         "phone": round(phone),
         "phone_visit": round(manifest_bytes + glb + owner_bytes(default, visit_lights)),
         "phone_hull": round(phone + owner_bytes(hull, None)),
-        "kiosk": round(manifest_bytes + owner_bytes(manifest["views"], None)),
-        "kiosk_day": round(manifest_bytes + owner_bytes(manifest["views"], day_lights)),
+        "kiosk": round(manifest_bytes + glb + owner_bytes(manifest["views"], None)),
+        "kiosk_day": round(manifest_bytes + glb + owner_bytes(manifest["views"], day_lights)),
         "all": compact + manifest_bytes,
         "visit_lights": visit_lights,
         "day_lights": day_lights,

@@ -58,8 +58,8 @@ def test_download_bytes_sums_what_each_client_fetches(tmp_path):
     assert got["phone"] == sent + 1000 + ground + 4 * (7 + 3)
     assert got["phone_visit"] == sent + 1000 + ground + 9 * (7 + 3)
     assert got["phone_hull"] == got["phone"] + 300 + 20 + 30 + 20 + 5 + 4 * (11 + 2)
-    assert got["kiosk"] == sent + 70 + 1 + 4 * 5
-    assert got["kiosk_day"] == sent + 70 + 1 + 30 * 5
+    assert got["kiosk"] == sent + 1000 + 70 + 1 + 4 * 5  # the GLB: the sun's shadows
+    assert got["kiosk_day"] == sent + 1000 + 70 + 1 + 30 * 5
     assert got["all"] == sent + sum(b for p, b in sizes.items() if not p.startswith("exr/"))
     assert (got["visit_lights"], got["day_lights"]) == (9, 30)
 
@@ -175,7 +175,7 @@ def test_stacks_that_select_no_light_cost_only_their_base(tmp_path):
     assert got["phone"] == got["phone_visit"] == sent + 1000 + ground
     assert got["visit_lights"] == 0
     assert got["phone_hull"] == got["phone"] + 300 + 20
-    assert got["kiosk"] == sent + 70 + 1 + 1 * 5
-    assert got["kiosk_day"] == sent + 70 + 1 + 30 * 5
+    assert got["kiosk"] == sent + 1000 + 70 + 1 + 1 * 5
+    assert got["kiosk_day"] == sent + 1000 + 70 + 1 + 30 * 5
     assert got["day_lights"] == 30
 
