@@ -147,19 +147,7 @@ def write_atlas(a, traced: TracedResults, staging: Path, compressor, sun_bounce)
     for stack, compact in compressor.run(images, a.id, staging).items():
         entry["stacks"][stack]["compact"] = compact
     del images
-    sun_entries = {}
-    for stack in list(sun_images):
-        image = sun_images.pop(stack)
-        rel = f"exr/{a.id}.sun_bounce.{stack}.exr"
-        write_stack_exr(staging / rel, image)
-        compact = compressor.run_sun_bounce(image, f"{a.id}.sun_bounce.{stack}", staging)
-        if compact is not None:
-            sun_entries[stack] = {
-                "master": rel,
-                "quantity": "irradiance",
-                "channels": CHANNEL_PATTERN,
-                "compact": compact,
-            }
+    sun_entries = _write_sun_bounce(sun_images, a.id, "exr", "irradiance", staging, compressor)
     if sun_entries:
         entry["sun_bounce"] = sun_entries
     return entry
@@ -276,20 +264,8 @@ def write_view(
             "channels": CHANNEL_PATTERN,
             "compact": compressor.run({stack: image}, view.name, staging)[stack],
         }
-    sun_entries = {}
-    for stack in list(sun_images):
-        image = sun_images.pop(stack)
-        name = f"{view.name}.sun_bounce.{stack}"
-        rel = f"views/{name}.exr"
-        write_stack_exr(staging / rel, image)
-        compact = compressor.run_sun_bounce(image, name, staging, master=rel)
-        if compact is not None:
-            sun_entries[stack] = {
-                "master": rel,
-                "quantity": "radiance",
-                "channels": CHANNEL_PATTERN,
-                "compact": compact,
-            }
+    sun_entries = _write_sun_bounce(sun_images, view.name, "views", "radiance", staging,
+                                    compressor)
     if sun_entries:
         entry["sun_bounce"] = sun_entries
     entry["mask"] = f"views/{view.name}.mask.png"
@@ -360,3 +336,26 @@ def swap_into_place(staging: Path, out_dir: Path) -> None:
     os.replace(staging, out_dir)
     if old is not None:
         shutil.rmtree(old, ignore_errors=True)
+
+
+def _write_sun_bounce(sun_images: dict, owner: str, folder: str, quantity: str, staging: Path,
+                      compressor) -> dict:
+    """Write and compress an atlas's or a view's sun-bounce stacks (``sun_images``: stack ->
+    image, emptied as they are written) as ``<folder>/<owner>.sun_bounce.<stack>.exr`` masters
+    and their compact images; the manifest entries of the stacks that are not zero
+    everywhere."""
+    entries = {}
+    for stack in list(sun_images):
+        image = sun_images.pop(stack)
+        name = f"{owner}.sun_bounce.{stack}"
+        rel = f"{folder}/{name}.exr"
+        write_stack_exr(staging / rel, image)
+        compact = compressor.run_sun_bounce(image, name, staging, master=rel)
+        if compact is not None:
+            entries[stack] = {
+                "master": rel,
+                "quantity": quantity,
+                "channels": CHANNEL_PATTERN,
+                "compact": compact,
+            }
+    return entries
