@@ -28,6 +28,13 @@ export function makeStatus(source) {
     gpuRenderbufferBytes: () => source.gpuMemory?.renderbufferBytes ?? 0,
     gpuDrawingBufferBytes: () => source.gpuMemory?.drawingBufferBytes() ?? 0,
     coarse: () => source.relighter?.coarse ?? false,
+    // The start taken (startmode.js): 'coarse' or 'full', the manifest's measured transfer
+    // rate (bytes/s, null if not measured) and the estimated full first download (s).
+    startMode: () => source.start?.mode ?? null,
+    startAsked: () => source.start?.asked ?? null,
+    startRateBytesPerS: () => source.start?.bytesPerS ?? null,
+    startFullFirstS: () => source.start?.fullFirstS ?? null,
+    startReason: () => source.start?.reason ?? null,
     siteCameraFrames: () => source.kiosk?.framesShown ?? 0,
     occlusionMasks: () => source.stream?.messages.occlusion ?? 0,
     contextLost: () => source.contextLost,
