@@ -49,7 +49,7 @@ export class App {
     this.contextLost = false;
     this.fps = 0;
     this.frameMs = 0;
-    this.start = null; // the start taken: {mode, asked, bytesPerS, fullFirstS, reason} (startmode.js)
+    this.startChoice = null; // the start taken: {mode, asked, bytesPerS, fullFirstS, reason} (startmode.js)
     this.firstRelitMs = null; // the first relit frame (from a coarse start, if the build has one)
     this.exactRelitMs = null; // the first exactly relit frame (every layer, every light image)
     this.firstRelitBytes = null;
@@ -144,9 +144,9 @@ export class App {
         { stacks, deferred: this._hullStacks, views: kiosk, dome: !kiosk, rgbe: this.forceRgbe });
       // The coarse start only where the link is slow (startmode.js; docs/web.md, "Slow links").
       const now = [...this.relighter.stacks.values()].filter((s) => !this.relighter.deferred.has(s.key));
-      this.start = chooseStart(this.params.get('start'),
+      this.startChoice = chooseStart(this.params.get('start'),
         firstBytes(manifest, now.map((s) => s.compact)), await measuredRate(this.assets.manifestUrl));
-      this.relighter.coarseStart = this.start.mode === 'coarse';
+      this.relighter.coarseStart = this.startChoice.mode === 'coarse';
       // The kiosk needs the model too, for the sun's shadows in its view (kiosksun.js).
       const [gltf] = await Promise.all([
         this.assets.gltf(manifest.model.path),

@@ -30,11 +30,11 @@ export function makeStatus(source) {
     coarse: () => source.relighter?.coarse ?? false,
     // The start taken (startmode.js): 'coarse' or 'full', the manifest's measured transfer
     // rate (bytes/s, null if not measured) and the estimated full first download (s).
-    startMode: () => source.start?.mode ?? null,
-    startAsked: () => source.start?.asked ?? null,
-    startRateBytesPerS: () => source.start?.bytesPerS ?? null,
-    startFullFirstS: () => source.start?.fullFirstS ?? null,
-    startReason: () => source.start?.reason ?? null,
+    startMode: () => source.startChoice?.mode ?? null,
+    startAsked: () => source.startChoice?.asked ?? null,
+    startRateBytesPerS: () => source.startChoice?.bytesPerS ?? null,
+    startFullFirstS: () => source.startChoice?.fullFirstS ?? null,
+    startReason: () => source.startChoice?.reason ?? null,
     siteCameraFrames: () => source.kiosk?.framesShown ?? 0,
     occlusionMasks: () => source.stream?.messages.occlusion ?? 0,
     contextLost: () => source.contextLost,
