@@ -18,7 +18,7 @@ demo: setup
 		$(BIN)/daylit bake scenes/demo -o $(DEMO_BUILD) --quality draft; \
 	fi
 	@if [ ! -d $(DEMO_BUILD)/coarse ]; then \
-		echo "Adding a coarse start for phones on slow links (docs/web.md, Slow links)..."; \
+		echo "Adding a coarse start to a demo baked before 2026-11-25 (docs/web.md, Slow links)..."; \
 		$(BIN)/python -m bake.coarse $(DEMO_BUILD); \
 	fi
 	$(BIN)/daylit serve $(DEMO_BUILD)

@@ -17,12 +17,16 @@ those of the full array. Next to it, V cut to the coefficients those layers use
 ``N`` is the largest count whose compressed bytes stay within ``budget_bytes`` per stack
 (at least one layer), and only layers of distinct coefficients are taken.
 
-    python -m bake.coarse BUILD [--budget-kb 160]     # adds them to an existing build
+``daylit bake`` writes them itself, into its staging folder before the build is published
+(:func:`add_coarse_entries`, called by bake.pipeline). For a build baked before 2026-11-25::
+
+    python -m bake.coarse BUILD [--budget-kb 100]     # adds them to an existing build
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import shutil
 import struct
@@ -127,20 +131,43 @@ def write_coarse_stack(build_dir: Path, key: str, compact: dict,
                   "dtype": "float32-le"}}
 
 
+def add_coarse_entries(build_dir: Path, atlases: list[dict],
+                       budget_bytes: int = DEFAULT_BUDGET_BYTES) -> dict:
+    """Write the coarse start of every stack of ``atlases`` (the manifest's atlas entries,
+    their files in ``build_dir``) and set each stack's ``compact.coarse``. All or nothing: if
+    one stack cannot be cut (:class:`CoarseError`), the files written are removed, no entry
+    is changed and the error is raised. Returns ``{stack key: coarse entry}``."""
+    build_dir = Path(build_dir)
+    added = {}
+    # A build's earlier coarse start (run again, another budget): its files are not removed.
+    before = set((build_dir / COARSE_DIR).glob("*")) if (build_dir / COARSE_DIR).is_dir() else set()
+    try:
+        for atlas in atlases:
+            for name, stack in atlas["stacks"].items():
+                key = f"{atlas['id']}.{name}"
+                added[key] = write_coarse_stack(build_dir, key, stack["compact"], budget_bytes)
+    except BaseException:
+        for entry in added.values():
+            for path in (entry["ktx2"], entry["v"]["path"]):
+                if build_dir / path not in before:
+                    (build_dir / path).unlink(missing_ok=True)
+        with contextlib.suppress(OSError):
+            (build_dir / COARSE_DIR).rmdir()  # only if empty: nothing of anyone else's
+        raise
+    for atlas in atlases:
+        for name, stack in atlas["stacks"].items():
+            stack["compact"]["coarse"] = added[f"{atlas['id']}.{name}"]
+    return added
+
+
 def add_coarse(build_dir: Path, budget_bytes: int = DEFAULT_BUDGET_BYTES) -> dict:
-    """Add a coarse start to every atlas stack of a build and rewrite its manifest (files
-    listed with their size and SHA-256). Returns ``{stack key: coarse entry}``."""
+    """Add a coarse start to every atlas stack of an existing build and rewrite its manifest
+    (files listed with their size and SHA-256). Returns ``{stack key: coarse entry}``."""
     from daylit import manifest as manifest_io
 
     build_dir = Path(build_dir)
     manifest = json.loads((build_dir / "manifest.json").read_text())
-    added = {}
-    for atlas in manifest["atlases"]:
-        for name, stack in atlas["stacks"].items():
-            key = f"{atlas['id']}.{name}"
-            stack["compact"]["coarse"] = write_coarse_stack(
-                build_dir, key, stack["compact"], budget_bytes)
-            added[key] = stack["compact"]["coarse"]
+    added = add_coarse_entries(build_dir, manifest["atlases"], budget_bytes)
     # The other files are listed already (and may be gigabytes of masters): only the new ones.
     new_paths = {p for entry in added.values() for p in (entry["ktx2"], entry["v"]["path"])}
     files = [f for f in manifest["files"] if f["path"] not in new_paths]
@@ -154,12 +181,24 @@ def add_coarse(build_dir: Path, budget_bytes: int = DEFAULT_BUDGET_BYTES) -> dic
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("build", type=Path)
+    parser = argparse.ArgumentParser(
+        prog="python -m bake.coarse",
+        description="Add a coarse start for slow links to a build baked before 2026-11-25 "
+        "(`daylit bake` now writes it itself): the first base layers of each atlas stack in "
+        "coarse/, listed in manifest.json with size and SHA-256 (docs/compact-assets.md, "
+        "\"A coarse start\"). Run it again to redo them, e.g. with another budget.")
+    parser.add_argument("build", type=Path, help="the build folder (holding manifest.json)")
     parser.add_argument("--budget-kb", type=float, default=DEFAULT_BUDGET_BYTES / 1e3,
-                        help="compressed bytes per stack's coarse array (at least one layer)")
+                        help="kilobytes (1000 bytes) of each stack's compressed coarse array; the "
+                        "largest number of layers within it is kept (at least one layer)")
     args = parser.parse_args()
-    for key, entry in add_coarse(args.build, int(args.budget_kb * 1e3)).items():
+    if not (args.build / "manifest.json").is_file():
+        parser.error(f"{args.build} holds no manifest.json: not a daylit build")
+    try:
+        added = add_coarse(args.build, int(args.budget_kb * 1e3))
+    except CoarseError as e:
+        parser.exit(1, f"python -m bake.coarse: {e}; the build is unchanged\n")
+    for key, entry in added.items():
         size = (args.build / entry["ktx2"]).stat().st_size
         print(f"{key}: {entry['layers']} layers, {size / 1e3:.0f} kB; V {entry['v']['shape']}")
 

@@ -7,9 +7,10 @@ Stages (each split into chunks of points whose layout does not depend on the wor
 2. **receivers** — direct + one bounce at every texel of the hull, ground and lightmap atlases
    and at every pixel hit of the fixed views (1 and 2: bake.tracework);
 3. **write** — stacks into EXR masters and compact textures (bake.writers,
-   bake.compressor), masks, ``site.glb``, ``manifest.json`` (bake.buildmanifest). Atlases
-   and views are written two at a time in threads: one's single-threaded parts (EXR
-   writing, quantizing, checking) run while the other's encoders use the cores. With a
+   bake.compressor), masks, ``site.glb``, the coarse start for slow links (bake.coarse),
+   ``manifest.json`` (bake.buildmanifest). Atlases and views are written two at a time in
+   threads: one's single-threaded parts (EXR writing, quantizing, checking) run while the
+   other's encoders use the cores. With a
    cluster the compact textures are made on its workers (bake.compressjobs), as many units
    at a time as it has threads.
 
@@ -41,6 +42,7 @@ from bake import basisu, chunkio, contact, lightmap
 from bake import receivers as rx
 from bake.blasthreads import one_blas_thread
 from bake.buildmanifest import build_manifest, write_manifest
+from bake.coarse import CoarseError, add_coarse_entries
 from bake.compressor import Compressor
 from bake.dome import Dome
 from bake.errors import BakeError
@@ -181,6 +183,7 @@ def _bake(site, out_dir, compressor, started, workers, cluster, progress, log) -
         albedo_by_part = {p.name: p.albedo.mean(axis=0) for p in lightmap_parts}
         nodes = write_site_glb(staging / "site.glb", site, atlases, albedo_by_part)
         compressor.close()
+    _write_coarse_start(staging, manifest_atlases, log)
     stage_s["write"] = time.perf_counter() - t0
     duration = time.perf_counter() - started
     manifest = build_manifest(
@@ -218,6 +221,19 @@ def _bake(site, out_dir, compressor, started, workers, cluster, progress, log) -
     )
     log(f"done in {duration:.1f} s: {tracing}; {size / 1e6:.1f} MB in {out_dir}")
     return BakeResult(out_dir, manifest, duration, rays, rate, stage_s)
+
+
+def _write_coarse_start(staging: Path, manifest_atlases: list[dict], log) -> None:
+    """The coarse start for slow links (bake.coarse: each atlas stack's first base layers in
+    ``coarse/``), written into the staging folder so that it is published with the build or
+    not at all. A base array it cannot cut (ETC1S encoding) leaves the build without one."""
+    try:
+        added = add_coarse_entries(staging, manifest_atlases)
+    except CoarseError as e:
+        log(f"  no coarse start for slow links: {e}")
+        return
+    size = sum((staging / e["ktx2"]).stat().st_size for e in added.values())
+    log(f"  coarse start for slow links: {len(added)} stacks, {size / 1e3:.0f} kB")
 
 
 @contextlib.contextmanager

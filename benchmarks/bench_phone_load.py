@@ -121,7 +121,10 @@ def main() -> None:
               f"{' (coarse)' if res['coarse'] else ''}, exact {res['exact_s']:.2f} s "
               f"({res['bytes_exact'] / 1e6:.2f} MB counted); "
               f"{res['requests_before']} requests, {res['wire_before'] / 1e6:.2f} MB on the wire "
-              f"before it; client counted {res['bytes_loaded'] / 1e6:.2f} MB")
+              f"before it; client counted {res['bytes_loaded'] / 1e6:.2f} MB; "
+              f"start {res['status'].get('startMode')} ({res['status'].get('startAsked')}, "
+              f"manifest at {(res['status'].get('startRateBytesPerS') or 0) / 1e3:.0f} kB/s, "
+              f"full first download est. {res['status'].get('startFullFirstS') or 0:.2f} s)")
         if res["errors"]:
             print("   console:", res["errors"][:5])
         if args.rows:

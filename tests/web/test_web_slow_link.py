@@ -2,10 +2,13 @@
 throttled to 1.6 Mbit/s and 300 ms (CDP), a build with a coarse start (bake/coarse.py) draws
 its first relit frame from the manifest, the model, the transcoder and the coarse arrays only
 (the full arrays are asked for after it), counts the bytes while loading and says it is
-refining, then draws exactly what a page that loaded everything first draws.
+refining, then draws exactly what a page that loaded everything first draws. The page is
+not told to: `?start=auto` (the default) chooses the coarse start from the rate it measured.
+On loopback the same default takes the full start and never asks for a coarse file.
 
 Bytes are checked against the manifest read here in Python; the refined picture against a
-second page that skipped the coarse start (`?start=full`). No assertion on time."""
+second page that skipped the coarse start (`?start=full`); the measured rate against the
+throttle's. No assertion on time."""
 
 from __future__ import annotations
 
@@ -89,6 +92,10 @@ def test_first_picture_from_the_coarse_start_then_exact(new_page, coarse_build, 
         status = page.status()
         early = page.page.evaluate(RESOURCES, status["firstRelitMs"])
         built = [path_of(e["url"]) for e in early if "/build/" in e["url"]]
+        # Chosen, not forced: the manifest's body came at about the throttle's rate at most.
+        assert (status["startAsked"], status["startMode"]) == ("auto", "coarse"), status
+        assert 0 < status["startRateBytesPerS"] <= 1.5 * SLOW_LINK["downloadThroughput"], status
+        assert status["startFullFirstS"] > 3, status
         assert status["coarse"] and not status["lightsExact"]
         assert first <= set(built), sorted(first - set(built))
         assert not full & set(built), sorted(full & set(built))  # the full arrays came after
@@ -117,9 +124,37 @@ def test_first_picture_from_the_coarse_start_then_exact(new_page, coarse_build, 
         whole = new_page(390, 780).open(f"{server.url}/?mode=visit&test&start=full",
                                         "window.daylit.status.lightsExact")
         assert whole.status()["firstRelitMs"] == pytest.approx(whole.status()["exactRelitMs"])
+        assert (whole.status()["startAsked"], whole.status()["startMode"]) == ("full", "full")
         for p in (page, whole):
             p.page.evaluate("(r) => window.daylit.debug.relight(r, 7, null)", snap["r"])
         for key in ("lightmap.I", "ground.I", "ground.d"):
             a, b = (decode_floats(p.page.evaluate(f"window.daylit.debug.read('{key}')"))
                     for p in (page, whole))
             np.testing.assert_array_equal(a, b, err_msg=key)
+
+
+def test_a_fast_link_takes_the_full_start_unless_told(new_page, coarse_build, sky_dir):
+    """Loopback, the default `?start=auto`: the full arrays at once, no coarse file asked
+    for (the first picture is the exact one); `?start=coarse` forces the coarse start."""
+    manifest = json.loads((coarse_build / "manifest.json").read_text())
+    coarse_files = {f["path"] for f in manifest["files"] if f["path"].startswith("coarse/")}
+    assert coarse_files
+    with DaylitServer(coarse_build, "--sky", f"replay:{sky_dir}") as server:
+        page = new_page(390, 780).open(f"{server.url}/?mode=visit&test",
+                                       "window.daylit.status.firstRelitMs !== null")
+        status = page.status()
+        assert (status["startAsked"], status["startMode"]) == ("auto", "full"), status
+        # The rate was measured (not taken from a cache) and is far above a slow link's.
+        assert status["startRateBytesPerS"] > 10 * SLOW_LINK["downloadThroughput"], status
+        assert status["startFullFirstS"] <= 3, status
+        assert not status["coarse"]
+        requested = {path_of(e["url"]) for e in page.page.evaluate(RESOURCES, 1e12)}
+        assert not requested & coarse_files, sorted(requested & coarse_files)
+
+        forced = new_page(390, 780).open(f"{server.url}/?mode=visit&test&start=coarse",
+                                         "window.daylit.status.firstRelitMs !== null")
+        status = forced.status()
+        assert (status["startAsked"], status["startMode"]) == ("coarse", "coarse"), status
+        requested = {path_of(e["url"]) for e in forced.page.evaluate(RESOURCES, 1e12)}
+        assert requested & coarse_files
+        assert not page.errors and not forced.errors, (page.errors, forced.errors)

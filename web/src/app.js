@@ -15,6 +15,7 @@ import { LightStream } from './lightstream.js';
 import { Relighter } from './relight.js';
 import { Site } from './site.js';
 import { makeStatus } from './status.js';
+import { chooseStart, firstBytes, measuredRate } from './startmode.js';
 import { SunShadows } from './sun.js';
 import { SunBounce } from './sunbounce.js';
 import { VisitView } from './visit.js';
@@ -48,6 +49,7 @@ export class App {
     this.contextLost = false;
     this.fps = 0;
     this.frameMs = 0;
+    this.startChoice = null; // the start taken: {mode, asked, bytesPerS, fullFirstS, reason} (startmode.js)
     this.firstRelitMs = null; // the first relit frame (from a coarse start, if the build has one)
     this.exactRelitMs = null; // the first exactly relit frame (every layer, every light image)
     this.firstRelitBytes = null;
@@ -139,8 +141,12 @@ export class App {
       // are the largest download of a phone).
       this._hullStacks = stacks.filter((key) => key.startsWith('hull.'));
       this.relighter = new Relighter(this.renderer, this.assets,
-        { stacks, deferred: this._hullStacks, views: kiosk, dome: !kiosk, rgbe: this.forceRgbe,
-          coarse: this.params.get('start') !== 'full' });
+        { stacks, deferred: this._hullStacks, views: kiosk, dome: !kiosk, rgbe: this.forceRgbe });
+      // The coarse start only where the link is slow (startmode.js; docs/web.md, "Slow links").
+      const now = [...this.relighter.stacks.values()].filter((s) => !this.relighter.deferred.has(s.key));
+      this.startChoice = chooseStart(this.params.get('start'),
+        firstBytes(manifest, now.map((s) => s.compact)), await measuredRate(this.assets.manifestUrl));
+      this.relighter.coarseStart = this.startChoice.mode === 'coarse';
       // The kiosk needs the model too, for the sun's shadows in its view (kiosksun.js).
       const [gltf] = await Promise.all([
         this.assets.gltf(manifest.model.path),

@@ -303,6 +303,7 @@ export class Relighter {
     this.onApplied = null; // callback after a relight
     this.coarseStart = which.coarse ?? true;
     this._toRefine = null; // stacks drawn from their coarse start, to load in full
+    this._refineSoon = null; // the timer that will call _refine after this frame
     this.refined = null; // Promise: every stack loaded in full (after the first picture)
     this.onRefineError = null; // (err): a full stack failed; the coarse one stays, tried again
   }
@@ -439,7 +440,14 @@ export class Relighter {
     this.lastRelightMs = performance.now() - t0; // CPU side only; the GPU runs on
     this.applied = { sequence, exact, coarse: this.coarse, selected, perStack, r };
     this.onApplied?.(this.applied);
-    if (this._toRefine && !this.refined) this._refine();
+    // The full arrays are asked for once this picture is on the screen (the frame that
+    // relit is still being drawn: a request now would start before it and share the link).
+    if (this._toRefine && !this.refined && !this._refineSoon) {
+      this._refineSoon = setTimeout(() => {
+        this._refineSoon = null;
+        if (this._toRefine && !this.refined) this._refine();
+      }, 0);
+    }
   }
 
   /**
@@ -501,6 +509,9 @@ export class Relighter {
   }
 
   dispose() {
+    clearTimeout(this._refineSoon);
+    this._refineSoon = null;
+    this._toRefine = null; // a refinement not yet asked for is not asked for by a disposed relighter
     for (const s of this.stacks.values()) s.dispose();
     for (const entry of this.viewSky.values()) {
       entry.target.dispose();

@@ -28,6 +28,13 @@ export function makeStatus(source) {
     gpuRenderbufferBytes: () => source.gpuMemory?.renderbufferBytes ?? 0,
     gpuDrawingBufferBytes: () => source.gpuMemory?.drawingBufferBytes() ?? 0,
     coarse: () => source.relighter?.coarse ?? false,
+    // The start taken (startmode.js): 'coarse' or 'full', the manifest's measured transfer
+    // rate (bytes/s, null if not measured) and the estimated full first download (s).
+    startMode: () => source.startChoice?.mode ?? null,
+    startAsked: () => source.startChoice?.asked ?? null,
+    startRateBytesPerS: () => source.startChoice?.bytesPerS ?? null,
+    startFullFirstS: () => source.startChoice?.fullFirstS ?? null,
+    startReason: () => source.startChoice?.reason ?? null,
     siteCameraFrames: () => source.kiosk?.framesShown ?? 0,
     occlusionMasks: () => source.stream?.messages.occlusion ?? 0,
     contextLost: () => source.contextLost,
