@@ -18,7 +18,6 @@ this one's is enough). Results go in docs/benchmarks.md by hand.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import os
 import subprocess
@@ -26,28 +25,10 @@ import sys
 import time
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from tests.buildfiles import build_files  # noqa: E402
+
 REPO = Path(__file__).resolve().parent.parent
-RUN_KEYS = {"created_utc", "duration_s", "encode_s", "stage_s", "rays_per_s", "rays", "workers"}
-
-
-def _without_run(value):
-    if isinstance(value, dict):
-        return {k: _without_run(v) for k, v in value.items() if k not in RUN_KEYS}
-    if isinstance(value, list):
-        return [_without_run(v) for v in value]
-    return value
-
-
-def files_of(build: Path) -> dict:
-    """``{relative path: SHA-256 hex}`` of every file of a build; ``manifest.json`` as its
-    contents less what it records about the run."""
-    out = {
-        p.relative_to(build).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
-        for p in sorted(build.rglob("*"))
-        if p.is_file() and p.name != "manifest.json"
-    }
-    out["manifest.json"] = _without_run(json.loads((build / "manifest.json").read_text()))
-    return out
 
 
 def _bake_here(code: Path, scene: Path, out: Path, lights: int, quality: str) -> None:
@@ -122,7 +103,7 @@ def main() -> int:
         print(f"{name:>7}: bake {result['duration_s']:.1f} s, write share {share:.1%}, "
               f"process tree CPU {cpu_s:.1f} s, decoder launches "
               f"{result['decoder_launches']}, stages {stages}")
-    before, after = files_of(out / "before"), files_of(out / "after")
+    before, after = build_files(out / "before"), build_files(out / "after")
     same = [k for k in before if before[k] == after.get(k)]
     print(f"files equal: {len(same)} of {len(before)} (after has {len(after)})")
     for k in sorted(set(before) | set(after)):

@@ -9,8 +9,6 @@ the stacks and return the files' bytes, which the baking process writes
 
 from __future__ import annotations
 
-import hashlib
-import json
 import socket
 from pathlib import Path
 
@@ -20,6 +18,7 @@ from bake import basisu, chunkio, compress, compressjobs, ktx2decoder, sunbounce
 from bake.errors import BakeError
 from bake.pipeline import bake
 from daylit.cli import main
+from tests.buildfiles import build_files
 from tests.sites import make_site
 
 pytestmark = pytest.mark.slow
@@ -28,30 +27,6 @@ QUIET = {"progress": False, "log": lambda msg: None}
 # Small chunks, so the test scene has several per point set (the layout is the baking
 # process's: it does not depend on where the chunks run).
 RAYS_PER_CHUNK = 60_000
-# What a manifest records about the run rather than the build: times, rays cast by this run.
-RUN_KEYS = {"created_utc", "duration_s", "encode_s", "stage_s", "rays_per_s", "rays", "workers"}
-
-
-def _without_run(value):
-    if isinstance(value, dict):
-        return {k: _without_run(v) for k, v in value.items() if k not in RUN_KEYS}
-    if isinstance(value, list):
-        return [_without_run(v) for v in value]
-    return value
-
-
-def _files(build: Path) -> dict:
-    """{relative path: SHA-256} of every file of a build; ``manifest.json`` as its contents
-    less what it records about the run."""
-    out = {
-        p.relative_to(build).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
-        for p in sorted(build.rglob("*"))
-        if p.is_file() and p.name != "manifest.json"
-    }
-    out["manifest.json"] = _without_run(json.loads((build / "manifest.json").read_text()))
-    return out
-
-
 @pytest.fixture(scope="module")
 def cluster():
     from distributed import LocalCluster
@@ -76,7 +51,7 @@ def reference(scene, tmp_path_factory):
         patch.setattr(tracework, "RAYS_PER_CHUNK", RAYS_PER_CHUNK)
         out = tmp_path_factory.mktemp("reference") / "local"
         bake(scene, out, workers=2, **QUIET)
-    return _files(out)
+    return build_files(out)
 
 
 def test_a_cluster_bake_writes_the_same_bytes_as_the_local_pool(
@@ -104,7 +79,7 @@ def test_a_cluster_bake_writes_the_same_bytes_as_the_local_pool(
     assert set(running.values()) == {0}
     assert any(f"on the cluster {cluster}" in m for m in messages)
     assert result.rays > 0
-    baked = _files(tmp_path / "out")
+    baked = build_files(tmp_path / "out")
     assert len(reference) >= 10 and any(p.endswith(".ktx2") for p in reference)
     # The coarse start (bake.coarse) is cut by the baking process from the workers' arrays.
     assert any(p.startswith("coarse/") for p in reference)
@@ -144,7 +119,7 @@ def test_an_interrupted_cluster_bake_resumes_locally_to_the_same_bytes(
     result = bake(scene, out, workers=2, progress=False, log=messages.append)
     assert any("resuming: 3 chunks already baked" in m for m in messages)
     assert result.rays > 0
-    resumed = _files(out)
+    resumed = build_files(out)
     assert resumed.keys() == reference.keys()
     for path in reference:
         assert resumed[path] == reference[path], path
