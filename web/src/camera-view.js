@@ -38,7 +38,9 @@ export class CameraView {
     const start = view ? view.world_from_camera.map((row) => row[3]).slice(0, 3) : [0, 1.6, 20];
     this.alignment = { headingDeg: 0, position: [start[0], 1.6, start[2]], ...load() };
     this.orientation = null;
-    this._onOrientation = (e) => { this.orientation = e; };
+    // A device without the sensors (and headless Chromium) sends one event of nulls, which
+    // may arrive after real readings: it must not turn the view back to level.
+    this._onOrientation = (e) => { if (e.alpha !== null) this.orientation = e; };
     this._onScreen = () => {};
     this._touches = new Map();
     this._onPointerDown = (e) => this._touches.set(e.pointerId, [e.clientX, e.clientY]);
