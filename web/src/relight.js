@@ -158,7 +158,7 @@ class RelightStack {
     this.etc1s = etc1s ?? null;
     this.gain = gain ?? null;
     this.coarse = coarse;
-    this.layers = { ...this.compact, layers }; // what stackWeights reads: the layers drawn
+    this.drawnCompact = { ...this.compact, layers }; // stackWeights reads the layers drawn
     for (const t of [base, etc1s, gain]) if (t) t.minFilter = t.magFilter = THREE.NearestFilter;
     this.dummy ??= new THREE.DataTexture(new Uint8Array(4), 1, 1);
     this.dummy.needsUpdate = true;
@@ -221,7 +221,7 @@ class RelightStack {
   render(renderer, r, selected) {
     const loaded = selected.filter((i) => this.lights.has(i));
     const c = baseCoefficients(this.V, this.k, r, loaded); // lights not loaded stay in r'
-    const w = stackWeights(this.layers, c, r, loaded);
+    const w = stackWeights(this.drawnCompact, c, r, loaded);
     const u = this.pass.mesh.material.uniforms;
     u.layerWeight.value.forEach((v, j) => v.set(w.layerWeights[3 * j], w.layerWeights[3 * j + 1], w.layerWeights[3 * j + 2]));
     u.constantTerm.value.set(...w.constant);
@@ -301,7 +301,8 @@ export class Relighter {
     this.lastRelightMs = 0;
     this.waitingForLights = 0;
     this.onApplied = null; // callback after a relight
-    this.coarseStart = which.coarse ?? true;
+    // Draw from the coarse starts first: the app decides per link (startmode.js).
+    this.coarseStart = true;
     this._toRefine = null; // stacks drawn from their coarse start, to load in full
     this._refineSoon = null; // the timer that will call _refine after this frame
     this.refined = null; // Promise: every stack loaded in full (after the first picture)
