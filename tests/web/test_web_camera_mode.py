@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 import pytest
 
+from tests.web.fakecamera import orient, write_y4m
 from tests.web.harness import CHROMIUM_FLAGS, SCREENSHOTS, StubServer, chromium_path
 from tests.web.kioskref import light_message
 from tests.web.xremu import perspective, project_px
@@ -29,21 +30,13 @@ READY = "window.daylit.status.ready && window.daylit.status.mode === 'camera'"
 SITE_POINTS_M = np.array([[0.0, 0.0, 0.0], [0.0, 4.0, 0.0], [6.0, 2.0, -4.0], [-8.0, 5.0, 2.0]])
 
 
-def write_y4m(path, size=SIZE, frames=2):
-    """A 4:2:0 Y4M of LEFT_RGB beside RIGHT_RGB, BT.709 limited range (Chromium's fake camera
-    reads the file as BT.709: written as BT.601, the colours came back 12 codes off)."""
-    w, h = size
-    rgb = np.zeros((h, w, 3), np.float64)
-    rgb[:, : w // 2] = np.array(LEFT_RGB) / 255
-    rgb[:, w // 2:] = np.array(RIGHT_RGB) / 255
-    r, g, b = rgb[..., 0], rgb[..., 1], rgb[..., 2]
-    luma = 0.2126 * r + 0.7152 * g + 0.0722 * b
-    y = 16 + 219 * luma
-    cb = 128 + 224 * (b - luma) / 1.8556
-    cr = 128 + 224 * (r - luma) / 1.5748
-    planes = [np.round(y), np.round(cb[::2, ::2]), np.round(cr[::2, ::2])]
-    frame = b"FRAME\n" + b"".join(p.astype(np.uint8).tobytes() for p in planes)
-    path.write_bytes(f"YUV4MPEG2 W{w} H{h} F30:1 Ip A1:1 C420jpeg\n".encode() + frame * frames)
+def write_pattern(path):
+    """The fake camera's picture: LEFT_RGB beside RIGHT_RGB."""
+    w, h = SIZE
+    rgb = np.zeros((h, w, 3), np.uint8)
+    rgb[:, : w // 2] = LEFT_RGB
+    rgb[:, w // 2:] = RIGHT_RGB
+    write_y4m(path, rgb)
 
 
 def device_rotation(alpha_deg, beta_deg, gamma_deg) -> np.ndarray:
@@ -55,20 +48,6 @@ def device_rotation(alpha_deg, beta_deg, gamma_deg) -> np.ndarray:
     ry = np.array([[np.cos(g), 0, np.sin(g)], [0, 1, 0], [-np.sin(g), 0, np.cos(g)]])
     earth_to_three = np.array([[1, 0, 0], [0, 0, 1], [0, -1, 0]])
     return earth_to_three @ rz @ rx @ ry
-
-
-def orient(page, alpha, beta, gamma):
-    """Turn the "phone": the event is sent again until the camera view has read it (its
-    listener may still be on its way in on a loaded machine), then two frames are drawn.
-    Chromium's own event of nulls (no sensors here) may come later: the view ignores it."""
-    page.wait_for_function("""([alpha, beta, gamma]) => {
-      const angles = { alpha, beta, gamma, absolute: false };
-      dispatchEvent(new DeviceOrientationEvent('deviceorientation', angles));
-      const o = window.daylit.debug.cameraOrientation();
-      return o !== null && o.alpha === alpha && o.beta === beta && o.gamma === gamma;
-    }""", arg=[alpha, beta, gamma], timeout=30000, polling=100)
-    page.evaluate("""() => new Promise((done) =>
-      requestAnimationFrame(() => requestAnimationFrame(done)))""")
 
 
 def screen(page) -> np.ndarray:
@@ -86,7 +65,7 @@ def not_camera(image: np.ndarray) -> np.ndarray:
 def test_camera_mode_shows_the_camera_and_holds_the_hall(browser, web_build, reference,
                                                          tmp_path):
     y4m = tmp_path / "pattern.y4m"
-    write_y4m(y4m)
+    write_pattern(y4m)
     sky = reference.light_vector(SKY)
     flags = CHROMIUM_FLAGS + [f"--use-file-for-fake-video-capture={y4m}"]
     with StubServer(web_build) as server:

@@ -3,7 +3,7 @@
 import * as THREE from 'three';
 import { AssetError, Assets } from './assets.js';
 import { CameraView } from './camera-view.js';
-import { exposureFor } from './exposure.js';
+import { exposureFor, exposureFromPicture } from './exposure.js';
 import { GpuMemoryMeter } from './gpumemory.js';
 import { HdrFrame } from './hdr.js';
 import { Hud, insecureReason } from './hud.js';
@@ -57,6 +57,8 @@ export class App {
     this.light = null; // the newest message
     this.saturated = null;
     this.exposure = 1;
+    this.exposureMeter = 'scene'; // what set it (status.exposureMeter)
+    this.pictureReading = null; // camera mode's last picture meter reading (picturemeter.js)
     this.status = makeStatus(this);
   }
 
@@ -381,14 +383,20 @@ export class App {
     if (applied.exact && this.exactRelitMs === null) this._exactRelitPending = true;
   }
 
-  _updateExposure(dtS) {
+  _updateExposure(dtS, nowS = performance.now() / 1000) {
     if (this.fixedExposure !== null) {
       this.exposure = this.fixedExposure;
     } else if (this._groundIrradiance && this.assets?.manifest) {
       // Metered on the open ground (exposure.js): a lightness key in the visit and the kiosk's
       // synthesized picture, a camera's auto exposure over a camera picture.
       const meter = this.site?.view === 'overlay' || this.site?.view === 'passthrough' ? 'camera' : 'scene';
-      const target = exposureFor(this._groundIrradiance, this.assets.manifest.ground.albedo, meter);
+      const albedo = this.assets.manifest.ground.albedo;
+      // Camera mode meters its own picture (picturemeter.js); AR's passthrough is not readable.
+      this.pictureReading = this.view?.meter?.read(this.camera, nowS, !this._exposureSet) ?? null;
+      const fromPicture = this.pictureReading
+        ? exposureFromPicture(this.pictureReading.level, this._groundIrradiance, albedo) : null;
+      this.exposureMeter = fromPicture !== null ? 'picture' : meter;
+      const target = fromPicture ?? exposureFor(this._groundIrradiance, albedo, meter);
       const a = this._exposureSet ? 1 - Math.exp(-dtS / EXPOSURE_TAU_S) : 1;
       this._exposureSet = true;
       this.exposure += a * (target - this.exposure);
@@ -406,7 +414,7 @@ export class App {
     if (this.contextLost) return;
     const t0 = performance.now();
     this._maybeRelight(now / 1000);
-    this._updateExposure(dt);
+    this._updateExposure(dt, now / 1000);
     this.renderFrame(xrFrame);
     this.frameMs = performance.now() - t0;
     if (this._firstRelitPending && this.relighter?.applied) {

@@ -5,6 +5,7 @@
 // sits on the real site (a heading offset), with two fingers to move the standpoint. The
 // alignment is kept in localStorage.
 import * as THREE from 'three';
+import { PictureMeter } from './picturemeter.js';
 
 const STORAGE_KEY = 'daylit.alignment.camera';
 
@@ -31,6 +32,7 @@ export class CameraView {
     this.video.muted = true;
     this.video.srcObject = stream;
     this.texture = new THREE.VideoTexture(this.video);
+    this.meter = new PictureMeter(this.video); // the exposure from the picture (app.js)
     this.texture.colorSpace = THREE.SRGBColorSpace;
     this.previousBackground = scene.background;
     scene.background = this.texture;

@@ -39,9 +39,27 @@ const KEY_DAY = lightnessKey(3000); // the key of a sunlit ground (0.20 albedo, 
  * @returns {number} 1 when there is no light to meter
  */
 export function exposureFor(groundIrradiance, albedo, meter = 'scene') {
-  const radiance = LUMA.reduce((s, w, c) => s + w * albedo[c] * groundIrradiance[c], 0) / Math.PI;
+  const radiance = groundRadiance(groundIrradiance, albedo);
   if (!(radiance > 0)) return 1;
   if (meter === 'camera') return DISPLAY_KEY / radiance;
   const level = DISPLAY_KEY * Math.max(lightnessKey(K_LM_PER_W * radiance), 0) / KEY_DAY;
   return Math.max(level, 1e-4) / radiance;
+}
+
+/**
+ * The exposure that draws the modelled open ground at the level a camera's picture shows it
+ * (picturemeter.js): the virtual objects then sit at the picture's own exposure.
+ * @param {number} level the picture's ground, display-linear luminance 0..1
+ * @param {number[]} groundIrradiance RGB W/m^2 on the open ground, sun included
+ * @param {number[]} albedo the ground's RGB albedo
+ * @returns {number|null} null when there is no light to meter
+ */
+export function exposureFromPicture(level, groundIrradiance, albedo) {
+  const radiance = groundRadiance(groundIrradiance, albedo);
+  return radiance > 0 && level > 0 ? level / radiance : null;
+}
+
+/** The open ground's luminance in the light vector's radiance units, W/(m^2 sr). */
+function groundRadiance(groundIrradiance, albedo) {
+  return LUMA.reduce((s, w, c) => s + w * albedo[c] * groundIrradiance[c], 0) / Math.PI;
 }

@@ -45,6 +45,12 @@ export function makeStatus(source) {
     // The kiosk's sun bounce: 'drawn' (the view's images of the sun's patch are in O' and S'),
     // 'none' (no sun, or its patch has none), 'absent: ...' (a build before 2026-11-25).
     kioskSunBounce: () => source.kiosk?.sunBounceNote ?? null,
+    // The exposure and what set it: 'fixed' (?exposure=), 'scene' (the lightness key),
+    // 'picture' (camera mode: the camera picture's ground, picturemeter.js), 'camera' (AR, or
+    // no ground in the picture: the ground at middle grey); the picture's ground level.
+    exposure: () => source.exposure,
+    exposureMeter: () => (source.fixedExposure !== null ? 'fixed' : source.exposureMeter),
+    pictureGroundLevel: () => source.pictureReading?.level ?? null,
   };
   const status = {};
   for (const [name, get] of Object.entries(fields)) {

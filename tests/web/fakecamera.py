@@ -1,0 +1,45 @@
+"""Chromium's fake camera and a turned "phone" for the camera-mode tests: a Y4M file of a
+picture (``--use-file-for-fake-video-capture``) and dispatched ``deviceorientation`` events."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def write_y4m(path, rgb: np.ndarray, frames: int = 2) -> None:
+    """A 4:2:0 Y4M of ``rgb`` ((H, W, 3) uint8 sRGB codes, H and W even), BT.709 limited range
+    (Chromium's fake camera reads the file as BT.709: written as BT.601, the colours came back
+    12 codes off)."""
+    h, w = rgb.shape[:2]
+    r, g, b = (rgb[..., c].astype(np.float64) / 255 for c in range(3))
+    luma = 0.2126 * r + 0.7152 * g + 0.0722 * b
+    y = 16 + 219 * luma
+    cb = 128 + 224 * (b - luma) / 1.8556
+    cr = 128 + 224 * (r - luma) / 1.5748
+    planes = [np.round(y), np.round(cb[::2, ::2]), np.round(cr[::2, ::2])]
+    frame = b"FRAME\n" + b"".join(p.astype(np.uint8).tobytes() for p in planes)
+    path.write_bytes(f"YUV4MPEG2 W{w} H{h} F30:1 Ip A1:1 C420jpeg\n".encode() + frame * frames)
+
+
+def write_y4m_rows(path, size, bands, frames: int = 2) -> None:
+    """A Y4M of horizontal bands: ``bands`` [(first row, (r, g, b)), ...] from the top,
+    ``size`` (W, H)."""
+    w, h = size
+    rgb = np.zeros((h, w, 3), np.uint8)
+    for row, colour in bands:
+        rgb[row:] = colour
+    write_y4m(path, rgb, frames)
+
+
+def orient(page, alpha, beta, gamma):
+    """Turn the "phone": the event is sent again until the camera view has read it (its
+    listener may still be on its way in on a loaded machine), then two frames are drawn.
+    Chromium's own event of nulls (no sensors here) may come later: the view ignores it."""
+    page.wait_for_function("""([alpha, beta, gamma]) => {
+      const angles = { alpha, beta, gamma, absolute: false };
+      dispatchEvent(new DeviceOrientationEvent('deviceorientation', angles));
+      const o = window.daylit.debug.cameraOrientation();
+      return o !== null && o.alpha === alpha && o.beta === beta && o.gamma === gamma;
+    }""", arg=[alpha, beta, gamma], timeout=30000, polling=100)
+    page.evaluate("""() => new Promise((done) =>
+      requestAnimationFrame(() => requestAnimationFrame(done)))""")

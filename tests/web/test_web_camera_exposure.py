@@ -1,0 +1,88 @@
+"""Camera mode's exposure from the camera's own picture (issue 17: "in camera and AR modes match
+the real camera's image"). Chromium's fake camera plays a picture of three horizontal bands:
+sky, a dark ground band, a bright ground band at the bottom. Which band is the ground depends on
+where the "phone" looks: held level, the ground below the horizon is mostly the dark band; tilted
+up by 20 degrees, only the bottom band is below the horizon. The meter must read the band the
+pose puts on the ground, and the exposure must draw the modelled ground at the level the picture
+shows it: exposure x (albedo / pi x E) = the picture's ground level, with E = pi L under a
+uniform sky of radiance L (a known answer, not the client's sum)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tests.web.fakecamera import orient, write_y4m_rows
+from tests.web.harness import CHROMIUM_FLAGS, StubServer, chromium_path
+from tests.web.kioskref import light_message
+
+pytestmark = [pytest.mark.browser]
+
+SIZE = (640, 360)
+SKY_RGB = (150, 180, 230)
+DARK_GROUND_CODE = 90
+BRIGHT_GROUND_CODE = 170
+# (first row, colour): sky above the middle row (the level camera's horizon), the dark ground
+# band to row 290, the bright one below it (a camera turned up by 20 degrees sees its horizon at
+# row 180 + f tan 20 = 293, f = 311.8 px).
+BANDS = [(0, SKY_RGB), (180, (DARK_GROUND_CODE,) * 3), (290, (BRIGHT_GROUND_CODE,) * 3)]
+SKY_RADIANCE = 40.0  # W/(m^2 sr) in every patch: the open ground gets pi x 40 W/m^2
+LUMA = np.array([0.2126, 0.7152, 0.0722])
+READY = "window.daylit.status.ready && window.daylit.status.mode === 'camera'"
+
+
+def srgb_to_linear(code):
+    v = np.asarray(code, float) / 255
+    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
+
+
+def settled(page):
+    """The exposure at its target now, and what the meter read."""
+    exposure = page.evaluate("window.daylit.debug.settleExposure()")
+    status = page.evaluate("""() => ({ meter: window.daylit.status.exposureMeter,
+      level: window.daylit.status.pictureGroundLevel })""")
+    return exposure, status["meter"], status["level"]
+
+
+def test_camera_mode_exposes_the_hall_as_the_camera_exposed_its_ground(browser, web_build,
+                                                                        tmp_path):
+    y4m = tmp_path / "bands.y4m"
+    write_y4m_rows(y4m, SIZE, BANDS)
+    flags = CHROMIUM_FLAGS + [f"--use-file-for-fake-video-capture={y4m}"]
+    with StubServer(web_build) as server:
+        lights = server.manifest["dome"]["lights"]
+        assert abs(sum(light["cosine_weighted_sr"] for light in lights) - np.pi) < 0.01 * np.pi
+        sky = np.full((len(lights), 3), SKY_RADIANCE)
+        server.push(light_message(sky, 1), remember=True)
+        albedo = np.array(server.manifest["ground"]["albedo"], float)
+        ground_radiance = LUMA @ (albedo * SKY_RADIANCE)  # albedo / pi x (pi L)
+        camera_browser = browser.browser_type.launch(executable_path=chromium_path(),
+                                                     args=flags, headless=True)
+        try:
+            page = camera_browser.new_page(viewport={"width": SIZE[0], "height": SIZE[1]})
+            errors = []
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            page.goto(f"{server.url}/?mode=camera&test")
+            page.wait_for_function(READY, timeout=60000)
+            page.evaluate("(r) => window.daylit.debug.relight(r, 1)", sky.ravel().tolist())
+
+            readings = {}
+            for name, beta in [("level", 90), ("up 20", 110), ("sky", 170)]:
+                orient(page, 0, beta, 0)
+                page.evaluate("window.daylit.debug.screen()")  # the pose drawn, then metered
+                readings[name] = settled(page)
+
+            for name, code in [("level", DARK_GROUND_CODE), ("up 20", BRIGHT_GROUND_CODE)]:
+                exposure, meter, level = readings[name]
+                assert meter == "picture", (name, readings)
+                # Chromium's decoding of the Y4M and the 2D canvas's scaling: a few codes.
+                truth = float(srgb_to_linear(code))
+                assert level == pytest.approx(truth, rel=0.06), (name, level, truth)
+                assert exposure * ground_radiance == pytest.approx(level, rel=1e-3), name
+            # Looking at the sky: no ground to meter, a camera's usual middle grey instead.
+            exposure, meter, level = readings["sky"]
+            assert meter == "camera" and level is None, readings
+            assert exposure * ground_radiance == pytest.approx(0.18, rel=1e-3)
+            assert not errors, errors
+        finally:
+            camera_browser.close()
