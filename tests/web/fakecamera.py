@@ -3,7 +3,12 @@ picture (``--use-file-for-fake-video-capture``) and dispatched ``deviceorientati
 
 from __future__ import annotations
 
+from contextlib import contextmanager
+
 import numpy as np
+
+from tests.web.harness import CHROMIUM_FLAGS, StubServer, chromium_path
+from tests.web.kioskref import light_message
 
 
 def write_y4m(path, rgb: np.ndarray, frames: int = 2) -> None:
@@ -43,3 +48,28 @@ def orient(page, alpha, beta, gamma):
     }""", arg=[alpha, beta, gamma], timeout=30000, polling=100)
     page.evaluate("""() => new Promise((done) =>
       requestAnimationFrame(() => requestAnimationFrame(done)))""")
+
+
+READY = "window.daylit.status.ready && window.daylit.status.mode === 'camera'"
+
+
+@contextmanager
+def camera_page(browser, web_build, y4m, sky, query="", size=(640, 360), has_touch=False):
+    """The client in camera mode in its own Chromium, whose fake camera plays ``y4m``, served
+    by a StubServer of ``web_build`` that sends the sky ``sky`` (n, 3). Yields
+    (page, server, errors): errors collects the page's uncaught exceptions."""
+    flags = CHROMIUM_FLAGS + [f"--use-file-for-fake-video-capture={y4m}"]
+    with StubServer(web_build) as server:
+        server.push(light_message(sky, 1), remember=True)
+        camera_browser = browser.browser_type.launch(executable_path=chromium_path(),
+                                                     args=flags, headless=True)
+        try:
+            page = camera_browser.new_page(viewport={"width": size[0], "height": size[1]},
+                                           has_touch=has_touch)
+            errors = []
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            page.goto(f"{server.url}/?mode=camera&test{query}")
+            page.wait_for_function(READY, timeout=60000)
+            yield page, server, errors
+        finally:
+            camera_browser.close()

@@ -9,12 +9,12 @@ uniform sky of radiance L (a known answer, not the client's sum)."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
-from tests.web.fakecamera import orient, write_y4m_rows
-from tests.web.harness import CHROMIUM_FLAGS, StubServer, chromium_path
-from tests.web.kioskref import light_message
+from tests.web.fakecamera import camera_page, orient, write_y4m_rows
 
 pytestmark = [pytest.mark.browser]
 
@@ -28,7 +28,6 @@ BRIGHT_GROUND_CODE = 170
 BANDS = [(0, SKY_RGB), (180, (DARK_GROUND_CODE,) * 3), (290, (BRIGHT_GROUND_CODE,) * 3)]
 SKY_RADIANCE = 40.0  # W/(m^2 sr) in every patch: the open ground gets pi x 40 W/m^2
 LUMA = np.array([0.2126, 0.7152, 0.0722])
-READY = "window.daylit.status.ready && window.daylit.status.mode === 'camera'"
 
 
 def srgb_to_linear(code):
@@ -48,41 +47,30 @@ def test_camera_mode_exposes_the_hall_as_the_camera_exposed_its_ground(browser, 
                                                                         tmp_path):
     y4m = tmp_path / "bands.y4m"
     write_y4m_rows(y4m, SIZE, BANDS)
-    flags = CHROMIUM_FLAGS + [f"--use-file-for-fake-video-capture={y4m}"]
-    with StubServer(web_build) as server:
-        lights = server.manifest["dome"]["lights"]
-        assert abs(sum(light["cosine_weighted_sr"] for light in lights) - np.pi) < 0.01 * np.pi
-        sky = np.full((len(lights), 3), SKY_RADIANCE)
-        server.push(light_message(sky, 1), remember=True)
-        albedo = np.array(server.manifest["ground"]["albedo"], float)
-        ground_radiance = LUMA @ (albedo * SKY_RADIANCE)  # albedo / pi x (pi L)
-        camera_browser = browser.browser_type.launch(executable_path=chromium_path(),
-                                                     args=flags, headless=True)
-        try:
-            page = camera_browser.new_page(viewport={"width": SIZE[0], "height": SIZE[1]})
-            errors = []
-            page.on("pageerror", lambda e: errors.append(str(e)))
-            page.goto(f"{server.url}/?mode=camera&test")
-            page.wait_for_function(READY, timeout=60000)
-            page.evaluate("(r) => window.daylit.debug.relight(r, 1)", sky.ravel().tolist())
+    manifest = json.loads((web_build / "manifest.json").read_text())
+    lights = manifest["dome"]["lights"]
+    assert abs(sum(light["cosine_weighted_sr"] for light in lights) - np.pi) < 0.01 * np.pi
+    sky = np.full((len(lights), 3), SKY_RADIANCE)
+    albedo = np.array(manifest["ground"]["albedo"], float)
+    ground_radiance = LUMA @ (albedo * SKY_RADIANCE)  # albedo / pi x (pi L)
+    with camera_page(browser, web_build, y4m, sky, size=SIZE) as (page, _, errors):
+        page.evaluate("(r) => window.daylit.debug.relight(r, 1)", sky.ravel().tolist())
 
-            readings = {}
-            for name, beta in [("level", 90), ("up 20", 110), ("sky", 170)]:
-                orient(page, 0, beta, 0)
-                page.evaluate("window.daylit.debug.screen()")  # the pose drawn, then metered
-                readings[name] = settled(page)
+        readings = {}
+        for name, beta in [("level", 90), ("up 20", 110), ("sky", 170)]:
+            orient(page, 0, beta, 0)
+            page.evaluate("window.daylit.debug.screen()")  # the pose drawn, then metered
+            readings[name] = settled(page)
 
-            for name, code in [("level", DARK_GROUND_CODE), ("up 20", BRIGHT_GROUND_CODE)]:
-                exposure, meter, level = readings[name]
-                assert meter == "picture", (name, readings)
-                # Chromium's decoding of the Y4M and the 2D canvas's scaling: a few codes.
-                truth = float(srgb_to_linear(code))
-                assert level == pytest.approx(truth, rel=0.06), (name, level, truth)
-                assert exposure * ground_radiance == pytest.approx(level, rel=1e-3), name
-            # Looking at the sky: no ground to meter, a camera's usual middle grey instead.
-            exposure, meter, level = readings["sky"]
-            assert meter == "camera" and level is None, readings
-            assert exposure * ground_radiance == pytest.approx(0.18, rel=1e-3)
-            assert not errors, errors
-        finally:
-            camera_browser.close()
+        for name, code in [("level", DARK_GROUND_CODE), ("up 20", BRIGHT_GROUND_CODE)]:
+            exposure, meter, level = readings[name]
+            assert meter == "picture", (name, readings)
+            # Chromium's decoding of the Y4M and the 2D canvas's scaling: a few codes.
+            truth = float(srgb_to_linear(code))
+            assert level == pytest.approx(truth, rel=0.06), (name, level, truth)
+            assert exposure * ground_radiance == pytest.approx(level, rel=1e-3), name
+        # Looking at the sky: no ground to meter, a camera's usual middle grey instead.
+        exposure, meter, level = readings["sky"]
+        assert meter == "camera" and level is None, readings
+        assert exposure * ground_radiance == pytest.approx(0.18, rel=1e-3)
+        assert not errors, errors

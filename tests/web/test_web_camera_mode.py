@@ -14,9 +14,8 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.web.fakecamera import orient, write_y4m
-from tests.web.harness import CHROMIUM_FLAGS, SCREENSHOTS, StubServer, chromium_path
-from tests.web.kioskref import light_message
+from tests.web.fakecamera import READY, camera_page, orient, write_y4m
+from tests.web.harness import SCREENSHOTS
 from tests.web.xremu import perspective, project_px
 
 pytestmark = [pytest.mark.browser]
@@ -26,7 +25,6 @@ SIZE = (640, 360)
 FOVY_DEG = 60.0  # the camera mode's field of view (camera-view.js)
 LEFT_RGB = (200, 80, 40)
 RIGHT_RGB = (40, 90, 200)
-READY = "window.daylit.status.ready && window.daylit.status.mode === 'camera'"
 SITE_POINTS_M = np.array([[0.0, 0.0, 0.0], [0.0, 4.0, 0.0], [6.0, 2.0, -4.0], [-8.0, 5.0, 2.0]])
 
 
@@ -67,80 +65,69 @@ def test_camera_mode_shows_the_camera_and_holds_the_hall(browser, web_build, ref
     y4m = tmp_path / "pattern.y4m"
     write_pattern(y4m)
     sky = reference.light_vector(SKY)
-    flags = CHROMIUM_FLAGS + [f"--use-file-for-fake-video-capture={y4m}"]
-    with StubServer(web_build) as server:
-        server.push(light_message(sky, 1), remember=True)
-        camera_browser = browser.browser_type.launch(executable_path=chromium_path(),
-                                                     args=flags, headless=True)
-        try:
-            page = camera_browser.new_page(viewport={"width": SIZE[0], "height": SIZE[1]})
-            errors = []
-            page.on("pageerror", lambda e: errors.append(str(e)))
-            page.goto(f"{server.url}/?mode=camera&test&exposure=0.1")
-            page.wait_for_function(READY, timeout=60000)
-            page.evaluate("(r) => window.daylit.debug.relight(r, 1)", sky.ravel().tolist())
-            assert page.evaluate("screen.orientation.angle") == 0  # the expectation assumes it
-            view = server.manifest["views"][0]["world_from_camera"]
-            standpoint = np.array([view[0][3], 1.6, view[2][3]])
-            # Facing the site's origin (alpha turns to the left, from north, -z).
-            alpha0 = float(np.degrees(np.arctan2(standpoint[0], standpoint[2])))
-            projection = perspective(np.radians(FOVY_DEG), SIZE[0] / SIZE[1], 0.1, 2000)
-            images, rotations = [], []
-            for alpha, beta, gamma in [(0, 90, 0), (12, 90, 0), (-10, 90, 0), (5, 80, 6)]:
-                orient(page, alpha0 + alpha, beta, gamma)
-                rot = device_rotation(alpha0 + alpha, beta, gamma)
-                pose = np.eye(4)
-                pose[:3, :3] = rot
-                pose[:3, 3] = standpoint
-                expected = project_px(SITE_POINTS_M, pose, projection, SIZE)
-                # screen() draws one frame through the shipped renderFrame, which turns the
-                # view by the orientation read: the pose no longer waits on the page's own
-                # frame loop (CI once read the pose before a loaded machine had drawn a frame).
-                images.append(screen(page))
-                drawn = np.array(page.evaluate("(p) => window.daylit.debug.project(p)",
-                                               SITE_POINTS_M.tolist()))
-                np.testing.assert_allclose(drawn, expected, atol=0.5)
-                rotations.append(rot)
-            # The event of nulls a device without sensors sends, arriving late: the view holds.
-            page.evaluate("""() => dispatchEvent(new DeviceOrientationEvent('deviceorientation',
-              { alpha: null, beta: null, gamma: null, absolute: false }))""")
-            screen(page)
-            held = np.array(page.evaluate("(p) => window.daylit.debug.project(p)",
-                                          SITE_POINTS_M.tolist()))
-            np.testing.assert_allclose(held, drawn, atol=0.5)
-            SCREENSHOTS.mkdir(parents=True, exist_ok=True)
-            cv2.imwrite(str(SCREENSHOTS / "camera-mode.png"),
-                        cv2.cvtColor(images[0], cv2.COLOR_RGBA2BGRA))
+    with camera_page(browser, web_build, y4m, sky, "&exposure=0.1", SIZE) as (
+            page, server, errors):
+        page.evaluate("(r) => window.daylit.debug.relight(r, 1)", sky.ravel().tolist())
+        assert page.evaluate("screen.orientation.angle") == 0  # the expectation assumes it
+        view = server.manifest["views"][0]["world_from_camera"]
+        standpoint = np.array([view[0][3], 1.6, view[2][3]])
+        # Facing the site's origin (alpha turns to the left, from north, -z).
+        alpha0 = float(np.degrees(np.arctan2(standpoint[0], standpoint[2])))
+        projection = perspective(np.radians(FOVY_DEG), SIZE[0] / SIZE[1], 0.1, 2000)
+        images, rotations = [], []
+        for alpha, beta, gamma in [(0, 90, 0), (12, 90, 0), (-10, 90, 0), (5, 80, 6)]:
+            orient(page, alpha0 + alpha, beta, gamma)
+            rot = device_rotation(alpha0 + alpha, beta, gamma)
+            pose = np.eye(4)
+            pose[:3, :3] = rot
+            pose[:3, 3] = standpoint
+            expected = project_px(SITE_POINTS_M, pose, projection, SIZE)
+            # screen() draws one frame through the shipped renderFrame, which turns the
+            # view by the orientation read: the pose no longer waits on the page's own
+            # frame loop (CI once read the pose before a loaded machine had drawn a frame).
+            images.append(screen(page))
+            drawn = np.array(page.evaluate("(p) => window.daylit.debug.project(p)",
+                                           SITE_POINTS_M.tolist()))
+            np.testing.assert_allclose(drawn, expected, atol=0.5)
+            rotations.append(rot)
+        # The event of nulls a device without sensors sends, arriving late: the view holds.
+        page.evaluate("""() => dispatchEvent(new DeviceOrientationEvent('deviceorientation',
+          { alpha: null, beta: null, gamma: null, absolute: false }))""")
+        screen(page)
+        held = np.array(page.evaluate("(p) => window.daylit.debug.project(p)",
+                                      SITE_POINTS_M.tolist()))
+        np.testing.assert_allclose(held, drawn, atol=0.5)
+        SCREENSHOTS.mkdir(parents=True, exist_ok=True)
+        cv2.imwrite(str(SCREENSHOTS / "camera-mode.png"),
+                    cv2.cvtColor(images[0], cv2.COLOR_RGBA2BGRA))
 
-            # The camera's picture is the background: the top corners (nothing of the site
-            # there) show the Y4M's two colours.
-            picks = page.evaluate("(p) => window.daylit.debug.pick(p)", [[20, 12], [620, 12]])
-            assert picks == [None, None], picks
-            for image in images[:3]:
-                np.testing.assert_allclose(image[12, 20, :3], LEFT_RGB, atol=8)
-                np.testing.assert_allclose(image[12, 620, :3], RIGHT_RGB, atol=8)
+        # The camera's picture is the background: the top corners (nothing of the site
+        # there) show the Y4M's two colours.
+        picks = page.evaluate("(p) => window.daylit.debug.pick(p)", [[20, 12], [620, 12]])
+        assert picks == [None, None], picks
+        for image in images[:3]:
+            np.testing.assert_allclose(image[12, 20, :3], LEFT_RGB, atol=8)
+            np.testing.assert_allclose(image[12, 620, :3], RIGHT_RGB, atol=8)
 
-            # The drawn hall moves as the inverse of the turn: first image warped by the
-            # homography K R2^T R1 K^-1 (camera axes) lands on the others.
-            f = SIZE[1] / 2 / np.tan(np.radians(FOVY_DEG) / 2)
-            k = np.array([[f, 0, SIZE[0] / 2], [0, f, SIZE[1] / 2], [0, 0, 1]])
-            flip = np.diag([1, -1, -1])  # three.js camera axes to image axes (y down, z ahead)
-            hall0 = not_camera(images[0])
-            assert 0.05 < hall0.mean() < 0.8, hall0.mean()  # a precondition: the hall in view
-            for image, rot in zip(images[1:], rotations[1:], strict=True):
-                rel = flip @ rot.T @ rotations[0] @ flip
-                h = k @ rel @ np.linalg.inv(k)
-                warped = cv2.warpPerspective(hall0.astype(np.uint8), h, SIZE,
-                                             flags=cv2.INTER_NEAREST).astype(bool)
-                inside = cv2.warpPerspective(np.ones(SIZE[::-1], np.uint8), h, SIZE,
-                                             flags=cv2.INTER_NEAREST).astype(bool)
-                hall = not_camera(image)
-                union = (warped | hall) & inside
-                iou = (warped & hall & inside).sum() / union.sum()
-                assert iou > 0.9, iou
-            assert not errors, errors
-        finally:
-            camera_browser.close()
+        # The drawn hall moves as the inverse of the turn: first image warped by the
+        # homography K R2^T R1 K^-1 (camera axes) lands on the others.
+        f = SIZE[1] / 2 / np.tan(np.radians(FOVY_DEG) / 2)
+        k = np.array([[f, 0, SIZE[0] / 2], [0, f, SIZE[1] / 2], [0, 0, 1]])
+        flip = np.diag([1, -1, -1])  # three.js camera axes to image axes (y down, z ahead)
+        hall0 = not_camera(images[0])
+        assert 0.05 < hall0.mean() < 0.8, hall0.mean()  # a precondition: the hall in view
+        for image, rot in zip(images[1:], rotations[1:], strict=True):
+            rel = flip @ rot.T @ rotations[0] @ flip
+            h = k @ rel @ np.linalg.inv(k)
+            warped = cv2.warpPerspective(hall0.astype(np.uint8), h, SIZE,
+                                         flags=cv2.INTER_NEAREST).astype(bool)
+            inside = cv2.warpPerspective(np.ones(SIZE[::-1], np.uint8), h, SIZE,
+                                         flags=cv2.INTER_NEAREST).astype(bool)
+            hall = not_camera(image)
+            union = (warped | hall) & inside
+            iou = (warped & hall & inside).sum() / union.sum()
+            assert iou > 0.9, iou
+        assert not errors, errors
 
 
 def touch_drag(page, fingers_start, dx_px, dy_px, steps=5):
@@ -167,41 +154,32 @@ def test_one_finger_turns_the_model_and_the_turn_is_kept(browser, web_build, ref
     y4m = tmp_path / "pattern.y4m"
     write_pattern(y4m)
     sky = reference.light_vector(SKY)
-    flags = CHROMIUM_FLAGS + [f"--use-file-for-fake-video-capture={y4m}"]
-    with StubServer(web_build) as server:
-        server.push(light_message(sky, 1), remember=True)
-        camera_browser = browser.browser_type.launch(executable_path=chromium_path(),
-                                                     args=flags, headless=True)
-        try:
-            page = camera_browser.new_page(viewport={"width": SIZE[0], "height": SIZE[1]},
-                                           has_touch=True)
-            page.goto(f"{server.url}/?mode=camera&test&exposure=0.1")
-            page.wait_for_function(READY, timeout=60000)
-            view = server.manifest["views"][0]["world_from_camera"]
-            standpoint = np.array([view[0][3], 1.6, view[2][3]])
-            alpha0 = float(np.degrees(np.arctan2(standpoint[0], standpoint[2])))
-            projection = perspective(np.radians(FOVY_DEG), SIZE[0] / SIZE[1], 0.1, 2000)
-            orient(page, alpha0, 90, 0)
-            dx_px = 80
-            touch_drag(page, [(200, 250)], dx_px, 0)
-            heading = np.radians(0.15 * dx_px)
-            turn = np.array([[np.cos(heading), 0, np.sin(heading)], [0, 1, 0],
-                             [-np.sin(heading), 0, np.cos(heading)]])  # about +y (up)
-            pose = np.eye(4)
-            pose[:3, :3] = turn @ device_rotation(alpha0, 90, 0)
-            pose[:3, 3] = standpoint
-            expected = project_px(SITE_POINTS_M, pose, projection, SIZE)
-            screen(page)
-            drawn = np.array(page.evaluate("(p) => window.daylit.debug.project(p)",
-                                           SITE_POINTS_M.tolist()))
-            np.testing.assert_allclose(drawn, expected, atol=0.5)
-            # The next visit starts aligned: the page again, same orientation, same picture.
-            page.reload()
-            page.wait_for_function(READY, timeout=60000)
-            orient(page, alpha0, 90, 0)
-            screen(page)
-            again = np.array(page.evaluate("(p) => window.daylit.debug.project(p)",
-                                           SITE_POINTS_M.tolist()))
-            np.testing.assert_allclose(again, expected, atol=0.5)
-        finally:
-            camera_browser.close()
+    with camera_page(browser, web_build, y4m, sky, "&exposure=0.1", SIZE,
+                 has_touch=True) as (page, server, errors):
+        view = server.manifest["views"][0]["world_from_camera"]
+        standpoint = np.array([view[0][3], 1.6, view[2][3]])
+        alpha0 = float(np.degrees(np.arctan2(standpoint[0], standpoint[2])))
+        projection = perspective(np.radians(FOVY_DEG), SIZE[0] / SIZE[1], 0.1, 2000)
+        orient(page, alpha0, 90, 0)
+        dx_px = 80
+        touch_drag(page, [(200, 250)], dx_px, 0)
+        heading = np.radians(0.15 * dx_px)
+        turn = np.array([[np.cos(heading), 0, np.sin(heading)], [0, 1, 0],
+                         [-np.sin(heading), 0, np.cos(heading)]])  # about +y (up)
+        pose = np.eye(4)
+        pose[:3, :3] = turn @ device_rotation(alpha0, 90, 0)
+        pose[:3, 3] = standpoint
+        expected = project_px(SITE_POINTS_M, pose, projection, SIZE)
+        screen(page)
+        drawn = np.array(page.evaluate("(p) => window.daylit.debug.project(p)",
+                                       SITE_POINTS_M.tolist()))
+        np.testing.assert_allclose(drawn, expected, atol=0.5)
+        # The next visit starts aligned: the page again, same orientation, same picture.
+        page.reload()
+        page.wait_for_function(READY, timeout=60000)
+        orient(page, alpha0, 90, 0)
+        screen(page)
+        again = np.array(page.evaluate("(p) => window.daylit.debug.project(p)",
+                                       SITE_POINTS_M.tolist()))
+        np.testing.assert_allclose(again, expected, atol=0.5)
+        assert not errors, errors
