@@ -112,6 +112,9 @@ class HeldoutConditions:
     cloud: bool = False
     jpeg_quality: int | None = None
     video_fourcc: str | None = None  # e.g. "mp4v"; frames go through an FFmpeg encode/decode
+    # H.264 (libx264, 4:2:0, this constant rate factor; x264's default 23, 28 a site camera's
+    # low-bit-rate stream) through imageio-ffmpeg's FFmpeg, decoded by OpenCV's as the server is
+    h264_crf: int | None = None
     jitter_px: float = 0.0
 
     def label(self) -> str:
@@ -126,6 +129,7 @@ CONDITIONS: dict[str, HeldoutConditions] = {
     "passing cloud": HeldoutConditions(noise=1.0, cloud=True),
     "JPEG 75": HeldoutConditions(noise=1.0, jpeg_quality=75),
     "video mp4v": HeldoutConditions(noise=1.0, video_fourcc="mp4v"),
+    "video H.264": HeldoutConditions(noise=1.0, h264_crf=28),
     "jitter 0.5 px": HeldoutConditions(noise=1.0, jitter_px=0.5),
     "all at once": HeldoutConditions(shadow="neutral", noise=3.0, cloud=True, jpeg_quality=75,
                                      jitter_px=0.5),
@@ -326,7 +330,6 @@ class HeldoutSequence:
         rng = np.random.default_rng(self.seed + 1)
         ratio = shadow_ratio(cond.shadow).astype(np.float32)
         bluer = (camera_response(7000.0) / camera_response(5500.0)).astype(np.float32)
-        writer_path = None
         raw: list[np.ndarray] = []
         truths = []
         for i in range(self.frame_count):
@@ -369,26 +372,58 @@ class HeldoutSequence:
             raw.append(codes)
             truths.append((person, shadow, count, shift))
         if cond.video_fourcc is not None:
-            writer_path = os.path.join(tempfile.mkdtemp(), "heldout.mp4")
-            wr = cv2.VideoWriter(writer_path, cv2.CAP_FFMPEG,
-                                 cv2.VideoWriter_fourcc(*cond.video_fourcc), self.fps,
-                                 (self.width, self.height))
-            if not wr.isOpened():
-                raise RuntimeError(f"OpenCV's FFmpeg cannot write {cond.video_fourcc}")
-            for codes in raw:
-                wr.write(codes)
-            wr.release()
-            cap = cv2.VideoCapture(writer_path, cv2.CAP_FFMPEG)
-            decoded = []
-            while True:
-                ok, frame = cap.read()
-                if not ok:
-                    break
-                decoded.append(frame)
-            cap.release()
-            os.remove(writer_path)
-            if len(decoded) != len(raw):
-                raise RuntimeError(f"video round trip gave {len(decoded)} of {len(raw)} frames")
-            raw = decoded
+            raw = _opencv_video_round_trip(raw, cond.video_fourcc, self.fps)
+        if cond.h264_crf is not None:
+            raw = _h264_round_trip(raw, cond.h264_crf, self.fps)
         for codes, (person, shadow, count, shift) in zip(raw, truths, strict=True):
             yield HeldoutFrame(codes, person, shadow, count, shift)
+
+
+def _decoded(path: str, expected: int) -> list[np.ndarray]:
+    """Every frame of a video file as OpenCV's FFmpeg decodes it (BGR uint8)."""
+    cap = cv2.VideoCapture(path, cv2.CAP_FFMPEG)
+    decoded = []
+    while True:
+        ok, frame = cap.read()
+        if not ok:
+            break
+        decoded.append(frame)
+    cap.release()
+    if len(decoded) != expected:
+        raise RuntimeError(f"video round trip gave {len(decoded)} of {expected} frames")
+    return decoded
+
+
+def _opencv_video_round_trip(frames: list[np.ndarray], fourcc: str, fps: float):
+    """``frames`` encoded by OpenCV's FFmpeg with ``fourcc`` at its default bit rate, decoded."""
+    h, w = frames[0].shape[:2]
+    with tempfile.TemporaryDirectory() as folder:
+        path = os.path.join(folder, "heldout.mp4")
+        wr = cv2.VideoWriter(path, cv2.CAP_FFMPEG, cv2.VideoWriter_fourcc(*fourcc), fps, (w, h))
+        if not wr.isOpened():
+            raise RuntimeError(f"OpenCV's FFmpeg cannot write {fourcc}")
+        for codes in frames:
+            wr.write(codes)
+        wr.release()
+        return _decoded(path, len(frames))
+
+
+def _h264_round_trip(frames: list[np.ndarray], crf: int, fps: float):
+    """``frames`` encoded as H.264 (libx264, yuv420p, ``crf``, a keyframe every 2 s as IP
+    cameras send them) by imageio-ffmpeg's FFmpeg (OpenCV's has no H.264 encoder), decoded
+    by OpenCV's FFmpeg as the server decodes an RTSP stream."""
+    import imageio_ffmpeg
+
+    h, w = frames[0].shape[:2]
+    with tempfile.TemporaryDirectory() as folder:
+        path = os.path.join(folder, "heldout.mp4")
+        writer = imageio_ffmpeg.write_frames(
+            path, (w, h), pix_fmt_in="bgr24", pix_fmt_out="yuv420p", fps=fps, codec="libx264",
+            output_params=["-crf", str(crf), "-g", str(int(2 * fps)), "-bf", "0",
+                           "-preset", "veryfast"],
+            macro_block_size=1, ffmpeg_log_level="error")
+        writer.send(None)  # start the encoder
+        for codes in frames:
+            writer.send(np.ascontiguousarray(codes))
+        writer.close()
+        return _decoded(path, len(frames))

@@ -94,12 +94,12 @@ def test_the_camera_shake_moves_image_and_truth_together():
     assert moved > 0.8 * len(frames)
 
 
-@pytest.mark.parametrize("name", ["JPEG 75", "video mp4v"])
+@pytest.mark.parametrize("name", ["JPEG 75", "video mp4v", "video H.264"])
 def test_the_codecs_change_the_pixels_but_keep_every_frame(name):
     seq = HeldoutSequence(width=256, height=128, duration_s=2.0, conditions=CONDITIONS[name])
     plain = HeldoutSequence(width=256, height=128, duration_s=2.0,
                             conditions=dataclasses.replace(CONDITIONS[name], jpeg_quality=None,
-                                                           video_fourcc=None))
+                                                           video_fourcc=None, h264_crf=None))
     coded, raw = list(seq.frames()), list(plain.frames())
     assert len(coded) == len(raw) == 20
     errors = [np.abs(c.image.astype(int) - r.image).mean() for c, r in zip(coded, raw,
