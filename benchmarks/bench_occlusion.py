@@ -210,11 +210,10 @@ def regions(mask: np.ndarray, min_px: int = 25) -> int:
 
 def heldout(names: list[str] | None = None, width: int = 1024, height: int = 512,
             duration_s: float = 6.0) -> None:
-    from tests.server.occlusion.heldout import CONDITIONS, HeldoutSequence, h264_available
+    from tests.server.occlusion.heldout import CONDITIONS, HeldoutSequence
 
     print(f"\nHeld-out sequences, {width}x{height}, {duration_s:.0f} s at 10 frames/s "
-          f"(10 learned, 6 empty, then three walkers at 8, 14 and 22 m); H.264 encoder in "
-          f"OpenCV's FFmpeg: {'yes' if h264_available() else 'no (libx264 missing)'}\n")
+          f"(10 learned, 6 empty, then three walkers at 8, 14 and 22 m)\n")
     print("| condition | method | person IoU (median) | worst frame IoU | shadow kept | "
           "phantom regions (empty frames) | median ms | p95 ms | CPU ms median | CPU ms p95 "
           "| load |")
