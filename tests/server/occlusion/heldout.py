@@ -21,7 +21,8 @@ its own assumptions:
 - A passing cloud: a global gain (down to 0.55, slightly bluer) and cast shadows that fade
   while it covers the sun.
 - Camera: +-``jitter_px`` sub-pixel shake per frame (``cv2.warpAffine``, applied to the image
-  and to the ground truth alike).
+  and to the ground truth alike); ``awb_jump``: its auto white balance and exposure jump at
+  half the sequence (per-channel gains on linear light).
 - Codec: JPEG (``cv2.imencode``) at ``jpeg_quality``, a video codec through OpenCV's
   FFmpeg backend (``video_fourcc``), or H.264 at ``h264_crf`` through imageio-ffmpeg's
   FFmpeg (OpenCV's has no libx264), each decoded by OpenCV's FFmpeg.
@@ -107,6 +108,9 @@ class HeldoutConditions:
     # low-bit-rate stream) through imageio-ffmpeg's FFmpeg, decoded by OpenCV's as the server is
     h264_crf: int | None = None
     jitter_px: float = 0.0
+    # the camera's auto white balance and exposure jump at half the sequence, people in view:
+    # per-channel gains on linear light (B, G, R) x0.82, x1.0, x1.15, all x1.2
+    awb_jump: bool = False
 
     def label(self) -> str:
         return self.__class__.__name__
@@ -122,6 +126,7 @@ CONDITIONS: dict[str, HeldoutConditions] = {
     "video mp4v": HeldoutConditions(noise=1.0, video_fourcc="mp4v"),
     "video H.264": HeldoutConditions(noise=1.0, h264_crf=28),
     "jitter 0.5 px": HeldoutConditions(noise=1.0, jitter_px=0.5),
+    "white balance jump": HeldoutConditions(noise=1.0, awb_jump=True),
     "all at once": HeldoutConditions(shadow="neutral", noise=3.0, cloud=True, jpeg_quality=75,
                                      jitter_px=0.5),
     # a camera sends JPEG or H.264, not both: all at once again with H.264 for the JPEG
@@ -342,6 +347,8 @@ class HeldoutSequence:
             person_lin = col_s * 1.1
             img = lit * (1.0 - cov_s[..., None]) + person_lin
             img = img * gain
+            if cond.awb_jump and t >= 0.5 * self.duration_s:
+                img = img * np.float32([0.82 * 1.2, 1.2, 1.15 * 1.2])
             shift = (0.0, 0.0)
             person = cov_s >= 0.5
             shadow = (sh_s >= 0.5) & ~person & (shadow_strength > 0.5)
