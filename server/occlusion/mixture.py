@@ -82,8 +82,9 @@ def em_from_posteriors(x: np.ndarray, probs: np.ndarray, max_iter: int, eps: flo
 
 
 @functools.cache
-def _centres(bits: int) -> np.ndarray:
-    return bin_centres(bits).astype(np.float32)
+def _centres_t(bits: int) -> np.ndarray:
+    """(3, 2^(3 bits)) float32 bin centres, channels first (for ``_component_logs``)."""
+    return np.ascontiguousarray(bin_centres(bits).T, dtype=np.float32)
 
 
 class ColourMixture:
@@ -123,7 +124,7 @@ class ColourMixture:
         x = x + np.random.default_rng(len(x)).uniform(-0.5, 0.5, x.shape)
         if warm and self.fitted and len(self.means) == k:
             # Start from the previous fit: its posteriors feed the first M-step.
-            logs = self._component_logs(x)
+            logs = self._component_logs(np.ascontiguousarray(x.T))
             probs = np.exp(logs - logs.max(axis=0))
             fit = em_from_posteriors(x, (probs / probs.sum(axis=0)).T, self.max_iter, 1e-3)
             if fit is None:
@@ -151,15 +152,20 @@ class ColourMixture:
         self.means, self.covs, self.weights = means, covs, weights / weights.sum()
         return True
 
-    def _component_logs(self, x: np.ndarray) -> np.ndarray:
-        """(K, N) ``ln(w_k N(x; mu_k, Sigma_k))`` of (N, 3) points (dtype of ``x``)."""
-        logs = np.empty((len(self.means), len(x)), dtype=x.dtype)
+    def _component_logs(self, x_t: np.ndarray) -> np.ndarray:
+        """(K, N) ``ln(w_k N(x; mu_k, Sigma_k))`` of points given channels first, (3, N)
+        (dtype of ``x_t``).
+
+        Channels first: the whitening is one (3, 3) @ (3, N) product per component and the
+        squares are summed over contiguous rows (a third of the time of (N, 3) points).
+        """
+        logs = np.empty((len(self.means), x_t.shape[1]), dtype=x_t.dtype)
         for k, (mu, cov, w) in enumerate(zip(self.means, self.covs, self.weights, strict=True)):
             L_inv = np.linalg.inv(np.linalg.cholesky(cov))
-            z = (x - mu.astype(x.dtype)) @ L_inv.T.astype(x.dtype)  # (N, 3) whitened
+            z = L_inv.astype(x_t.dtype) @ (x_t - mu.astype(x_t.dtype)[:, None])  # (3, N) whitened
             logdet = -2.0 * np.log(np.diag(L_inv)).sum()
             const = np.log(w) - 0.5 * logdet - 1.5 * np.log(2 * np.pi)
-            logs[k] = const - 0.5 * (z[:, 0] * z[:, 0] + z[:, 1] * z[:, 1] + z[:, 2] * z[:, 2])
+            logs[k] = const - 0.5 * (z[0] * z[0] + z[1] * z[1] + z[2] * z[2])
         return logs
 
     def table(self, bits: int, uniform_weight: float = 0.0) -> np.ndarray:
@@ -170,7 +176,7 @@ class ColourMixture:
         n = 1 << (3 * bits)
         if not self.fitted:
             return np.full(n, LOG_UNIFORM, dtype=np.float32)
-        logs = self._component_logs(_centres(bits))
+        logs = self._component_logs(_centres_t(bits))
         top = logs.max(0)
         logp = top + np.log(np.exp(logs - top).sum(0))
         if uniform_weight > 0.0:

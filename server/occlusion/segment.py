@@ -108,12 +108,14 @@ def graph_cut(
         free = np.ones((h, w), dtype=bool)
     cost_person = cost_person.copy()
     # Edges from a free pixel to a fixed background neighbour: cut if the pixel is a person.
+    # Added wherever the neighbour is fixed: only the free pixels' costs are read below.
+    fixed = ~free
     cr = w_right[:, :-1]
-    cost_person[:, :-1] += np.where(free[:, :-1] & ~free[:, 1:], cr, 0.0)
-    cost_person[:, 1:] += np.where(free[:, 1:] & ~free[:, :-1], cr, 0.0)
+    cost_person[:, :-1] += np.where(fixed[:, 1:], cr, 0.0)
+    cost_person[:, 1:] += np.where(fixed[:, :-1], cr, 0.0)
     cd = w_down[:-1]
-    cost_person[:-1] += np.where(free[:-1] & ~free[1:], cd, 0.0)
-    cost_person[1:] += np.where(free[1:] & ~free[:-1], cd, 0.0)
+    cost_person[:-1] += np.where(fixed[1:], cd, 0.0)
+    cost_person[1:] += np.where(fixed[:-1], cd, 0.0)
     n = int(np.count_nonzero(free))
     out = np.zeros((h, w), dtype=bool)
     if n == 0:
@@ -374,7 +376,11 @@ class Segmenter:
             return
         self._frames_since_refit = 0
         rng = np.random.default_rng(n)
-        ys, xs = np.nonzero(person)
+        # Person pixels lie in the regions only: nonzero over the rows that have any (the
+        # same pixels in the same order, without a pass over the whole frame).
+        rows = np.flatnonzero(person.any(axis=1))
+        ys, xs = np.nonzero(person[rows[0]:rows[-1] + 1])
+        ys += rows[0]
         pick = rng.choice(n, size=min(n, self.settings.fg_samples), replace=False)
         samples = corrected[ys[pick], xs[pick]]
         self._table_pending = self.person_mixture.fit(samples, warm=True)
