@@ -49,7 +49,7 @@ def em_from_posteriors(x: np.ndarray, probs: np.ndarray, max_iter: int, eps: flo
                 return None
             inv = np.linalg.inv(chol)
             d = x[None, :, :] - means[:, None, :]  # (K, N, 3)
-            z = np.einsum("kij,knj->kni", inv, d)  # whitened
+            z = d @ inv.transpose(0, 2, 1)  # (K, N, 3) whitened (batched matmul: einsum is slower)
             logdet = 2.0 * np.log(np.diagonal(chol, axis1=1, axis2=2)).sum(1)
             with np.errstate(divide="ignore"):  # an empty component: weight 0, as in OpenCV
                 log_w = np.log(weights)
@@ -73,7 +73,7 @@ def em_from_posteriors(x: np.ndarray, probs: np.ndarray, max_iter: int, eps: flo
         safe = np.where(live, nk, 1.0)
         means = (probs.T @ x) / safe[:, None]
         d = x[None, :, :] - means[:, None, :]
-        covs = np.einsum("nk,kni,knj->kij", probs, d, d) / safe[:, None, None]
+        covs = ((probs.T[:, :, None] * d).transpose(0, 2, 1) @ d) / safe[:, None, None]
         if not live.all():
             donor = np.flatnonzero(live)[np.argmin(nk[live])]
             means[~live], covs[~live] = means[donor], covs[donor]
