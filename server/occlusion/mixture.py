@@ -4,9 +4,9 @@ A first fit is OpenCV's EM (``cv2.ml.EM``, full covariances, k-means start); a r
 warm-started from the previous fit and runs the same EM iterations in numpy
 (:func:`em_from_posteriors`, the steps of OpenCV's ``trainM``, checked against it in
 tests/server/occlusion/test_occlusion_mixture.py): on 300 samples and 5 components that is
-about 0.5 ms where ``cv2.ml.EM.trainM`` took 5-12 ms on an idle core and 35-50 ms under load
-(its per-sample loops and an SVD per component and step), the frames that set the pipeline's
-p95 (issue 18). Per frame, a pixel's log-density is one table look-up on its
+0.5 ms of a core where ``cv2.ml.EM.trainM`` took 5.2 ms in the same run (its per-sample loops
+and an SVD per component and step; ``benchmarks/bench_occlusion.py --refit``), the frames
+that set the pipeline's p95 (issue 18). Per frame, a pixel's log-density is one table look-up on its
 quantised colour (:func:`server.occlusion.colour.colour_index`): the table is evaluated once per
 refit at the bin centres, 32768 entries at 5 bits per channel, instead of K Gaussians per pixel.
 """
