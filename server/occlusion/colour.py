@@ -12,6 +12,8 @@ import numpy as np
 
 from server.photometry import inverse_response_table
 
+_CHANNEL = np.arange(3, dtype=np.intp)
+
 
 class Transfer:
     """The site camera's response: ``decode`` (code -> linear) and its inverse, per channel.
@@ -30,6 +32,17 @@ class Transfer:
         self.log_table = np.log(np.maximum(self.decode_table, 1e-6)).astype(np.float32)
         # d ln(linear) / d code at each code: turns noise in codes into noise in ln.
         self.log_slope = np.abs(np.gradient(self.log_table[:, 0, :], axis=0)).astype(np.float32)
+        # The same three tables flat, (768,) float32, read at channel_index(codes): one
+        # np.take each instead of a fancy index per table (a third of the time, same values).
+        self.decode_flat = self.decode_bgr.ravel()
+        self.log_flat = self.log_table.ravel()
+        self.log_slope_flat = self.log_slope.ravel()
+
+    @staticmethod
+    def channel_index(codes_bgr: np.ndarray) -> np.ndarray:
+        """(..., 3) uint8 codes -> (..., 3) intp ``3 code + channel``, the index of each code
+        into the flat tables ``decode_flat``, ``log_flat`` and ``log_slope_flat``."""
+        return codes_bgr.astype(np.intp) * 3 + _CHANNEL
 
     def to_linear(self, codes_bgr: np.ndarray) -> np.ndarray:
         """(..., 3) uint8 codes -> (..., 3) float32 linear values."""

@@ -108,12 +108,14 @@ def graph_cut(
         free = np.ones((h, w), dtype=bool)
     cost_person = cost_person.copy()
     # Edges from a free pixel to a fixed background neighbour: cut if the pixel is a person.
+    # Added wherever the neighbour is fixed: only the free pixels' costs are read below.
+    fixed = ~free
     cr = w_right[:, :-1]
-    cost_person[:, :-1] += np.where(free[:, :-1] & ~free[:, 1:], cr, 0.0)
-    cost_person[:, 1:] += np.where(free[:, 1:] & ~free[:, :-1], cr, 0.0)
+    cost_person[:, :-1] += np.where(fixed[:, 1:], cr, 0.0)
+    cost_person[:, 1:] += np.where(fixed[:, :-1], cr, 0.0)
     cd = w_down[:-1]
-    cost_person[:-1] += np.where(free[:-1] & ~free[1:], cd, 0.0)
-    cost_person[1:] += np.where(free[1:] & ~free[:-1], cd, 0.0)
+    cost_person[:-1] += np.where(fixed[1:], cd, 0.0)
+    cost_person[1:] += np.where(fixed[:-1], cd, 0.0)
     n = int(np.count_nonzero(free))
     out = np.zeros((h, w), dtype=bool)
     if n == 0:
@@ -224,8 +226,10 @@ class Segmenter:
         k = s.codec_block_px
         spread = cv2.blur(cv2.transform(sq, _SUM3 / 3.0), (k, k),
                           borderType=cv2.BORDER_REPLICATE) * np.float32(s.codec_error_fraction)
-        var = bg.total_var[y0:y1, x0:x1] + spread[..., None]
-        d2 = cv2.transform(sq / var, _SUM3)
+        # The spread added to each channel by OpenCV (grey to 3 channels, then add): the same
+        # sums as numpy's broadcast, which took 10 times as long here.
+        var = cv2.add(bg.total_var[y0:y1, x0:x1], cv2.cvtColor(spread, cv2.COLOR_GRAY2BGR))
+        d2 = cv2.transform(cv2.divide(sq, var), _SUM3)
         log_norm = 0.5 * np.log((2.0 * np.pi) ** 3 * (var[..., 0] * var[..., 1] * var[..., 2]))
         return d2, log_norm
 
@@ -265,22 +269,22 @@ class Segmenter:
         # Gathers by flat index into the whole-frame arrays (faster than masking box views).
         ys, xs = np.nonzero(different)
         flat = (ys + y0) * bg.width + (xs + x0)
-        sub = corrected.reshape(-1, 3)[flat]
-        lin = tr.to_linear(sub)
+        # Table reads as np.take at 3 code + channel (Transfer.channel_index): same values.
+        at = tr.channel_index(corrected.reshape(-1, 3)[flat])  # (n, 3)
+        lin = tr.decode_flat.take(at)
         lin_bg = bg.linear.reshape(-1, 3)[flat]
         ratio = luminance(lin) / np.maximum(luminance(lin_bg), 1e-9)
         lo, hi = s.shadow_ratio
         dark = (ratio > lo) & (ratio < hi)
         candidates = np.zeros((h, w), dtype=bool)
         candidates[ys[dark], xs[dark]] = True
-        flat, sub, lin, lin_bg = flat[dark], sub[dark], lin[dark], lin_bg[dark]
-        bg_sub = bg.mean_u8.reshape(-1, 3)[flat]
+        flat, at, lin, lin_bg = flat[dark], at[dark], lin[dark], lin_bg[dark]
+        at_bg = tr.channel_index(bg.mean_u8.reshape(-1, 3)[flat])
         # Sensor noise of each channel's ln value: the background's spread (codes) times the
         # slope of ln(linear) at the frame's code.
-        noise = np.sqrt(bg.var.reshape(-1, 3)[flat]) * tr.log_slope[sub, (0, 1, 2)]
+        noise = np.sqrt(bg.var.reshape(-1, 3)[flat]) * tr.log_slope_flat.take(at)
         features = shadow_features(
-            lin, lin_bg, s, tr.log_table[sub, 0, (0, 1, 2)], tr.log_table[bg_sub, 0, (0, 1, 2)],
-            noise,
+            lin, lin_bg, s, tr.log_flat.take(at), tr.log_flat.take(at_bg), noise,
         )
         return {"box": box, "codes": codes, "cost_fg": cost_fg, "cost_bg": cost_bg,
                 "different": different, "candidates": candidates, "features": features}
@@ -372,7 +376,11 @@ class Segmenter:
             return
         self._frames_since_refit = 0
         rng = np.random.default_rng(n)
-        ys, xs = np.nonzero(person)
+        # Person pixels lie in the regions only: nonzero over the rows that have any (the
+        # same pixels in the same order, without a pass over the whole frame).
+        rows = np.flatnonzero(person.any(axis=1))
+        ys, xs = np.nonzero(person[rows[0]:rows[-1] + 1])
+        ys += rows[0]
         pick = rng.choice(n, size=min(n, self.settings.fg_samples), replace=False)
         samples = corrected[ys[pick], xs[pick]]
         self._table_pending = self.person_mixture.fit(samples, warm=True)
