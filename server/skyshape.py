@@ -60,7 +60,7 @@ def _horizontal_irradiance(sky: CIESky, steps: int = 48) -> float:
 
 # Lambert's clamped cosine in spherical harmonics, per band l = 0, 1, 2 (Ramamoorthi &
 # Hanrahan 2001): irradiance = sum over l, m of A_l L_lm Y_lm(n)
-_SH9_COSINE = np.array([math.pi] + [2.0 * math.pi / 3.0] * 3 + [math.pi / 4.0] * 5)
+SH9_COSINE = np.array([math.pi] + [2.0 * math.pi / 3.0] * 3 + [math.pi / 4.0] * 5)
 
 
 def tilted_irradiance(sky: CIESky, to_unit: float, normals: np.ndarray) -> np.ndarray:
@@ -74,4 +74,4 @@ def tilted_irradiance(sky: CIESky, to_unit: float, normals: np.ndarray) -> np.nd
 
     dirs, d_omega = _upper_hemisphere_grid(24)
     coeff = (d_omega * sky.relative_luminance(dirs) * to_unit) @ sh9_basis(dirs)
-    return sh9_basis(np.asarray(normals, float)) @ (_SH9_COSINE * coeff)
+    return sh9_basis(np.asarray(normals, float)) @ (SH9_COSINE * coeff)
