@@ -158,6 +158,20 @@ def timing(site, rendered, samples: int, repeats: int) -> dict:
         t0 = time.perf_counter()
         stated.estimate(linear, sun, 1.0 / exposure, clip_level=0.99)
         stated_times.append(time.perf_counter() - t0)
+    # the fusion's drift check (server.skycheck) on the same frame: its extra cost per frame
+    from server.fusion import projected_solid_angles_sr
+    from server.skycheck import SkyPatches, sky_camera_gain
+
+    dome = Dome.for_light_count(160).vertices
+    sky = np.full((len(dome), 3), rendered.dhi_w_m2 / np.pi)
+    patches = SkyPatches(est, dome)
+    e_h = float(np.mean(projected_solid_angles_sr(dome) @ sky))
+    sky_camera_gain(patches, linear, sun, sky, e_h, 1.0 / exposure, 0.99)
+    gain_times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        sky_camera_gain(patches, linear, sun, sky, e_h, 1.0 / exposure, 0.99)
+        gain_times.append(time.perf_counter() - t0)
     meter = SceneMeter(est, Dome.for_light_count(160).vertices, sun_path,
                        radiance_per_unit=1.0 / exposure, saturation_level=0.99)
     frame = Frame(codes, rendered.when_unix_s, bgr=False)
@@ -180,6 +194,7 @@ def timing(site, rendered, samples: int, repeats: int) -> dict:
         "meter_ms_median": 1e3 * float(np.median(meter_times)),
         "meter_per_s": 1.0 / float(np.median(meter_times)),
         "baseline_linearise_ms_median": 1e3 * float(np.median(lut_times)),
+        "sky_camera_gain_ms_median": 1e3 * float(np.median(gain_times)),
     }
 
 

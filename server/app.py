@@ -168,7 +168,7 @@ def make_fusion(settings: Settings, manifest: dict, build_dir: Path, sky_kind: s
         raise ConfigError(f"[scene]: {exc}") from None
     return SceneFusion(meter, manifest_io.dome_vertices(manifest),
                        settings.scene.disagreement_factor, settings.sky.stale_after_s,
-                       settings.sky.rate_hz), ""
+                       settings.sky.rate_hz, settings.scene.drift_factor), ""
 
 
 def make_site_source(spec: SourceSpec, settings: Settings) -> Source:

@@ -165,6 +165,10 @@ SCHEMA: dict[str, dict[str, Key]] = {
                                    "when the sky camera's sky or sun irradiance and the scene "
                                    "estimate's differ by more than this factor (median of 10 "
                                    "frames)", 1.0, 100.0, True),
+        "drift_factor": Key(1.13, "float", "with [sky] fuse_scene: /api/status warns when "
+                            "the sky camera's sky, fitted to the site camera's pixels, needs "
+                            "a scale beyond this factor (a drifted or fogged sky camera; "
+                            "median of 10 frames)", 1.0, 100.0, True),
     },
     "site_camera": {
         "source": Key("", "source", "kiosk camera: camera:INDEX_OR_URL | replay:PATH; empty: "

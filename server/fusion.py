@@ -22,6 +22,13 @@ scene, grey: the mean of R, G, B) are the median of the last ``WINDOW`` comparis
 outside ``[1 / f, f]`` for ``f = [scene] disagreement_factor`` is a warning in
 ``/api/status`` (``fusion.warning``) and the log: a sky camera that drifts or whose lens fogs,
 or a site camera that moved or changed exposure.
+
+That comparison carries the estimate's own sky-model error (5-30 % by the weather), so it
+cannot tell a drift of under 25 %. A finer one (:mod:`server.skycheck`): the site camera's
+frame is fitted again with the sky camera's *measured* sky as the shape and one free scale;
+``sky_camera_gain`` (the sky camera's sky over what the site's pixels say, median of the last
+``WINDOW``) stays within a few per cent of 1 whatever the weather, and one outside
+``[1 / d, d]`` for ``d = [scene] drift_factor`` is a drift warning.
 """
 
 from __future__ import annotations
@@ -38,9 +45,10 @@ from daylit.spherical import PatchLookup
 from daylit.sun import SunSource
 from server.measure import Frame, FrameError, Measurement
 from server.newest import Newest
-from server.sceneestimate import SceneLight
+from server.sceneestimate import SceneEstimateError, SceneLight
 from server.scenemeter import SceneMeter
 from server.simsky import hemisphere_grid
+from server.skycheck import SkyPatches, sky_camera_gain
 
 log = logging.getLogger("daylit.fusion")
 
@@ -72,12 +80,19 @@ class SceneFusion:
     disagreement_factor : a ratio outside ``[1 / f, f]`` is a warning
     max_age_s : an estimate older than this (wall clock) is not used
     rate_hz : most estimates per second
+    drift_factor : a sky camera gain (:mod:`server.skycheck`) outside ``[1 / d, d]`` is a
+        warning
     """
 
     def __init__(self, meter: SceneMeter, dome_vertices: np.ndarray,
                  disagreement_factor: float = 1.3, max_age_s: float = 5.0,
-                 rate_hz: float = 2.0):
+                 rate_hz: float = 2.0, drift_factor: float = 1.13):
         self.meter = meter
+        self.dome_vertices = np.asarray(dome_vertices, float)
+        self.drift_factor = float(drift_factor)
+        self._gains: collections.deque[float] = collections.deque(maxlen=WINDOW)
+        self._patches: SkyPatches | None = None
+        self._sky_for_check: tuple[np.ndarray, float] | None = None  # newest sky camera's
         self.projected_sr = projected_solid_angles_sr(dome_vertices)
         self.disagreement_factor = float(disagreement_factor)
         self.max_age_s = float(max_age_s)
@@ -105,7 +120,7 @@ class SceneFusion:
             frame = await self._frames.take()
             t0 = time.monotonic()
             try:
-                light, _ = await asyncio.to_thread(self.meter.estimate, frame)
+                light, gain = await asyncio.to_thread(self._estimate, frame)
             except FrameError as exc:
                 self.skipped += 1
                 if str(exc) != self.last_error:
@@ -115,7 +130,28 @@ class SceneFusion:
             else:
                 self.latest, self.latest_wall_s = light, time.time()
                 self.last_error = ""
+                if gain is not None:
+                    self._gains.append(gain)
+                    self._check()
             await asyncio.sleep(max(0.0, self.period_s - (time.monotonic() - t0)))
+
+    def _estimate(self, frame: Frame) -> tuple[SceneLight, float | None]:
+        """(worker thread) The frame's estimate, and the sky camera's gain against it when a
+        sky-camera frame has been measured (None when the frame cannot tell)."""
+        light, sun = self.meter.estimate(frame)
+        sky = self._sky_for_check
+        if sky is None or sun.apparent_elevation_deg <= 0.0:
+            return light, None
+        if self._patches is None:
+            self._patches = SkyPatches(self.meter.estimator, self.dome_vertices)
+        image, to_linear, clip = self.meter.pixels(frame)
+        try:
+            gain = sky_camera_gain(self._patches, image, sun.direction, sky[0], sky[1],
+                                   self.meter.radiance_per_unit,
+                                   clip if np.isfinite(clip) else None, to_linear)
+        except SceneEstimateError:
+            return light, None
+        return light, gain
 
     # ----------------------------------------------------------------------------- fusing
 
@@ -136,6 +172,7 @@ class SceneFusion:
         light = self.fresh(now_s)
         sun = m.sun
         sky_rgb = self.sky_horizontal_irradiance(m.radiance)
+        self._sky_for_check = (np.asarray(m.radiance, float).copy(), grey(sky_rgb))
         self.sky_camera = {
             "sky_horizontal_irradiance_W_m2": sky_rgb,
             "sun_normal_irradiance_W_m2": None if sun is None else sun.normal_irradiance_w_m2,
@@ -167,19 +204,27 @@ class SceneFusion:
         sky = float(np.median(self._sky_ratios)) if self._sky_ratios else None
         return sun, sky
 
+    def gain(self) -> float | None:
+        """The sky camera's sky over the site's pixels' (median of the recent; None: none)."""
+        return float(np.median(self._gains)) if self._gains else None
+
     def warning(self) -> str:
-        """Why the two sources disagree, or "" if they agree within the factor."""
+        """Why the two sources disagree, or "" if they agree within the factors."""
         f = self.disagreement_factor
         out = []
         for what, ratio in zip(("sun normal irradiance", "sky horizontal irradiance"),
                                self.ratios(), strict=True):
             if ratio is not None and not 1.0 / f <= ratio <= f:
-                out.append(f"{what}: sky camera / scene estimate = {ratio:.2f}")
+                out.append(f"{what}: sky camera / scene estimate = {ratio:.2f}, beyond the "
+                           f"factor {f:g}")
+        d, gain = self.drift_factor, self.gain()
+        if gain is not None and not 1.0 / d <= gain <= d:
+            out.append(f"sky camera gain: its sky / the site's pixels' = {gain:.2f}, beyond "
+                       f"the drift factor {d:g}")
         if not out:
             return ""
         return ("the sky camera and the scene estimate disagree (" + "; ".join(out)
-                + f", beyond the factor {f:g}): a drifting or fogged sky camera, or a moved "
-                "or re-exposed site camera")
+                + "): a drifting or fogged sky camera, or a moved or re-exposed site camera")
 
     def _check(self) -> None:
         text = self.warning()
@@ -218,5 +263,7 @@ class SceneFusion:
             "sun_ratio": None if sun_ratio is None else round(sun_ratio, 4),
             "sky_ratio": None if sky_ratio is None else round(sky_ratio, 4),
             "disagreement_factor": self.disagreement_factor,
+            "sky_camera_gain": None if self.gain() is None else round(self.gain(), 4),
+            "drift_factor": self.drift_factor,
             "warning": self.warning() or None,
         }

@@ -10,9 +10,10 @@ proxies), ``k`` the sky's diffuse horizontal irradiance, ``S`` the sky's irradia
 surface per unit of ``k`` (the model sky's relative radiance over the directions the point sees
 open sky, normalised so that an open horizontal plane gets 1). ``B_sun`` and ``B_sky`` are one
 bounce: over the directions the point sees another surface ``h`` (cosine-weighted mean, per
-channel), ``rho_h cos_h in_sun_h`` and ``rho_h (1 + n_h.up) / 2`` (the surface lit by the sun
-where it is in sun, and by an isotropic sky's view factor of its tilt); directions below the
-horizon that hit nothing count as open, sunlit ground of ``environment_albedo``.
+channel), ``rho_h cos_h in_sun_h`` and ``rho_h E(n_h)`` (the surface lit by the sun where it
+is in sun, and by the model sky on its own tilt, unobstructed: :func:`tilted_irradiance`, for
+the isotropic part ``(1 + n_h.up) / 2``); directions below the horizon that hit nothing count
+as open, sunlit ground of ``environment_albedo``.
 The model is linear in ``(E_sun, k)`` per RGB channel; a few hundred pixels of known surfaces,
 some in sun and some in shadow, determine both. People, wet patches, a wrong albedo and shadows
 the model does not know are outliers: the solve is robust (RANSAC on the channel sum, then
@@ -22,10 +23,14 @@ Under heavy cloud sunlit and shadowed surfaces look alike and ``E_sun`` goes to 
 The sky's angular distribution is a CIE general sky (``daylit.sky.CIESky``) chosen by the
 estimated sun/sky ratio (:func:`sky_type_for_ratio`) and solved again with that shape, blended
 with an isotropic part whose share is fitted from the pixels (followed across frames). Under an
-overcast sky (CIE type 1 chosen) the sun is kept only when it explains the pixels clearly better
-than the sky alone (``sun_significance``): the overcast model's own error, sky brighter toward
-the sun's side, otherwise passes for a weak sun (5-30 % of the sky against Radiance's Perez
-overcast skies).
+overcast sky (CIE type 2, ``OVERCAST_TYPE``) the sun is kept only when it explains the pixels
+clearly better than the sky alone (``sun_significance``). The overcast model's shape is what
+keeps the sun near 0 under heavy cloud: anything the sky model gets wrong that differs between
+sunlit and shadowed surfaces is read as sun. Against Radiance's Perez overcast skies (brighter
+toward the sun's side; walls getting about 0.4 of the horizontal irradiance, not an isotropic
+sky's 0.5) the CIE standard overcast (type 1, uniform in azimuth) with bounce surfaces lit
+isotropically left a sun of 3-10 % of the sky before that test (14 % of frames above 5 %);
+type 2 (slight brightening toward the sun) with the bounce on its tilt, 0-5 % (0.4 %).
 
 Everything that depends only on the view (pixels, their surface points, normals, albedos and
 which hemisphere directions see open sky) is computed once by :class:`SceneSamples`; what
@@ -45,15 +50,19 @@ from dataclasses import dataclass, field
 import numpy as np
 import trimesh
 
-from daylit.sky import SUN_SOLID_ANGLE_SR, CIESky, Sky, Sun, azimuth_elevation_from_direction
+from daylit.sky import SUN_SOLID_ANGLE_SR, Sky, Sun
 from daylit.spherical import normalize
 from server.robustfit import ransac_fit, robust_linear_fit, weighted_nonneg
+from server.skyshape import (  # noqa: F401 (sky_type_for_ratio, unit_sky: used by tests)
+    OVERCAST_TYPE,
+    sky_type_for_ratio,
+    tilted_irradiance,
+    unit_sky,
+)
 from server.surfacescale import SurfaceScales, surfaces_by_albedo
 
 LUMINANCE_RGB = np.array([0.2126, 0.7152, 0.0722])
 SURFACE_OFFSET_M = 0.01  # rays leave a surface this far along its normal
-OVERCAST_RATIO = 0.5  # E_sun / k below this: an overcast CIE sky (type 1)
-CLEAR_RATIO = 3.0  # at or above: the CIE clear sky (type 12); between: partly cloudy (7)
 MIN_SUNLIT = 10  # fewer usable sunlit samples: the sun cannot be told from the sky
 
 
@@ -139,16 +148,19 @@ class SceneSamples:
         """(m,) cosine-weighted fraction of each hemisphere that sees open sky."""
         return self.sky_visible.mean(axis=1)
 
-    def bounce_terms(self, bounce_lit: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def bounce_terms(self, bounce_lit: np.ndarray, bounce_sky: np.ndarray | None = None
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Per sample (m, 3) RGB, one bounce, per unit sun normal irradiance and per unit sky
-        horizontal irradiance: ``mean_K rho_h cos_h in_sun_h`` and ``mean_K rho_h (1 + n_hy)
-        / 2``; and ``bounce_cos`` is not needed outside. ``bounce_lit`` (n,) float:
+        horizontal irradiance: ``mean_K rho_h cos_h in_sun_h`` and ``mean_K rho_h E_h(n_h)``
+        with ``E_h`` the sky's irradiance on the bounce surface's tilt per unit horizontal
+        irradiance, ``bounce_sky`` (n,) (default an isotropic sky's ``(1 + n_hy) / 2``); and
+        the fraction of each hemisphere that bounces. ``bounce_lit`` (n,) float:
         ``cos_h * in_sun_h`` of each bounce point."""
         m, k = self.sky_visible.shape
         sun = np.zeros((m, 3))
         sky = np.zeros((m, 3))
         np.add.at(sun, self.bounce_sample, self.bounce_albedo * bounce_lit[:, None])
-        view = 0.5 * (1.0 + self.bounce_normals[:, 1])
+        view = 0.5 * (1.0 + self.bounce_normals[:, 1]) if bounce_sky is None else bounce_sky
         np.add.at(sky, self.bounce_sample, self.bounce_albedo * view[:, None])
         return sun / k, sky / k, np.bincount(self.bounce_sample, minlength=m) / k
 
@@ -238,36 +250,6 @@ def prepare_samples(mesh: trimesh.Trimesh, face_albedo: np.ndarray, view: Pinhol
     )
 
 
-def sky_type_for_ratio(sun_to_sky: float) -> int:
-    """The CIE general sky for a ratio of sun normal irradiance to sky horizontal irradiance:
-    1 (overcast) below ``OVERCAST_RATIO``, 12 (clear) from ``CLEAR_RATIO``, 7 (partly cloudy)
-    between. (Coarse on purpose: the isotropic share fitted beside it adapts the shape.)"""
-    if sun_to_sky < OVERCAST_RATIO:
-        return 1
-    return 12 if sun_to_sky >= CLEAR_RATIO else 7
-
-
-def unit_sky(sky_type: int, sun_dir: np.ndarray) -> tuple[CIESky, float]:
-    """A grey CIE sky of this type for the sun direction, and the factor that scales its
-    radiance to an open horizontal irradiance of 1 W/m^2 (sun excluded)."""
-    az, el = azimuth_elevation_from_direction(sun_dir)
-    sky = CIESky(sky_type=sky_type, sun_azimuth_deg=float(az),
-                 sun_elevation_deg=float(max(el, 0.0)), zenith_radiance=(1.0, 1.0, 1.0))
-    return sky, 1.0 / _horizontal_irradiance(sky)
-
-
-def _horizontal_irradiance(sky: CIESky, steps: int = 48) -> float:
-    """An open horizontal plane's irradiance from a sky's relative luminance (midpoint grid)."""
-    dz = (math.pi / 2) / steps
-    da = 2 * math.pi / (2 * steps)
-    z = (np.arange(steps) + 0.5) * dz
-    a = (np.arange(2 * steps) + 0.5) * da
-    zz, aa = np.meshgrid(z, a, indexing="ij")
-    dirs = np.stack([np.sin(zz) * np.sin(aa), np.cos(zz), -np.sin(zz) * np.cos(aa)], -1)
-    weight = np.cos(zz) * np.sin(zz) * dz * da
-    return float(weight.ravel() @ sky.relative_luminance(dirs.reshape(-1, 3)))
-
-
 @dataclass
 class SceneLight:
     """One estimate.
@@ -330,7 +312,7 @@ class SceneEstimator:
     patch_px : half-size of the square of pixels averaged per sample (1: 3 x 3)
     sun_cache_deg : in-sun flags are cast again when the sun moved more than this
     share_memory : weight of the past in the sky shape's model share (0: each frame alone)
-    sun_significance : under an overcast sky (CIE type 1 chosen), the sun is kept only if it
+    sun_significance : under an overcast sky (``OVERCAST_TYPE`` chosen), the sun is kept only if it
         lowers the weighted squared residual by more than this fraction
     learn_albedo : learn each surface's albedo scale from the frames (server.surfacescale):
         one surface with a wrong stated albedo no longer scales the estimate
@@ -407,22 +389,27 @@ class SceneEstimator:
         self._sun_cache = (sun_dir, lit, bounce_sun, bounce_sky)
         return lit, bounce_sun, bounce_sky
 
-    def sky_term(self, sky_type: int, sun_dir: np.ndarray) -> np.ndarray:
-        """(m,) each pool sample's irradiance from the open sky it sees, for a CIE sky of this
-        type and sun scaled to an open horizontal irradiance of 1 (cached per sun position,
-        like :meth:`in_sun`)."""
+    def sky_term(self, sky_type: int, sun_dir: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """For a CIE sky of this type and sun scaled to an open horizontal irradiance of 1:
+        (m,) each pool sample's irradiance from the open sky it sees, and (m, 3) its one
+        bounce from the surfaces it sees instead, each lit by this sky on its own tilt
+        (:func:`tilted_irradiance`; :meth:`SceneSamples.bounce_terms`). Cached per sun
+        position, like :meth:`in_sun`."""
         sun_dir = normalize(np.asarray(sun_dir, float))
         key = self._sky_cache.get(sky_type)
         if key is not None and float(key[0] @ sun_dir) >= math.cos(
                 math.radians(self.sun_cache_deg)):
-            return key[1]
+            return key[1], key[2]
         p = self.pool_samples
         shape, to_unit = unit_sky(sky_type, sun_dir)
         hemi = p.hemisphere_dirs
         rel = shape.relative_luminance(hemi.reshape(-1, 3)).reshape(hemi.shape[:2])
         term = math.pi * np.mean(rel * p.sky_visible, axis=1) * to_unit
-        self._sky_cache[sky_type] = (sun_dir, term)
-        return term
+        # (the bounce surfaces' own obstruction is left out, as for the isotropic part)
+        tilt = np.clip(tilted_irradiance(shape, to_unit, p.bounce_normals), 0.0, None)
+        bounce = p.bounce_terms(np.zeros(len(tilt)), tilt)[1]
+        self._sky_cache[sky_type] = (sun_dir, term, bounce)
+        return term, bounce
 
     def _unblocked(self, points: np.ndarray, normals: np.ndarray, sun_dir: np.ndarray):
         """(m,) bool: the points face the sun, it is up, and no face of the mesh is between."""
@@ -524,13 +511,14 @@ class SceneEstimator:
         sky_type = 12
         result = None
         for _ in range(3):
-            s = self.sky_term(sky_type, sun_dir)[pick]
+            s, b_model = self.sky_term(sky_type, sun_dir)
+            s, b_model = s[pick], b_model[pick]
             # the isotropic part of the sky: what a uniform sky of unit horizontal irradiance
             # gives (the sky view factor; Perez and Hay-Davies split the sky the same way)
             u = p.sky_view[pick]
             # (n, 3): radiance per unit sun normal irradiance and albedo, per unit sky
             # irradiance and albedo
-            per_albedo = [(cos_i[:, None] + b_sun) / math.pi, (s[:, None] + b_sky) / math.pi,
+            per_albedo = [(cos_i[:, None] + b_sun) / math.pi, (s[:, None] + b_model) / math.pi,
                           (u[:, None] + b_sky) / math.pi]
             if sunlit_count < MIN_SUNLIT:
                 per_albedo[0] = np.zeros_like(per_albedo[0])
@@ -561,7 +549,7 @@ class SceneEstimator:
             for ch in range(3):
                 sun_rgb[ch], sky_rgb[ch] = weighted_nonneg(
                     np.column_stack([a_rgb[:, ch], sky_col[:, ch]]), values[:, ch], weights)
-            if sky_type == 1 and not self._sun_needed(a_rgb, sky_col, values, weights):
+            if sky_type == OVERCAST_TYPE and not self._sun_needed(a_rgb, sky_col, values, weights):
                 # Overcast: a small sun that explains little more than the sky alone is the
                 # sky model's error, not a sun (Jensen et al.: under heavy cloud, none).
                 sun_rgb[:] = 0.0

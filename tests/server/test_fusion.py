@@ -7,7 +7,8 @@ server: a replay sky camera (a bracket of 8-bit PNGs whose sun clips in every ex
 gendaylit sky rendered by Radiance, and a site camera (an OpenEXR replay) of the same sky over
 the build's real proxies, rendered by Radiance too; the streamed sun is the scene's, within
 10 % of gendaylit's DNI, where the clear-sky model alone is not; a sky camera whose frames
-are scaled by 0.6 (drift, a fogged lens) makes ``/api/status`` warn.
+are scaled by 0.8 or 1.2 (drift, a fogged lens) makes ``/api/status`` warn, the undrifted one
+does not.
 """
 
 from __future__ import annotations
@@ -191,27 +192,39 @@ async def test_a_clipped_sun_streams_the_scene_estimate(
     # (the estimate's sky runs about 17 % low on this sky, its sun 4 % high: the
     # circumsolar sky partly taken for the sun; docs/benchmarks.md)
     assert 1 / 1.3 < fusion["sky_ratio"] < 1.3 and fusion["warning"] is None, fusion
+    # the finer check: the sky camera's own sky fitted to the site's pixels needs no scale
+    status = await _status_when(client, lambda b: b["fusion"].get("scene_estimates", 0) >= 12
+                                and b["fusion"].get("sky_camera_gain") is not None)
+    fusion = status["fusion"]
+    # (0.90-0.93 on this hazy sky, 0.96-1.09 on the nine skies of test_sceneestimate's site:
+    # docs/benchmarks.md)
+    assert 1 / 1.13 < fusion["sky_camera_gain"] < 1.13 and fusion["warning"] is None, fusion
     assert np.mean(fusion["sky_camera"]["sky_horizontal_irradiance_W_m2"]) == pytest.approx(
         110.0, rel=0.10)
     await ws.close()
 
 
 @pytest.mark.slow
-async def test_a_drifting_sky_camera_is_reported(aiohttp_client, scene_build, tmp_path,
-                                                 renders):
-    client = await aiohttp_client(_app(scene_build, tmp_path, renders, 0.6))
-    status = await _status_when(client, lambda b: b["fusion"].get("scene_estimates", 0) >= 10
-                                and b["fusion"]["sky_ratio"] is not None
+@pytest.mark.parametrize("drift", [0.8, 1.3])
+async def test_a_drifting_sky_camera_is_reported(
+        aiohttp_client, scene_build, tmp_path, renders, drift):
+    """A sky camera whose frames read the sky x0.8 (a fogged lens) or x1.3 (a gain change).
+    The sky camera's gain against the site's pixels (server.skycheck, drift factor 1.13)
+    reports both; the comparison with the scene estimate's own sky (factor 1.3) misses the
+    fogged lens (its sky runs 17-20 % low on this sky, so the ratio reads 0.8 x 1.2)."""
+    client = await aiohttp_client(_app(scene_build, tmp_path, renders, drift))
+    status = await _status_when(client, lambda b: b["fusion"].get("scene_estimates", 0) >= 12
+                                and b["fusion"].get("sky_camera_gain") is not None
                                 and b["frames_measured"] >= 10)
     fusion = status["fusion"]
-    assert fusion["sky_ratio"] < 1 / 1.3, fusion
-    assert "sky horizontal irradiance" in fusion["warning"], fusion
-    # the scene's estimate of the sky is what it is without the drift (17 % low on this sky):
-    # the drift is the sky camera's
-    assert np.mean(fusion["scene"]["sky_horizontal_irradiance_W_m2"]) == pytest.approx(
-        110.0, rel=0.20)
+    assert fusion["sky_camera_gain"] == pytest.approx(drift, rel=0.12), fusion
+    assert not 1 / 1.13 <= fusion["sky_camera_gain"] <= 1.13, fusion
+    assert "sky camera gain" in fusion["warning"], fusion
+    if drift < 1:
+        assert 1 / 1.3 <= fusion["sky_ratio"] <= 1.3, fusion
+    # the sky camera measured the drifted sky (the drift is in its frames)
     assert np.mean(fusion["sky_camera"]["sky_horizontal_irradiance_W_m2"]) == pytest.approx(
-        0.6 * 110.0, rel=0.10)
+        drift * 110.0, rel=0.10)
 
 
 @pytest.mark.parametrize("fuse, why", [(True, "no fixed view"), (False, "fuse_scene = false")])

@@ -18,9 +18,11 @@ from daylit.sky import CIESky
 from daylit.sun import sun_position
 from server.robustfit import robust_linear_fit
 from server.sceneestimate import (
+    OVERCAST_TYPE,
     SceneEstimateError,
     SceneEstimator,
     sky_type_for_ratio,
+    tilted_irradiance,
     unit_sky,
 )
 
@@ -55,8 +57,36 @@ def test_unit_sky_scales_a_uniform_sky_to_unit_horizontal_irradiance():
     assert to_unit == pytest.approx(1.0 / math.pi, rel=2e-3)
 
 
+def test_tilted_irradiance_matches_a_direct_integral_of_the_sky():
+    """The bounce surfaces' sky (spherical harmonics to l = 2) against a brute-force
+    quadrature of the CIE sky's radiance times the clamped cosine, and the isotropic sky's
+    exact ``(1 + n_y) / 2``."""
+    rng = np.random.default_rng(4)
+    normals = rng.normal(size=(40, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    u, v = np.meshgrid((np.arange(400) + 0.5) / 400, (np.arange(400) + 0.5) / 400)
+    # a grid uniform in cos(zenith) and azimuth: equal solid angles, 2 pi / N each
+    cz, az = u.ravel(), 2 * np.pi * v.ravel()
+    sz = np.sqrt(1 - cz**2)
+    dirs = np.column_stack([sz * np.sin(az), cz, -sz * np.cos(az)])
+    sun = np.array([0.737, 0.461, 0.494])
+    for sky_type in (1, 2, 5, 7, 12):
+        sky, to_unit = unit_sky(sky_type, sun)
+        radiance = sky.relative_luminance(dirs) * to_unit
+        exact = (2 * np.pi / len(dirs)) * (radiance @ np.clip(dirs @ normals.T, 0.0, None))
+        got = tilted_irradiance(sky, to_unit, normals)
+        assert np.max(np.abs(got - exact)) < 0.03, sky_type
+    sky, to_unit = unit_sky(5, sun)
+    assert tilted_irradiance(sky, to_unit, normals) == pytest.approx(
+        (1 + normals[:, 1]) / 2, abs=0.01)
+    # an overcast sky, three times as bright at the zenith as at the horizon: a wall gets
+    # well under the isotropic 0.5
+    sky, to_unit = unit_sky(1, sun)
+    assert tilted_irradiance(sky, to_unit, np.array([[1.0, 0.0, 0.0]]))[0] < 0.42
+
+
 def test_sky_type_follows_the_sun_to_sky_ratio():
-    assert sky_type_for_ratio(0.0) == 1
+    assert sky_type_for_ratio(0.0) == OVERCAST_TYPE
     assert sky_type_for_ratio(1.0) == 7
     assert sky_type_for_ratio(10.0) == 12
 
@@ -168,7 +198,28 @@ def test_overcast_sun_below_five_percent_of_the_sky(renders):
         sky = _grey(last.sky_horizontal_irradiance)
         assert _grey(last.sun_normal_irradiance) < 0.05 * sky, (hour, last)
         assert sky == pytest.approx(truth.dhi_w_m2, rel=0.15)
-        assert last.sky_type == 1
+        assert last.sky_type == OVERCAST_TYPE
+
+
+@pytest.mark.slow
+def test_overcast_sun_below_five_percent_without_the_significance_test(renders):
+    """The cause, not the safety net: with ``sun_significance`` off, every frame of two
+    streams of six per sun position keeps the sun under 5 % of the sky. (With the CIE standard
+    overcast, type 1, and bounce surfaces lit as by an isotropic sky, 139 of 448 such frames
+    were above 5 % at seven sun positions, up to 9.7 %: docs/benchmarks.md.)"""
+    site, rendered = renders
+    mesh, albedo = site.mesh_and_albedo()
+    worst = []
+    for k, hour in enumerate(HOURS):
+        truth = rendered["overcast", hour]
+        for seed in (30 + k, 40 + k):
+            est = SceneEstimator(mesh, albedo, site.view, seed=seed, sun_significance=0.0)
+            for light in _stream(site, truth, est, seed=seed, frames=6):
+                ratio = _grey(light.sun_normal_irradiance) / _grey(
+                    light.sky_horizontal_irradiance)
+                worst.append(ratio)
+                assert ratio < 0.05, (hour, seed, light)
+    assert max(worst) > 0.0  # the sun's term was free: the test can see one
 
 
 @pytest.mark.slow
