@@ -522,12 +522,11 @@ class SceneEstimator:
                           (u[:, None] + b_sky) / math.pi]
             if sunlit_count < MIN_SUNLIT:
                 per_albedo[0] = np.zeros_like(per_albedo[0])
-            albedo = stated_albedo * self._scales.of(surface)[:, None]
-            a_rgb, c_rgb, u_rgb = (albedo * t for t in per_albedo)
-            inliers = ransac_fit(a_rgb.sum(axis=1), c_rgb.sum(axis=1), y_sum, self._rng)
+            (a_rgb, c_rgb, u_rgb), A_sum = _albedo_terms(
+                stated_albedo * self._scales.of(surface)[:, None], per_albedo)
+            inliers = ransac_fit(A_sum[:, 0], A_sum[:, 1], y_sum, self._rng)
             # The weights come from the channel sum (a person in a red coat is an outlier in
             # every channel); each channel is then one weighted least-squares solve.
-            A_sum = np.column_stack([t.sum(axis=1) for t in (a_rgb, c_rgb, u_rgb)])
             x_sum, weights = robust_linear_fit(A_sum, y_sum, inliers)
             if self.learn_albedo:
                 # a wrong albedo on one surface: its scale from these samples, then the fit
@@ -538,9 +537,8 @@ class SceneEstimator:
                 sun_t = (stated_albedo * per_albedo[0]).sum(axis=1)
                 sky_t = (stated_albedo * (share * per_albedo[1] + (1.0 - share) * per_albedo[2]))
                 self._scales.refit(surface, np.column_stack([sun_t, sky_t.sum(axis=1)]), y_sum)
-                albedo = stated_albedo * self._scales.of(surface)[:, None]
-                a_rgb, c_rgb, u_rgb = (albedo * t for t in per_albedo)
-                A_sum = np.column_stack([t.sum(axis=1) for t in (a_rgb, c_rgb, u_rgb)])
+                (a_rgb, c_rgb, u_rgb), A_sum = _albedo_terms(
+                    stated_albedo * self._scales.of(surface)[:, None], per_albedo)
                 x_sum, weights = robust_linear_fit(A_sum, y_sum, weights)
             model_share = self._model_share(sky_type, x_sum)
             sky_col = model_share * c_rgb + (1.0 - model_share) * u_rgb
@@ -567,3 +565,11 @@ class SceneEstimator:
         if self.learn_albedo:
             self._scales.end_frame()
         return result
+
+
+def _albedo_terms(albedo: np.ndarray, per_albedo: list[np.ndarray]):
+    """The fit's terms for the samples' albedos (n, 3): each of ``per_albedo``'s (n, 3)
+    radiances per unit light and albedo times the albedo, and (n, 3) their channel sums as
+    the columns of the fit over the channel sum."""
+    terms = [albedo * t for t in per_albedo]
+    return terms, np.column_stack([t.sum(axis=1) for t in terms])
