@@ -78,9 +78,15 @@ export class App {
   }
 
   _createRenderer() {
+    // The canvas's own MSAA only where the frame is drawn straight to it (AR, ?frame=direct, a
+    // GPU without half-float targets): the linear frame has its own (hdr.js) and reaches the
+    // canvas as one full-screen pass, which MSAA leaves as it was, while 4 samples of colour
+    // and depth cost 42 MB at a phone's 780 x 1688 (docs/web.md, "GPU memory"). AR chosen
+    // later from the visit is drawn without it.
+    const direct = this.mode === 'ar' || !this.linearFrame || !HdrFrame.probe();
     const renderer = new THREE.WebGLRenderer({
       canvas: this.canvas,
-      antialias: this.mode !== 'kiosk',
+      antialias: this.mode !== 'kiosk' && direct,
       preserveDrawingBuffer: this.testing, // screenshots in tests
       powerPreference: 'high-performance',
     });

@@ -38,8 +38,9 @@ function gpuNames(app) {
   for (const [key, t] of Object.entries(app.relighter?.targets ?? {})) if (!names.has(props.get(t.texture).__webglTexture)) target(t, `${key} target`);
   for (const [key, t] of Object.entries(app.irradiance?.targets ?? {})) target(t, `irradiance ${key}`);
   for (const [key, s] of app.sunBounce?.stacks ?? []) target(s.target, `sun bounce ${key}`);
+  target(app.sunShadows?.normals, 'sun normals (shared)');
   for (const [set, m] of Object.entries(app.sunShadows?.maps ?? {})) {
-    target(m.target, `sun ${set} normals`);
+    texture(m.depth, `sun ${set} depth`);
     target(m.rows, `sun ${set} coarse rows`);
     target(m.coarse, `sun ${set} coarse`);
     target(m.visibility, `sun ${set} visibility`);

@@ -61,17 +61,15 @@ class ShadowMap {
   /**
    * @param {number[]} layers the caster layers it sees
    * @param {number} groundY height of the flat ground (m)
+   * @param {THREE.WebGLRenderTarget} normals the normals' colour target, shared by the maps
+   *   (SunShadows): read only while this map is filtered, so one serves both; each map
+   *   attaches its own depth texture to it before it is drawn (`attach`)
    */
-  constructor(layers, groundY) {
-    this.target = new THREE.WebGLRenderTarget(MAP_SIZE, MAP_SIZE, {
-      depthBuffer: true,
-      depthTexture: new THREE.DepthTexture(MAP_SIZE, MAP_SIZE, THREE.FloatType),
-      minFilter: THREE.NearestFilter,
-      magFilter: THREE.NearestFilter,
-      generateMipmaps: false,
-    });
-    const depth = this.target.depthTexture;
+  constructor(layers, groundY, normals) {
+    this.normals = normals;
+    const depth = new THREE.DepthTexture(MAP_SIZE, MAP_SIZE, THREE.FloatType);
     depth.minFilter = depth.magFilter = THREE.NearestFilter;
+    this.depth = depth;
     const coarseTarget = (w, h) => new THREE.WebGLRenderTarget(w, h, {
       minFilter: THREE.NearestFilter, magFilter: THREE.NearestFilter, generateMipmaps: false, depthBuffer: false,
     });
@@ -97,7 +95,7 @@ class ShadowMap {
     this.matrix = new THREE.Matrix4();
     this.info = new THREE.Vector4(1, 0, 1, 0);
     const uniforms = {
-      depthMap: { value: depth }, normalMap: { value: this.target.texture },
+      depthMap: { value: depth }, normalMap: { value: normals.texture },
       coarseMap: { value: this.coarse.texture }, worldToMap: { value: this.matrix },
       mapInfo: { value: this.info },
       ...Object.fromEntries(Object.entries(this.axes).map(([k, v]) => [k, { value: v }])),
@@ -183,9 +181,15 @@ class ShadowMap {
     this.groundPass.render(renderer, this.groundVisibility);
   }
 
+  /** The shared normals target, drawn with this map's depth (three.js attaches the depth
+   * texture anew when it changed). */
+  attach() {
+    this.normals.depthTexture = this.depth;
+    return this.normals;
+  }
+
   dispose() {
-    this.target.depthTexture.dispose();
-    this.target.dispose();
+    this.depth.dispose();
     this.rows.dispose();
     this.coarse.dispose();
     for (const pass of this.reduce) pass.dispose();
@@ -217,8 +221,13 @@ export class SunShadows {
     for (const [set, meshes] of Object.entries(casters)) for (const m of meshes) m.layers.enable(LAYER[set]);
     this.casterSets = { all: [...casters.virtual, ...casters.real], real: casters.real };
     this.boxes = this._boxes();
+    // One normals target for every map: the maps are drawn and filtered one after the other,
+    // and a frame reads only their depth, coarse and visibility maps (a 2048² RGBA8 saved).
+    this.normals = new THREE.WebGLRenderTarget(MAP_SIZE, MAP_SIZE, {
+      depthBuffer: true, minFilter: THREE.NearestFilter, magFilter: THREE.NearestFilter, generateMipmaps: false,
+    });
     for (const set of Object.keys(this.boxes)) {
-      this.maps[set] = new ShadowMap(set === 'all' ? [LAYER.virtual, LAYER.real] : [LAYER.real], groundY);
+      this.maps[set] = new ShadowMap(set === 'all' ? [LAYER.virtual, LAYER.real] : [LAYER.real], groundY, this.normals);
     }
     this.on = null; // whether the materials are compiled with the sun (SUN 1)
     this.materials = []; // every material that draws the sun (setMaterials)
@@ -323,12 +332,12 @@ export class SunShadows {
     this.depthPass.uniforms.toSun.value.copy(this.direction);
     for (const [set, map] of Object.entries(this.maps)) {
       map.fit(this.boxes[set], this.direction);
-      renderer.setRenderTarget(map.target);
+      renderer.setRenderTarget(map.attach());
       renderer.clear(true, true, false);
       renderer.render(scene, map.camera);
       map.filter(renderer);
       const key = set === 'all' ? 'A' : 'R';
-      uniforms[`sunMap${key}`].value = map.target.depthTexture;
+      uniforms[`sunMap${key}`].value = map.depth;
       uniforms[`sunCoarse${key}`].value = map.coarse.texture;
       uniforms[`sunVisibility${key}`].value = map.visibility.texture;
       uniforms[`sunGround${key}`].value = map.groundVisibility.texture;
@@ -348,16 +357,18 @@ export class SunShadows {
     this.renders += 1;
   }
 
-  /** Bytes of GPU memory the maps hold: depth float32 and the RGBA8 colour target three.js
-   * attaches (the normals), the coarse maps (RGBA8), the surfaces' visibility maps (RGBA8) and
-   * the ground's (R8 with its mipmaps, a third more). */
+  /** Bytes of GPU memory the maps hold: per map its depth (float32), coarse maps (RGBA8), the
+   * surfaces' visibility map (RGBA8) and the ground's (R8 with its mipmaps, a third more);
+   * and one RGBA8 normals target they share. */
   get gpuBytes() {
     const texels = MAP_SIZE * MAP_SIZE;
-    return Object.keys(this.maps).length * (texels * (8 + 4) + Math.round(texels * 4 / 3) + (COARSE * MAP_SIZE + COARSE * COARSE) * 4);
+    const perMap = texels * (4 + 4) + Math.round(texels * 4 / 3) + (COARSE * MAP_SIZE + COARSE * COARSE) * 4;
+    return Object.keys(this.maps).length * perMap + texels * 4;
   }
 
   dispose() {
     for (const map of Object.values(this.maps)) map.dispose();
+    this.normals.dispose();
     this.depthPass.dispose();
   }
 }
