@@ -163,6 +163,20 @@ export class GpuMemoryMeter {
     wrap('compressedTexImage3D', ([target, level, format, w, h, d]) => {
       meter._set(target, `${target}:${level}`, imageBytes(format, w, h, d), level ? null : { format, w, h, d });
     });
+    // The levels generateMipmap allocates below a texImage's level 0 (texStorage counted its
+    // own levels already); a 2D array's layers stay, each level halves width and height.
+    wrap('generateMipmap', ([target]) => {
+      const texture = meter._texture(target);
+      const shape = texture && meter.shapes.get(texture);
+      if (!shape || shape.levels || (shape.w <= 1 && shape.h <= 1)) return;
+      const faces = target === GL.TEXTURE_CUBE_MAP ? 6 : 1;
+      for (let l = 1; (shape.w >> l) > 0 || (shape.h >> l) > 0; l++) {
+        const w = Math.max(1, shape.w >> l);
+        const h = Math.max(1, shape.h >> l);
+        const d = target === GL.TEXTURE_3D ? Math.max(1, shape.d >> l) : shape.d;
+        meter._set(target, `mip:${l}`, faces * imageBytes(shape.format, w, h, d, shape.type));
+      }
+    });
     wrap('bindRenderbuffer', ([, rb]) => { meter.renderbuffer = rb; });
     wrap('deleteRenderbuffer', ([rb]) => {
       meter.renderbuffers.delete(rb);
