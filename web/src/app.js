@@ -98,7 +98,10 @@ export class App {
     renderer.toneMappingExposure = 1;
     this.renderer = renderer;
     this.hdrSupported = HdrFrame.supported(renderer);
-    this.hdrSamples = HdrFrame.defaultSamples(renderer, this.mode === 'kiosk');
+    // ?msaa=N: the linear frame's samples whatever the GPU (the benchmark counts what a phone's
+    // hardware GPU allocates, 4, on the tests' software one, which defaults to none).
+    const msaa = Number.parseInt(this.params.get('msaa') ?? '', 10);
+    this.hdrSamples = Number.isFinite(msaa) ? Math.max(0, msaa) : HdrFrame.defaultSamples(renderer, this.mode === 'kiosk');
     this.camera = new THREE.PerspectiveCamera(50, 1, 0.1, 2000);
     this.scene = new THREE.Scene();
     this._resize();
