@@ -16,7 +16,7 @@ import { Relighter } from './relight.js';
 import { Site } from './site.js';
 import { makeStatus } from './status.js';
 import { chooseStart, firstBytes, measuredRate } from './startmode.js';
-import { SunShadows } from './sun.js';
+import { mapSizeFor, SunShadows } from './sun.js';
 import { SunBounce } from './sunbounce.js';
 import { VisitView } from './visit.js';
 import { arSupported, XRView } from './xr.js';
@@ -41,6 +41,9 @@ export class App {
     this.forceRgbe = params.get('targets') === 'rgbe';
     this.linearFrame = params.get('frame') !== 'direct' && !this.forceRgbe;
     this.smoothingS = Number(params.get('smoothing') ?? 0);
+    // The device profile (docs/web.md, "GPU memory"): `phone` (a touch screen at most 600 CSS
+    // px across, or ?profile=phone) draws the sun's shadow maps at 1024² instead of 2048².
+    this.profile = params.get('profile') ?? (isPhone() ? 'phone' : 'desktop');
     this.shadingOn = true;
     // Kakuta's two ways to shade the virtual objects; `?shading=hull` starts with hull planes.
     this.shadingMode = params.get('shading') === 'hull' ? 'hull' : 'lightmap';
@@ -183,7 +186,7 @@ export class App {
         if (this.site.sky) this.scene.add(this.site.sky);
         this.sunShadows = new SunShadows(this.renderer, this.scene,
           { virtual: this.site.nodes.virtual, real: this.site.nodes.real }, this.site.sun,
-          { groundY: this.site.groundY, siteRoot: this.site.root });
+          { groundY: this.site.groundY, siteRoot: this.site.root, mapSize: mapSizeFor(this.profile) });
         this.sunShadows.setMaterials(this.site.sunMaterials());
         await this._enterMode(this.mode);
       }
@@ -456,6 +459,11 @@ export class App {
       renderer.render(this.scene, this.camera);
     }
   }
+}
+
+/** A phone: a coarse pointer (touch) and a screen at most 600 CSS px across. */
+function isPhone() {
+  return matchMedia('(pointer: coarse)').matches && Math.min(screen.width, screen.height) <= 600;
 }
 
 function formatMB(bytes) {
