@@ -13,7 +13,8 @@ against budgets computed here from what each mode needs, not from the client:
   8 bytes a pixel; 4 samples before);
 - the sun's shadow maps hold per map a float32 depth, an RGBA8 visibility map, an R8 ground
   visibility with its mipmaps and two RGBA8 coarse maps, and one RGBA8 normals target for
-  both (one per map before).
+  both (one per map before), 2048² on a desktop and 1024² on a phone (the client tells a
+  phone by its touch screen at most 600 px across; 2048² everywhere before).
 """
 
 from __future__ import annotations
@@ -28,10 +29,14 @@ from tests.web.kioskref import light_message
 
 pytestmark = [pytest.mark.browser]
 
-PHONE = dict(viewport={"width": 390, "height": 844}, device_scale_factor=3)
+# a phone as Chromium emulates one: touch (pointer: coarse) on a 390 px wide screen, so the
+# client takes its phone profile by itself
+PHONE = dict(viewport={"width": 390, "height": 844}, device_scale_factor=3, is_mobile=True,
+             has_touch=True)
+DESKTOP = dict(viewport={"width": 960, "height": 540})
 PHONE_DRAWN_PX = (780, 1688)  # the client caps the pixel ratio at 2
-SUN_MAP_PX = 2048  # web/src/sun.glsl.js MAP_SIZE
-SUN_COARSE_PX = SUN_MAP_PX // 16  # its CELL
+SUN_MAP_PX = {"desktop": 2048, "phone": 1024}  # web/src/sun.glsl.js MAP_SIZE, PHONE_MAP_SIZE
+SUN_CELL = 16  # its CELL: a coarse texel per 16 x 16
 
 
 def hull_bytes(manifest: dict) -> int:
@@ -48,16 +53,16 @@ def hull_bytes(manifest: dict) -> int:
     return total
 
 
-def sun_bytes(maps: int) -> int:
-    texels = SUN_MAP_PX**2
-    ground = sum((SUN_MAP_PX >> level) ** 2 for level in range(SUN_MAP_PX.bit_length()))
-    coarse = 4 * (SUN_COARSE_PX * SUN_MAP_PX + SUN_COARSE_PX**2)
+def sun_bytes(maps: int, size: int) -> int:
+    texels = size**2
+    ground = sum((size >> level) ** 2 for level in range(size.bit_length()))
+    coarse = 4 * ((size // SUN_CELL) * size + (size // SUN_CELL) ** 2)
     return maps * (4 * texels + 4 * texels + ground + coarse) + 4 * texels
 
 
 class PhonePage:
-    def __init__(self, browser, url):
-        self.context = browser.new_context(**PHONE)
+    def __init__(self, browser, url, device=PHONE):
+        self.context = browser.new_context(**device)
         self.page = self.context.new_page()
         self.errors = []
         self.page.on("console", lambda m: self.errors.append(m.text) if m.type == "error" else None)
@@ -119,13 +124,16 @@ def test_etc2_arrays_change_no_texel(browser, web_build, reference):
             assert np.array_equal(targets[""][key], rgba8), key
 
 
-def test_sun_maps_share_their_normals(browser, web_build, reference):
+@pytest.mark.parametrize("profile", ["desktop", "phone"])
+def test_sun_maps_share_their_normals(browser, web_build, reference, profile):
     from daylit import sky as skies
 
     with StubServer(web_build) as server:
         server.push(light_message(reference.light_vector("clear:135,40"), 1), remember=True)
-        page = PhonePage(browser, f"{server.url}/?mode=visit&test")
+        device = PHONE if profile == "phone" else DESKTOP
+        page = PhonePage(browser, f"{server.url}/?mode=visit&test", device)
         try:
+            assert page.status()["profile"] == profile  # from the screen, not the URL
             before = page.status()["gpuTextureBytes"]
             r = skies.patch_mean_radiance(skies.clear_sky(135, 40), reference.dome_vertices,
                                           include_sun=False)
@@ -139,9 +147,9 @@ def test_sun_maps_share_their_normals(browser, web_build, reference):
             assert maps == 2  # the demo has real proxies: a map of all casters, one of the real
             named = sum(a["bytes"] for a in page.page.evaluate("window.daylit.debug.gpuBreakdown()")
                         if a["name"].startswith("sun ") and not a["name"].startswith("sun bounce"))
-            assert named == sun_bytes(maps)
+            assert named == sun_bytes(maps, SUN_MAP_PX[profile])
             # and the meter counted them (besides the sun's bounce images of its patch)
-            assert page.status()["gpuTextureBytes"] - before >= sun_bytes(maps)
+            assert page.status()["gpuTextureBytes"] - before >= sun_bytes(maps, SUN_MAP_PX[profile])
             assert not page.errors, page.errors
         finally:
             page.context.close()
