@@ -42,7 +42,8 @@ export class App {
     this.linearFrame = params.get('frame') !== 'direct' && !this.forceRgbe;
     this.smoothingS = Number(params.get('smoothing') ?? 0);
     // The device profile (docs/web.md, "GPU memory"): `phone` (a touch screen at most 600 CSS
-    // px across, or ?profile=phone) draws the sun's shadow maps at 1024² instead of 2048².
+    // px across, or ?profile=phone) draws the sun's shadow maps at 1024² instead of 2048² and
+    // the linear frame without MSAA.
     this.profile = params.get('profile') ?? (isPhone() ? 'phone' : 'desktop');
     this.shadingOn = true;
     // Kakuta's two ways to shade the virtual objects; `?shading=hull` starts with hull planes.
@@ -104,7 +105,7 @@ export class App {
     // ?msaa=N: the linear frame's samples whatever the GPU (the benchmark counts what a phone's
     // hardware GPU allocates, 4, on the tests' software one, which defaults to none).
     const msaa = Number.parseInt(this.params.get('msaa') ?? '', 10);
-    this.hdrSamples = Number.isFinite(msaa) ? Math.max(0, msaa) : HdrFrame.defaultSamples(renderer, this.mode === 'kiosk');
+    this.hdrSamples = Number.isFinite(msaa) ? Math.max(0, msaa) : HdrFrame.defaultSamples(renderer, this.mode === 'kiosk', this.profile);
     this.camera = new THREE.PerspectiveCamera(50, 1, 0.1, 2000);
     this.scene = new THREE.Scene();
     this._resize();
