@@ -4,8 +4,9 @@ against budgets computed here from what each mode needs, not from the client:
 
 - switching the hull planes on adds exactly what their stacks hold by the manifest: per stack
   its UASTC base array decoded to RGBA8 (4 bytes a texel), its ETC1S array as ETC2 RGB8 blocks
-  (half a byte a texel; 4 before 2026-11-25, when it was decoded to RGBA8 too), its gain array
-  (RGBA8) and its relight target (RGBA16F);
+  (half a byte a texel; 4 before 2026-11-25, when it was decoded to RGBA8 too), its relight
+  target (RGBA16F), and the gain array the two stacks share, once (RGBA8; once per stack
+  before);
 - the ETC1S arrays on the GPU as ETC2 change no texel: every relit target is bit-identical to
   the one drawn with every array decoded to RGBA8 (`?textures=rgba8`, which the known-answer
   tests in test_web_relight.py hold against numpy);
@@ -44,13 +45,15 @@ def hull_bytes(manifest: dict) -> int:
     texels = atlas["width"] * atlas["height"]
     blocks = -(-atlas["width"] // 4) * -(-atlas["height"] // 4)  # ETC2: 8 bytes a 4x4 block
     total = 0
+    gains = {}  # the I and d stacks share one gain file: one texture
     for stack in atlas["stacks"].values():
         c = stack["compact"]
         etc1s = c["etc1s"]["layers"] if "etc1s" in c else 0
         uastc = len(c["layers"]) - etc1s  # the base array's layers, refinements included
-        gain = len(c["gain"]["layers"]) if "gain" in c else 0
-        total += 4 * texels * (uastc + gain) + 8 * blocks * etc1s + 8 * texels
-    return total
+        if "gain" in c:
+            gains[c["gain"]["ktx2"]] = len(c["gain"]["layers"])
+        total += 4 * texels * uastc + 8 * blocks * etc1s + 8 * texels
+    return total + 4 * texels * sum(gains.values())
 
 
 def sun_bytes(maps: int, size: int) -> int:

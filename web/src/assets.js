@@ -222,6 +222,20 @@ export class Assets {
     return texture;
   }
 
+  /** One texture for every user of a file (the gain array a shadowing atlas's I and d stacks
+   * share: uploaded once, not once per stack). Disposed by its users: a second dispose of a
+   * three.js texture does nothing. */
+  sharedTexture(path) {
+    this._shared ??= new Map();
+    if (!this._shared.has(path)) {
+      this._shared.set(path, this.texture(path).catch((err) => {
+        this._shared.delete(path); // asked again later, fetched again
+        throw err;
+      }));
+    }
+    return this._shared.get(path);
+  }
+
   /** A float32 little-endian array (the V matrices). */
   async float32(path) {
     const buffer = await this.bytes(path);
