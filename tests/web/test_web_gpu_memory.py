@@ -63,6 +63,18 @@ def sun_bytes(maps: int, size: int) -> int:
     return maps * (4 * texels + 4 * texels + ground + coarse) + 4 * texels
 
 
+def bounce_bytes(manifest: dict, patch: int) -> int:
+    """The sun-bounce images of one sun patch the visit holds: every atlas stack's with an image
+    for that patch (its scale not null), each level decoded to RGBA8 (UASTC)."""
+    total = 0
+    for atlas in manifest["atlases"]:
+        for stack in atlas.get("sun_bounce", {}).values():
+            lights = stack["compact"]["lights"]
+            if lights["scale"][patch] is not None:
+                total += 4 * atlas["width"] * atlas["height"] * len(lights["ktx2"])
+    return total
+
+
 class PhonePage:
     def __init__(self, browser, url, device=PHONE):
         self.context = browser.new_context(**device)
@@ -151,8 +163,13 @@ def test_sun_maps_share_their_normals(browser, web_build, reference, profile):
             named = sum(a["bytes"] for a in page.page.evaluate("window.daylit.debug.gpuBreakdown()")
                         if a["name"].startswith("sun ") and not a["name"].startswith("sun bounce"))
             assert named == sun_bytes(maps, SUN_MAP_PX[profile])
-            # and the meter counted them (besides the sun's bounce images of its patch)
-            assert page.status()["gpuTextureBytes"] - before >= sun_bytes(maps, SUN_MAP_PX[profile])
+            # and the sun added them and the bounce images of its patch (two levels, RGBA8, per
+            # atlas stack that has one), nothing else
+            patch = page.page.evaluate("window.daylit.debug.sunBounce()")
+            assert patch >= 0  # a precondition
+            added = page.status()["gpuTextureBytes"] - before
+            assert added == sun_bytes(maps, SUN_MAP_PX[profile]) + bounce_bytes(server.manifest,
+                                                                                patch)
             assert not page.errors, page.errors
         finally:
             page.context.close()
