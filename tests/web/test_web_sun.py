@@ -81,17 +81,21 @@ def ground_expected(build, casters, s, r, hits, with_virtual=True, albedo=None,
     return srgb_codes(neutral_tone_map(radiance)), sky, sun
 
 
-def open_page(new_page, server, size=(800, 600)):
-    return new_page(*size).open(f"{server.url}/?mode=visit&test&exposure={EXPOSURE}")
+def open_page(new_page, server, size=(800, 600), profile="desktop"):
+    """The visit; `profile` phone draws the sun's maps at 1024² (docs/web.md, "GPU memory")."""
+    return new_page(*size).open(
+        f"{server.url}/?mode=visit&test&exposure={EXPOSURE}&profile={profile}")
 
 
-def test_displayed_ground_in_sun_shadow_and_overlap(new_page, sun_build, sun_reference):
+@pytest.mark.parametrize("profile", ["desktop", "phone"])
+def test_displayed_ground_in_sun_shadow_and_overlap(new_page, sun_build, sun_reference, profile):
     """Open ground in full sun, the virtual box's umbra, the overlap of both shadows and the
-    real box's shadow, as displayed, against the oracle through the display transform."""
+    real box's shadow, as displayed, against the oracle through the display transform; with
+    the phone's smaller sun maps too."""
     build, casters = sun_reference
     s, r = sun_and_sky(build)
     with StubServer(sun_build) as server:
-        page = open_page(new_page, server)
+        page = open_page(new_page, server, profile=profile)
         sp = SunPage(page, build, s, r)
         sp.look([-3.0, 18.0, 6.0], [-3.0, 0.0, 0.0])
         probes = {
@@ -150,17 +154,21 @@ def _segment_point(fraction: float) -> float:
     return brentq(lambda t: uncovered(t) - (1.0 - fraction), -1.0, 1.0)
 
 
-def test_penumbra_of_the_shadow_tip(new_page, sun_build, sun_reference):
+@pytest.mark.parametrize("profile", ["desktop", "phone"])
+def test_penumbra_of_the_shadow_tip(new_page, sun_build, sun_reference, profile):
     """Across the far end of the virtual box's shadow (its top edge 8.8 m from the ground
     there), the displayed penumbra: its 50 % point within 2 cm of the oracle's and its 10-90 %
-    width within 25 % (the filter's 32 directions against the oracle's 256)."""
+    width within 25 % (the filter's 32 directions against the oracle's 256); with the phone's
+    1024² maps (texels twice as wide) too, its 50 % point within 3 cm."""
     build, casters = sun_reference
     s, r = sun_and_sky(build)
     tip_x = -1.0 - 3.0 / math.tan(math.radians(SUN_ELEVATION_DEG))  # -9.24
     with StubServer(sun_build) as server:
-        page = open_page(new_page, server)
+        page = open_page(new_page, server, profile=profile)
         sp = SunPage(page, build, s, r)
         sp.look([tip_x, 1.2, 0.05], [tip_x, 0.0, 0.0])
+        texel_m = page.page.evaluate("window.daylit.debug.sunMaps().texelM")
+        print(f"{profile}: sun map texels {texel_m} m")
         along, shown, expected, sky, sun = _profile(
             sp, build, casters, s, r, [tip_x + 0.2, 0.0, 0.0], [tip_x - 0.2, 0.0, 0.0], 161)
         luminance = np.array([0.2126, 0.7152, 0.0722])
@@ -176,7 +184,10 @@ def test_penumbra_of_the_shadow_tip(new_page, sun_build, sun_reference):
         print(f"penumbra 10-90 %: client {100 * width_got:.1f} cm, oracle "
               f"{100 * width_want:.1f} cm, circular segment {100 * geometric:.1f} cm; "
               f"50 % point off by {100 * (got[1] - want[1]):+.2f} cm")
-        assert abs(got[1] - want[1]) < 0.02, (got, want)
+        # The phone's maps have texels twice as wide (6.6 mm here), and the depth bias (1.5
+        # texels along the normal) with them: its shadows' edges sit further from the caster
+        # (measured: 2.0 cm off, against 0.7 cm at 2048²). Its own bound, not the desktop's.
+        assert abs(got[1] - want[1]) < (0.02 if profile == "desktop" else 0.03), (got, want)
         assert abs(width_got - width_want) < 0.25 * width_want, (width_got, width_want)
         assert not page.errors, page.errors
 
@@ -287,7 +298,8 @@ def test_sun_bounce_on_the_shaded_face(new_page, sun_build, sun_reference):
         assert not page.errors, page.errors
 
 
-def test_shadow_edge_on_a_model_face(new_page, sun_build, sun_reference):
+@pytest.mark.parametrize("profile", ["desktop", "phone"])
+def test_shadow_edge_on_a_model_face(new_page, sun_build, sun_reference, profile):
     """The real box's shadow across the virtual box's sunlit east face (its top edge 3.5 m
     east and 1.27 m above the shadow's edge at y = 1.73 m): above the edge the face is the
     surface the sun meets first (read from the visibility map), below it lies behind the real
@@ -297,7 +309,7 @@ def test_shadow_edge_on_a_model_face(new_page, sun_build, sun_reference):
     s, r = sun_and_sky(build)
     edge_y = 3.0 - 3.5 * math.tan(math.radians(SUN_ELEVATION_DEG))  # 1.726
     with StubServer(sun_build) as server:
-        page = open_page(new_page, server)
+        page = open_page(new_page, server, profile=profile)
         sp = SunPage(page, build, s, r)
         sp.look([3.0, 1.9, 2.2], [1.0, 1.7, 0.2])
         face = [[1.0, y, z] for y in (1.2, 1.4, 2.1, 2.4) for z in (-0.5, 0.0, 0.5)]

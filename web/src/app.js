@@ -16,7 +16,7 @@ import { Relighter } from './relight.js';
 import { Site } from './site.js';
 import { makeStatus } from './status.js';
 import { chooseStart, firstBytes, measuredRate } from './startmode.js';
-import { SunShadows } from './sun.js';
+import { mapSizeFor, SunShadows } from './sun.js';
 import { SunBounce } from './sunbounce.js';
 import { VisitView } from './visit.js';
 import { arSupported, XRView } from './xr.js';
@@ -41,6 +41,10 @@ export class App {
     this.forceRgbe = params.get('targets') === 'rgbe';
     this.linearFrame = params.get('frame') !== 'direct' && !this.forceRgbe;
     this.smoothingS = Number(params.get('smoothing') ?? 0);
+    // The device profile (docs/web.md, "GPU memory"): `phone` (a touch screen at most 600 CSS
+    // px across, or ?profile=phone) draws the sun's shadow maps at 1024² instead of 2048² and
+    // the linear frame without MSAA.
+    this.profile = params.get('profile') ?? (isPhone() ? 'phone' : 'desktop');
     this.shadingOn = true;
     // Kakuta's two ways to shade the virtual objects; `?shading=hull` starts with hull planes.
     this.shadingMode = params.get('shading') === 'hull' ? 'hull' : 'lightmap';
@@ -80,9 +84,15 @@ export class App {
   }
 
   _createRenderer() {
+    // The canvas's own MSAA only where the frame is drawn straight to it (AR, ?frame=direct, a
+    // GPU without half-float targets): the linear frame has its own (hdr.js) and reaches the
+    // canvas as one full-screen pass, which MSAA leaves as it was, while 4 samples of colour
+    // and depth cost 42 MB at a phone's 780 x 1688 (docs/web.md, "GPU memory"). AR chosen
+    // later from the visit is drawn without it.
+    const direct = this.mode === 'ar' || !this.linearFrame || !HdrFrame.probe();
     const renderer = new THREE.WebGLRenderer({
       canvas: this.canvas,
-      antialias: this.mode !== 'kiosk',
+      antialias: this.mode !== 'kiosk' && direct,
       preserveDrawingBuffer: this.testing, // screenshots in tests
       powerPreference: 'high-performance',
     });
@@ -94,7 +104,10 @@ export class App {
     renderer.toneMappingExposure = 1;
     this.renderer = renderer;
     this.hdrSupported = HdrFrame.supported(renderer);
-    this.hdrSamples = HdrFrame.defaultSamples(renderer, this.mode === 'kiosk');
+    // ?msaa=N: the linear frame's samples whatever the GPU (the benchmark counts what a phone's
+    // hardware GPU allocates, 4, on the tests' software one, which defaults to none).
+    const msaa = Number.parseInt(this.params.get('msaa') ?? '', 10);
+    this.hdrSamples = Number.isFinite(msaa) ? Math.max(0, msaa) : HdrFrame.defaultSamples(renderer, this.mode === 'kiosk', this.profile);
     this.camera = new THREE.PerspectiveCamera(50, 1, 0.1, 2000);
     this.scene = new THREE.Scene();
     this._resize();
@@ -130,7 +143,7 @@ export class App {
     loading(0);
     try {
       this.assets = new Assets(this.params.get('manifest') ?? '/build/manifest.json',
-        { exactTextures: this.params.get('textures') !== 'gpu', onProgress: loading });
+        { exactTextures: this.params.get('textures') !== 'gpu', textureMode: this.params.get('textures') ?? 'exact', onProgress: loading });
       this.assets.initTextures(this.renderer);
       const manifest = await this.assets.loadManifest();
       document.title = `${manifest.scene.name} under the live sky · daylit`;
@@ -176,7 +189,7 @@ export class App {
         if (this.site.sky) this.scene.add(this.site.sky);
         this.sunShadows = new SunShadows(this.renderer, this.scene,
           { virtual: this.site.nodes.virtual, real: this.site.nodes.real }, this.site.sun,
-          { groundY: this.site.groundY, siteRoot: this.site.root });
+          { groundY: this.site.groundY, siteRoot: this.site.root, mapSize: mapSizeFor(this.profile) });
         this.sunShadows.setMaterials(this.site.sunMaterials());
         await this._enterMode(this.mode);
       }
@@ -455,6 +468,11 @@ export class App {
       renderer.render(this.scene, this.camera);
     }
   }
+}
+
+/** A phone: a coarse pointer (touch) and a screen at most 600 CSS px across. */
+function isPhone() {
+  return matchMedia('(pointer: coarse)').matches && Math.min(screen.width, screen.height) <= 600;
 }
 
 function formatMB(bytes) {

@@ -25,7 +25,9 @@ export class Assets {
    * @param {string} manifestUrl e.g. '/build/manifest.json' (the hello's `manifest`)
    * @param {{exactTextures?: boolean}} options exactTextures (default true): transcode the
    *   UASTC data to plain RGBA8 so the GPU reads exactly the texels the numpy reference reads
-   *   (docs/web.md, "Texture formats"); false lets KTX2Loader pick a compressed GPU format.
+   *   (docs/web.md, "Texture formats"), ETC1S data as ETC2 blocks where the GPU has them
+   *   (lossless) unless textureMode is 'rgba8'; false lets KTX2Loader pick a compressed GPU
+   *   format.
    *   onProgress(bytesLoaded): called as the bytes of each file arrive (assignable later,
    *   `assets.onProgress = null` to stop).
    */
@@ -33,6 +35,9 @@ export class Assets {
     this.manifestUrl = manifestUrl;
     this.base = new URL('.', new URL(manifestUrl, location.href)).href;
     this.exactTextures = options.exactTextures ?? true;
+    // 'rgba8': every file decoded to RGBA8 (as before 2026-11-25), ETC1S files too; else ETC1S
+    // files go to the GPU as ETC2 where it has it (initTextures)
+    this.textureMode = options.textureMode ?? 'exact';
     this.manifest = null;
     this.files = new Map(); // path -> {bytes, sha256}
     this.bytesLoaded = 0;
@@ -177,11 +182,28 @@ export class Assets {
    * the largest file before the first picture: not after the manifest, beside it). */
   initTextures(renderer) {
     this.ktx2 = new KTX2Loader().setTranscoderPath(TRANSCODER_PATH).detectSupport(renderer);
+    this.etc1sFormat = 'rgba8';
     if (this.exactTextures) {
-      // Basis data are numbers, not pictures: decode to RGBA8 exactly as the reference does
-      // (ETC2 or BC1/3 targets would add their own error to every basis value).
+      // Basis data are numbers, not pictures: UASTC decodes to RGBA8 exactly as the reference
+      // does (ASTC, BC7 or ETC2 targets would add their own error to every basis value).
+      // The extension itself, not KTX2Loader's etc2Supported, which it turns off wherever ASTC,
+      // ETC2, BPTC and S3TC all show (Mesa's desktop drivers emulate ETC2 by decoding it on
+      // upload; so does SwiftShader, exactly). Phones decode ETC2 in hardware (OpenGL ES 3.0).
+      const etc2 = renderer.extensions.has('WEBGL_compressed_texture_etc') && this.textureMode !== 'rgba8';
       for (const key of Object.keys(this.ktx2.workerConfig)) {
         if (key.endsWith('Supported')) this.ktx2.workerConfig[key] = false;
+      }
+      // ETC1S is a subset of ETC1, so an ETC1S file goes to the GPU as ETC2 RGB8 blocks with
+      // no loss: the GPU decodes the very texels basisu's RGBA8 decode gives (integer
+      // arithmetic, the same blocks), at half a byte a texel instead of four (docs/web.md,
+      // "GPU memory"). A second loader, since the transcoder's targets are set per loader.
+      if (etc2) {
+        this.ktx2Etc1s = new KTX2Loader().setTranscoderPath(TRANSCODER_PATH).setWorkerLimit(2).detectSupport(renderer);
+        for (const key of Object.keys(this.ktx2Etc1s.workerConfig)) {
+          if (key.endsWith('Supported')) this.ktx2Etc1s.workerConfig[key] = key === 'etc2Supported';
+        }
+        this.ktx2Etc1s.init().catch(() => {});
+        this.etc1sFormat = 'etc2';
       }
     }
     this.ktx2.init().catch(() => {}); // a failure is reported by the first texture's parse
@@ -190,11 +212,28 @@ export class Assets {
   /** A KTX2 texture (2D, or a 2D array for several layers), linear, unfiltered reads. */
   async texture(path) {
     const buffer = await this.bytes(path);
+    // supercompressionScheme (KTX2 header, byte 44): 1 is BasisLZ, i.e. ETC1S
+    const etc1s = buffer.byteLength >= 48 && new DataView(buffer).getUint32(44, true) === 1;
+    const loader = etc1s && this.ktx2Etc1s ? this.ktx2Etc1s : this.ktx2;
     const texture = await new Promise((resolve, reject) => {
-      this.ktx2.parse(buffer, resolve, (err) => reject(new AssetError(path, `KTX2 transcoding failed (${err?.message ?? err})`)));
+      loader.parse(buffer, resolve, (err) => reject(new AssetError(path, `KTX2 transcoding failed (${err?.message ?? err})`)));
     });
     texture.name = path;
     return texture;
+  }
+
+  /** One texture for every user of a file (the gain array a shadowing atlas's I and d stacks
+   * share: uploaded once, not once per stack). Disposed by its users: a second dispose of a
+   * three.js texture does nothing. */
+  sharedTexture(path) {
+    this._shared ??= new Map();
+    if (!this._shared.has(path)) {
+      this._shared.set(path, this.texture(path).catch((err) => {
+        this._shared.delete(path); // asked again later, fetched again
+        throw err;
+      }));
+    }
+    return this._shared.get(path);
   }
 
   /** A float32 little-endian array (the V matrices). */
@@ -229,5 +268,6 @@ export class Assets {
 
   dispose() {
     this.ktx2?.dispose();
+    this.ktx2Etc1s?.dispose();
   }
 }

@@ -10,6 +10,46 @@ function toBase64(floats) {
   return btoa(s);
 }
 
+/** Names of the GPU objects the client's modules hold (WebGLTexture or WebGLRenderbuffer ->
+ * e.g. 'hull.I base', 'sun all depth', 'hdr frame depth'), for the meter's breakdown. */
+function gpuNames(app) {
+  const names = new Map();
+  const props = app.renderer.properties;
+  const texture = (t, name) => {
+    const gl = t && props.get(t).__webglTexture;
+    if (gl) names.set(gl, name);
+  };
+  const target = (rt, name) => {
+    if (!rt) return;
+    texture(rt.texture, name);
+    if (rt.depthTexture) texture(rt.depthTexture, `${name} depth`);
+    const p = props.get(rt);
+    if (p.__webglDepthbuffer && !Array.isArray(p.__webglDepthbuffer)) names.set(p.__webglDepthbuffer, `${name} depth`);
+    if (p.__webglDepthRenderbuffer) names.set(p.__webglDepthRenderbuffer, `${name} depth (MSAA)`);
+    for (const [i, rb] of (p.__webglColorRenderbuffer ?? []).entries()) if (rb) names.set(rb, `${name} colour ${i} (MSAA)`);
+  };
+  for (const [key, s] of app.relighter?.stacks ?? []) {
+    texture(s.base, `${key} base`);
+    texture(s.etc1s, `${key} etc1s`);
+    texture(s.gain, `${key} gain`);
+    target(s.target, `${key} target`);
+    for (const [i, levels] of s.lights) levels.forEach((t, l) => texture(t, `${key} light ${i}.${l}`));
+  }
+  for (const [key, t] of Object.entries(app.relighter?.targets ?? {})) if (!names.has(props.get(t.texture).__webglTexture)) target(t, `${key} target`);
+  for (const [key, t] of Object.entries(app.irradiance?.targets ?? {})) target(t, `irradiance ${key}`);
+  for (const [key, s] of app.sunBounce?.stacks ?? []) target(s.target, `sun bounce ${key}`);
+  target(app.sunShadows?.normals, 'sun normals (shared)');
+  for (const [set, m] of Object.entries(app.sunShadows?.maps ?? {})) {
+    texture(m.depth, `sun ${set} depth`);
+    target(m.rows, `sun ${set} coarse rows`);
+    target(m.coarse, `sun ${set} coarse`);
+    target(m.visibility, `sun ${set} visibility`);
+    target(m.groundVisibility, `sun ${set} ground visibility`);
+  }
+  target(app.hdr?.target, 'hdr frame');
+  return names;
+}
+
 export function debugApi(app) {
   /** For each canvas pixel [x, y] (CSS px), `perPixel(hits, raycaster)` of the visible site's
    * surfaces along its ray (three's Raycaster, nearest first). */
@@ -132,6 +172,12 @@ export function debugApi(app) {
       const log = app.gpuMemory.log ?? null;
       app.gpuMemory.log = start ? [] : null;
       return log;
+    },
+    /** Every live GPU allocation, named where a module holds it, largest first:
+     * [{name, bytes, format, w, h, d, samples}] (docs/web.md, "GPU memory"). */
+    gpuBreakdown() {
+      const names = gpuNames(app);
+      return app.gpuMemory.allocations((o) => names.get(o));
     },
     snapshot(key) {
       const applied = app.relighter.applied;

@@ -55,6 +55,9 @@ export class GpuMemoryMeter {
     this.gl = gl;
     this.textures = new Map(); // WebGLTexture -> Map(face:level -> bytes)
     this.renderbuffers = new Map(); // WebGLRenderbuffer -> bytes
+    // What each object was last allocated as (internal format, width, height, layers): the
+    // breakdown (debug.gpuBreakdown) names it, the totals do not need it.
+    this.shapes = new Map(); // WebGLTexture or WebGLRenderbuffer -> {format, w, h, d, samples}
     this.unit = 0;
     this.bound = new Map(); // `${unit}:${target}` -> texture
     this.renderbuffer = null;
@@ -73,6 +76,23 @@ export class GpuMemoryMeter {
     return sum;
   }
 
+  /**
+   * Every live allocation: [{object, bytes, format, w, h, d, samples}], largest first; `name`
+   * (object -> string or undefined) labels the ones a caller knows (debug.gpuBreakdown).
+   */
+  allocations(name = () => undefined) {
+    const out = [];
+    for (const [object, levels] of this.textures) {
+      let bytes = 0;
+      for (const b of levels.values()) bytes += b;
+      out.push({ name: name(object) ?? 'texture', bytes, ...this.shapes.get(object) });
+    }
+    for (const [object, bytes] of this.renderbuffers) {
+      out.push({ name: name(object) ?? 'renderbuffer', bytes, ...this.shapes.get(object) });
+    }
+    return out.sort((a, b) => b.bytes - a.bytes);
+  }
+
   /** The canvas's drawing buffer: colour and depth-stencil (4 + 4 bytes), x samples. */
   drawingBufferBytes() {
     const gl = this.gl;
@@ -85,10 +105,11 @@ export class GpuMemoryMeter {
     return this.bound.get(`${this.unit}:${key}`) ?? null;
   }
 
-  _set(target, key, bytes) {
+  _set(target, key, bytes, shape) {
     const texture = this._texture(target);
     if (!texture) return;
     this.log?.push([target, key, bytes]);
+    if (shape) this.shapes.set(texture, shape);
     if (!this.textures.has(texture)) this.textures.set(texture, new Map());
     this.textures.get(texture).set(key, bytes);
   }
@@ -106,12 +127,15 @@ export class GpuMemoryMeter {
     };
     wrap('activeTexture', ([unit]) => { meter.unit = unit - GL.TEXTURE0; });
     wrap('bindTexture', ([target, texture]) => { meter.bound.set(`${meter.unit}:${target}`, texture); });
-    wrap('deleteTexture', ([texture]) => { meter.textures.delete(texture); });
+    wrap('deleteTexture', ([texture]) => {
+      meter.textures.delete(texture);
+      meter.shapes.delete(texture);
+    });
     wrap('texStorage2D', ([target, levels, format, w, h]) => {
       const faces = target === GL.TEXTURE_CUBE_MAP ? 6 : 1;
       let bytes = 0;
       for (let l = 0; l < levels; l++) bytes += faces * imageBytes(format, Math.max(1, w >> l), Math.max(1, h >> l));
-      meter._set(target, 'storage', bytes);
+      meter._set(target, 'storage', bytes, { format, w, h, d: faces, levels });
     });
     wrap('texStorage3D', ([target, levels, format, w, h, d]) => {
       let bytes = 0;
@@ -119,7 +143,7 @@ export class GpuMemoryMeter {
         const depth = target === GL.TEXTURE_3D ? Math.max(1, d >> l) : d;
         bytes += imageBytes(format, Math.max(1, w >> l), Math.max(1, h >> l), depth);
       }
-      meter._set(target, 'storage', bytes);
+      meter._set(target, 'storage', bytes, { format, w, h, d, levels });
     });
     wrap('texImage2D', (args) => {
       const [target, level, format] = args;
@@ -128,24 +152,42 @@ export class GpuMemoryMeter {
       let type;
       if (args.length >= 8) [, , , w, h, , , type] = args;
       else [w, h, type] = [args[5]?.width ?? 0, args[5]?.height ?? 0, args[4]];
-      meter._set(target, `${target}:${level}`, imageBytes(format, w, h, 1, type));
+      meter._set(target, `${target}:${level}`, imageBytes(format, w, h, 1, type), level ? null : { format, w, h, d: 1, type });
     });
     wrap('texImage3D', ([target, level, format, w, h, d, , , type]) => {
-      meter._set(target, `${target}:${level}`, imageBytes(format, w, h, d, type));
+      meter._set(target, `${target}:${level}`, imageBytes(format, w, h, d, type), level ? null : { format, w, h, d, type });
     });
     wrap('compressedTexImage2D', ([target, level, format, w, h]) => {
-      meter._set(target, `${target}:${level}`, imageBytes(format, w, h));
+      meter._set(target, `${target}:${level}`, imageBytes(format, w, h), level ? null : { format, w, h, d: 1 });
     });
     wrap('compressedTexImage3D', ([target, level, format, w, h, d]) => {
-      meter._set(target, `${target}:${level}`, imageBytes(format, w, h, d));
+      meter._set(target, `${target}:${level}`, imageBytes(format, w, h, d), level ? null : { format, w, h, d });
+    });
+    // The levels generateMipmap allocates below a texImage's level 0 (texStorage counted its
+    // own levels already); a 2D array's layers stay, each level halves width and height.
+    wrap('generateMipmap', ([target]) => {
+      const texture = meter._texture(target);
+      const shape = texture && meter.shapes.get(texture);
+      if (!shape || shape.levels || (shape.w <= 1 && shape.h <= 1)) return;
+      const faces = target === GL.TEXTURE_CUBE_MAP ? 6 : 1;
+      for (let l = 1; (shape.w >> l) > 0 || (shape.h >> l) > 0; l++) {
+        const w = Math.max(1, shape.w >> l);
+        const h = Math.max(1, shape.h >> l);
+        const d = target === GL.TEXTURE_3D ? Math.max(1, shape.d >> l) : shape.d;
+        meter._set(target, `mip:${l}`, faces * imageBytes(shape.format, w, h, d, shape.type));
+      }
     });
     wrap('bindRenderbuffer', ([, rb]) => { meter.renderbuffer = rb; });
-    wrap('deleteRenderbuffer', ([rb]) => { meter.renderbuffers.delete(rb); });
-    wrap('renderbufferStorage', ([, format, w, h]) => {
-      if (meter.renderbuffer) meter.renderbuffers.set(meter.renderbuffer, imageBytes(format, w, h));
+    wrap('deleteRenderbuffer', ([rb]) => {
+      meter.renderbuffers.delete(rb);
+      meter.shapes.delete(rb);
     });
-    wrap('renderbufferStorageMultisample', ([, samples, format, w, h]) => {
-      if (meter.renderbuffer) meter.renderbuffers.set(meter.renderbuffer, Math.max(1, samples) * imageBytes(format, w, h));
-    });
+    const storage = (format, w, h, samples) => {
+      if (!meter.renderbuffer) return;
+      meter.renderbuffers.set(meter.renderbuffer, Math.max(1, samples) * imageBytes(format, w, h));
+      meter.shapes.set(meter.renderbuffer, { format, w, h, d: 1, samples });
+    };
+    wrap('renderbufferStorage', ([, format, w, h]) => storage(format, w, h, 0));
+    wrap('renderbufferStorageMultisample', ([, samples, format, w, h]) => storage(format, w, h, samples));
   }
 }

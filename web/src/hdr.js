@@ -39,11 +39,24 @@ export class HdrFrame {
     return ext.has('EXT_color_buffer_float') || ext.has('EXT_color_buffer_half_float');
   }
 
+  /** The same question before the renderer exists (its canvas's antialias depends on the
+   * answer), asked of a throwaway 1 x 1 WebGL2 context. */
+  static probe() {
+    const gl = document.createElement('canvas').getContext('webgl2');
+    if (!gl) return false;
+    const names = gl.getSupportedExtensions() ?? [];
+    gl.getExtension('WEBGL_lose_context')?.loseContext();
+    return names.includes('EXT_color_buffer_float') || names.includes('EXT_color_buffer_half_float');
+  }
+
   /** MSAA samples of the linear frame, as the canvas's own antialias: 4, but none on a
    * software GPU (SwiftShader, llvmpipe), where 4x MSAA made a frame 1.7-3.2 times slower
-   * (docs/benchmarks.md), and none at the kiosk (its passes are full-screen quads). */
-  static defaultSamples(renderer, kiosk = false) {
-    if (kiosk) return 0;
+   * (docs/benchmarks.md), none at the kiosk (its passes are full-screen quads), and none on a
+   * phone (profile 'phone'): 4 samples of RGBA16F colour and depth at its 780 x 1688 are 63 MB,
+   * 40 % of the 150 MB budget, where each drawn pixel is half a CSS pixel (docs/web.md, "GPU
+   * memory"). */
+  static defaultSamples(renderer, kiosk = false, profile = 'desktop') {
+    if (kiosk || profile === 'phone') return 0;
     const gl = renderer.getContext();
     const info = gl.getExtension('WEBGL_debug_renderer_info');
     const name = String(gl.getParameter(info ? info.UNMASKED_RENDERER_WEBGL : gl.RENDERER));

@@ -122,7 +122,7 @@ class RelightStack {
     // Builds from 2026-11-24: base layers past the first few in a second, ETC1S array, whose
     // layers follow the first array's in compact.layers (docs/compact-assets.md).
     loads.push(this.compact.etc1s ? this.assets.texture(this.compact.etc1s.ktx2) : null);
-    loads.push(this.gain ?? (this.compact.gain ? this.assets.texture(this.compact.gain.ktx2) : null));
+    loads.push(this.gain ?? (this.compact.gain ? this.assets.sharedTexture(this.compact.gain.ktx2) : null));
     const [base, V, etc1s, gain] = await Promise.all(loads);
     this._setUp({ base, V, k: this.compact.v.shape[1], etc1s, gain, layers: this.compact.layers, coarse: false });
   }
@@ -137,7 +137,7 @@ class RelightStack {
     if (!coarse) return false;
     const [base, V, gain] = await Promise.all([
       this.assets.texture(coarse.ktx2), this.assets.float32(coarse.v.path),
-      this.compact.gain ? this.assets.texture(this.compact.gain.ktx2) : null,
+      this.compact.gain ? this.assets.sharedTexture(this.compact.gain.ktx2) : null,
     ]);
     this._setUp({ base: asArray(base), V, k: coarse.v.shape[1], etc1s: null, gain, layers: this.compact.layers.slice(0, coarse.layers), coarse: true });
     return true;

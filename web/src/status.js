@@ -40,6 +40,9 @@ export function makeStatus(source) {
     contextLost: () => source.contextLost,
     reconnects: () => source.stream?.reconnects ?? 0,
     integrity: () => source.assets?.verification ?? null,
+    // How ETC1S files reach the GPU: 'etc2' (lossless, half a byte a texel) or 'rgba8'.
+    etc1sTextures: () => source.assets?.etc1sFormat ?? null,
+    profile: () => source.profile, // 'phone' or 'desktop' (docs/web.md, "GPU memory")
     refetched: () => [...(source.assets?.refetched ?? [])],
     siteCameraDenied: () => source.stream?.siteCameraDenied ?? false,
     // The kiosk's sun bounce: 'drawn' (the view's images of the sun's patch are in O' and S'),

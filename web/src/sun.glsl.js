@@ -6,11 +6,14 @@
 
 export const SUN_ANGULAR_RADIUS_DEG = 0.2666;
 const TAN_SUN = Math.tan(SUN_ANGULAR_RADIUS_DEG * Math.PI / 180);
+// The maps' size in texels: 2048 by default, 1024 on a phone (sun.js mapSizeFor, docs/web.md
+// "GPU memory"). Shaders read it from the define SUN_MAP_SIZE (an int), set by sun.js.
 export const MAP_SIZE = 2048;
+export const PHONE_MAP_SIZE = 1024;
 // The coarse map: per CELL x CELL block of the depth map, the least and greatest depth over
 // the block and CELL texels around it, so one read answers "no caster near" (lit) or "casters
 // everywhere near" (umbra) for any search disc of up to CELL texels.
-const CELL = 16;
+export const CELL = 16;
 export const COARSE = MAP_SIZE / CELL;
 
 /** Vogel's spiral: `count` evenly spread points on the unit disc, as a GLSL vec2 array. */
@@ -38,18 +41,19 @@ float unpack16(vec2 p) { return (p.x * 65280.0 + p.y * 255.0) / 65535.0; }
 `;
 
 /** Reduction of the depth map to its coarse map, along x (pass 0) then y (pass 1). */
-export function coarseFragment(pass) {
+export function coarseFragment(pass, mapSize = MAP_SIZE) {
   const read = pass === 0
     ? 'float d = texelFetch(source, ivec2(x, y), 0).r; lo = min(lo, d); hi = max(hi, d);'
     : 'vec4 t = texelFetch(source, ivec2(x, y), 0); lo = min(lo, unpack16(t.rg)); hi = max(hi, unpack16(t.ba));';
   const loop = pass === 0
     ? `int y = int(gl_FragCoord.y); int c = int(gl_FragCoord.x);
-  for (int x = max(0, (c - 1) * ${CELL}); x < min(${MAP_SIZE}, (c + 2) * ${CELL}); x++) { ${read} }`
+  for (int x = max(0, (c - 1) * ${CELL}); x < min(SUN_MAP_SIZE, (c + 2) * ${CELL}); x++) { ${read} }`
     : `int x = int(gl_FragCoord.x); int c = int(gl_FragCoord.y);
-  for (int y = max(0, (c - 1) * ${CELL}); y < min(${MAP_SIZE}, (c + 2) * ${CELL}); y++) { ${read} }`;
+  for (int y = max(0, (c - 1) * ${CELL}); y < min(SUN_MAP_SIZE, (c + 2) * ${CELL}); y++) { ${read} }`;
   return /* glsl */ `
 precision highp float;
 precision highp int;
+#define SUN_MAP_SIZE ${mapSize}
 uniform highp sampler2D source;
 out vec4 outColor;
 ${PACK16}
@@ -69,11 +73,12 @@ void main() {
  * surface needs one read of it (its point from the depth, its normal from the colour the depth
  * pass wrote, NORMAL_FRAGMENT); 'ground': the visibility of the flat ground under the texel
  * into an R8 target (a quarter of the bytes to read per ground pixel, mipmapped). */
-export function visibilityFragment(part) {
+export function visibilityFragment(part, mapSize = MAP_SIZE) {
   return /* glsl */ `
 precision highp float;
 precision highp int;
 #define SUN 1
+#define SUN_MAP_SIZE ${mapSize}
 #define PART_GROUND ${part === 'ground' ? 1 : 0}
 #define texture2D texture
 ${sunShadowChunk}
@@ -93,7 +98,7 @@ uniform vec3 groundAxisU;
 uniform vec3 groundAxisV;
 out vec4 outColor;
 void main() {
-  vec2 uv = gl_FragCoord.xy / ${MAP_SIZE}.0;
+  vec2 uv = gl_FragCoord.xy / float(SUN_MAP_SIZE);
   ivec2 t = ivec2(gl_FragCoord.xy);
 #if PART_GROUND == 1
   vec3 g = groundOrigin + uv.x * groundAxisU + uv.y * groundAxisV;
@@ -151,7 +156,7 @@ float ${name}(sampler2D map, sampler2D coarse, mat4 M, vec4 info, vec3 position,
   vec3 q = clip.xyz * 0.5 + 0.5;
   float depth = info.y + q.z * info.z;   // metres from the sun camera
   float bias = 1.5 * texel;
-  float toUv = 1.0 / (texel * ${MAP_SIZE}.0);
+  float toUv = 1.0 / (texel * float(SUN_MAP_SIZE));
   // A blocker lies between the near plane (the casters' nearest point) and the receiver.
   float searchM = max((depth - info.y) * TAN_SUN, 1.5 * texel);
   bool inMap = info.w > 0.5 && q.x > 0.0 && q.y > 0.0 && q.x < 1.0 && q.y < 1.0 && q.z < 1.0;
@@ -159,7 +164,7 @@ float ${name}(sampler2D map, sampler2D coarse, mat4 M, vec4 info, vec3 position,
   int blockerCount = inMap ? ${blockers} : 0;
   if (inMap && searchM <= ${CELL}.0 * texel) {
     // One read of the coarse map settles most pixels: no caster near, or casters all around.
-    vec4 bounds = texelFetch(coarse, ivec2(q.xy * ${COARSE}.0), 0);
+    vec4 bounds = texelFetch(coarse, ivec2(q.xy * float(SUN_MAP_SIZE / ${CELL})), 0);
     bool clear = info.y + unpack16(bounds.rg) * info.z >= depth - bias;
     bool covered = info.y + unpack16(bounds.ba) * info.z < depth - bias;
     if (clear || covered) blockerCount = 0;
@@ -205,6 +210,9 @@ float ${name}(sampler2D map, sampler2D coarse, mat4 M, vec4 info, vec3 position,
  * full filter, runs in the visibility pass and where a view pass runs once per sun move.
  */
 export const sunShadowChunk = /* glsl */ `
+#ifndef SUN_MAP_SIZE
+#define SUN_MAP_SIZE ${MAP_SIZE}
+#endif
 uniform vec3 sunIrradiance;
 uniform vec3 sunDirection;
 uniform sampler2D sunMapA;
@@ -270,7 +278,7 @@ float sunVisibilityOnSurface(sampler2D map, sampler2D coarse, sampler2D visibili
     float texel = info.x;
     vec3 q = (M * vec4(position + n * (1.5 * texel), 1.0)).xyz * 0.5 + 0.5;
     bool inMap = info.w > 0.5 && q.x > 0.0 && q.y > 0.0 && q.x < 1.0 && q.y < 1.0 && q.z < 1.0;
-    ivec2 t = ivec2(clamp(q.xy * ${MAP_SIZE}.0, vec2(0.0), vec2(${MAP_SIZE - 1}.0)));
+    ivec2 t = ivec2(clamp(q.xy * float(SUN_MAP_SIZE), vec2(0.0), vec2(float(SUN_MAP_SIZE - 1))));
     // Metres from the surface the texel sees to this point. On that surface, moved 1.5 texels
     // along its normal, the point is 1.5 texels / cos nearer the sun than the surface's depth
     // there, within its slope (tan) times the 0.71 texel from a texel's centre to its corner.
@@ -283,7 +291,7 @@ float sunVisibilityOnSurface(sampler2D map, sampler2D coarse, sampler2D visibili
     bool refilter = inMap && !seen;
     // Behind casters all around (the coarse map's greatest depth nearer than the point): umbra.
     for (int k = 0; k < (refilter ? 1 : 0); k++) {
-      float deepest = unpack16(texelFetch(coarse, ivec2(q.xy * ${COARSE}.0), 0).ba);
+      float deepest = unpack16(texelFetch(coarse, ivec2(q.xy * float(SUN_MAP_SIZE / ${CELL})), 0).ba);
       if ((q.z - deepest) * info.z > 1.5 * texel) { visible = 0.0; refilter = false; }
     }
     for (int k = 0; k < (refilter ? 1 : 0); k++) visible = sunVisibilityQuick(map, coarse, M, info, position, n);

@@ -18,7 +18,7 @@
 // where a surface lies behind the first one the sun meets (inside a shadow's edge).
 import * as THREE from 'three';
 import {
-  COARSE, coarseFragment, MAP_SIZE, NORMAL_FRAGMENT, NORMAL_VERTEX, visibilityFragment,
+  CELL, coarseFragment, MAP_SIZE, NORMAL_FRAGMENT, NORMAL_VERTEX, PHONE_MAP_SIZE, visibilityFragment,
 } from './sun.glsl.js';
 import { FullscreenPass } from './relight.js';
 
@@ -33,7 +33,14 @@ const RERENDER_COS = Math.cos(0.05 * Math.PI / 180);
  * brings one (SunShadows.setMaterials). SUN_GROUND 1 marks a material drawn only on the flat
  * ground, which reads the ground's visibility map (sunVisibilityOnGround); 2 the same
  * prefiltered to each pixel's footprint (the frames' materials). */
-export const SUN_DEFINES = { SUN: 0, SUN_GROUND: 0 };
+export const SUN_DEFINES = { SUN: 0, SUN_GROUND: 0, SUN_MAP_SIZE: MAP_SIZE };
+
+/** The maps' size in texels for a device profile: 1024 on a phone (a quarter of the bytes:
+ * 24.3 MB instead of 97.3 for two maps and their normals; texels twice as wide, the penumbra's
+ * 50 % point 2.0 cm off the oracle's instead of 0.7 cm, test_web_sun.py), 2048 elsewhere. */
+export function mapSizeFor(profile) {
+  return profile === 'phone' ? PHONE_MAP_SIZE : MAP_SIZE;
+}
 
 /** Uniforms of sunShadowChunk, shared by every material (one update reaches them all). */
 export function sunUniforms() {
@@ -61,33 +68,34 @@ class ShadowMap {
   /**
    * @param {number[]} layers the caster layers it sees
    * @param {number} groundY height of the flat ground (m)
+   * @param {THREE.WebGLRenderTarget} normals the normals' colour target, shared by the maps
+   *   (SunShadows): read only while this map is filtered, so one serves both; each map
+   *   attaches its own depth texture to it before it is drawn (`attach`)
    */
-  constructor(layers, groundY) {
-    this.target = new THREE.WebGLRenderTarget(MAP_SIZE, MAP_SIZE, {
-      depthBuffer: true,
-      depthTexture: new THREE.DepthTexture(MAP_SIZE, MAP_SIZE, THREE.FloatType),
-      minFilter: THREE.NearestFilter,
-      magFilter: THREE.NearestFilter,
-      generateMipmaps: false,
-    });
-    const depth = this.target.depthTexture;
+  constructor(layers, groundY, normals) {
+    this.normals = normals;
+    const size = normals.width;
+    this.size = size;
+    const coarse = size / CELL;
+    const depth = new THREE.DepthTexture(size, size, THREE.FloatType);
     depth.minFilter = depth.magFilter = THREE.NearestFilter;
+    this.depth = depth;
     const coarseTarget = (w, h) => new THREE.WebGLRenderTarget(w, h, {
       minFilter: THREE.NearestFilter, magFilter: THREE.NearestFilter, generateMipmaps: false, depthBuffer: false,
     });
-    this.rows = coarseTarget(COARSE, MAP_SIZE); // reduced along x
-    this.coarse = coarseTarget(COARSE, COARSE); // then along y
+    this.rows = coarseTarget(coarse, size); // reduced along x
+    this.coarse = coarseTarget(coarse, coarse); // then along y
     this.reduce = [0, 1].map((pass) => new FullscreenPass({
-      fragmentShader: coarseFragment(pass),
+      fragmentShader: coarseFragment(pass, size),
       uniforms: { source: { value: pass === 0 ? depth : this.rows.texture } },
     }));
     this.groundY = groundY;
-    this.visibility = new THREE.WebGLRenderTarget(MAP_SIZE, MAP_SIZE, {
+    this.visibility = new THREE.WebGLRenderTarget(size, size, {
       type: THREE.UnsignedByteType, depthBuffer: false,
       minFilter: THREE.NearestFilter, magFilter: THREE.NearestFilter, generateMipmaps: false,
     });
     // Mipmapped: the distant ground reads a prefiltered level (fewer texels far apart to fetch).
-    this.groundVisibility = new THREE.WebGLRenderTarget(MAP_SIZE, MAP_SIZE, {
+    this.groundVisibility = new THREE.WebGLRenderTarget(size, size, {
       type: THREE.UnsignedByteType, format: THREE.RedFormat, depthBuffer: false,
       minFilter: THREE.LinearMipmapNearestFilter, magFilter: THREE.LinearFilter, generateMipmaps: true,
     });
@@ -97,13 +105,13 @@ class ShadowMap {
     this.matrix = new THREE.Matrix4();
     this.info = new THREE.Vector4(1, 0, 1, 0);
     const uniforms = {
-      depthMap: { value: depth }, normalMap: { value: this.target.texture },
+      depthMap: { value: depth }, normalMap: { value: normals.texture },
       coarseMap: { value: this.coarse.texture }, worldToMap: { value: this.matrix },
       mapInfo: { value: this.info },
       ...Object.fromEntries(Object.entries(this.axes).map(([k, v]) => [k, { value: v }])),
     };
-    this.visibilityPass = new FullscreenPass({ fragmentShader: visibilityFragment('surface'), uniforms });
-    this.groundPass = new FullscreenPass({ fragmentShader: visibilityFragment('ground'), uniforms });
+    this.visibilityPass = new FullscreenPass({ fragmentShader: visibilityFragment('surface', size), uniforms });
+    this.groundPass = new FullscreenPass({ fragmentShader: visibilityFragment('ground', size), uniforms });
     this.camera = new THREE.OrthographicCamera(-1, 1, 1, -1, 0.1, 10);
     this.camera.layers.disableAll();
     for (const layer of layers) this.camera.layers.enable(layer);
@@ -151,7 +159,7 @@ class ShadowMap {
     });
     cam.updateProjectionMatrix();
     this.matrix.multiplyMatrices(cam.projectionMatrix, cam.matrixWorldInverse);
-    this.info.set(2 * half / MAP_SIZE, cam.near, cam.far - cam.near, 1);
+    this.info.set(2 * half / this.size, cam.near, cam.far - cam.near, 1);
     this._fitAxes(toSun);
   }
 
@@ -183,9 +191,15 @@ class ShadowMap {
     this.groundPass.render(renderer, this.groundVisibility);
   }
 
+  /** The shared normals target, drawn with this map's depth (three.js attaches the depth
+   * texture anew when it changed). */
+  attach() {
+    this.normals.depthTexture = this.depth;
+    return this.normals;
+  }
+
   dispose() {
-    this.target.depthTexture.dispose();
-    this.target.dispose();
+    this.depth.dispose();
     this.rows.dispose();
     this.coarse.dispose();
     for (const pass of this.reduce) pass.dispose();
@@ -205,9 +219,11 @@ export class SunShadows {
    * @param {{groundY?: number, siteRoot?: THREE.Object3D}} [options] height of the flat ground
    *   (m), whose visibility the materials with SUN_GROUND 1 read; the object that places the
    *   site in the world (AR moves and turns it; a child of the scene): the maps are rendered in
-   *   the site's own frame and the materials' uniforms follow the placement (follow())
+   *   the site's own frame and the materials' uniforms follow the placement (follow()); the
+   *   maps' size in texels (mapSizeFor)
    */
-  constructor(renderer, scene, casters, uniforms, { groundY = 0, siteRoot = null } = {}) {
+  constructor(renderer, scene, casters, uniforms, { groundY = 0, siteRoot = null, mapSize = MAP_SIZE } = {}) {
+    this.mapSize = mapSize;
     this.renderer = renderer;
     this.scene = scene;
     this.uniforms = uniforms;
@@ -217,8 +233,13 @@ export class SunShadows {
     for (const [set, meshes] of Object.entries(casters)) for (const m of meshes) m.layers.enable(LAYER[set]);
     this.casterSets = { all: [...casters.virtual, ...casters.real], real: casters.real };
     this.boxes = this._boxes();
+    // One normals target for every map: the maps are drawn and filtered one after the other,
+    // and a frame reads only their depth, coarse and visibility maps (a 2048² RGBA8 saved).
+    this.normals = new THREE.WebGLRenderTarget(mapSize, mapSize, {
+      depthBuffer: true, minFilter: THREE.NearestFilter, magFilter: THREE.NearestFilter, generateMipmaps: false,
+    });
     for (const set of Object.keys(this.boxes)) {
-      this.maps[set] = new ShadowMap(set === 'all' ? [LAYER.virtual, LAYER.real] : [LAYER.real], groundY);
+      this.maps[set] = new ShadowMap(set === 'all' ? [LAYER.virtual, LAYER.real] : [LAYER.real], groundY, this.normals);
     }
     this.on = null; // whether the materials are compiled with the sun (SUN 1)
     this.materials = []; // every material that draws the sun (setMaterials)
@@ -291,6 +312,7 @@ export class SunShadows {
    * cloud over it), so that they cost nothing then. */
   setMaterials(materials) {
     this.materials = materials;
+    for (const m of materials) m.defines = { ...m.defines, SUN_MAP_SIZE: this.mapSize };
     this.on = null;
   }
 
@@ -323,12 +345,12 @@ export class SunShadows {
     this.depthPass.uniforms.toSun.value.copy(this.direction);
     for (const [set, map] of Object.entries(this.maps)) {
       map.fit(this.boxes[set], this.direction);
-      renderer.setRenderTarget(map.target);
+      renderer.setRenderTarget(map.attach());
       renderer.clear(true, true, false);
       renderer.render(scene, map.camera);
       map.filter(renderer);
       const key = set === 'all' ? 'A' : 'R';
-      uniforms[`sunMap${key}`].value = map.target.depthTexture;
+      uniforms[`sunMap${key}`].value = map.depth;
       uniforms[`sunCoarse${key}`].value = map.coarse.texture;
       uniforms[`sunVisibility${key}`].value = map.visibility.texture;
       uniforms[`sunGround${key}`].value = map.groundVisibility.texture;
@@ -348,16 +370,20 @@ export class SunShadows {
     this.renders += 1;
   }
 
-  /** Bytes of GPU memory the maps hold: depth float32 and the RGBA8 colour target three.js
-   * attaches (the normals), the coarse maps (RGBA8), the surfaces' visibility maps (RGBA8) and
-   * the ground's (R8 with its mipmaps, a third more). */
+  /** Bytes of GPU memory the maps hold: per map its depth (float32), coarse maps (RGBA8), the
+   * surfaces' visibility map (RGBA8) and the ground's (R8 with its mipmaps, a third more);
+   * and one RGBA8 normals target they share. */
   get gpuBytes() {
-    const texels = MAP_SIZE * MAP_SIZE;
-    return Object.keys(this.maps).length * (texels * (8 + 4) + Math.round(texels * 4 / 3) + (COARSE * MAP_SIZE + COARSE * COARSE) * 4);
+    const size = this.mapSize;
+    const texels = size * size;
+    const coarse = size / CELL;
+    const perMap = texels * (4 + 4) + Math.round(texels * 4 / 3) + (coarse * size + coarse * coarse) * 4;
+    return Object.keys(this.maps).length * perMap + texels * 4;
   }
 
   dispose() {
     for (const map of Object.values(this.maps)) map.dispose();
+    this.normals.dispose();
     this.depthPass.dispose();
   }
 }
