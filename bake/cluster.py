@@ -13,12 +13,21 @@ differently), its Python dependencies and nothing else: the geometry, the dome a
 cache are sent to every worker once per stage (``Client.scatter(..., broadcast=True)``), and
 each worker process builds its Embree scenes from them once and keeps them while the stage
 runs.
+
+Workers die (a machine reboots, a worker runs out of memory). Dask runs a dead worker's tasks
+again on the others by itself, up to the scheduler's ``allowed-failures``; when every worker
+holding a stage's setup died, its chunks are sent again with the setup scattered anew (at most
+:data:`SETUP_RESENDS` times a stage). A failure that is final (a chunk Dask gave up on:
+``KilledWorker``; no worker for :data:`WORKERS_TIMEOUT_S`; the scheduler gone) raises
+:class:`ClusterLostError`, saying what happened; the bake (bake.pipeline) adds what was saved and
+how to resume. The chunks saved until then are kept: they are the local pool's.
 """
 
 from __future__ import annotations
 
 import contextlib
 import threading
+import time
 import uuid
 from dataclasses import dataclass
 
@@ -29,7 +38,13 @@ from bake.errors import BakeError
 
 CONNECT_TIMEOUT_S = 10
 WORKERS_TIMEOUT_S = 60
-_POLL_S = 1.0  # how often a compression job's wait checks whether the bake was stopped
+_POLL_S = 1.0  # how often a wait checks whether the bake was stopped or the workers gone
+SETUP_RESENDS = 3  # times a stage's setup is scattered again after all its holders died
+
+
+class ClusterLostError(BakeError):
+    """A cluster failure the bake cannot get past by itself (its message says what happened;
+    the bake adds what was saved and the commands to resume)."""
 
 
 @dataclass
@@ -163,15 +178,38 @@ class Cluster:
         """Trace ``todo`` (``[(points, (points, normals, configs, bounce, seed words,
         path))]`` as bake.tracework lists them) on the workers and save each chunk to its
         path as it arrives; returns the rays cast. ``setup_args``: the local initializer's
-        first five arguments."""
-        from distributed import as_completed
-
+        first five arguments. Raises :class:`ClusterLostError` on a final failure (module
+        docstring), with the chunks saved until then kept."""
         if not todo:
             return 0
         setup = WorkerSetup(*setup_args, cache=cache, token=uuid.uuid4().hex)
-        shared = self.client.scatter(setup, broadcast=True, hash=False)
+        remaining = {task[-1]: (count, task) for count, task in todo}  # by chunk path
+        rays = 0
+        for _ in range(SETUP_RESENDS + 1):
+            rays += self._run_once(setup, remaining, bar)
+            if not remaining:
+                return rays
+        raise ClusterLostError(
+            f"the workers of {self.address} holding the stage's geometry all died "
+            f"{SETUP_RESENDS + 1} times while tracing it"
+        )
+
+    def _run_once(self, setup: WorkerSetup, remaining: dict, bar) -> int:
+        """Scatter ``setup``, trace the chunks of ``remaining`` ({path: (points, task)}),
+        removing each one saved; returns the rays cast. Chunks are left in ``remaining`` when
+        Dask cancelled them because every worker holding the setup died (scattered data
+        cannot be recomputed: the caller scatters it again)."""
+        from distributed import as_completed
+        from distributed.client import FutureCancelledError
+        from distributed.scheduler import KilledWorker, NoValidWorkerError
+
+        self._wait_for_a_worker()
+        try:
+            shared = self.client.scatter(setup, broadcast=True, hash=False)
+        except (OSError, TimeoutError) as exc:
+            raise self._lost_scheduler(exc) from None
         pending = {}
-        for count, (points, normals, configs, bounce, words, path) in todo:
+        for path, (_, (points, normals, configs, bounce, words, _)) in remaining.items():
             future = self.client.submit(
                 trace_chunk,
                 shared,
@@ -180,46 +218,147 @@ class Cluster:
                 configs,
                 bounce,
                 words,
-                key=f"daylit-chunk-{path.stem}-{setup.token[:8]}",
+                key=f"daylit-chunk-{path.stem}-{uuid.uuid4().hex[:8]}",
                 pure=False,
             )
-            pending[future] = (count, path)
+            pending[future] = path
         rays = 0
+        finished = as_completed(pending, loop=self.client.loop)
         try:
-            for future in as_completed(pending, loop=self.client.loop):
-                out, cast = future.result()
-                count, path = pending.pop(future)
+            while not finished.is_empty():
+                future = self._next_finished(finished)
+                path = pending.pop(future)
+                try:
+                    out, cast = future.result()
+                except KilledWorker as exc:
+                    raise ClusterLostError(
+                        f"Dask gave up on {chunk_label(path)}: the {exc.allowed_failures + 1} "
+                        f"workers that ran it all died (KilledWorker; the last was "
+                        f"{_address(exc.last_worker)}). A worker dies when its machine "
+                        "restarts or it runs out of memory (the scheduler's dashboard and the "
+                        "workers' logs say which)"
+                    ) from None
+                except NoValidWorkerError:
+                    raise ClusterLostError(
+                        f"the scheduler at {self.address} had no worker for {chunk_label(path)} "
+                        "for longer than its no-workers-timeout"
+                    ) from None
+                except FutureCancelledError:
+                    if self.client.status not in ("running", "connecting"):
+                        raise self._lost_scheduler("the client was closed") from None
+                    # Every holder of the setup died: the others are cancelled at once too
+                    # (or finished, or given up on: drained here); the caller sends it again.
+                    continue
                 chunkio.save_chunk(path, out)
+                count, _ = remaining.pop(path)
                 rays += cast
                 bar.update(count)
                 del out, future
-        except BaseException:
-            self.client.cancel(list(pending))
-            raise
         finally:
-            self.client.cancel([shared])
+            # Whatever is still pending (an error, Ctrl-C, or a lost setup) is not wanted.
+            with contextlib.suppress(Exception):
+                self.client.cancel([*pending, shared])
         return rays
 
-    def compress(self, job, *args):
+    def _next_finished(self, finished):
+        """The next finished future of ``finished`` (a ``distributed.as_completed``), checking
+        every :data:`_POLL_S` that the cluster still has workers."""
+        while not finished.has_ready():
+            self._check_workers_present()
+            time.sleep(0.1)
+        return next(finished)
+
+    _no_workers_since: float | None = None
+    _last_check: float = 0.0
+
+    def _check_workers_present(self) -> None:
+        """Raise :class:`ClusterLostError` once the scheduler has had no worker for
+        :data:`WORKERS_TIMEOUT_S` (it would wait for one forever) or cannot be reached; at
+        most one look every :data:`_POLL_S`."""
+        now = time.monotonic()
+        if now - self._last_check < _POLL_S:
+            return
+        self._last_check = now
+        if self.client.status not in ("running", "connecting"):
+            raise self._lost_scheduler(f"the client is {self.client.status}")
+        try:
+            workers = len(self.client.nthreads())
+        except (OSError, TimeoutError) as exc:
+            raise self._lost_scheduler(exc) from None
+        if workers:
+            self._no_workers_since = None
+            return
+        if self._no_workers_since is None:
+            self._no_workers_since = now
+        elif now - self._no_workers_since > WORKERS_TIMEOUT_S:
+            raise ClusterLostError(
+                f"the Dask scheduler at {self.address} has had no workers for "
+                f"{WORKERS_TIMEOUT_S} s (they died or were stopped)"
+            )
+
+    def _wait_for_a_worker(self) -> None:
+        while True:
+            self._last_check = 0.0
+            self._check_workers_present()
+            if self._no_workers_since is None:
+                return
+            time.sleep(_POLL_S)
+
+    def _lost_scheduler(self, exc) -> ClusterLostError:
+        return ClusterLostError(f"lost the Dask scheduler at {self.address} ({exc})")
+
+    def compress(self, job, *args, label: str = "a compression job"):
         """Run a compression job (bake.compressjobs) on a worker and return its result; the
         arguments (a unit's stacks) are sent to the scheduler's choice of worker. Waits in
         short steps: when the bake is stopped (:func:`bake.basisu.stop_encoding`: another
-        unit failed, or Ctrl-C) the job is cancelled and CompressionError raised."""
+        unit failed, or Ctrl-C) the job is cancelled and CompressionError raised; a final
+        cluster failure raises :class:`ClusterLostError` naming ``label`` (what is compressed).
+        A job whose worker died is run again by Dask (its arguments are scattered to the
+        scheduler's choice of worker: when every copy is lost, they are sent again)."""
+        from distributed.client import FutureCancelledError
+        from distributed.scheduler import KilledWorker, NoValidWorkerError
+
         from bake import basisu
 
-        basisu.check_not_stopped()
-        data = self.client.scatter(list(args), hash=False)
-        future = self.client.submit(
-            job, *data, key=f"daylit-{job.__name__}-{uuid.uuid4().hex[:12]}", pure=False
+        for _ in range(SETUP_RESENDS + 1):
+            basisu.check_not_stopped()
+            self._wait_for_a_worker()
+            try:
+                data = self.client.scatter(list(args), hash=False)
+            except (OSError, TimeoutError) as exc:
+                raise self._lost_scheduler(exc) from None
+            future = self.client.submit(
+                job, *data, key=f"daylit-{job.__name__}-{uuid.uuid4().hex[:12]}", pure=False
+            )
+            try:
+                while True:
+                    try:
+                        return future.result(timeout=_POLL_S)
+                    except TimeoutError:
+                        basisu.check_not_stopped()
+                        self._check_workers_present()
+            except KilledWorker as exc:
+                raise ClusterLostError(
+                    f"Dask gave up on the compression of {label}: the "
+                    f"{exc.allowed_failures + 1} workers that ran it all died (KilledWorker; "
+                    f"the last was {_address(exc.last_worker)})"
+                ) from None
+            except NoValidWorkerError:
+                raise ClusterLostError(
+                    f"the scheduler at {self.address} had no worker for the compression of "
+                    f"{label} for longer than its no-workers-timeout"
+                ) from None
+            except FutureCancelledError:
+                if self.client.status not in ("running", "connecting"):
+                    raise self._lost_scheduler("the client was closed") from None
+                continue  # the worker holding the stacks died: send them again
+            finally:
+                with contextlib.suppress(Exception):
+                    self.client.cancel([future, *data])
+        raise ClusterLostError(
+            f"the workers of {self.address} holding the stacks of {label} all died "
+            f"{SETUP_RESENDS + 1} times"
         )
-        try:
-            while True:
-                try:
-                    return future.result(timeout=_POLL_S)
-                except TimeoutError:
-                    basisu.check_not_stopped()
-        finally:
-            self.client.cancel([future, *data])
 
     def close(self) -> None:
         """End the workers' KTX2 decoders (bake.ktx2decoder: kept from job to job during the
@@ -232,3 +371,16 @@ class Cluster:
                 self.client.run(close_decoders)
         finally:
             self.client.close()
+
+
+def _address(worker) -> str:
+    """A ``KilledWorker``'s last worker (a scheduler ``WorkerState``, or what was sent)."""
+    return getattr(worker, "address", str(worker))
+
+
+def chunk_label(path) -> str:
+    """``.../atlas-ground.shared-00003.chunk`` -> "chunk 3 of ground.shared (stage atlas)"."""
+    stem = path.name[: -len(chunkio.SUFFIX)] if path.name.endswith(chunkio.SUFFIX) else path.stem
+    head, _, index = stem.rpartition("-")
+    stage, _, name = head.partition("-")
+    return f"chunk {int(index)} of {name} (stage {stage}, file {path.name})"

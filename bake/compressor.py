@@ -92,7 +92,7 @@ class Compressor:
             else:
                 results, files = self.cluster.compress(
                     compressjobs.compress_stacks_job, images, prefix, self.skies, self.S,
-                    self.S_inv, self.selection, self.settings,
+                    self.S_inv, self.selection, self.settings, label=f"{prefix}'s stacks",
                 )
                 compressjobs.write_files(staging, files)
                 for _, result in results:
@@ -132,7 +132,7 @@ class Compressor:
             else:
                 result, files = self.cluster.compress(
                     compressjobs.sun_bounce_job, image, name, self.selection.selectable,
-                    self.settings,
+                    self.settings, label=f"the sun-bounce stack {name}",
                 )
                 compressjobs.write_files(staging, files)
                 if result is not None:

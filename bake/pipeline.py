@@ -31,6 +31,7 @@ import datetime as dt
 import errno
 import hashlib
 import os
+import shlex
 import shutil
 import sys
 import time
@@ -57,7 +58,9 @@ from bake.writers import SunBounce, swap_into_place, write_atlas, write_view
 from daylit import __version__
 
 # Bump when the meaning of saved chunks changes, so stale partial bakes are not reused.
-CHUNK_FORMAT = 4  # 4: buried texels sampled on contact lines (bake.contact); 3: .npy records
+# 5: buried texels found by counting the faces crossed (overlapping solids); 4: buried texels
+# sampled on contact lines (bake.contact); 3: .npy records.
+CHUNK_FORMAT = 5
 
 
 @dataclass
@@ -88,6 +91,7 @@ def bake(
     work, and a ``BakeError`` says what to do when it cannot be."""
     log = log or (lambda msg: print(msg, file=sys.stderr))
     started = time.perf_counter()
+    resume = _resume_command(scene_dir, out_dir, lights, quality, budget)
     # Absolute from here on: helpers (the KTX2 decoder under Node) run in other directories.
     # The scene's path stays as given: it is only read here, and messages name it as typed.
     out_dir = Path(out_dir).absolute()
@@ -100,14 +104,17 @@ def bake(
         client = Cluster(cluster, log)
     try:
         compressor = Compressor(site, log, client)
-        return _bake(site, out_dir, compressor, started, workers, client, progress, log)
+        return _bake(site, out_dir, compressor, started, workers, client, progress, log, resume)
     finally:
         if client is not None:
             client.close()
 
 
-def _bake(site, out_dir, compressor, started, workers, cluster, progress, log) -> BakeResult:
-    """The stages of :func:`bake` once the site is loaded and the cluster (if any) reached."""
+def _bake(
+    site, out_dir, compressor, started, workers, cluster, progress, log, resume
+) -> BakeResult:
+    """The stages of :func:`bake` once the site is loaded and the cluster (if any) reached.
+    ``resume``: the command that bakes the same site again without ``--cluster``."""
     settings = site.settings
     dome = Dome.for_light_count(settings.lights)
     if dome.count != settings.lights:
@@ -139,7 +146,9 @@ def _bake(site, out_dir, compressor, started, workers, cluster, progress, log) -
 
     samples = max(2, -(-settings.direct_rays // dome.count))
     work = TraceWork(site, dome, geometry, atlases, view_hits, samples, log)
-    with _disk_full_is_a_bake_error(partial):
+    lost = partial_fn(_cluster_loss_is_a_bake_error, partial, out_dir, resume, cluster,
+                      sum(len(s.chunks) for s in [work.cache_set, *work.point_sets]))
+    with _disk_full_is_a_bake_error(partial), lost("tracing"):
         rays, trace_s = work.run(partial, workers, progress, stage_s, log, cluster)
 
     t0 = time.perf_counter()
@@ -170,7 +179,7 @@ def _bake(site, out_dir, compressor, started, workers, cluster, progress, log) -
             for view in site.views
         ]
         try:
-            with _disk_full_is_a_bake_error(partial):
+            with _disk_full_is_a_bake_error(partial), lost("writing"):
                 entries = _run_units(units, _units_at_once(cluster, len(units)))
         except KeyboardInterrupt:
             log(
@@ -250,6 +259,39 @@ def _disk_full_is_a_bake_error(partial: Path):
             f"no space left on the device ({exc}); free space where {partial.parent} is and "
             f"run the same command again: every finished chunk is kept in {partial}"
         ) from exc
+
+
+@contextlib.contextmanager
+def _cluster_loss_is_a_bake_error(partial: Path, out_dir: Path, resume: str, cluster,
+                                  chunks: int, stage: str):
+    """A cluster failure Dask could not get past (bake.cluster.ClusterLostError: a chunk it
+    gave up on, no workers, the scheduler gone) ends the bake with what happened, what was
+    saved and the commands to resume (with the cluster and on this machine): a content
+    team's machines reboot and run out of memory. Nothing is published; the chunks stay."""
+    from bake.cluster import ClusterLostError
+
+    try:
+        yield
+    except ClusterLostError as exc:
+        saved = len(list((partial / "chunks").glob("*" + chunkio.SUFFIX)))
+        raise BakeError(
+            f"the cluster bake stopped while {stage}: {exc}. {saved} of {chunks} traced "
+            f"chunks are saved in {partial}; nothing was written to {out_dir}. Resume from "
+            f"them with the cluster once its workers are back: `{resume} --cluster "
+            f"{cluster.address}`, or on this machine: `{resume}`"
+        ) from None
+
+
+def _resume_command(scene_dir, out_dir, lights, quality, budget) -> str:
+    """``daylit bake SCENE -o OUT`` and the options given (paths as the user gave them)."""
+    words = ["daylit", "bake", str(scene_dir), "-o", str(out_dir)]
+    if lights is not None:
+        words += ["--lights", str(lights)]
+    if quality is not None:
+        words += ["--quality", quality]
+    if budget is not None:
+        words += ["--budget", repr(budget)]
+    return shlex.join(words)
 
 
 def _site_geometry(site: Site) -> Geometry:

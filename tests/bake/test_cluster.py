@@ -9,12 +9,23 @@ the stacks and return the files' bytes, which the baking process writes
 
 from __future__ import annotations
 
+import os
+import signal
 import socket
 from pathlib import Path
 
 import pytest
 
-from bake import basisu, chunkio, compress, compressjobs, ktx2decoder, sunbounce, tracework
+from bake import (
+    basisu,
+    chunkio,
+    compress,
+    compressjobs,
+    ktx2decoder,
+    sunbounce,
+    tracework,
+)
+from bake import cluster as cluster_mod
 from bake.errors import BakeError
 from bake.pipeline import bake
 from daylit.cli import main
@@ -27,12 +38,14 @@ QUIET = {"progress": False, "log": lambda msg: None}
 # Small chunks, so the test scene has several per point set (the layout is the baking
 # process's: it does not depend on where the chunks run).
 RAYS_PER_CHUNK = 60_000
+
+
 @pytest.fixture(scope="module")
 def cluster():
     from distributed import LocalCluster
 
     with LocalCluster(
-        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0"
     ) as local:
         yield local.scheduler_address
 
@@ -126,6 +139,154 @@ def test_an_interrupted_cluster_bake_resumes_locally_to_the_same_bytes(
     assert not partial.exists()
 
 
+def test_workers_killed_mid_trace_are_replaced_and_the_bytes_are_the_same(
+    scene, reference, tmp_path, monkeypatch
+):
+    """Worker processes killed (SIGKILL: a machine's out-of-memory killer, a reboot) while
+    they trace: first one (Dask runs its chunks on the other and on the nanny's new one),
+    then every one (the stage's setup is lost with them: the bake scatters it again). The
+    bake finishes with the local pool's bytes."""
+    from distributed import Client, LocalCluster
+
+    monkeypatch.setattr(tracework, "RAYS_PER_CHUNK", RAYS_PER_CHUNK)
+    out = tmp_path / "out"
+    killed: list = []
+    sent: list = []
+    save_chunk = chunkio.save_chunk
+    run_once = cluster_mod.Cluster._run_once
+
+    def counted_run_once(self, setup, remaining, bar):
+        sent.append(len(remaining))
+        return run_once(self, setup, remaining, bar)
+
+    with LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0"
+    ) as local, Client(local) as client:
+
+        def kill_workers(path, arrays):
+            save_chunk(path, arrays)
+            saved = len(list(path.parent.glob("*" + chunkio.SUFFIX)))
+            # A worker just killed may still be listed: ask the living ones.
+            pids = client.run(os.getpid, on_error="ignore")
+            processing = client.processing()
+            if saved == 2 and not killed:  # one busy worker
+                busy = [w for w, keys in processing.items() if keys and w in pids]
+                assert busy  # the victim is tracing (or about to trace) a chunk
+                os.kill(pids[busy[0]], signal.SIGKILL)
+                killed.append({busy[0]: processing[busy[0]]})
+            elif saved == 4 and len(killed) == 1:  # all of them
+                for pid in pids.values():
+                    os.kill(pid, signal.SIGKILL)
+                killed.append(pids)
+
+        monkeypatch.setattr(chunkio, "save_chunk", kill_workers)
+        monkeypatch.setattr(cluster_mod.Cluster, "_run_once", counted_run_once)
+        result = bake(scene, out, cluster=local.scheduler_address, **QUIET)
+    assert len(killed) == 2
+    assert any(killed[0].values())  # it died holding chunks
+    # Once for the cache's chunk, once for the rest, and again after every worker died (with
+    # the chunks they held or had traced but not yet sent: their results died with them).
+    assert len(sent) == 3 and sent[0] == 1 and 0 < sent[2] < sent[1]
+    assert result.rays > 0
+    baked = build_files(out)
+    assert baked.keys() == reference.keys()
+    for path in reference:
+        assert baked[path] == reference[path], path
+    assert not (tmp_path / ".out.partial").exists()
+
+
+def test_a_chunk_dask_gives_up_on_is_exit_2_with_what_to_do_and_resumes_locally(
+    scene, reference, tmp_path, monkeypatch, capsys
+):
+    """A chunk that kills every worker it runs on: Dask tries it on allowed-failures + 1
+    workers, then gives up (KilledWorker). The bake ends with exit status 2, says which
+    chunk, how many chunks are saved and the commands to resume; nothing is published; a
+    local resume gives the local pool's bytes."""
+    from distributed import LocalCluster
+
+    monkeypatch.setattr(tracework, "RAYS_PER_CHUNK", RAYS_PER_CHUNK)
+
+    def killer(setup, points, normals, configs, bounce, seed_words):
+        # Stands in for bake.cluster.trace_chunk on the workers (a local function: cloudpickle
+        # sends it by value): the worker running an atlas's chunk 1 dies at once, every time.
+        import os
+
+        from bake import cluster, tracework
+
+        if seed_words[1] == tracework.STAGE_CODES["atlas"] and seed_words[3] == 1:
+            os._exit(1)
+        return cluster.trace_chunk(setup, points, normals, configs, bounce, seed_words)
+
+    monkeypatch.setattr(cluster_mod, "trace_chunk", killer)
+    out, partial = tmp_path / "out", tmp_path / ".out.partial"
+    with LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0"
+    ) as local:
+        local.scheduler.allowed_failures = 1  # two deaths, then KilledWorker
+        address = local.scheduler_address
+        status = main(
+            ["bake", str(scene), "-o", str(out), "--cluster", address, "--no-progress"]
+        )
+    err = capsys.readouterr().err
+    assert status == 2, err
+    message = err[err.index("error: "):]
+    assert "Traceback" not in err
+    assert "the cluster bake stopped while tracing: Dask gave up on chunk 1 of" in message
+    assert "(stage atlas" in message and "the 2 workers that ran it all died" in message
+    saved = sorted((partial / "chunks").glob("*" + chunkio.SUFFIX))
+    total = sum(len(s.chunks) for s in _chunked_sets(scene))
+    assert 0 < len(saved) < total
+    assert f"{len(saved)} of {total} traced chunks are saved in {partial}" in message
+    assert f"`daylit bake {scene} -o {out} --cluster {address}`" in message
+    assert f"or on this machine: `daylit bake {scene} -o {out}`" in message
+    assert not out.exists()  # nothing published, nothing half-written
+    assert not list((partial / "chunks").glob("*.tmp"))
+
+    monkeypatch.undo()
+    messages: list[str] = []
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(tracework, "RAYS_PER_CHUNK", RAYS_PER_CHUNK)
+        bake(scene, out, workers=2, progress=False, log=messages.append)
+    assert any(f"resuming: {len(saved)} chunks already baked" in m for m in messages)
+    resumed = build_files(out)
+    assert resumed.keys() == reference.keys()
+    for path in reference:
+        assert resumed[path] == reference[path], path
+    assert not partial.exists()
+
+
+def test_a_cluster_left_without_workers_is_exit_2_with_what_to_do(
+    scene, tmp_path, monkeypatch, capsys
+):
+    """Every worker gone for longer than the no-workers timeout (the scheduler would wait
+    for one forever): the bake ends with the message, the saved chunks kept."""
+    from distributed import LocalCluster
+
+    monkeypatch.setattr(tracework, "RAYS_PER_CHUNK", RAYS_PER_CHUNK)
+    monkeypatch.setattr(cluster_mod, "WORKERS_TIMEOUT_S", 2)
+    out, partial = tmp_path / "out", tmp_path / ".out.partial"
+    save_chunk = chunkio.save_chunk
+    with LocalCluster(
+        n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0"
+    ) as local:
+
+        def stop_the_workers_after_one(path, arrays):
+            save_chunk(path, arrays)
+            local.scale(0)
+
+        monkeypatch.setattr(chunkio, "save_chunk", stop_the_workers_after_one)
+        address = local.scheduler_address
+        status = main(["bake", str(scene), "-o", str(out), "--cluster", address,
+                       "--no-progress"])
+    err = capsys.readouterr().err
+    assert status == 2, err
+    assert "has had no workers for 2 s" in err and "Traceback" not in err
+    saved = sorted((partial / "chunks").glob("*" + chunkio.SUFFIX))
+    assert len(saved) >= 1 and f"{len(saved)} of " in err
+    assert f"--cluster {address}`, or on this machine: `daylit bake {scene} -o {out}`" in err
+    assert not out.exists()
+
+
 def _chunked_sets(scene: Path) -> list:
     """The point sets of the scene as the bake chunks them (cache set first)."""
     from bake import pipeline
@@ -179,7 +340,7 @@ def test_workers_that_cannot_compress_are_a_clear_error_before_any_work(
     checkout = tmp_path / "checkout"
     monkeypatch.setattr(basisu, "REPO_ROOT", checkout)
     with LocalCluster(
-        n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None
+        n_workers=1, threads_per_worker=1, processes=False, dashboard_address=":0"
     ) as local:
         with pytest.raises(BakeError) as caught:
             bake(scene, out, cluster=local.scheduler_address, **QUIET)
