@@ -147,15 +147,33 @@ def touch_drag(page, fingers_start, dx_px, dy_px, steps=5):
     cdp.detach()
 
 
-def test_one_finger_turns_the_model_and_the_turn_is_kept(browser, web_build, reference,
-                                                         tmp_path):
+def turned_pose(alpha_deg, heading_deg, standpoint):
+    """(4, 4) world-from-camera of the camera mode: the device turned by the W3C angles
+    (alpha_deg, beta 90: held upright, gamma 0), then the model's heading offset about +y."""
+    h = np.radians(heading_deg)
+    turn = np.array([[np.cos(h), 0, np.sin(h)], [0, 1, 0], [-np.sin(h), 0, np.cos(h)]])
+    pose = np.eye(4)
+    pose[:3, :3] = turn @ device_rotation(alpha_deg, 90, 0)
+    pose[:3, 3] = standpoint
+    return pose
+
+
+def drawn_px(page, points):
+    screen(page)  # one frame through the shipped renderFrame: the view takes the pose
+    return np.array(page.evaluate("(p) => window.daylit.debug.project(p)", points.tolist()))
+
+
+def test_touch_turns_and_walks_the_model_and_the_alignment_is_kept(browser, web_build,
+                                                                   reference, tmp_path):
     """docs/web.md: one finger turns the model about the vertical (0.15 degrees per px) until
-    it sits on the real site, and the alignment is kept for the next visit (localStorage)."""
+    it sits on the real site, two fingers walk the standpoint in the view's ground plane (half
+    a metre per 50 px of the fingers' motion, up = forward), facing any way; the alignment is
+    kept for the next visit (localStorage). Real touch events (CDP)."""
     y4m = tmp_path / "pattern.y4m"
     write_pattern(y4m)
     sky = reference.light_vector(SKY)
     with camera_page(browser, web_build, y4m, sky, "&exposure=0.1", SIZE,
-                 has_touch=True) as (page, server, errors):
+                     has_touch=True) as (page, server, errors):
         view = server.manifest["views"][0]["world_from_camera"]
         standpoint = np.array([view[0][3], 1.6, view[2][3]])
         alpha0 = float(np.degrees(np.arctan2(standpoint[0], standpoint[2])))
@@ -163,23 +181,27 @@ def test_one_finger_turns_the_model_and_the_turn_is_kept(browser, web_build, ref
         orient(page, alpha0, 90, 0)
         dx_px = 80
         touch_drag(page, [(200, 250)], dx_px, 0)
-        heading = np.radians(0.15 * dx_px)
-        turn = np.array([[np.cos(heading), 0, np.sin(heading)], [0, 1, 0],
-                         [-np.sin(heading), 0, np.cos(heading)]])  # about +y (up)
-        pose = np.eye(4)
-        pose[:3, :3] = turn @ device_rotation(alpha0, 90, 0)
-        pose[:3, 3] = standpoint
+        heading_deg = 0.15 * dx_px
+        pose = turned_pose(alpha0, heading_deg, standpoint)
         expected = project_px(SITE_POINTS_M, pose, projection, SIZE)
-        screen(page)
-        drawn = np.array(page.evaluate("(p) => window.daylit.debug.project(p)",
-                                       SITE_POINTS_M.tolist()))
-        np.testing.assert_allclose(drawn, expected, atol=0.5)
+        np.testing.assert_allclose(drawn_px(page, SITE_POINTS_M), expected, atol=0.5)
         # The next visit starts aligned: the page again, same orientation, same picture.
         page.reload()
         page.wait_for_function(READY, timeout=60000)
         orient(page, alpha0, 90, 0)
-        screen(page)
-        again = np.array(page.evaluate("(p) => window.daylit.debug.project(p)",
-                                       SITE_POINTS_M.tolist()))
-        np.testing.assert_allclose(again, expected, atol=0.5)
+        np.testing.assert_allclose(drawn_px(page, SITE_POINTS_M), expected, atol=0.5)
+
+        # Two fingers pushed up 100 px: 1 m forward, facing the site and facing away from it
+        # (south-west here: a heading taken from the camera's Euler angle walked backwards).
+        for alpha in (alpha0, alpha0 + 180):
+            orient(page, alpha, 90, 0)
+            pose = turned_pose(alpha, heading_deg, standpoint)
+            # points 6-12 m ahead of the camera, in its view before the walk
+            ahead = (pose @ np.array([[0, 0, -8, 1], [2, 1, -6, 1], [-3, -1, -12, 1]]).T).T[:, :3]
+            touch_drag(page, [(260, 250), (380, 250)], 0, -100)
+            forward = -pose[:3, 2] * np.array([1, 0, 1])
+            standpoint = standpoint + forward / np.linalg.norm(forward)
+            walked = turned_pose(alpha, heading_deg, standpoint)
+            np.testing.assert_allclose(drawn_px(page, ahead),
+                                       project_px(ahead, walked, projection, SIZE), atol=0.5)
         assert not errors, errors

@@ -80,12 +80,16 @@ export class CameraView {
     if (this._touches.size === 1) {
       this.alignment.headingDeg += dx * 0.15;
     } else {
-      // two fingers: walk the standpoint in the view's ground plane, half a metre per 50 px
-      const yaw = this.camera.rotation.y;
-      const fwd = -dy / 100;
-      const side = dx / 100;
-      this.alignment.position[0] += side * Math.cos(yaw) + fwd * -Math.sin(yaw);
-      this.alignment.position[2] += -side * Math.sin(yaw) + fwd * -Math.cos(yaw);
+      // Two fingers: walk the standpoint in the view's ground plane, half a metre per 50 px of
+      // the fingers' mean motion (each finger's event moves it by its share). The heading from
+      // the view direction: the camera's Euler y is not its heading once it faces south.
+      const forward = this.camera.getWorldDirection(new THREE.Vector3()).setY(0);
+      if (forward.lengthSq() < 1e-6) return; // looking straight down or up: no heading
+      forward.normalize();
+      const along = -dy / 100 / this._touches.size;
+      const side = dx / 100 / this._touches.size;
+      this.alignment.position[0] += along * forward.x - side * forward.z;
+      this.alignment.position[2] += along * forward.z + side * forward.x;
     }
   }
 
