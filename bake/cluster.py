@@ -203,11 +203,7 @@ class Cluster:
         from distributed.client import FutureCancelledError
         from distributed.scheduler import KilledWorker, NoValidWorkerError
 
-        self._wait_for_a_worker()
-        try:
-            shared = self.client.scatter(setup, broadcast=True, hash=False)
-        except (OSError, TimeoutError) as exc:
-            raise self._lost_scheduler(exc) from None
+        shared = self._scatter_to_all(setup)
         pending = {}
         for path, (_, (points, normals, configs, bounce, words, _)) in remaining.items():
             future = self.client.submit(
@@ -259,6 +255,25 @@ class Cluster:
             with contextlib.suppress(Exception):
                 self.client.cancel([*pending, shared])
         return rays
+
+    def _scatter_to_all(self, setup: WorkerSetup):
+        """``setup`` scattered to every worker, once there is one. A worker that leaves during
+        the broadcast makes Dask's scheduler refuse it ("Can not use replicate to delete
+        data", a ValueError: CI met it while the test's only worker was being retired): the
+        workers are looked at again and the setup sent again, at most SETUP_RESENDS times."""
+        for _ in range(SETUP_RESENDS + 1):
+            self._wait_for_a_worker()
+            try:
+                return self.client.scatter(setup, broadcast=True, hash=False)
+            except (OSError, TimeoutError) as exc:
+                raise self._lost_scheduler(exc) from None
+            except ValueError as exc:
+                refused = exc
+                time.sleep(_POLL_S)
+        raise ClusterLostError(
+            f"the workers of {self.address} kept leaving while the stage's geometry was sent "
+            f"to them ({refused})"
+        )
 
     def _next_finished(self, finished):
         """The next finished future of ``finished`` (a ``distributed.as_completed``), checking

@@ -255,6 +255,34 @@ def test_a_chunk_dask_gives_up_on_is_exit_2_with_what_to_do_and_resumes_locally(
     assert not partial.exists()
 
 
+def test_a_worker_leaving_during_the_setup_broadcast_is_waited_out(scene, reference, tmp_path,
+                                                                   monkeypatch):
+    """A worker that leaves while the stage's setup is broadcast makes the scheduler refuse
+    the scatter with a ValueError (met on CI: "Can not use replicate to delete data"). Here
+    the real client's first broadcast is refused so: the bake sends it again and ends with
+    the local pool's bytes."""
+    from distributed import Client, LocalCluster
+
+    monkeypatch.setattr(tracework, "RAYS_PER_CHUNK", RAYS_PER_CHUNK)
+    refused: list = []
+    scatter = Client.scatter
+
+    def refused_once(self, *args, **kwargs):
+        if not refused:
+            refused.append(True)
+            raise ValueError("Can not use replicate to delete data")
+        return scatter(self, *args, **kwargs)
+
+    monkeypatch.setattr(Client, "scatter", refused_once)
+    out = tmp_path / "out"
+    with LocalCluster(
+        n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0"
+    ) as local:
+        bake(scene, out, cluster=local.scheduler_address, **QUIET)
+    assert refused
+    assert build_files(out) == reference
+
+
 def test_a_cluster_left_without_workers_is_exit_2_with_what_to_do(
     scene, tmp_path, monkeypatch, capsys
 ):
