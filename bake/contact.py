@@ -9,11 +9,10 @@ ground was 41 % too dark 5 cm from a wall and 8-9 % within 0.5 m (issue 20).
 Method: **buried texel centres moved off the buried region, then extrapolated along the
 chord** (docs/architecture.md, "Contact lines"; figures in docs/benchmarks.md).
 
-1. Before tracing (:func:`move_buried_samples`), a texel whose centre lies inside a solid
-   (most of its probe rays cross more back faces than front ones: :func:`solid_depth`) and
-   has a visible neighbour ``o`` on its surface (8-connected) casts a ray from its centre
-   ``b`` toward ``o``'s centre; where the ray leaves the solids at ``c``, just outside, becomes
-   the texel's sample point. Of several visible
+1. Before tracing (:func:`move_buried_samples`), a texel whose centre sees only back faces
+   (inside a solid) and has a visible neighbour ``o`` on its surface (8-connected) casts a
+   ray from its centre ``b`` toward ``o``'s centre; where the ray leaves the solid (a back
+   face) at ``c``, just outside it, becomes the texel's sample point. Of several visible
    neighbours the one reached soonest is used.
 2. After tracing (:func:`extrapolate_direct`), the texel's direct light is the chord through
    the two traced values, ``E(c)`` at the contact line and ``E(o)``, extended to ``b``:
@@ -47,15 +46,13 @@ from bake.denoise import MAX_CHANNELS, fitted_values, gaussian, plane_weights
 # False: texels at contact lines are treated as before issue 20 (buried texels dark, their
 # bounce the nearest open texel's): benchmarks/bench_contact.py's "before", in one run.
 ENABLED = True
-PROBE_RAYS = 16  # a texel centre is buried when most of its probe rays find it in a solid
+PROBE_RAYS = 16  # a texel centre is buried when all its probe rays hit back faces
 OUTSIDE_M = 0.005  # a moved sample point lies this far past where its ray leaves the solid
 MAX_EXIT_FRACTION = 0.9  # beyond this share of the way to the neighbour: left buried
 RINGS = 1  # buried texels within this many texels (8-connected) of visible ones are continued
 FIT_SIGMA_TEXELS = 1.0  # the fit reads mostly the two nearest visible texels in each direction
 NEAR_RINGS = 3  # visible texels this close to buried ones get the narrower bounce smoothing
 NEAR_SIGMA_TEXELS = 1.0
-MAX_CROSSINGS = 16  # faces followed along a probe ray to count the solids its origin is in
-CROSSING_STEP_M = 1e-4  # past a face hit before looking for the next
 
 
 def continue_into_buried(image: np.ndarray, labels: np.ndarray,
@@ -160,10 +157,11 @@ def move_buried_samples(atlas, scene) -> None:
     dirs = np.empty_like(origins)
     loops.cosine_weighted_rays(points, normals, lattice(PROBE_RAYS), np.zeros((T, 2)),
                                RAY_OFFSET_M, origins, dirs)
-    depth, _ = solid_depth(scene, origins, dirs)
-    # Most rays, not all: a ray through faces that coincide (two walls' tops at one height)
-    # meets one of them, and its count can be one off (solid_depth).
-    buried = (depth > 0).reshape(T, PROBE_RAYS).mean(axis=1) > 0.5
+    face, _ = scene.first_hit(origins, dirs)
+    back = np.zeros(len(face), bool)
+    hit = face >= 0
+    back[hit] = np.einsum("ij,ij->i", dirs[hit], scene.face_normals[face[hit]]) > 0.0
+    buried = back.reshape(T, PROBE_RAYS).all(axis=1)
     if not buried.any():
         return
     index = np.full((atlas.height, atlas.width), -1, np.int64)
@@ -189,8 +187,11 @@ def move_buried_samples(atlas, scene) -> None:
     span = points[po] - points[pb]
     length = np.linalg.norm(span, axis=1)
     direction = span / length[:, None]
-    _, distance = solid_depth(scene, points[pb] + RAY_OFFSET_M * normals[pb], direction)
-    fraction = (distance + OUTSIDE_M) / length  # inf where the ray does not leave
+    face, distance = scene.first_hit(points[pb] + RAY_OFFSET_M * normals[pb], direction)
+    leaves = face >= 0
+    leaves[leaves] = np.einsum("ij,ij->i", direction[leaves],
+                               scene.face_normals[face[leaves]]) > 0.0
+    fraction = np.where(leaves, (distance + OUTSIDE_M) / length, np.inf)
     usable = fraction <= MAX_EXIT_FRACTION
     pb, po, fraction, direction = pb[usable], po[usable], fraction[usable], direction[usable]
     length = length[usable]
@@ -204,58 +205,6 @@ def move_buried_samples(atlas, scene) -> None:
     atlas.points = atlas.points.copy()
     atlas.points[texel] = points[texel] + (f * length[chosen])[:, None] * direction[chosen]
     atlas.contact = {"texel": texel, "neighbour": neighbour, "extrapolation": 1.0 / (1.0 - f)}
-
-
-def solid_depth(scene, origins: np.ndarray, directions: np.ndarray):
-    """How many closed solids each ray's origin lies in, and where the ray leaves them all.
-
-    Parameters
-    ----------
-    scene : bake.raytrace.RayScene
-    origins, directions : (m, 3) metres, unit
-
-    Returns ``depth`` (m,) int and ``exit_m`` (m,) float: along each ray, every back face
-    hit is leaving a solid (+1) and every front face entering one (-1); their sum over the
-    whole ray is the depth of its origin, and ``exit_m`` the distance of the hit after which
-    the ray is in none (inf where the depth is not above 0). Why not the first hit alone:
-    where solids overlap (the end of one wall inside another), a point inside both sees
-    the inner one's faces from the front, and a texel under the second wall of the test
-    courtyard was taken for visible (its ground read 4.3 % bright 5 cm from that wall). A
-    ray still hitting after :data:`MAX_CROSSINGS` keeps its first hit's answer (a back face:
-    depth 1, leaving there). Faces that coincide (two solids' faces in one plane) are met as
-    one, so a ray crossing them can be counted one off: callers take a vote of several rays.
-    """
-    m = len(origins)
-    signs = np.zeros((m, MAX_CROSSINGS), np.int64)
-    dist = np.full((m, MAX_CROSSINGS), np.inf)
-    at = np.array(origins, dtype=np.float64)
-    directions = np.asarray(directions, dtype=np.float64)
-    travelled = np.zeros(m)
-    active = np.arange(m)
-    for k in range(MAX_CROSSINGS + 1):
-        if len(active) == 0:
-            break
-        face, d = scene.first_hit(at[active], directions[active])
-        hit = face >= 0
-        active, face, d = active[hit], face[hit], d[hit]
-        if k == MAX_CROSSINGS:
-            break  # these rays are left with their first hit's answer
-        back = np.einsum("ij,ij->i", directions[active], scene.face_normals[face]) > 0.0
-        signs[active, k] = np.where(back, 1, -1)
-        dist[active, k] = travelled[active] + d
-        # Past the face, so that it is not hit again.
-        travelled[active] += d + CROSSING_STEP_M
-        at[active] += (d + CROSSING_STEP_M)[:, None] * directions[active]
-    depth = signs.sum(axis=1)
-    unresolved = np.zeros(m, bool)
-    unresolved[active] = True
-    depth[unresolved] = np.maximum(signs[unresolved, 0], 0)
-    # The exit: the first crossing at which the running sum reaches the depth.
-    reached = (np.cumsum(signs, axis=1) == depth[:, None]) & (depth[:, None] > 0)
-    reached[unresolved, 1:] = False
-    first = np.argmax(reached, axis=1)
-    exit_m = np.where(reached.any(axis=1), dist[np.arange(m), first], np.inf)
-    return depth, exit_m
 
 
 def extrapolate_direct(atlas, direct: np.ndarray) -> np.ndarray:

