@@ -294,7 +294,10 @@ class Segmenter:
         # darkening bins, and the signature locked onto them (issue 18, noise 3 codes).
         # The foreground, not the candidates, is eroded: a small shadow under the feet
         # borders its person and keeps its core (eroding the candidates lost it).
-        k = s.shadow_signature_core_px
+        # The rim's width in pixels grows with the frame: the setting is per 1024 px of width
+        # (2 there; 1 at 480-512 px, where 2 lost a high sun's small shadows under the feet).
+        k = max(1, round(s.shadow_signature_core_px * bg.width / 1024)) if (
+            s.shadow_signature_core_px > 0) else 0
         core = candidates
         if k > 0:
             core = cv2.erode(different.view(np.uint8), np.ones((2 * k + 1, 2 * k + 1), np.uint8))

@@ -181,9 +181,10 @@ SCHEMA: dict = {
                                        "frame's, ln units", exclusiveMinimum=0),
         "shadow_dark_tolerance": _num(0.3, "its log darkening is within this of the "
                                       "frame's", exclusiveMinimum=0),
-        "shadow_signature_core_px": _int(1, "the signature is estimated from candidates at "
-                                         "least this many pixels inside the foreground: "
-                                         "its rim (outer penumbra, noise specks) left out; "
+        "shadow_signature_core_px": _int(2, "the signature is estimated from candidates at "
+                                         "least this many pixels (per 1024 px of frame "
+                                         "width, at least 1) inside the foreground: its "
+                                         "rim (outer penumbra, noise specks) left out; "
                                          "0: all", minimum=0),
         "shadow_signature_rate": _num(0.3, "smoothing of the signature from frame to frame "
                                       "(1: no memory)", exclusiveMinimum=0, maximum=1),
