@@ -20,8 +20,8 @@ W, H = 512, 256
 # and 0.1; at 1024x512 (bench_occlusion.py --heldout, docs/benchmarks.md) every condition
 # meets them (noise 3 codes on shadow since shadow_signature_core_px). At this half size
 # the people have a quarter of the pixels and the outer penumbra (kept: shadow_penumbra is
-# off) weighs more; three fall short (measured: bluish keeps 0.21 of the shadow, the shake gives IoU 0.88 and
-# keeps 0.25, JPEG 75 keeps 0.13): those hold the level reached, with margin.
+# off) weighs more; three fall short (measured: bluish keeps 0.21 of the shadow, the shake
+# gives IoU 0.88 and keeps 0.25, JPEG 75 keeps 0.13): those hold the level reached, with margin.
 REGION_SHARE_MAX = 0.25  # of the frame, median over frames with people (measured: see the test)
 
 GOALS = {
