@@ -240,7 +240,9 @@ class Segmenter:
         (the person model explains the pixel better than its background, i.e. the
         foreground before shadow removal, as the paper's Fig. 16 b), ``candidates`` (those of
         them darker than their background within ``shadow_ratio``) and, for the candidates
-        only, the shadow features of :func:`~server.occlusion.shadow.shadow_features`.
+        only, the shadow features of :func:`~server.occlusion.shadow.shadow_features` and
+        ``core`` (n,) bool, those at least ``shadow_signature_core_px`` inside ``different``
+        (the pixels the shadow signature is estimated from).
         """
         s = self.settings
         bg = self.background
@@ -286,8 +288,23 @@ class Segmenter:
         features = shadow_features(
             lin, lin_bg, s, tr.log_flat.take(at), tr.log_flat.take(at_bg), noise,
         )
+        # The candidates the signature is estimated from: the core of the foreground, away
+        # from its rim on lit ground. Under heavy sensor noise the outer penumbra (ground lit
+        # 70-90 %) and noise specks at that rim outnumbered the umbra in the signature's fine
+        # darkening bins, and the signature locked onto them (issue 18, noise 3 codes).
+        # The foreground, not the candidates, is eroded: a small shadow under the feet
+        # borders its person and keeps its core (eroding the candidates lost it).
+        # The rim's width in pixels grows with the frame: the setting is per 1024 px of width
+        # (2 there; 1 at 480-512 px, where 2 lost a high sun's small shadows under the feet).
+        k = max(1, round(s.shadow_signature_core_px * bg.width / 1024)) if (
+            s.shadow_signature_core_px > 0) else 0
+        core = candidates
+        if k > 0:
+            core = cv2.erode(different.view(np.uint8), np.ones((2 * k + 1, 2 * k + 1), np.uint8))
+        core = core.view(bool)[ys[dark], xs[dark]]
         return {"box": box, "codes": codes, "cost_fg": cost_fg, "cost_bg": cost_bg,
-                "different": different, "candidates": candidates, "features": features}
+                "different": different, "candidates": candidates, "features": features,
+                "core": core}
 
     def cut(self, terms: dict) -> tuple[np.ndarray, np.ndarray]:
         """Graph cut of one region's energy; returns ``(person, shadow)``, (h, w) bool:
@@ -332,12 +349,13 @@ class Segmenter:
 
         Returns full-frame ``(person, shadow, foreground)`` (H, W) bool: people, cast shadows
         removed from the foreground, and the foreground before shadow removal. The frame's
-        shadow signature is re-estimated from all regions before any is cut.
+        shadow signature is re-estimated from all regions (their cores) before any is cut.
         """
         t0 = time.perf_counter()
         terms = [self.colour_terms(corrected, box) for box in boxes]
         if terms:
-            merged = tuple(np.concatenate([t["features"][k] for t in terms]) for k in range(7))
+            merged = tuple(np.concatenate([np.broadcast_to(t["features"][k], t["core"].shape)
+                                           [t["core"]] for t in terms]) for k in range(7))
             self.signature.update(merged)
         t1 = time.perf_counter()
         shape = corrected.shape[:2]

@@ -181,6 +181,11 @@ SCHEMA: dict = {
                                        "frame's, ln units", exclusiveMinimum=0),
         "shadow_dark_tolerance": _num(0.3, "its log darkening is within this of the "
                                       "frame's", exclusiveMinimum=0),
+        "shadow_signature_core_px": _int(2, "the signature is estimated from candidates at "
+                                         "least this many pixels (per 1024 px of frame "
+                                         "width, at least 1) inside the foreground: its "
+                                         "rim (outer penumbra, noise specks) left out; "
+                                         "0: all", minimum=0),
         "shadow_signature_rate": _num(0.3, "smoothing of the signature from frame to frame "
                                       "(1: no memory)", exclusiveMinimum=0, maximum=1),
         "shadow_cost": _num(6.0, "background cost, nats, of a pixel that is a perfect shadow",
@@ -263,6 +268,7 @@ class OcclusionSettings:
     shadow_search: float = _default("shadow_search")
     shadow_shift_tolerance: float = _default("shadow_shift_tolerance")
     shadow_dark_tolerance: float = _default("shadow_dark_tolerance")
+    shadow_signature_core_px: int = _default("shadow_signature_core_px")
     shadow_signature_rate: float = _default("shadow_signature_rate")
     shadow_cost: float = _default("shadow_cost")
     shadow_slope: float = _default("shadow_slope")

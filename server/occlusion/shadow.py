@@ -178,8 +178,19 @@ class ShadowSignature:
         centres = lo_b + (np.arange(nb + 2) - 0.5) * step_b
         prior = (np.exp(-0.5 * ((centres - self.blue) / (0.5 * s.shadow_search)) ** 2)
                  if self.updates else np.ones(nb + 2))
-        pb, pd = np.unravel_index(int(np.argmax(smooth * prior[:, None])), smooth.shape)
+        prior = prior[:, None]
+        if self.dark is not None:
+            # Darkening changes slowly (a cloud fades the shadows over seconds): a peak far
+            # darker than the last estimate is a dark garment, not the shadows. Under heavy
+            # noise and a cloud, the fading shadows' cores vanished and the signature jumped
+            # to a neutral grey garment (ln -0.3 -> -1.4; issue 18).
+            centres_d = lo_d + (np.arange(nd + 2) - 0.5) * step_d
+            prior = prior * np.exp(-0.5 * ((centres_d - self.dark)
+                                           / s.shadow_dark_tolerance) ** 2)[None, :]
+        pb, pd = np.unravel_index(int(np.argmax(smooth * prior)), smooth.shape)
         cb, cd = lo_b + (pb - 0.5) * step_b, lo_d + (pd - 0.5) * step_d
+        if self.dark is not None and abs(cd - self.dark) > 2.0 * s.shadow_dark_tolerance:
+            return
         near = np.abs(b - cb) < s.shadow_shift_tolerance
         near &= np.abs(d - cd) < s.shadow_dark_tolerance
         if np.count_nonzero(near) < 20:

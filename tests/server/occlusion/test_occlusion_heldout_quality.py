@@ -18,16 +18,20 @@ W, H = 512, 256
 
 # condition: (least median person IoU, most shadow area kept as person). Issue 18 asks 0.9
 # and 0.1; at 1024x512 (bench_occlusion.py --heldout, docs/benchmarks.md) every condition
-# meets them on IoU and all but noise 3 codes on shadow. At this half size the people have a
-# quarter of the pixels and the outer penumbra (kept: shadow_penumbra is off) weighs more;
-# three fall short (measured: bluish keeps 0.21 of the shadow, the shake gives IoU 0.88 and
-# keeps 0.25, JPEG 75 keeps 0.13): those hold the level reached, with margin.
+# meets them (noise 3 codes on shadow since shadow_signature_core_px). At this half size
+# the people have a quarter of the pixels and the outer penumbra (kept: shadow_penumbra is
+# off) weighs more; three fall short (measured: bluish keeps 0.21 of the shadow, the shake
+# gives IoU 0.88 and keeps 0.25, JPEG 75 keeps 0.13): those hold the level reached, with margin.
 REGION_SHARE_MAX = 0.25  # of the frame, median over frames with people (measured: see the test)
 
 GOALS = {
     "neutral shadows": (0.9, 0.1),
     "bluish shadows": (0.9, 0.25),
     "jitter 0.5 px": (0.85, 0.3),
+    # 3 codes of sensor noise: the outer penumbra at the candidates' rim outnumbered the umbra
+    # and the shadow signature locked onto it, keeping 39 % of the shadow (1024x512, before
+    # shadow_signature_core_px); measured 6 % kept at this size with it.
+    "noise 3 codes": (0.9, 0.1),
     "JPEG 75": (0.85, 0.15),
 }
 
