@@ -165,7 +165,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
                                    "when the sky camera's sky or sun irradiance and the scene "
                                    "estimate's differ by more than this factor (median of 10 "
                                    "frames)", 1.0, 100.0, True),
-        "drift_factor": Key(1.13, "float", "with [sky] fuse_scene: /api/status warns when "
+        "drift_factor": Key(1.25, "float", "with [sky] fuse_scene: /api/status warns when "
                             "the sky camera's sky, fitted to the site camera's pixels, needs "
                             "a scale beyond this factor (a drifted or fogged sky camera; "
                             "median of 10 frames)", 1.0, 100.0, True),

@@ -86,7 +86,7 @@ class SceneFusion:
 
     def __init__(self, meter: SceneMeter, dome_vertices: np.ndarray,
                  disagreement_factor: float = 1.3, max_age_s: float = 5.0,
-                 rate_hz: float = 2.0, drift_factor: float = 1.13):
+                 rate_hz: float = 2.0, drift_factor: float = 1.25):
         self.meter = meter
         self.dome_vertices = np.asarray(dome_vertices, float)
         self.drift_factor = float(drift_factor)

@@ -7,7 +7,7 @@ server: a replay sky camera (a bracket of 8-bit PNGs whose sun clips in every ex
 gendaylit sky rendered by Radiance, and a site camera (an OpenEXR replay) of the same sky over
 the build's real proxies, rendered by Radiance too; the streamed sun is the scene's, within
 10 % of gendaylit's DNI, where the clear-sky model alone is not; a sky camera whose frames
-are scaled by 0.8 or 1.2 (drift, a fogged lens) makes ``/api/status`` warn, the undrifted one
+are scaled by 0.7 or 1.4 (drift, a fogged lens) makes ``/api/status`` warn, the undrifted one
 does not.
 """
 
@@ -198,27 +198,27 @@ async def test_a_clipped_sun_streams_the_scene_estimate(
     fusion = status["fusion"]
     # (0.90-0.93 on this hazy sky, 0.96-1.09 on the nine skies of test_sceneestimate's site:
     # docs/benchmarks.md)
-    assert 1 / 1.13 < fusion["sky_camera_gain"] < 1.13 and fusion["warning"] is None, fusion
+    assert 1 / 1.25 < fusion["sky_camera_gain"] < 1.25 and fusion["warning"] is None, fusion
     assert np.mean(fusion["sky_camera"]["sky_horizontal_irradiance_W_m2"]) == pytest.approx(
         110.0, rel=0.10)
     await ws.close()
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("drift", [0.8, 1.3])
+@pytest.mark.parametrize("drift", [0.7, 1.4])
 async def test_a_drifting_sky_camera_is_reported(
         aiohttp_client, scene_build, tmp_path, renders, drift):
-    """A sky camera whose frames read the sky x0.8 (a fogged lens) or x1.3 (a gain change).
-    The sky camera's gain against the site's pixels (server.skycheck, drift factor 1.13)
+    """A sky camera whose frames read the sky x0.7 (a fogged lens) or x1.4 (a gain change).
+    The sky camera's gain against the site's pixels (server.skycheck, drift factor 1.25)
     reports both; the comparison with the scene estimate's own sky (factor 1.3) misses the
-    fogged lens (its sky runs 17-20 % low on this sky, so the ratio reads 0.8 x 1.2)."""
+    fogged lens (its sky runs 17-20 % low on this sky, so the ratio reads 0.7 x 1.2)."""
     client = await aiohttp_client(_app(scene_build, tmp_path, renders, drift))
     status = await _status_when(client, lambda b: b["fusion"].get("scene_estimates", 0) >= 12
                                 and b["fusion"].get("sky_camera_gain") is not None
                                 and b["frames_measured"] >= 10)
     fusion = status["fusion"]
     assert fusion["sky_camera_gain"] == pytest.approx(drift, rel=0.12), fusion
-    assert not 1 / 1.13 <= fusion["sky_camera_gain"] <= 1.13, fusion
+    assert not 1 / 1.25 <= fusion["sky_camera_gain"] <= 1.25, fusion
     assert "sky camera gain" in fusion["warning"], fusion
     if drift < 1:
         assert 1 / 1.3 <= fusion["sky_ratio"] <= 1.3, fusion
