@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from tests.web.fakecamera import camera_page, orient, write_y4m_rows
+from tests.web.harness import srgb_to_linear
 
 pytestmark = [pytest.mark.browser]
 
@@ -28,11 +29,6 @@ BRIGHT_GROUND_CODE = 170
 BANDS = [(0, SKY_RGB), (180, (DARK_GROUND_CODE,) * 3), (290, (BRIGHT_GROUND_CODE,) * 3)]
 SKY_RADIANCE = 40.0  # W/(m^2 sr) in every patch: the open ground gets pi x 40 W/m^2
 LUMA = np.array([0.2126, 0.7152, 0.0722])
-
-
-def srgb_to_linear(code):
-    v = np.asarray(code, float) / 255
-    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
 
 
 def settled(page):
