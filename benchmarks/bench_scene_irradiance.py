@@ -41,7 +41,7 @@ import numpy as np  # noqa: E402
 SKIES = {"clear": (800.0, 80.0), "intermediate": (400.0, 200.0), "overcast": (0.0, 150.0)}
 HOUR = "11"
 RTRACE_POINTS = ["-ab", "2", "-aa", "0", "-ad", "1024", "-as", "0", "-lw", "1e-6",
-                 "-dj", "0", "-ds", "0", "-dc", "1", "-dt", "0"]
+                 "-dj", "0", "-ds", "0", "-dc", "1", "-dt", "0", "-u-"]
 
 
 def site_point_set(build_dir: Path, ground_step_m: float = 5.0, wall_step_m: float = 1.5,

@@ -47,9 +47,11 @@ WALL_ALBEDO = (0.40, 0.42, 0.45)
 PERSON_ALBEDO = (0.06, 0.05, 0.05)
 VAN_ALBEDO = (0.75, 0.75, 0.78)
 GROUND_HALF_M = 200.0
-# Radiance settings for camera rays: two bounces, ambient cache (noise like a real image's).
-CAMERA_RAYS = ["-ab", "2", "-ad", "512", "-as", "128", "-aa", "0.15", "-ar", "64", "-lw", "1e-5"]
-SKY_IRRADIANCE = ["-ab", "1", "-aa", "0", "-ad", "8192", "-as", "0", "-lw", "1e-7"]
+# Radiance settings for camera rays: two bounces, ambient cache (noise like a real image's);
+# correlated sampling (-u-): the same render every run, so a test passes or fails every run
+CAMERA_RAYS = ["-ab", "2", "-ad", "512", "-as", "128", "-aa", "0.15", "-ar", "64", "-lw", "1e-5",
+               "-u-"]
+SKY_IRRADIANCE = ["-ab", "1", "-aa", "0", "-ad", "8192", "-as", "0", "-lw", "1e-7", "-u-"]
 
 
 def box_mesh(size_m, base_center_m) -> trimesh.Trimesh:
