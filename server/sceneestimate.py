@@ -23,17 +23,20 @@ Under heavy cloud sunlit and shadowed surfaces look alike and ``E_sun`` goes to 
 The sky's angular distribution is a CIE general sky (``daylit.sky.CIESky``) chosen by the
 estimated sun/sky ratio (:func:`sky_type_for_ratio`) and solved again with that shape, blended
 with an isotropic part whose share is fitted from the pixels (followed across frames). Under an
-overcast sky (CIE type 2, ``OVERCAST_TYPE``) the sun is kept only when it explains the pixels
-clearly better than the sky alone (``sun_significance``). The overcast model's shape is what
-keeps the sun near 0 under heavy cloud: anything the sky model gets wrong that differs between
-sunlit and shadowed surfaces is read as sun. Against Radiance's Perez overcast skies (brighter
-toward the sun's side; walls getting about 0.4 of the horizontal irradiance, not an isotropic
-sky's 0.5) the CIE standard overcast (type 1, uniform in azimuth) with bounce surfaces lit
-isotropically left a sun of 3-10 % of the sky before that test (14 % of frames above 5 %);
-type 2 (slight brightening toward the sun) with the bounce on its tilt, 0-5 % (0.4 %).
+overcast sky the sun is kept only when it explains the pixels clearly better than the sky alone
+(``sun_significance``). The overcast model's shape is what keeps the sun near 0 under heavy
+cloud: anything the sky model gets wrong that differs between sunlit and shadowed surfaces is
+read as sun. Radiance's Perez overcast skies are brighter toward the sun when it is low and
+nearly uniform in azimuth when it is high; walls get about 0.4 of the horizontal irradiance,
+not an isotropic sky's 0.5. So the overcast shape is either CIE type (``OVERCAST_TYPES``: 1,
+uniform in azimuth, or 2, slight brightening toward the sun), whichever leaves the smaller
+residual without a sun (followed across frames), and bounce surfaces are lit on their tilt.
+Type 1 alone left a phantom sun at low sun; type 2 alone doubled the error of the irradiance
+at the site's points under a high overcast sun (docs/benchmarks.md).
 
 Everything that depends only on the view (pixels, their surface points, normals, albedos and
-which hemisphere directions see open sky) is computed once by :class:`SceneSamples`; what
+which hemisphere directions see open sky) is computed once by :class:`SceneSamples`
+(``server/scenesamples.py``); what
 depends on the sun (in sun or not) once per sun position (cached until it moves
 ``sun_cache_deg``); the per-frame cost is reading pixels and a small solve.
 
@@ -44,6 +47,7 @@ forward, pixel centres at +0.5) and 4x4 ``world_from_camera``.
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field
 
@@ -53,201 +57,24 @@ import trimesh
 from daylit.sky import SUN_SOLID_ANGLE_SR, Sky, Sun
 from daylit.spherical import normalize
 from server.robustfit import ransac_fit, robust_linear_fit, weighted_nonneg
+from server.scenesamples import (  # noqa: F401 (PinholeView, SceneEstimateError: the API)
+    SURFACE_OFFSET_M,
+    PinholeView,
+    SceneEstimateError,
+    SceneSamples,
+    intersector,
+    prepare_samples,
+)
 from server.skyshape import (  # noqa: F401 (sky_type_for_ratio, unit_sky: used by tests)
-    OVERCAST_TYPE,
+    OVERCAST_TYPES,
     sky_type_for_ratio,
     tilted_irradiance,
     unit_sky,
 )
-from server.surfacescale import SurfaceScales, surfaces_by_albedo
+from server.surfacescale import SurfaceScales
 
 LUMINANCE_RGB = np.array([0.2126, 0.7152, 0.0722])
-SURFACE_OFFSET_M = 0.01  # rays leave a surface this far along its normal
 MIN_SUNLIT = 10  # fewer usable sunlit samples: the sun cannot be told from the sky
-
-
-class SceneEstimateError(ValueError):
-    """The view cannot support an estimate (no known surface in it, bad inputs)."""
-
-
-@dataclass(frozen=True)
-class PinholeView:
-    """A site camera: ``K`` (3, 3) pixels, ``world_from_camera`` (4, 4), size in pixels."""
-
-    K: np.ndarray
-    world_from_camera: np.ndarray
-    width: int
-    height: int
-
-    @classmethod
-    def from_manifest(cls, view: dict) -> PinholeView:
-        """From a manifest ``views[]`` entry (docs/manifest.md)."""
-        return cls(np.asarray(view["K"], float), np.asarray(view["world_from_camera"], float),
-                   int(view["width"]), int(view["height"]))
-
-    def rays(self, pixels_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """World origins and unit directions (m, 3) through pixel positions ``(m, 2)`` (x, y;
-        a pixel's centre is at its index + 0.5)."""
-        pix = np.column_stack([pixels_xy, np.ones(len(pixels_xy))])
-        cam = pix @ np.linalg.inv(self.K).T
-        dirs = normalize(cam @ self.world_from_camera[:3, :3].T)
-        origins = np.broadcast_to(self.world_from_camera[:3, 3], dirs.shape).copy()
-        return origins, dirs
-
-
-def cosine_directions(count: int, seed: int = 0) -> np.ndarray:
-    """``count`` cosine-distributed unit directions (count, 3) about +Z (stratified)."""
-    rng = np.random.default_rng(seed)
-    side = max(1, int(math.sqrt(count)))
-    u = (np.arange(count) % side + rng.random(count)) / side
-    v = (np.arange(count) // side + rng.random(count)) / math.ceil(count / side)
-    r = np.sqrt(np.clip(u, 0.0, 1.0))
-    phi = 2.0 * math.pi * np.clip(v, 0.0, 1.0)
-    return np.column_stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(1.0 - r * r)])
-
-
-def _frames_about(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit tangents (m, 3) each, orthogonal to the unit ``normals`` (m, 3)."""
-    helper = np.where(np.abs(normals[:, 1:2]) < 0.9, [[0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0]])
-    t = normalize(np.cross(helper, normals))
-    return t, np.cross(normals, t)
-
-
-@dataclass
-class SceneSamples:
-    """The pool of known, diffuse surface pixels a view sees, and what the geometry says of
-    them (computed once per view).
-
-    Attributes (m samples, K hemisphere directions)
-    ----------
-    pixels_xy : (m, 2) int pixel column and row
-    points_m : (m, 3) site points; normals : (m, 3) unit, facing the camera
-    albedo : (m, 3) RGB albedo of the surface each pixel sees
-    hemisphere_dirs : (m, K, 3) cosine-distributed directions about each normal
-    sky_visible : (m, K) bool, the direction sees open sky (nothing hit, above the horizon)
-    bounce_points_m : (n, 3) what the other directions hit (n of them, all samples);
-    bounce_normals : (n, 3) unit; bounce_albedo : (n, 3); bounce_sample : (n,) int, the sample
-    each belongs to (directions below the horizon that hit nothing: open ground far away,
-    normal +Y, point NaN)
-    """
-
-    pixels_xy: np.ndarray
-    points_m: np.ndarray
-    normals: np.ndarray
-    albedo: np.ndarray
-    hemisphere_dirs: np.ndarray
-    sky_visible: np.ndarray
-    bounce_points_m: np.ndarray
-    bounce_normals: np.ndarray
-    bounce_albedo: np.ndarray
-    bounce_sample: np.ndarray
-    surface: np.ndarray
-
-    @property
-    def sky_view(self) -> np.ndarray:
-        """(m,) cosine-weighted fraction of each hemisphere that sees open sky."""
-        return self.sky_visible.mean(axis=1)
-
-    def bounce_terms(self, bounce_lit: np.ndarray, bounce_sky: np.ndarray | None = None
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Per sample (m, 3) RGB, one bounce, per unit sun normal irradiance and per unit sky
-        horizontal irradiance: ``mean_K rho_h cos_h in_sun_h`` and ``mean_K rho_h E_h(n_h)``
-        with ``E_h`` the sky's irradiance on the bounce surface's tilt per unit horizontal
-        irradiance, ``bounce_sky`` (n,) (default an isotropic sky's ``(1 + n_hy) / 2``); and
-        the fraction of each hemisphere that bounces. ``bounce_lit`` (n,) float:
-        ``cos_h * in_sun_h`` of each bounce point."""
-        m, k = self.sky_visible.shape
-        sun = np.zeros((m, 3))
-        sky = np.zeros((m, 3))
-        np.add.at(sun, self.bounce_sample, self.bounce_albedo * bounce_lit[:, None])
-        view = 0.5 * (1.0 + self.bounce_normals[:, 1]) if bounce_sky is None else bounce_sky
-        np.add.at(sky, self.bounce_sample, self.bounce_albedo * view[:, None])
-        return sun / k, sky / k, np.bincount(self.bounce_sample, minlength=m) / k
-
-
-def _intersector(mesh: trimesh.Trimesh):
-    return trimesh.ray.ray_pyembree.RayMeshIntersector(mesh) if trimesh.ray.has_embree \
-        else trimesh.ray.ray_triangle.RayMeshIntersector(mesh)
-
-
-def prepare_samples(mesh: trimesh.Trimesh, face_albedo: np.ndarray, view: PinholeView,
-                    count: int = 3000, hemisphere_count: int = 96, seed: int = 0,
-                    edge_px: float = 1.5, environment_albedo: float = 0.2) -> SceneSamples:
-    """Pick up to ``count`` random pixels of ``view`` that see a face of ``mesh`` (the real
-    proxies, ground included) away from any edge, with what the geometry says of them.
-
-    ``face_albedo`` (F, 3): each face's RGB albedo. A pixel is kept when the rays through its
-    corners (``edge_px`` away) hit faces of the same plane as its centre (so a 3 x 3 mean of
-    it reads one surface), and its surface faces the camera.
-    """
-    face_albedo = np.asarray(face_albedo, float)
-    if face_albedo.shape != (len(mesh.faces), 3):
-        raise SceneEstimateError(f"face_albedo has shape {face_albedo.shape}, the mesh "
-                                 f"{len(mesh.faces)} faces")
-    rng = np.random.default_rng(seed)
-    hit = _intersector(mesh)
-    margin = 2
-    tries = count * 3
-    xs = rng.integers(margin, view.width - margin, tries)
-    ys = rng.integers(margin, view.height - margin, tries)
-    centres = np.column_stack([xs, ys]).astype(float) + 0.5
-    origins, dirs = view.rays(centres)
-    face = hit.intersects_first(origins, dirs)
-    ok = face >= 0
-    face_normals = mesh.face_normals[np.maximum(face, 0)]
-    ok &= np.einsum("ij,ij->i", face_normals, dirs) < -0.05  # seen from the front
-    for dx, dy in ((-1, -1), (1, -1), (-1, 1), (1, 1)):
-        o, d = view.rays(centres + edge_px * np.array([dx, dy]))
-        f = hit.intersects_first(o, d)
-        same = f >= 0
-        same &= np.einsum("ij,ij->i", mesh.face_normals[np.maximum(f, 0)], face_normals) > 0.999
-        # same plane: the corner's hit lies on the centre face's plane
-        loc, ray_idx, _ = hit.intersects_location(o[ok & same], d[ok & same], multiple_hits=False)
-        keep = np.zeros(len(f), bool)
-        if len(ray_idx):
-            sel = np.flatnonzero(ok & same)[ray_idx]
-            v0 = mesh.vertices[mesh.faces[face[sel], 0]]
-            keep[sel] = np.abs(np.einsum("ij,ij->i", loc - v0, face_normals[sel])) < 0.02
-        ok &= keep
-    idx = np.flatnonzero(ok)[:count]
-    if len(idx) == 0:
-        raise SceneEstimateError("the view sees no surface of the real proxies")
-    # Hit points of the kept centres.
-    loc, ray_idx, _ = hit.intersects_location(origins[idx], dirs[idx], multiple_hits=False)
-    points = np.empty((len(idx), 3))
-    points[ray_idx] = loc
-    normals = face_normals[idx]
-    t, b = _frames_about(normals)
-    local = cosine_directions(hemisphere_count, seed + 1)
-    hemi = (local[None, :, 0:1] * t[:, None] + local[None, :, 1:2] * b[:, None]
-            + local[None, :, 2:3] * normals[:, None])
-    m, k = hemi.shape[:2]
-    start = np.repeat(points + SURFACE_OFFSET_M * normals, k, axis=0)
-    flat = hemi.reshape(-1, 3)
-    first = hit.intersects_first(start, flat)
-    blocked = (first >= 0).reshape(m, k)
-    sky_visible = ~blocked & (hemi[..., 1] > 0.0)
-    # What the other directions see: a face (where it is hit), or far ground.
-    hits = np.flatnonzero(first >= 0)
-    loc, ray_idx, _ = hit.intersects_location(start[hits], flat[hits], multiple_hits=False)
-    hit_points = np.full((len(hits), 3), np.nan)
-    hit_points[ray_idx] = loc
-    found = np.isfinite(hit_points[:, 0])
-    hits, hit_points = hits[found], hit_points[found]
-    far = np.flatnonzero((first < 0) & (flat[:, 1] <= 0.0))
-    bounce_rays = np.concatenate([hits, far])
-    env = np.full(3, environment_albedo)
-    return SceneSamples(
-        pixels_xy=np.column_stack([xs[idx], ys[idx]]),
-        points_m=points, normals=normals, albedo=face_albedo[face[idx]],
-        hemisphere_dirs=hemi, sky_visible=sky_visible,
-        bounce_points_m=np.vstack([hit_points, np.full((len(far), 3), np.nan)]),
-        bounce_normals=np.vstack([mesh.face_normals[first[hits]],
-                                  np.tile([0.0, 1.0, 0.0], (len(far), 1))]),
-        bounce_albedo=np.vstack([face_albedo[first[hits]], np.tile(env, (len(far), 1))]),
-        bounce_sample=bounce_rays // k,
-        surface=surfaces_by_albedo(face_albedo)[face[idx]],
-    )
 
 
 @dataclass
@@ -312,7 +139,7 @@ class SceneEstimator:
     patch_px : half-size of the square of pixels averaged per sample (1: 3 x 3)
     sun_cache_deg : in-sun flags are cast again when the sun moved more than this
     share_memory : weight of the past in the sky shape's model share (0: each frame alone)
-    sun_significance : under an overcast sky (``OVERCAST_TYPE`` chosen), the sun is kept only if it
+    sun_significance : under an overcast sky (``OVERCAST_TYPES``), the sun is kept only if it
         lowers the weighted squared residual by more than this fraction
     learn_albedo : learn each surface's albedo scale from the frames (server.surfacescale):
         one surface with a wrong stated albedo no longer scales the estimate
@@ -338,6 +165,7 @@ class SceneEstimator:
     _hit: object = field(default=None, init=False, repr=False)
     _sky_cache: dict = field(default_factory=dict, init=False, repr=False)
     _share: dict = field(default_factory=dict, init=False, repr=False)
+    _shape_misfit: dict = field(default_factory=dict, init=False, repr=False)
 
     @property
     def pool_samples(self) -> SceneSamples:
@@ -419,7 +247,7 @@ class SceneEstimator:
             idx = np.flatnonzero(facing)
             start = points[idx] + SURFACE_OFFSET_M * normals[idx]
             if self._hit is None:
-                self._hit = _intersector(self.mesh)
+                self._hit = intersector(self.mesh)
             lit[idx] = ~self._hit.intersects_any(start, np.broadcast_to(sun_dir, start.shape))
         return lit
 
@@ -434,18 +262,85 @@ class SceneEstimator:
         return float(share if previous is None else (
             self.share_memory * previous + (1.0 - self.share_memory) * share))
 
-    def _sun_needed(self, a_rgb: np.ndarray, sky_col: np.ndarray, values: np.ndarray,
-                    weights: np.ndarray) -> bool:
-        """Whether the sun's term lowers the weighted squared residual (all channels) by more
-        than ``sun_significance`` of what the sky alone leaves."""
-        with_sun = without = 0.0
+    def _best_overcast_fit(self, sun_dir: np.ndarray, frame: _FrameSamples) -> SceneLight:
+        """The overcast shape that explains the frames best without a sun (the sky-alone
+        residual, followed across frames), fitted with it; the
+        surfaces' albedo scales as that fit left them (each shape's fit starts from the same
+        scales: one shape's refit must not steer the other's)."""
+        before = copy.deepcopy(self._surface_scales)
+        fits = []
+        for sky_type in OVERCAST_TYPES:
+            self._surface_scales = copy.deepcopy(before)
+            light, sky_alone = self._fit_shape(sky_type, sun_dir, frame)
+            # followed across frames like the share: the sky's shape changes slowly, one
+            # frame's residuals are noisy
+            previous = self._shape_misfit.get(sky_type, sky_alone)
+            self._shape_misfit[sky_type] = (self.share_memory * previous
+                                            + (1.0 - self.share_memory) * sky_alone)
+            fits.append((self._shape_misfit[sky_type], light, self._surface_scales))
+        _, light, self._surface_scales = min(fits, key=lambda fit: fit[0])
+        return light
+
+    def _fit_shape(self, sky_type: int, sun_dir: np.ndarray,
+                   frame: _FrameSamples) -> tuple[SceneLight, float]:
+        """The sun and sky with the sky's shape of CIE type ``sky_type``, and the weighted
+        mean squared residual the sky alone leaves with that shape (what tells one overcast
+        shape from another)."""
+        s, b_model = self.sky_term(sky_type, sun_dir)
+        s, b_model = s[frame.pick], b_model[frame.pick]
+        values = frame.values
+        y_sum = values.sum(axis=1)
+        # (n, 3): radiance per unit sun normal irradiance and albedo, per unit sky irradiance
+        # and albedo; the last the isotropic part of the sky: what a uniform sky of unit
+        # horizontal irradiance gives (the sky view factor; Perez and Hay-Davies split the sky
+        # the same way)
+        per_albedo = [(frame.cos_i[:, None] + frame.bounce_sun) / math.pi,
+                      (s[:, None] + b_model) / math.pi,
+                      (frame.sky_view[:, None] + frame.bounce_sky) / math.pi]
+        sunlit_count = int(np.sum(frame.cos_i > 0.05))
+        if sunlit_count < MIN_SUNLIT:
+            per_albedo[0] = np.zeros_like(per_albedo[0])
+        stated_albedo, surface = frame.albedo, frame.surface
+        (a_rgb, c_rgb, u_rgb), A_sum = _albedo_terms(
+            stated_albedo * self._scales.of(surface)[:, None], per_albedo)
+        inliers = ransac_fit(A_sum[:, 0], A_sum[:, 1], y_sum, self._rng)
+        # The weights come from the channel sum (a person in a red coat is an outlier in
+        # every channel); each channel is then one weighted least-squares solve.
+        x_sum, weights = robust_linear_fit(A_sum, y_sum, inliers)
+        if self.learn_albedo:
+            # a wrong albedo on one surface: its scale from these samples, then the fit
+            # again with it. The sky as one term of this fit's shape: the model and the
+            # isotropic sky differ most on walls, and two free sky terms would let a
+            # wall's scale take up the difference.
+            share = self._model_share(sky_type, x_sum)
+            sun_t = (stated_albedo * per_albedo[0]).sum(axis=1)
+            sky_t = (stated_albedo * (share * per_albedo[1] + (1.0 - share) * per_albedo[2]))
+            self._scales.refit(surface, np.column_stack([sun_t, sky_t.sum(axis=1)]), y_sum)
+            (a_rgb, c_rgb, u_rgb), A_sum = _albedo_terms(
+                stated_albedo * self._scales.of(surface)[:, None], per_albedo)
+            x_sum, weights = robust_linear_fit(A_sum, y_sum, weights)
+        model_share = self._model_share(sky_type, x_sum)
+        sky_col = model_share * c_rgb + (1.0 - model_share) * u_rgb
+        sun_rgb, sky_rgb, with_sun = np.zeros(3), np.zeros(3), 0.0
+        sky_alone_rgb, sky_alone = np.zeros(3), 0.0
         for ch in range(3):
             both = np.column_stack([a_rgb[:, ch], sky_col[:, ch]])
-            x = weighted_nonneg(both, values[:, ch], weights)
-            with_sun += float(weights @ (values[:, ch] - both @ x) ** 2)
-            k = weighted_nonneg(sky_col[:, ch:ch + 1], values[:, ch], weights)[0]
-            without += float(weights @ (values[:, ch] - k * sky_col[:, ch]) ** 2)
-        return with_sun < (1.0 - self.sun_significance) * without
+            sun_rgb[ch], sky_rgb[ch] = weighted_nonneg(both, values[:, ch], weights)
+            with_sun += _weighted_mse(values[:, ch], both @ [sun_rgb[ch], sky_rgb[ch]],
+                                           weights)
+            sky_alone_rgb[ch] = weighted_nonneg(sky_col[:, ch:ch + 1], values[:, ch],
+                                                weights)[0]
+            sky_alone += _weighted_mse(values[:, ch], sky_alone_rgb[ch] * sky_col[:, ch],
+                                            weights)
+        if sky_type in OVERCAST_TYPES and not with_sun < (1.0 - self.sun_significance) * \
+                sky_alone:
+            # Overcast: a small sun that explains little more than the sky alone is the sky
+            # model's error, not a sun (Jensen et al.: under heavy cloud, none).
+            sun_rgb, sky_rgb = np.zeros(3), sky_alone_rgb
+        self._share[sky_type] = model_share
+        return SceneLight(sun_rgb, sky_rgb, sky_type, sun_dir, sunlit_count >= MIN_SUNLIT,
+                          len(frame.pick), float(np.mean(weights > 0.5)),
+                          float(model_share)), sky_alone
 
     def _pick(self, lit: np.ndarray) -> np.ndarray:
         """``samples`` pool indices, half in sun and half in shadow where the pool has them
@@ -503,68 +398,47 @@ class SceneEstimator:
         if len(pick) < 8:
             raise SceneEstimateError(f"only {len(pick)} usable samples in the frame")
         cos_i = np.clip(p.normals[pick] @ sun_dir, 0.0, None) * lit[pick]
-        stated_albedo = p.albedo[pick]
-        surface = p.surface[pick]
-        b_sun, b_sky = bounce_sun[pick], bounce_sky[pick]
-        sunlit_count = int(np.sum(cos_i > 0.05))
-        y_sum = values.sum(axis=1)
+        frame = _FrameSamples(pick, values, cos_i, bounce_sun[pick], bounce_sky[pick],
+                              p.albedo[pick], p.surface[pick], p.sky_view[pick])
         sky_type = 12
         result = None
         for _ in range(3):
-            s, b_model = self.sky_term(sky_type, sun_dir)
-            s, b_model = s[pick], b_model[pick]
-            # the isotropic part of the sky: what a uniform sky of unit horizontal irradiance
-            # gives (the sky view factor; Perez and Hay-Davies split the sky the same way)
-            u = p.sky_view[pick]
-            # (n, 3): radiance per unit sun normal irradiance and albedo, per unit sky
-            # irradiance and albedo
-            per_albedo = [(cos_i[:, None] + b_sun) / math.pi, (s[:, None] + b_model) / math.pi,
-                          (u[:, None] + b_sky) / math.pi]
-            if sunlit_count < MIN_SUNLIT:
-                per_albedo[0] = np.zeros_like(per_albedo[0])
-            (a_rgb, c_rgb, u_rgb), A_sum = _albedo_terms(
-                stated_albedo * self._scales.of(surface)[:, None], per_albedo)
-            inliers = ransac_fit(A_sum[:, 0], A_sum[:, 1], y_sum, self._rng)
-            # The weights come from the channel sum (a person in a red coat is an outlier in
-            # every channel); each channel is then one weighted least-squares solve.
-            x_sum, weights = robust_linear_fit(A_sum, y_sum, inliers)
-            if self.learn_albedo:
-                # a wrong albedo on one surface: its scale from these samples, then the fit
-                # again with it. The sky as one term of this fit's shape: the model and the
-                # isotropic sky differ most on walls, and two free sky terms would let a
-                # wall's scale take up the difference.
-                share = self._model_share(sky_type, x_sum)
-                sun_t = (stated_albedo * per_albedo[0]).sum(axis=1)
-                sky_t = (stated_albedo * (share * per_albedo[1] + (1.0 - share) * per_albedo[2]))
-                self._scales.refit(surface, np.column_stack([sun_t, sky_t.sum(axis=1)]), y_sum)
-                (a_rgb, c_rgb, u_rgb), A_sum = _albedo_terms(
-                    stated_albedo * self._scales.of(surface)[:, None], per_albedo)
-                x_sum, weights = robust_linear_fit(A_sum, y_sum, weights)
-            model_share = self._model_share(sky_type, x_sum)
-            sky_col = model_share * c_rgb + (1.0 - model_share) * u_rgb
-            sun_rgb = np.zeros(3)
-            sky_rgb = np.zeros(3)
-            for ch in range(3):
-                sun_rgb[ch], sky_rgb[ch] = weighted_nonneg(
-                    np.column_stack([a_rgb[:, ch], sky_col[:, ch]]), values[:, ch], weights)
-            if sky_type == OVERCAST_TYPE and not self._sun_needed(a_rgb, sky_col, values, weights):
-                # Overcast: a small sun that explains little more than the sky alone is the
-                # sky model's error, not a sun (Jensen et al.: under heavy cloud, none).
-                sun_rgb[:] = 0.0
-                for ch in range(3):
-                    sky_rgb[ch] = weighted_nonneg(sky_col[:, ch:ch + 1], values[:, ch],
-                                                  weights)[0]
-            self._share[sky_type] = model_share
-            result = SceneLight(sun_rgb, sky_rgb, sky_type, sun_dir, sunlit_count >= MIN_SUNLIT,
-                                len(pick), float(np.mean(weights > 0.5)), float(model_share))
-            ratio = float(LUMINANCE_RGB @ sun_rgb) / max(float(LUMINANCE_RGB @ sky_rgb), 1e-9)
+            if sky_type in OVERCAST_TYPES:
+                result = self._best_overcast_fit(sun_dir, frame)
+            else:
+                result = self._fit_shape(sky_type, sun_dir, frame)[0]
+            ratio = float(LUMINANCE_RGB @ result.sun_normal_irradiance) / max(
+                float(LUMINANCE_RGB @ result.sky_horizontal_irradiance), 1e-9)
             new_type = sky_type_for_ratio(ratio)
-            if new_type == sky_type:
+            if new_type == sky_type or (new_type in OVERCAST_TYPES and sky_type in OVERCAST_TYPES):
                 break
             sky_type = new_type
         if self.learn_albedo:
             self._scales.end_frame()
         return result
+
+
+@dataclass
+class _FrameSamples:
+    """One frame's usable samples: pool indices ``pick`` (n,), linear radiances ``values``
+    (n, 3) W/(m^2 sr), and the pool's terms for them: ``cos_i`` (n,) the sun's cosine where
+    in sun (else 0), ``bounce_sun`` and ``bounce_sky`` (n, 3), stated ``albedo`` (n, 3),
+    ``surface`` (n,) int and ``sky_view`` (n,)."""
+
+    pick: np.ndarray
+    values: np.ndarray
+    cos_i: np.ndarray
+    bounce_sun: np.ndarray
+    bounce_sky: np.ndarray
+    albedo: np.ndarray
+    surface: np.ndarray
+    sky_view: np.ndarray
+
+
+def _weighted_mse(values: np.ndarray, model: np.ndarray, weights: np.ndarray) -> float:
+    """The weighted mean of squared residuals (n,): comparable between fits whose robust
+    weights differ."""
+    return float(weights @ (values - model) ** 2) / max(float(weights.sum()), 1e-12)
 
 
 def _albedo_terms(albedo: np.ndarray, per_albedo: list[np.ndarray]):

@@ -18,17 +18,20 @@ import numpy as np
 
 from daylit.sky import CIESky, azimuth_elevation_from_direction
 
-OVERCAST_RATIO = 0.5  # E_sun / k below this: an overcast CIE sky (OVERCAST_TYPE)
-OVERCAST_TYPE = 2  # CIE overcast, steep gradation, slight brightening toward the sun
+OVERCAST_RATIO = 0.5  # E_sun / k below this: one of the overcast CIE skies (OVERCAST_TYPES)
+# CIE overcast with steep gradation: uniform in azimuth (1, the CIE standard overcast) or with
+# a slight brightening toward the sun (2); the estimate takes the one that fits the frame best
+OVERCAST_TYPES = (1, 2)
 CLEAR_RATIO = 3.0  # at or above: the CIE clear sky (type 12); between: partly cloudy (7)
 
 
 def sky_type_for_ratio(sun_to_sky: float) -> int:
     """The CIE general sky for a ratio of sun normal irradiance to sky horizontal irradiance:
-    ``OVERCAST_TYPE`` below ``OVERCAST_RATIO``, 12 (clear) from ``CLEAR_RATIO``, 7 (partly cloudy)
-    between. (Coarse on purpose: the isotropic share fitted beside it adapts the shape.)"""
+    ``OVERCAST_TYPES[0]`` (standing for the overcast family) below ``OVERCAST_RATIO``, 12
+    (clear) from ``CLEAR_RATIO``, 7 (partly cloudy) between. (Coarse on purpose: the
+    isotropic share fitted beside it adapts the shape.)"""
     if sun_to_sky < OVERCAST_RATIO:
-        return OVERCAST_TYPE
+        return OVERCAST_TYPES[0]
     return 12 if sun_to_sky >= CLEAR_RATIO else 7
 
 
