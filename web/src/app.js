@@ -143,7 +143,7 @@ export class App {
     loading(0);
     try {
       this.assets = new Assets(this.params.get('manifest') ?? '/build/manifest.json',
-        { exactTextures: this.params.get('textures') !== 'gpu', textureMode: this.params.get('textures') ?? 'exact', onProgress: loading });
+        { textureMode: this.params.get('textures') ?? 'exact', onProgress: loading });
       this.assets.initTextures(this.renderer);
       const manifest = await this.assets.loadManifest();
       document.title = `${manifest.scene.name} under the live sky · daylit`;

@@ -23,20 +23,17 @@ const TRANSCODER_PATH = '/vendor/three/examples/jsm/libs/basis/';
 export class Assets {
   /**
    * @param {string} manifestUrl e.g. '/build/manifest.json' (the hello's `manifest`)
-   * @param {{exactTextures?: boolean}} options exactTextures (default true): transcode the
-   *   UASTC data to plain RGBA8 so the GPU reads exactly the texels the numpy reference reads
-   *   (docs/web.md, "Texture formats"), ETC1S data as ETC2 blocks where the GPU has them
-   *   (lossless) unless textureMode is 'rgba8'; false lets KTX2Loader pick a compressed GPU
-   *   format.
+   * @param {{textureMode?: string}} options textureMode (the page's `?textures=`): 'exact'
+   *   (default) transcodes the UASTC data to plain RGBA8 so the GPU reads exactly the texels the
+   *   numpy reference reads (docs/web.md, "Texture formats"), and ETC1S data to ETC2 blocks
+   *   where the GPU has them (lossless); 'rgba8' decodes every file to RGBA8, ETC1S too (as
+   *   before 2026-11-25); 'gpu' lets KTX2Loader pick a compressed GPU format.
    *   onProgress(bytesLoaded): called as the bytes of each file arrive (assignable later,
    *   `assets.onProgress = null` to stop).
    */
   constructor(manifestUrl = '/build/manifest.json', options = {}) {
     this.manifestUrl = manifestUrl;
     this.base = new URL('.', new URL(manifestUrl, location.href)).href;
-    this.exactTextures = options.exactTextures ?? true;
-    // 'rgba8': every file decoded to RGBA8 (as before 2026-11-25), ETC1S files too; else ETC1S
-    // files go to the GPU as ETC2 where it has it (initTextures)
     this.textureMode = options.textureMode ?? 'exact';
     this.manifest = null;
     this.files = new Map(); // path -> {bytes, sha256}
@@ -176,6 +173,12 @@ export class Assets {
   _count(n) {
     this.bytesLoaded += n;
     this.onProgress?.(this.bytesLoaded);
+  }
+
+  /** Whether the basis data reach the GPU exactly as the reference decodes them (every mode
+   * but 'gpu'). */
+  get exactTextures() {
+    return this.textureMode !== 'gpu';
   }
 
   /** Set up the Basis transcoder for this renderer (once) and start fetching it (its wasm is
