@@ -8,13 +8,12 @@ from __future__ import annotations
 import asyncio
 import subprocess
 
-import cv2
 import imageio_ffmpeg
 import numpy as np
 from aiohttp import web
 
 from server.sources.camera import CameraSource
-from tests.server.test_camera_mjpeg import numbered_frames
+from tests.server.test_camera_mjpeg import decoded, numbered_frames, running, wait_until, which
 
 FPS = 25
 
@@ -56,18 +55,13 @@ async def serve_ts(stream: bytes, chunks: int):
 
 
 async def test_a_camera_url_delivers_the_served_h264_frames():
-    images = [cv2.imdecode(np.frombuffer(j, np.uint8), cv2.IMREAD_COLOR)
-              for j in numbered_frames(6)]
+    images = decoded(numbered_frames(6))
     sequence = [images[k // 10] for k in range(60)]  # each picture for 10 frames, in order
     runner, url = await serve_ts(h264_ts(sequence), chunks=60)
     source = CameraSource(url, rate_hz=100.0)
-    got = []
-    task = asyncio.create_task(source.run(got.append))
-    try:
-        for _ in range(400):
-            if got and which(got[-1].image, images)[0] == len(images) - 1:
-                break
-            await asyncio.sleep(0.05)
+    async with running(source, runner) as got:
+        await wait_until(lambda: got and which(got[-1].image, images)[0] == len(images) - 1,
+                         400)
         assert len(got) >= 3, (len(got), source.last_error)
         assert source.connected and source.name == f"camera:{url}"
         found = []
@@ -80,13 +74,3 @@ async def test_a_camera_url_delivers_the_served_h264_frames():
             found.append(index)
         assert found == sorted(found), found  # in the served order
         assert found[-1] == len(images) - 1 and len(set(found)) >= 3, found
-    finally:
-        task.cancel()
-        await asyncio.gather(task, return_exceptions=True)
-        await runner.cleanup()
-
-
-def which(image: np.ndarray, images: list[np.ndarray]) -> tuple[int, float]:
-    """The served picture nearest to a received image, and the mean absolute difference."""
-    errors = [np.abs(image.astype(int) - i).mean() for i in images]
-    return int(np.argmin(errors)), float(min(errors))

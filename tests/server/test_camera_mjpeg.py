@@ -4,6 +4,7 @@ through OpenCV's FFmpeg backend, from an MJPEG stream this test serves itself (a
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import functools
 
 import cv2
@@ -53,39 +54,58 @@ async def serve_mjpeg(jpegs: list[bytes], stop_after: int | None = None):
     return runner, f"http://127.0.0.1:{port}/mjpeg"
 
 
-def which(image: np.ndarray, jpegs: list[bytes]) -> tuple[int, float]:
-    """The served frame nearest to a received image, and the mean absolute difference."""
-    errors = [np.abs(image.astype(int) - cv2.imdecode(np.frombuffer(j, np.uint8),
-                                                      cv2.IMREAD_COLOR)).mean() for j in jpegs]
+def decoded(jpegs: list[bytes]) -> list[np.ndarray]:
+    """The served JPEGs as OpenCV decodes them (BGR)."""
+    return [cv2.imdecode(np.frombuffer(j, np.uint8), cv2.IMREAD_COLOR) for j in jpegs]
+
+
+def which(image: np.ndarray, images: list[np.ndarray]) -> tuple[int, float]:
+    """The served picture nearest to a received image, and the mean absolute difference."""
+    errors = [np.abs(image.astype(int) - i).mean() for i in images]
     return int(np.argmin(errors)), float(min(errors))
+
+
+@contextlib.asynccontextmanager
+async def running(source: CameraSource, runner: web.AppRunner):
+    """The source reading in a task for the block, the frames it delivers in the yielded list;
+    after it, the task cancelled and the test's stream server closed."""
+    got = []
+    task = asyncio.create_task(source.run(got.append))
+    try:
+        yield got
+    finally:
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+        await runner.cleanup()
+
+
+async def wait_until(done, tries: int, period_s: float = 0.05) -> None:
+    """Polls ``done()`` up to ``tries`` times, ``period_s`` apart (the test's assertions then
+    say what was missing)."""
+    for _ in range(tries):
+        if done():
+            return
+        await asyncio.sleep(period_s)
 
 
 async def test_a_camera_url_delivers_the_served_mjpeg_frames():
     jpegs = numbered_frames()
+    images = decoded(jpegs)
     runner, url = await serve_mjpeg(jpegs)
     source = CameraSource(url, rate_hz=100.0)
-    got = []
-    task = asyncio.create_task(source.run(got.append))
-    try:
-        for _ in range(300):
-            if len(got) >= 12:
-                break
-            await asyncio.sleep(0.05)
+    async with running(source, runner) as got:
+        await wait_until(lambda: len(got) >= 12, 300)
         assert len(got) >= 12, (len(got), source.last_error)
         assert source.connected and source.name == f"camera:{url}"
         found = []
         for frame in got:
             assert frame.bgr and frame.image.shape == (120, 160, 3)
-            index, error = which(frame.image, jpegs)
+            index, error = which(frame.image, images)
             assert error < 2.0, error  # FFmpeg's JPEG decoder against libjpeg's: same picture
             found.append(index)
         steps = {(b - a) % len(jpegs) for a, b in zip(found, found[1:], strict=False)}
         assert steps <= {0, 1, 2}, found  # in the served order (the newest, maybe one skipped)
         assert len(set(found)) == len(jpegs)
-    finally:
-        task.cancel()
-        await asyncio.gather(task, return_exceptions=True)
-        await runner.cleanup()
 
 
 async def test_a_camera_that_stops_sending_is_reconnected():
@@ -95,17 +115,8 @@ async def test_a_camera_that_stops_sending_is_reconnected():
     runner, url = await serve_mjpeg(jpegs, stop_after=5)
     source = CameraSource(url, rate_hz=100.0, reconnect_min_s=0.2,
                           open_capture=functools.partial(open_video_capture, timeout_ms=1500))
-    got = []
-    task = asyncio.create_task(source.run(got.append))
-    try:
-        for _ in range(400):
-            if source.reconnects >= 1 and len(got) >= 6:
-                break
-            await asyncio.sleep(0.05)
+    async with running(source, runner) as got:
+        await wait_until(lambda: source.reconnects >= 1 and len(got) >= 6, 400)
         assert source.reconnects >= 1, source.last_error
         assert "stopped delivering frames" in source.last_error
         assert len(got) >= 6  # frames again after the reconnect
-    finally:
-        task.cancel()
-        await asyncio.gather(task, return_exceptions=True)
-        await runner.cleanup()
