@@ -25,8 +25,9 @@ def browser():
 class Page:
     """A Playwright page plus the console errors and page errors it produced."""
 
-    def __init__(self, browser, width=640, height=360):
-        self.context = browser.new_context(viewport={"width": width, "height": height})
+    def __init__(self, browser, width=640, height=360, has_touch=False):
+        self.context = browser.new_context(viewport={"width": width, "height": height},
+                                           has_touch=has_touch)
         self.page = self.context.new_page()
         self.errors: list[str] = []
         self.page.on("console", lambda m: self.errors.append(f"console.{m.type}: {m.text}")
@@ -57,8 +58,8 @@ class Page:
 def new_page(browser):
     pages = []
 
-    def make(width=640, height=360):
-        p = Page(browser, width, height)
+    def make(width=640, height=360, has_touch=False):
+        p = Page(browser, width, height, has_touch)
         pages.append(p)
         return p
 

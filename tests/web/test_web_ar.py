@@ -17,6 +17,7 @@ import pytest
 from tests.web import xremu
 from tests.web.harness import SCREENSHOTS, StubServer
 from tests.web.kioskref import light_message
+from tests.web.touch import tap, touch_drag, touch_moves
 
 pytestmark = [pytest.mark.browser]
 
@@ -76,10 +77,10 @@ def sun_of(sky_spec: str) -> dict:
                                                 elevation_deg).sun.normal_irradiance.tolist()}
 
 
-def open_ar(new_page, server, sky, sun=None):
+def open_ar(new_page, server, sky, sun=None, has_touch=False):
     """An AR page whose session runs with the site placed by a tap at the START pose's floor
     hit (checked on the way); returns the page and the hit (3,), metres."""
-    ar = new_page(*SIZE)
+    ar = new_page(*SIZE, has_touch=has_touch)
     ar.page.add_init_script(xremu.init_script())
     ar.open(server.url + URL, READY)
     relight(ar.page, sky, sun)
@@ -196,3 +197,85 @@ def test_ar_sun_matches_the_visit(new_page, web_build, sky):
         diff = np.abs(ar_image[..., :3].astype(int) - visit_image[..., :3].astype(int))[hall]
         assert diff.mean() < 1.0 and np.percentile(diff, 99) <= 12, (
             diff.mean(), np.percentile(diff, 99))
+
+
+def alignment(page) -> tuple[np.ndarray, float]:
+    """The AR alignment as drawn: the site's world position (3,) m and its turn about +y,
+    degrees (from the site's world matrix), checked against the stored alignment."""
+    state = page.evaluate("window.daylit.debug.xrState()")
+    site = xremu.from_column_major(state["site"])
+    yaw_deg = float(np.degrees(np.arctan2(site[0, 2], site[0, 0])))
+    np.testing.assert_allclose(site[:3, 3], state["alignment"]["position"], atol=1e-6)
+    assert abs((yaw_deg - state["alignment"]["yawDeg"] + 180) % 360 - 180) < 1e-4
+    return site[:3, 3], yaw_deg
+
+
+def free_spot(page, box_px) -> tuple[float, float]:
+    """The centre (x, y) CSS px of a ``box_px`` (w, h) region of the screen that no HUD element
+    covers (the touches there reach the overlay itself)."""
+    spot = page.evaluate("""([w, h]) => {
+      const free = (x, y) => document.elementFromPoint(x, y)?.id === 'hud';
+      for (let y = h / 2; y < innerHeight - h / 2; y += 10) {
+        for (let x = w / 2; x < innerWidth - w / 2; x += 10) {
+          const ok = [[0, 0], [-1, -1], [1, -1], [-1, 1], [1, 1], [0, -1], [0, 1], [-1, 0],
+                      [1, 0]].every(([i, j]) => free(x + i * w / 2, y + j * h / 2));
+          if (ok) return [x, y];
+        }
+      }
+      return null;
+    }""", list(box_px))
+    assert spot is not None, page.evaluate("""() => { const rows = [];
+      for (let y = 10; y < innerHeight; y += 20) { let r = '';
+        for (let x = 10; x < innerWidth; x += 20) {
+          const e = document.elementFromPoint(x, y); r += e?.id === 'hud' ? '.' : (e?.id || e?.className || e?.tagName || '?')[0];
+        } rows.push(r); } return rows.join('\\n'); }""")
+    return tuple(spot)
+
+
+def test_ar_touch_twists_drags_and_taps_the_site(new_page, web_build, sky):
+    """docs/web.md, AR: twisting two fingers turns the site about the vertical by the fingers'
+    turn, one finger drags it along the ground (1 m per 100 px, in the device's heading), a tap
+    puts it at the reticle; a drag or a twist never also places it. Real touch events (CDP) on
+    the screen where no HUD element is: the whole screen is the AR overlay's."""
+    with StubServer(web_build) as server:
+        server.push(light_message(sky, 1), remember=True)
+        ar, hit = open_ar(new_page, server, sky, has_touch=True)
+        page = ar.page
+        # A phone's browser shows the DOM overlay (the HUD) above the session's picture; IWER
+        # has no DOM overlay and puts its canvas above the page (z-index 999): raised here as
+        # the browser would show it.
+        page.add_style_tag(content="#hud { z-index: 1000; }")
+        centre = free_spot(page, (220, 90))  # below the HUD's panel
+        position0, yaw0 = alignment(page)
+        np.testing.assert_allclose(position0, hit, atol=1e-3)
+
+        # Two fingers 80 px apart turned by 30 degrees on the screen (clockwise as seen, y
+        # down): the site turns by -30 degrees about +y, and stays where it is.
+        turn = np.radians(30.0)
+        offsets = [(-40.0, 0.0), (40.0, 0.0)]
+        start = [(centre[0] + dx, centre[1] + dy) for dx, dy in offsets]
+        end = [(centre[0] + dx * np.cos(turn) - dy * np.sin(turn),
+                centre[1] + dx * np.sin(turn) + dy * np.cos(turn)) for dx, dy in offsets]
+        touch_moves(page, start, end, steps=6)
+        position, yaw = alignment(page)
+        assert yaw == pytest.approx(yaw0 - 30.0, abs=0.01)
+        np.testing.assert_allclose(position, position0, atol=1e-6)
+
+        # One finger 80 px right and 50 px down: 0.8 m along the device's right, 0.5 m toward
+        # it, in the START pose's heading (yaw 20 degrees).
+        touch_drag(page, [(centre[0] - 80, centre[1] - 30)], 80, 50, steps=4)
+        heading = np.radians(START[1])
+        right = np.array([np.cos(heading), 0.0, -np.sin(heading)])
+        back = np.array([np.sin(heading), 0.0, np.cos(heading)])
+        dragged, yaw_dragged = alignment(page)
+        np.testing.assert_allclose(dragged, position0 + 0.8 * right + 0.5 * back, atol=1e-3)
+        assert yaw_dragged == pytest.approx(yaw, abs=1e-6)
+        stored = page.evaluate("JSON.parse(localStorage.getItem('daylit.alignment.xr'))")
+        np.testing.assert_allclose(stored["position"], dragged, atol=1e-6)
+
+        # A tap: the site goes to the reticle (the START pose's floor hit), keeping its turn.
+        tap(page, *centre)
+        placed, yaw_placed = alignment(page)
+        np.testing.assert_allclose(placed, hit, atol=1e-3)
+        assert yaw_placed == pytest.approx(yaw, abs=1e-6)
+        assert not ar.errors, ar.errors

@@ -16,6 +16,7 @@ import pytest
 
 from tests.web.fakecamera import READY, camera_page, orient, write_y4m
 from tests.web.harness import SCREENSHOTS
+from tests.web.touch import touch_drag
 from tests.web.xremu import perspective, project_px
 
 pytestmark = [pytest.mark.browser]
@@ -128,23 +129,6 @@ def test_camera_mode_shows_the_camera_and_holds_the_hall(browser, web_build, ref
             iou = (warped & hall & inside).sum() / union.sum()
             assert iou > 0.9, iou
         assert not errors, errors
-
-
-def touch_drag(page, fingers_start, dx_px, dy_px, steps=5):
-    """Drag ``fingers_start`` [(x, y), ...] CSS px by (dx, dy) with real touch events (CDP
-    Input.dispatchTouchEvent: the page gets the pointer events a phone's screen gives)."""
-    cdp = page.context.new_cdp_session(page)
-
-    def points(t):
-        return [{"x": x + t * dx_px, "y": y + t * dy_px, "id": i}
-                for i, (x, y) in enumerate(fingers_start)]
-
-    cdp.send("Input.dispatchTouchEvent", {"type": "touchStart", "touchPoints": points(0)})
-    for step in range(1, steps + 1):
-        cdp.send("Input.dispatchTouchEvent",
-                 {"type": "touchMove", "touchPoints": points(step / steps)})
-    cdp.send("Input.dispatchTouchEvent", {"type": "touchEnd", "touchPoints": []})
-    cdp.detach()
 
 
 def turned_pose(alpha_deg, heading_deg, standpoint):

@@ -273,6 +273,14 @@ export function debugApi(app) {
         eye: eye ? { matrixWorld: eye.matrixWorld.toArray(), projection: eye.projectionMatrix.toArray() } : null,
       };
     },
+    /** The visit's orbit: the camera's world position and the orbit's target (metres), and
+     * whether it still turns by itself; null outside the visit. */
+    orbit() {
+      const controls = app.view?.controls;
+      if (!controls) return null;
+      return { position: app.camera.position.toArray(), target: controls.target.toArray(),
+        autoRotate: controls.autoRotate };
+    },
     setCamera(position, target) {
       app.view?.dispose?.();
       app.view = null;

@@ -7,6 +7,10 @@
 import * as THREE from 'three';
 
 const STORAGE_KEY = 'daylit.alignment.xr';
+/** The overlay's class while a session runs: it takes every touch on the screen (style.css). */
+const GESTURE_CLASS = 'xr-gestures';
+/** A touch that moves less than this, CSS px, and lifts is a tap. */
+const TAP_SLOP_PX = 10;
 
 export async function arSupported() {
   try {
@@ -51,6 +55,7 @@ export class XRView {
   }
 
   async init() {
+    const overlay = this.overlay;
     this.renderer.xr.enabled = true;
     this.renderer.xr.setReferenceSpaceType('local-floor');
     await this.renderer.xr.setSession(this.session);
@@ -61,15 +66,43 @@ export class XRView {
     } catch {
       this.hitSource = null; // no hit test: place in front of the visitor instead
     }
+    // A controller's trigger (a headset) places the site through the session's select.
     this.session.addEventListener('select', () => this._place());
     this.session.addEventListener('end', () => this._ended());
-    this._down = (e) => this._touches.set(e.pointerId, [e.clientX, e.clientY]);
-    this._up = (e) => { this._touches.delete(e.pointerId); save(this.alignment); };
+    // The screen's touches are the overlay's (GESTURE_CLASS makes all of it take them: the
+    // HUD lets touches through to the canvas elsewhere, and in a DOM overlay session a touch
+    // that meets no element reaches no page code). Each touch on the overlay would also end
+    // in an XR select, which would put the site back at the reticle after every drag and
+    // twist: the overlay cancels those (beforexrselect) and a tap places the site itself.
+    overlay.classList.add(GESTURE_CLASS);
+    this._beforeSelect = (e) => e.preventDefault();
+    this._down = (e) => this._pointerDown(e);
+    this._up = (e) => this._pointerUp(e);
     this._move = (e) => this._gesture(e);
+    this.overlay.addEventListener('beforexrselect', this._beforeSelect);
     this.overlay.addEventListener('pointerdown', this._down);
     this.overlay.addEventListener('pointerup', this._up);
+    this.overlay.addEventListener('pointercancel', this._up);
     this.overlay.addEventListener('pointermove', this._move);
     this._apply();
+  }
+
+  _pointerDown(e) {
+    // a tap: one finger on the overlay itself (not a HUD button), lifted where it went down
+    this._tap = this._touches.size === 0 && e.target === this.overlay
+      ? { id: e.pointerId, x: e.clientX, y: e.clientY } : null;
+    this._touches.set(e.pointerId, [e.clientX, e.clientY]);
+  }
+
+  _pointerUp(e) {
+    if (!this._touches.delete(e.pointerId)) return;
+    const tap = this._tap;
+    if (e.type === 'pointerup' && tap?.id === e.pointerId
+        && Math.hypot(e.clientX - tap.x, e.clientY - tap.y) <= TAP_SLOP_PX) {
+      this._place();
+    }
+    if (this._touches.size === 0) this._tap = null;
+    save(this.alignment);
   }
 
   _place() {
@@ -89,6 +122,10 @@ export class XRView {
   _gesture(e) {
     const last = this._touches.get(e.pointerId);
     if (!last) return;
+    if (this._tap && (this._touches.size > 1
+        || Math.hypot(e.clientX - this._tap.x, e.clientY - this._tap.y) > TAP_SLOP_PX)) {
+      this._tap = null; // a drag or a twist, not a tap
+    }
     const points = [...this._touches.entries()];
     this._touches.set(e.pointerId, [e.clientX, e.clientY]);
     if (points.length === 2) {
@@ -134,8 +171,11 @@ export class XRView {
   }
 
   _ended() {
+    this.overlay.classList.remove(GESTURE_CLASS);
+    this.overlay.removeEventListener('beforexrselect', this._beforeSelect);
     this.overlay.removeEventListener('pointerdown', this._down);
     this.overlay.removeEventListener('pointerup', this._up);
+    this.overlay.removeEventListener('pointercancel', this._up);
     this.overlay.removeEventListener('pointermove', this._move);
     this.scene.remove(this.reticle);
     this.scene.background = this.previousBackground;
