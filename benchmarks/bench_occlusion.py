@@ -22,6 +22,14 @@ With ``--ablation`` it also prints what each part of the method is worth: the ac
 480x270 sequence with one setting changed at a time (the paper's shadow test alone, the global
 background mixture switched on, no temporal or spatial prior).
 
+With ``--synthetic`` it measures ours on the standard sequence as drawn now (a broadband
+camera under daylight spectra, server/occlusion/spectralcamera.py) beside the same sequence
+drawn with the detector's own narrow-band Wien model (``light_model="narrowband"``, the
+sequence before 2026-11-25), each raw, through JPEG 75 and through H.264 (libx264 crf 28), at
+480x270 and 1024x512, with 1.6 s of empty site: issue 18's figures (person IoU median over
+frames with people, shadow kept, phantom regions in the empty frames after learning) and the
+time to draw a frame (the demo's and the replays' cost) and to process it.
+
 With ``--refit`` it times only the person colour mixture's warm refit, this code's numpy EM
 against OpenCV's ``EM.trainM`` from the same posteriors (the frames that set the p95 before
 2026-11-25).
@@ -34,8 +42,8 @@ generator that is not the detector's model), 1024x512, one condition at a time: 
 regions (connected person regions of at least 25 px) in the empty frames after learning, and
 ms per frame (median, p95).
 
-Run: ``.venv/bin/python benchmarks/bench_occlusion.py [--ablation] [--refit] [--heldout
-[CONDITION ...]]``
+Run: ``.venv/bin/python benchmarks/bench_occlusion.py [--ablation] [--refit] [--synthetic]
+[--heldout [CONDITION ...]]``
 (about a minute, two with the ablation; the held-out conditions about 15 minutes; ``--help``
 lists the conditions).
 """
@@ -261,6 +269,50 @@ def heldout(names: list[str] | None = None, width: int = 1024, height: int = 512
                   f"{os.getloadavg()[0]:.1f} |", flush=True)
 
 
+def synthetic(sizes=((480, 270), (1024, 512))) -> None:
+    """Issue 18's figures on the standard sequence, new (broadband) and old (narrow-band)."""
+    import dataclasses
+
+    from tests.server.occlusion.conftest import CODEC_EMPTY_S, CODECS, coded_truths
+
+    print("\nStandard sequence, 12 s at 10 frames/s, 1.6 s empty (1 s learned): broadband "
+          "(now) and narrow-band (before 2026-11-25) light, raw and coded\n")
+    print("| size | light | frames as | person IoU (median) | worst frame IoU | shadow kept | "
+          "phantom regions (empty frames) | draw ms/frame | CPU ms median | CPU ms p95 | load |")
+    print("|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for width, height in sizes:
+        for light in ("broadband", "narrowband"):
+            site = dataclasses.replace(default_site(width, height, empty_s=CODEC_EMPTY_S),
+                                       light_model=light)
+            virtual = box_depth_image(site.camera, *VIRTUAL_BOX)
+            c0 = time.process_time()
+            for i in range(site.frame_count):
+                site.frame(i)
+            draw_ms = 1e3 * (time.process_time() - c0) / site.frame_count
+            for name, codec in CODECS.items():
+                ours = OcclusionProcessor(site.camera, virtual)
+                iou, phantom, cpu = [], [], []
+                shadow = kept = 0
+                for truth in coded_truths(site, codec):
+                    r, _, ms = cpu_timed(ours.process, truth.image, truth.time_s)
+                    if r.learning:
+                        continue
+                    cpu.append(ms)
+                    person = r.person_mask > 0
+                    shadow += np.count_nonzero(truth.shadow)
+                    kept += np.count_nonzero(truth.shadow & person)
+                    if truth.person.any():
+                        iou.append(np.count_nonzero(person & truth.person)
+                                   / np.count_nonzero(person | truth.person))
+                    else:
+                        phantom.append(regions(person))
+                print(f"| {width}x{height} | {light} | {name} | {statistics.median(iou):.3f} | "
+                      f"{min(iou):.3f} | {kept / max(shadow, 1):.3f} | {sum(phantom)} in "
+                      f"{len(phantom)} (max {max(phantom)}) | {draw_ms:.1f} | "
+                      f"{statistics.median(cpu):.1f} | {np.percentile(cpu, 95):.1f} | "
+                      f"{os.getloadavg()[0]:.1f} |", flush=True)
+
+
 def refit(repeats: int = 200) -> None:
     """The person colour mixture's warm refit (300 samples, 5 components, at most 5 EM steps):
     this code's numpy EM against OpenCV's ``EM.trainM`` from the same posteriors, interleaved
@@ -325,6 +377,9 @@ def parse_args(argv: list[str] | None = None):
     ap.add_argument("--heldout", action="store_true",
                     help="the held-out sequences instead of the standard one (about 15 min "
                          "for all conditions)")
+    ap.add_argument("--synthetic", action="store_true",
+                    help="only the standard sequence, broadband and narrow-band light, raw, "
+                         "JPEG 75 and H.264 (issue 18; a few minutes)")
     ap.add_argument("--refit", action="store_true",
                     help="only the person colour refit: numpy EM against OpenCV's trainM "
                          "(seconds)")
@@ -346,6 +401,9 @@ def main(argv: list[str] | None = None) -> None:
         return
     if args.heldout:
         heldout(args.conditions or None)
+        return
+    if args.synthetic:
+        synthetic()
         return
     print("Occlusion pipeline, one core (cv2.setNumThreads(1), BLAS/OpenMP threads 1)")
     for width, height in SIZES:

@@ -1,4 +1,5 @@
-"""A synthetic site-camera video with exact ground truth, for tests, benchmarks and the demo.
+"""A synthetic site-camera video with exact ground truth, for tests, benchmarks and the kiosk
+replays.
 
 The site: a textured paved ground ``y = 0`` (tiles, joints, a lawn), a row of buildings and
 trees on a backdrop far away, the sky. People are flat, articulated figures (capsules for head,
@@ -6,19 +7,29 @@ torso, arms, legs and shoes) standing upright on the ground, each in the vertica
 their feet that faces the camera, so their image size and position are perspective-exact; they
 walk along straight lines, swing legs and arms, and may stand still for a while.
 
-Light follows the illuminant model the F-value assumes (Kakuta Eq. 11): a narrow-band camera
-with channel centre wavelengths ``wavelengths_nm`` sees illuminants that are Planckian under
-Wien's approximation, ``E_c ~ lambda_c^-5 exp(-c2 / (lambda_c T))``:
+Light (``light_model = "broadband"``, the default) is drawn with a camera model other than the
+detector's (server/occlusion/spectralcamera.py): broadband RGB sensitivities integrate
+daylight spectra over 380-720 nm, and surfaces have smooth reflectance spectra (their RGB
+coefficients on a partition of unity), so the camera sees ``M @ a`` with a full 3x3 matrix
+``M`` per illuminant. The sky changes from ``sky_states[0]`` to ``sky_states[1]`` (clear, hazy,
+thin cloud: the sun through Rayleigh and aerosol scattering, the skylight what they scatter)
+while the daylight dims by ``brightness``:
 
-- sunlit surfaces: intensity ``I(t)`` at temperature ``T_lit(t)`` (daylight that slowly dims
-  and warms through the sequence);
-- a person's cast shadow on the ground: lit by the sky alone, ``shadow_fraction * I(t)`` at the
-  sky's higher temperature ``T_sky`` (bluer and darker).
+- sunlit surfaces: the sun's beam on the ground plus the skylight;
+- a person's cast shadow on the ground: the skylight alone (the direct component lost), so
+  the shadow's darkening and colour follow from the spectra, not from the detector's formula;
+- the camera's colour correction (white balance included) is fixed, calibrated for sunlit
+  surfaces under the first sky (there a surface shows its coefficients exactly; under any
+  other light a full 3x3 mix of them).
 
-A pixel's linear value is ``reflectance_c * E_c * exposure`` (reflectances are given at the
-three wavelengths), clipped, encoded with the sRGB curve, plus Gaussian sensor noise in codes,
-rounded to uint8 BGR. The shadow geometry is exact: a ground point is shadowed when the ray
-from it toward the sun meets a person's figure.
+``light_model = "narrowband"`` draws the sequence as it was before 2026-11-25, with the
+F-value's own model (Kakuta Eq. 11): a narrow-band camera at ``wavelengths_nm`` under Wien
+illuminants, sunlit at ``t_lit_k``, shadows ``shadow_fraction`` of it at ``t_sky_k``. It is
+kept only to compare the detector on both (benchmarks/bench_occlusion.py ``--synthetic``).
+
+A pixel's linear value is then scaled by ``exposure``, clipped, encoded with the sRGB curve,
+plus Gaussian sensor noise in codes, rounded to uint8 BGR. The shadow geometry is exact: a
+ground point is shadowed when the ray from it toward the sun meets a person's figure.
 
 Ground truth per frame (:class:`TruthFrame`): the person index image, the cast-shadow mask
 (shadowed ground not hidden by a person), and per person the foot point, its depth along the
@@ -32,6 +43,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from server.occlusion import spectralcamera as spectral
 from server.occlusion.depth import PerspectiveCamera
 
 C2_M_K = 1.4388e-2  # second radiation constant, m K
@@ -96,7 +108,9 @@ class Walker:
     start_m : (x, z) ground position at ``enter_s``
     velocity_mps : (vx, vz) while walking
     height_m : standing height
-    shirt, trousers, skin, hair, shoes : RGB reflectances (0-1) at the camera's wavelengths
+    shirt, trousers, skin, hair, shoes : RGB reflectances (0-1): coefficients of a smooth
+        spectrum (spectralcamera.REFLECTANCE_BASIS); the narrow-band model reads them as the
+        reflectances at its three wavelengths
     enter_s, leave_s : visible from / until, seconds
     pauses_s : ((t0, t1), ...) intervals in which they stand still
     """
@@ -301,13 +315,16 @@ class SyntheticSite:
     walkers : the people
     fps : frames per second
     duration_s : length; daylight changes over it
-    wavelengths_nm : the camera's channel centre wavelengths (R, G, B)
+    light_model : ``"broadband"`` (spectra through a broadband camera, the default) or
+        ``"narrowband"`` (the detector's own model, the sequence before 2026-11-25)
+    sky_states : (start, end) names in :data:`spectralcamera.SKY_STATES` (broadband)
     sun_azimuth_deg, sun_elevation_deg : direction toward the sun (azimuth from north to east)
-    t_lit_k : (start, end) colour temperature of sunlit surfaces
-    brightness : (start, end) illuminance factor of sunlit surfaces
-    t_sky_k : colour temperature of the skylight in shadows
-    shadow_fraction : shadowed over sunlit illuminance
-    exposure : linear value of a white sunlit surface at brightness 1
+    brightness : (start, end) factor on all daylight (both models), besides the sky's change
+    wavelengths_nm : the narrow-band camera's channel centre wavelengths (R, G, B)
+    t_lit_k : (start, end) colour temperature of sunlit surfaces (narrow-band)
+    t_sky_k : colour temperature of the skylight in shadows (narrow-band)
+    shadow_fraction : shadowed over sunlit illuminance (narrow-band)
+    exposure : linear value of a white sunlit surface at the start, brightness 1
     noise_codes : standard deviation of the sensor noise, codes
     backdrop_z_m : the backdrop plane (buildings) at ``z = backdrop_z_m``
     """
@@ -316,11 +333,13 @@ class SyntheticSite:
     walkers: list[Walker]
     fps: float = 10.0
     duration_s: float = 12.0
-    wavelengths_nm: tuple[float, float, float] = (610.0, 540.0, 465.0)
+    light_model: str = "broadband"
+    sky_states: tuple[str, str] = ("clear", "clear")
     sun_azimuth_deg: float = 290.0
     sun_elevation_deg: float = 32.0
-    t_lit_k: tuple[float, float] = (5600.0, 4800.0)
     brightness: tuple[float, float] = (1.0, 0.8)
+    wavelengths_nm: tuple[float, float, float] = (610.0, 540.0, 465.0)
+    t_lit_k: tuple[float, float] = (5600.0, 4800.0)
     t_sky_k: float = 11000.0
     shadow_fraction: float = 0.35
     exposure: float = 1.3
@@ -330,6 +349,12 @@ class SyntheticSite:
     _static: dict = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
+        if self.light_model not in ("broadband", "narrowband"):
+            raise ValueError(f"light_model must be broadband or narrowband, got "
+                             f"{self.light_model!r}")
+        unknown = [s for s in self.sky_states if s not in spectral.SKY_STATES]
+        if unknown:
+            raise ValueError(f"unknown sky states {unknown}; known: {list(spectral.SKY_STATES)}")
         cam = self.camera
         H, W = cam.height, cam.width
         v, u = np.mgrid[0:H, 0:W]
@@ -342,6 +367,17 @@ class SyntheticSite:
         self._static["sun"] = np.array(
             [math.cos(el) * math.sin(az), math.sin(el), -math.cos(el) * math.cos(az)]
         )
+        if self.light_model == "broadband":
+            # The camera's fixed colour correction (white balance included), as a camera
+            # calibrated once for sunlit surfaces under the first sky: there a surface shows
+            # its coefficients ``a``; under any other light, a full 3x3 mix of them. The sky
+            # pattern (max G 0.75) is as bright, relative to sunlit ground, as the narrow-band
+            # model's.
+            direct, diffuse = self._spectra(0.0)
+            correct = np.linalg.inv(spectral.camera_matrix(direct + diffuse))
+            self._static["white_balance"] = correct
+            self._static["sky_gain"] = 0.9 / float((correct @ spectral.camera_matrix(diffuse))[1]
+                                                   .sum())
         # sRGB encoding by table on finely quantised linear light (exact enough, fast).
         lin = np.linspace(0.0, 1.0, 1 << 14)
         code = np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055) * 255
@@ -392,25 +428,41 @@ class SyntheticSite:
     def frame_count(self) -> int:
         return int(round(self.duration_s * self.fps))
 
-    def illuminants(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """(lit RGB, shadow RGB) illuminants at time t (G of lit = brightness)."""
+    def light(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(lit, shadow, sky)`` (3, 3) float32 camera matrices at time t: a surface of RGB
+        reflectance coefficients ``a`` shows linear RGB ``M @ a`` (before ``exposure``) when
+        sunlit, when in a person's cast shadow, and the sky's pattern when it is the sky."""
         a = min(max(t / self.duration_s, 0.0), 1.0)
-        t_lit = self.t_lit_k[0] + a * (self.t_lit_k[1] - self.t_lit_k[0])
         b = self.brightness[0] + a * (self.brightness[1] - self.brightness[0])
         b *= 1.0 + 0.04 * math.sin(2 * math.pi * t / 5.0)  # a passing thin cloud
-        lit = b * wien_rgb(t_lit, self.wavelengths_nm)
-        shadow = b * self.shadow_fraction * wien_rgb(self.t_sky_k, self.wavelengths_nm)
-        return lit, shadow
+        if self.light_model == "narrowband":
+            t_lit = self.t_lit_k[0] + a * (self.t_lit_k[1] - self.t_lit_k[0])
+            sky = wien_rgb(self.t_sky_k, self.wavelengths_nm)
+            mats = (np.diag(wien_rgb(t_lit, self.wavelengths_nm)),
+                    np.diag(self.shadow_fraction * sky), np.diag(0.9 * sky))
+        else:
+            direct, diffuse = self._spectra(a)
+            white = self._static["white_balance"]
+            mats = (white @ spectral.camera_matrix(direct + diffuse),
+                    white @ spectral.camera_matrix(diffuse),
+                    self._static["sky_gain"] * (white @ spectral.camera_matrix(diffuse)))
+        return tuple((b * m).astype(np.float32) for m in mats)
+
+    def _spectra(self, a: float) -> tuple[np.ndarray, np.ndarray]:
+        """(direct, diffuse) (n,) spectral irradiance on the ground a share ``a`` of the way
+        from the first sky state to the second (the spectra mixed linearly)."""
+        first, last = (spectral.SKY_STATES[s].irradiance(self.sun_elevation_deg)
+                       for s in self.sky_states)
+        return tuple((1.0 - a) * f + a * g for f, g in zip(first, last, strict=True))
 
     def frame(self, i: int) -> TruthFrame:
         """Render frame ``i`` (time ``i / fps``) with its ground truth."""
         cam = self.camera
         H, W = cam.height, cam.width
         t = i / self.fps
-        lit, shadow_light = self.illuminants(t)
+        lit, shadow_light, skylight = self.light(t)
         refl = self._static["surface"]
-        skylight = (shadow_light / self.shadow_fraction * 0.9).astype(np.float32)
-        lin = refl * lit.astype(np.float32) + self._static["sky"] * skylight
+        lin = refl @ lit.T + self._static["sky"] @ skylight.T
         person_index = np.full((H, W), -1, dtype=np.int16)
         person_depth = np.full((H, W), np.inf)
         shadow = np.zeros((H, W), dtype=bool)
@@ -454,7 +506,7 @@ class SyntheticSite:
             q = g + tt[..., None] * sun
             hit, _, _ = _inside_figure(parts, (q - foot) @ sun_right, q[..., 1])
             shadow[y0:y1, x0:x1] |= hit & ok & (tt > 0)
-        lin[shadow] = refl[shadow] * shadow_light.astype(np.float32)
+        lin[shadow] = refl[shadow] @ shadow_light.T
         for k, walker, foot, n, right, parts in figures:
             hgt = walker.height_m
             corners = [foot + sx * 0.6 * hgt * right + np.array([0, sy, 0])
@@ -471,7 +523,7 @@ class SyntheticSite:
             nearer = hit & (s < person_depth[y0:y1, x0:x1]) & (s > 0)
             person_depth[y0:y1, x0:x1][nearer] = s[nearer]
             person_index[y0:y1, x0:x1][nearer] = k
-            lin[y0:y1, x0:x1][nearer] = (colour[nearer] * shade[nearer, None] * lit).astype(
+            lin[y0:y1, x0:x1][nearer] = ((colour[nearer] * shade[nearer, None]) @ lit.T).astype(
                 np.float32)
             fuv, fz = cam.project(foot[None])
             fu, fv = fuv[:, 0], fuv[:, 1]

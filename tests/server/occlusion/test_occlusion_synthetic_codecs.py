@@ -1,0 +1,67 @@
+"""Issue 18's goals on the standard synthetic sequence, raw and as a site camera sends it.
+
+The sequence (server/occlusion/synthetic.py) is drawn with a broadband camera under daylight
+spectra (spectralcamera.py), not with the detector's narrow-band Wien model, and here passes
+through JPEG 75 and H.264 (libx264 crf 28, 4:2:0, decoded by OpenCV's FFmpeg) as well as raw.
+Goals as issue 18 states them: person IoU at least 0.9 (median over frames with people), shadow
+kept at most 10 % of the cast-shadow area, no phantom region (person region of 25 px or more)
+in the empty frames after learning.
+
+Not met through either codec (2026-11-25; docs/occlusion.md, Limitations; figures at 480x270
+and 1024x512 in docs/benchmarks.md): most of what is lost is cast shadow kept as person, as the
+codec's chroma subsampling and block error blur the shadows' colour change. Those tests are
+strict xfails, so that a fix shows as a pass to be taken out of :data:`NOT_MET`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from server.occlusion.settings import OcclusionSettings
+from server.occlusion.synthetic import VIRTUAL_BOX, box_depth_image
+from tests.server.occlusion.conftest import CODECS, run_sequence
+
+# (test, codec) -> what was measured, 480x270 (2026-11-25)
+NOT_MET = {
+    ("iou", "JPEG 75"): "person IoU 0.71 median (goal 0.9): shadows kept",
+    ("iou", "H.264 crf 28"): "person IoU 0.64 median (goal 0.9): shadows kept",
+    ("shadow", "JPEG 75"): "55 % of the shadow area kept (goal 10 %)",
+    ("shadow", "H.264 crf 28"): "73 % of the shadow area kept (goal 10 %)",
+}
+
+
+def _known(request, test: str, codec: str) -> None:
+    if (test, codec) in NOT_MET:
+        request.applymarker(pytest.mark.xfail(strict=True, reason=NOT_MET[test, codec]))
+
+
+def test_person_iou_is_at_least_0_9_median_over_frames(codec_run, request):
+    name, stats = codec_run
+    _known(request, "iou", name)
+    assert len(stats.people_frame_iou) >= 100, name
+    assert np.median(stats.people_frame_iou) >= 0.9, (name, np.median(stats.people_frame_iou))
+
+
+def test_at_most_10_percent_of_the_shadow_is_kept(codec_run, request):
+    name, stats = codec_run
+    _known(request, "shadow", name)
+    assert stats.shadow_truth > 10_000, name  # the sequence does have large shadows
+    assert stats.shadow_kept_fraction <= 0.10, (name, stats.shadow_kept_fraction)
+
+
+def test_no_phantom_in_the_empty_frames(codec_run):
+    name, stats = codec_run
+    assert len(stats.phantoms) >= 5, name  # 1.6 s empty, 1 s of it learned
+    assert sum(stats.phantoms) == 0, (name, stats.phantoms)
+
+
+@pytest.mark.parametrize("codec", ["raw", "H.264 crf 28"])
+def test_the_sequence_fails_without_shadow_handling(codec_site, codec):
+    """The sequence exercises shadow removal: with it switched off (a shadow never cheaper as
+    background than as a person), the shadow goal fails by far, and with it person IoU."""
+    virtual = box_depth_image(codec_site.camera, *VIRTUAL_BOX)
+    off = OcclusionSettings(shadow_cost=1e9)
+    _, stats = run_sequence(codec_site, virtual, off, codec=CODECS[codec])
+    assert stats.shadow_kept_fraction > 0.5, stats.shadow_kept_fraction
+    assert np.median(stats.people_frame_iou) < 0.9, np.median(stats.people_frame_iou)
