@@ -227,7 +227,8 @@ def free_spot(page, box_px) -> tuple[float, float]:
     assert spot is not None, page.evaluate("""() => { const rows = [];
       for (let y = 10; y < innerHeight; y += 20) { let r = '';
         for (let x = 10; x < innerWidth; x += 20) {
-          const e = document.elementFromPoint(x, y); r += e?.id === 'hud' ? '.' : (e?.id || e?.className || e?.tagName || '?')[0];
+          const e = document.elementFromPoint(x, y);
+          r += e?.id === 'hud' ? '.' : (e?.id || e?.className || e?.tagName || '?')[0];
         } rows.push(r); } return rows.join('\\n'); }""")
     return tuple(spot)
 
