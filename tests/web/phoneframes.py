@@ -1,0 +1,49 @@
+"""The phone's view for the phone-estimate tests: what pose the client's camera mode takes, as
+a pinhole view Radiance can render (tests/radiance_frames.py), and the server's estimator on the
+same frame (the numpy reference, server/sceneestimate.py)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from server.sceneestimate import PinholeView, SceneEstimator
+
+# Standing north of the building, eye height, looking south and 15 degrees down: the building's
+# shaded north face, its shadow on the ground, the sunlit ground between (tests/server/conftest.py
+# scene_build: an 8 x 5 x 6 m building at the origin, a wall to its west).
+STANDPOINT_M = [3.0, 1.6, -15.0]
+ORIENTATION = (180.0, 75.0, 0.0)  # alpha, beta, gamma (deviceorientation; beta 90 is level)
+
+
+def view_from_three(matrix_world: list[float], fov_y_deg: float, width: int,
+                    height: int) -> PinholeView:
+    """A PinholeView (OpenCV axes: +X right, +Y down, +Z forward) of a three.js camera: its
+    world matrix (16 numbers, column-major) and vertical field of view, at ``width`` x
+    ``height`` pixels (square pixels: the page's aspect must be width / height)."""
+    m = np.asarray(matrix_world, float).reshape(4, 4).T
+    T = m.copy()
+    T[:3, :3] = m[:3, :3] @ np.diag([1.0, -1.0, -1.0])  # three looks down -Z, +Y up
+    f = (height / 2.0) / math.tan(math.radians(fov_y_deg) / 2.0)
+    K = np.array([[f, 0.0, width / 2.0], [0.0, f, height / 2.0], [0.0, 0.0, 1.0]])
+    return PinholeView(K, T, width, height)
+
+
+def server_estimate(build_dir: Path, view: PinholeView, linear: np.ndarray, sun_dir,
+                    frames: int = 3, seed: int = 0) -> float:
+    """The server's estimator (server/sceneestimate.py) on one linear frame of ``view``: the
+    median over ``frames`` estimates of the luminance sun/sky ratio."""
+    from daylit import manifest as manifest_io
+    from server.scenemeter import real_proxies
+
+    mesh, albedo = real_proxies(build_dir, manifest_io.load(build_dir))
+    est = SceneEstimator(mesh, albedo, view, seed=seed)
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    ratios = []
+    for _ in range(frames):
+        light = est.estimate(linear, sun_dir)
+        ratios.append(float(lum @ light.sun_normal_irradiance) /
+                      max(float(lum @ light.sky_horizontal_irradiance), 1e-9))
+    return float(np.median(ratios))

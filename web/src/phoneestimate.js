@@ -1,0 +1,638 @@
+// The phone's own estimate of the sun and the sky from its camera picture (issue 16; after
+// Jensen, Andersen & Madsen 2006, as the server's server/sceneestimate.py, whose model this
+// follows): with no server sky (offline, a site without cameras, or ?sky=phone), camera mode
+// lights the hall with what this reads from the picture. docs/web.md, "The phone's own light".
+//
+// A Lambertian surface of albedo rho seen by the camera has the radiance
+//   L = rho / pi * (E_sun (cos_i in_sun + B_sun) + k (S + B_sky))
+// E_sun the sun's normal irradiance, k the sky's horizontal irradiance, S the model sky's
+// irradiance on the point per unit k over the directions it sees open sky, B one bounce off the
+// surfaces it sees instead (sunlit where the sun reaches them; lit by an isotropic sky on their
+// tilt). Linear in (E_sun, k): a few hundred pixels of the build's real proxies and ground,
+// some in sun and some in shadow, give both; people and wrong pixels are outliers of a robust
+// fit (RANSAC, then IRLS with Tukey's biweight on relative residuals, as server/robustfit.py).
+//
+// A phone's camera is not calibrated: its exposure and gain are unknown, so the fit's absolute
+// level is in the picture's units. What it must get right is the sun/sky ratio and the sky's
+// shape (a CIE sky of the type the ratio gives, server/skyshape.py's rule); the level is set
+// to a nominal one (NOMINAL_GLOBAL_W_M2) and the picture meter (picturemeter.js) exposes the
+// hall at the picture's level, which removes any common scale.
+//
+// Costs: what depends on the pose (the pool of pixels, their surfaces, hemisphere rays) is
+// computed again only when the pose moved (POSE_TOLERANCE_*); what depends on the sun when
+// it moved; a frame reads ~POOL_SIZE pixels and solves a 2-unknown fit. Ray casts are this
+// module's own (Moller-Trumbore over the proxies' triangles, culled per mesh by its box): no
+// per-ray allocation, the triangle's index gives its albedo and plane, and the any-hit test
+// for shadows stops at the first blocker; three's Raycaster sorts every hit of every mesh.
+// Directions: site-frame unit vectors (+X east, +Y up, -Z north); irradiances W/m^2.
+import * as THREE from 'three';
+import { srgbToLinear } from './picturemeter.js';
+
+/** The estimated copy of the picture, pixels (w, h). */
+export const ESTIMATE_SIZE = [192, 108];
+/** A new estimate at most this often, seconds (the sky changes over minutes; a phone's CPU). */
+export const ESTIMATE_PERIOD_S = 2;
+export const POOL_SIZE = 500; // candidate pixels of known surfaces per pose
+const HEMISPHERE_RAYS = 48; // per sample: sky view factor and one bounce
+const EDGE_PX = 1.5; // a pixel's corners this far away must see the same plane
+const SURFACE_OFFSET_M = 0.01;
+const MIN_SAMPLES = 30; // fewer usable pixels: no estimate
+const MIN_SUNLIT = 10; // fewer sunlit ones: the sun cannot be told from the sky
+const CLIP_CODE = 250; // a pixel with a channel at or above this code is clipped
+const DARK_CODE = 3;
+const POSE_TOLERANCE_DEG = 1.0;
+const POSE_TOLERANCE_M = 0.2;
+const SUN_TOLERANCE_DEG = 0.1;
+// server/skyshape.py: the CIE sky by the sun/sky ratio
+const OVERCAST_RATIO = 0.5;
+const CLEAR_RATIO = 3.0;
+const OVERCAST_TYPE = 2;
+const SUN_SIGNIFICANCE = 0.5; // overcast: the sun kept only if it halves the residual
+/** The level the estimate is scaled to: a sun and sky giving this on open ground. */
+export const NOMINAL_GLOBAL_W_M2 = 500;
+const LUMA = [0.2126, 0.7152, 0.0722];
+// CIE general skies (ISO 15469; daylit/sky.py CIE_SKY_TYPES): a, b, c, d, e
+const CIE = { 2: [4.0, -0.7, 2.0, -1.5, 0.15], 7: [0.0, -1.0, 5.0, -2.5, 0.3], 12: [-1.0, -0.32, 10.0, -3.0, 0.45] };
+
+/** The CIE sky type for a ratio of sun normal irradiance to sky horizontal irradiance. */
+export function skyTypeForRatio(ratio) {
+  if (ratio < OVERCAST_RATIO) return OVERCAST_TYPE;
+  return ratio >= CLEAR_RATIO ? 12 : 7;
+}
+
+/**
+ * A CIE general sky's luminance relative to its zenith, and the factor to an open horizontal
+ * irradiance of 1.
+ * @returns {{rel: (d: number[]) => number, toUnit: number}}
+ */
+export function unitSky(type, sun) {
+  const [a, b, c, d, e] = CIE[type];
+  const zSun = Math.acos(Math.max(-1, Math.min(1, Math.max(sun[1], 0))));
+  const grad = (cz) => 1 + a * Math.exp(b / cz);
+  const ind = (x) => 1 + c * (Math.exp(d * x) - Math.exp(d * Math.PI / 2)) + e * Math.cos(x) ** 2;
+  const norm = ind(zSun) * grad(1);
+  const sunUp = sun[1] > 0 ? sun : normalized([sun[0], 0, sun[2]]);
+  const rel = (v) => {
+    const cz = Math.max(v[1], 1e-6);
+    const chi = Math.acos(Math.max(-1, Math.min(1, v[0] * sunUp[0] + v[1] * sunUp[1] + v[2] * sunUp[2])));
+    return ind(chi) * grad(cz) / norm;
+  };
+  // horizontal irradiance by a midpoint grid (as server/skyshape.py)
+  const steps = 24;
+  let sum = 0;
+  for (let i = 0; i < steps; i++) {
+    const z = (i + 0.5) * Math.PI / 2 / steps;
+    for (let j = 0; j < 2 * steps; j++) {
+      const az = (j + 0.5) * Math.PI / steps;
+      const v = [Math.sin(z) * Math.sin(az), Math.cos(z), -Math.sin(z) * Math.cos(az)];
+      sum += rel(v) * Math.cos(z) * Math.sin(z) * (Math.PI / 2 / steps) * (Math.PI / steps);
+    }
+  }
+  return { rel, toUnit: 1 / sum };
+}
+
+/** The real proxies and the ground as one triangle list for ray casts (world metres). */
+export class Proxies {
+  /**
+   * @param {THREE.Mesh[]} meshes the build's real proxies and its ground, userData.albedo a
+   *   THREE.Vector3 (site.js)
+   */
+  constructor(meshes) {
+    const tris = [];
+    const groups = [];
+    for (const mesh of meshes) {
+      mesh.updateMatrixWorld(true);
+      const g = mesh.geometry;
+      const pos = g.attributes.position;
+      const index = g.index ? g.index.array : Array.from({ length: pos.count }, (_, i) => i);
+      const albedo = mesh.userData.albedo?.toArray?.() ?? [0.2, 0.2, 0.2];
+      const first = tris.length;
+      const box = new THREE.Box3();
+      for (let f = 0; f + 2 < index.length; f += 3) {
+        const v = [0, 1, 2].map((k) => new THREE.Vector3().fromBufferAttribute(pos, index[f + k]).applyMatrix4(mesh.matrixWorld));
+        const n = new THREE.Vector3().subVectors(v[1], v[0]).cross(new THREE.Vector3().subVectors(v[2], v[0]));
+        if (n.lengthSq() < 1e-12) continue;
+        n.normalize();
+        for (const p of v) box.expandByPoint(p);
+        tris.push({ v, n, albedo });
+      }
+      groups.push({ first, last: tris.length, box: box.expandByScalar(1e-3) });
+    }
+    const t = tris.length;
+    this.count = t;
+    this.v0 = new Float64Array(3 * t);
+    this.e1 = new Float64Array(3 * t);
+    this.e2 = new Float64Array(3 * t);
+    this.normal = new Float64Array(3 * t);
+    this.albedo = new Float64Array(3 * t);
+    tris.forEach(({ v, n, albedo }, i) => {
+      for (let c = 0; c < 3; c++) {
+        const k = 3 * i + c;
+        this.v0[k] = v[0].getComponent(c);
+        this.e1[k] = v[1].getComponent(c) - v[0].getComponent(c);
+        this.e2[k] = v[2].getComponent(c) - v[0].getComponent(c);
+        this.normal[k] = n.getComponent(c);
+        this.albedo[k] = albedo[c];
+      }
+    });
+    this.groups = groups.map(({ first, last, box }) => ({ first, last, lo: box.min.toArray(), hi: box.max.toArray() }));
+    this.hitT = 0; // the last cast's distance
+  }
+
+  /** The first triangle a ray meets (its index; -1: none), its distance in this.hitT. With
+   * `any`, the first one found (shadow rays). */
+  cast(o, d, any = false, tMax = Infinity) {
+    let best = -1;
+    let bestT = tMax;
+    for (const g of this.groups) {
+      if (!slab(g.lo, g.hi, o, d, bestT)) continue;
+      for (let i = g.first; i < g.last; i++) {
+        const t = this._tri(i, o, d);
+        if (t > 1e-6 && t < bestT) {
+          bestT = t;
+          best = i;
+          if (any) return best;
+        }
+      }
+    }
+    this.hitT = bestT;
+    return best;
+  }
+
+  _tri(i, o, d) {
+    // Moller-Trumbore, both faces
+    const k = 3 * i;
+    const e1x = this.e1[k]; const e1y = this.e1[k + 1]; const e1z = this.e1[k + 2];
+    const e2x = this.e2[k]; const e2y = this.e2[k + 1]; const e2z = this.e2[k + 2];
+    const px = d[1] * e2z - d[2] * e2y; const py = d[2] * e2x - d[0] * e2z; const pz = d[0] * e2y - d[1] * e2x;
+    const det = e1x * px + e1y * py + e1z * pz;
+    if (Math.abs(det) < 1e-12) return -1;
+    const inv = 1 / det;
+    const tx = o[0] - this.v0[k]; const ty = o[1] - this.v0[k + 1]; const tz = o[2] - this.v0[k + 2];
+    const u = (tx * px + ty * py + tz * pz) * inv;
+    if (u < 0 || u > 1) return -1;
+    const qx = ty * e1z - tz * e1y; const qy = tz * e1x - tx * e1z; const qz = tx * e1y - ty * e1x;
+    const v = (d[0] * qx + d[1] * qy + d[2] * qz) * inv;
+    if (v < 0 || u + v > 1) return -1;
+    return (e2x * qx + e2y * qy + e2z * qz) * inv;
+  }
+
+  normalOf(i) { return [this.normal[3 * i], this.normal[3 * i + 1], this.normal[3 * i + 2]]; }
+
+  albedoOf(i) { return [this.albedo[3 * i], this.albedo[3 * i + 1], this.albedo[3 * i + 2]]; }
+
+  /** Signed distance of a point from triangle i's plane, metres. */
+  planeDistance(i, p) {
+    const k = 3 * i;
+    return (p[0] - this.v0[k]) * this.normal[k] + (p[1] - this.v0[k + 1]) * this.normal[k + 1] + (p[2] - this.v0[k + 2]) * this.normal[k + 2];
+  }
+}
+
+/**
+ * The pool of pixels of a pose: which pixels of the copy see a known surface away from its
+ * edges, their surface points, normals, albedos, and what their hemispheres see.
+ * @param {Proxies} proxies
+ * @param {THREE.Camera} camera the pose (world) and projection of the picture
+ * @param {number} w copy width, pixels
+ * @param {number} h copy height
+ * @param {number[]} farAlbedo the open ground past the proxies (the build's ground albedo)
+ * @returns {object[]} samples {x, y, point, normal, albedo, skyDirs: number[][], bounce:
+ *   [{point|null, normal, albedo}]}
+ */
+export function poolForPose(proxies, camera, w, h, farAlbedo, seed = 1) {
+  camera.updateMatrixWorld();
+  const origin = new THREE.Vector3().setFromMatrixPosition(camera.matrixWorld).toArray();
+  const ray = new THREE.Vector3();
+  const rayAt = (x, y) => ray.set(x / w * 2 - 1, 1 - y / h * 2, 0.5).unproject(camera)
+    .sub(new THREE.Vector3(...origin)).normalize().toArray();
+  const rand = mulberry32(seed);
+  const hemi = cosineDirections(HEMISPHERE_RAYS, rand);
+  const pool = [];
+  for (let tries = 0; tries < 4 * POOL_SIZE && pool.length < POOL_SIZE; tries++) {
+    const x = 2 + Math.floor(rand() * (w - 4));
+    const y = 2 + Math.floor(rand() * (h - 4));
+    const d = rayAt(x + 0.5, y + 0.5);
+    const tri = proxies.cast(origin, d);
+    if (tri < 0) continue;
+    const n = proxies.normalOf(tri);
+    if (dot(n, d) > -0.05) continue; // seen from behind or edge-on
+    const point = add(origin, d, proxies.hitT);
+    let same = true;
+    for (const [dx, dy] of [[-1, -1], [1, -1], [-1, 1], [1, 1]]) {
+      const dc = rayAt(x + 0.5 + dx * EDGE_PX, y + 0.5 + dy * EDGE_PX);
+      const t2 = proxies.cast(origin, dc);
+      if (t2 < 0 || dot(proxies.normalOf(t2), n) < 0.999
+        || Math.abs(proxies.planeDistance(tri, add(origin, dc, proxies.hitT))) > 0.02) {
+        same = false;
+        break;
+      }
+    }
+    if (!same) continue;
+    const start = add(point, n, SURFACE_OFFSET_M);
+    const [t1, t2] = tangents(n);
+    const skyDirs = [];
+    const bounce = [];
+    for (const l of hemi) {
+      const dir = [0, 1, 2].map((c) => l[0] * t1[c] + l[1] * t2[c] + l[2] * n[c]);
+      const hit = proxies.cast(start, dir);
+      if (hit >= 0) {
+        bounce.push({ point: add(start, dir, proxies.hitT), normal: proxies.normalOf(hit), albedo: proxies.albedoOf(hit) });
+      } else if (dir[1] > 0) {
+        skyDirs.push(dir);
+      } else {
+        bounce.push({ point: null, normal: [0, 1, 0], albedo: farAlbedo }); // the open ground far off
+      }
+    }
+    pool.push({ x, y, point, normal: n, albedo: proxies.albedoOf(tri), skyDirs, bounce });
+  }
+  return pool;
+}
+
+/** The terms of the model that depend on the sun, per sample: in sun (cos_i, 0 in shadow),
+ * and the one bounce per unit sun normal irradiance and per unit sky irradiance (RGB). */
+export function sunTerms(proxies, pool, sun) {
+  const up = sun[1] > 0;
+  const lit = (point, normal) => {
+    const c = dot(normal, sun);
+    if (!up || c <= 0) return 0;
+    if (point === null) return c;
+    return proxies.cast(add(point, normal, SURFACE_OFFSET_M), sun, true) < 0 ? c : 0;
+  };
+  return pool.map((s) => {
+    const bSun = [0, 0, 0];
+    const bSky = [0, 0, 0];
+    for (const b of s.bounce) {
+      const l = lit(b.point, b.normal);
+      const tilt = 0.5 * (1 + b.normal[1]); // an isotropic sky on the bounce surface's tilt
+      for (let c = 0; c < 3; c++) {
+        bSun[c] += b.albedo[c] * l / HEMISPHERE_RAYS;
+        bSky[c] += b.albedo[c] * tilt / HEMISPHERE_RAYS;
+      }
+    }
+    return { cosI: lit(s.point, s.normal), bSun, bSky };
+  });
+}
+
+/** Per sample, the model sky's irradiance per unit horizontal irradiance over the open sky it
+ * sees (pi x the cosine-weighted mean of the relative radiance). */
+export function skyTerms(pool, sky) {
+  return pool.map((s) => Math.PI * s.skyDirs.reduce((acc, d) => acc + sky.rel(d), 0) / HEMISPHERE_RAYS * sky.toUnit);
+}
+
+/**
+ * Fit the sun and the sky to the samples' linear RGB values.
+ * @param {number[][]} values (n, 3) linear RGB
+ * @param {number[][]} sunCol (n, 3) radiance per unit sun normal irradiance
+ * @param {number[][]} skyCol (n, 3) radiance per unit sky horizontal irradiance
+ * @returns {{sun: number[], sky: number[], weights: number[]}}
+ */
+export function robustFit(values, sunCol, skyCol, rand, overcast = false) {
+  const sum = (r) => r[0] + r[1] + r[2];
+  const a = sunCol.map(sum);
+  const c = skyCol.map(sum);
+  const y = values.map(sum);
+  let w = ransacInliers(a, c, y, rand).map((ok) => (ok ? 1 : 0));
+  w = irls(a, c, y, w);
+  const sun = [0, 0, 0];
+  const sky = [0, 0, 0];
+  let withSun = 0;
+  let without = 0;
+  for (let ch = 0; ch < 3; ch++) {
+    const ac = sunCol.map((r) => r[ch]);
+    const cc = skyCol.map((r) => r[ch]);
+    const yc = values.map((r) => r[ch]);
+    [sun[ch], sky[ch]] = nonneg2(ac, cc, yc, w);
+    withSun += residual(ac, cc, yc, w, sun[ch], sky[ch]);
+    const kOnly = nonneg2(new Array(ac.length).fill(0), cc, yc, w)[1];
+    without += residual(ac, cc, yc, w, 0, kOnly);
+    if (overcast) sky[ch] = kOnly;
+  }
+  if (overcast && withSun < (1 - SUN_SIGNIFICANCE) * without) {
+    // the sun explains the pixels clearly better: kept after all
+    for (let ch = 0; ch < 3; ch++) {
+      [sun[ch], sky[ch]] = nonneg2(sunCol.map((r) => r[ch]), skyCol.map((r) => r[ch]), values.map((r) => r[ch]), w);
+    }
+  } else if (overcast) {
+    sun.fill(0);
+  }
+  return { sun, sky, weights: w };
+}
+
+/** Reads a camera picture and estimates its sun and sky (camera mode without a server sky). */
+export class PhoneEstimator {
+  /**
+   * @param {THREE.Mesh[]} meshes the real proxies and the ground (site.js nodes.real, .ground)
+   * @param {number[]} farAlbedo the build's ground albedo (manifest.ground.albedo)
+   */
+  constructor(meshes, farAlbedo) {
+    this.proxies = new Proxies(meshes);
+    this.farAlbedo = farAlbedo;
+    this.pool = null;
+    this._pose = null;
+    this._sun = null;
+    this._sunTerms = null;
+    this._skies = new Map();
+    this.rand = mulberry32(7);
+    this.last = null; // the last estimate
+    this.poses = 0; // pools computed (pose changes)
+  }
+
+  _poolFor(camera, w, h) {
+    camera.updateMatrixWorld();
+    const m = camera.matrixWorld.clone();
+    const p = this._pose;
+    const moved = !p || new THREE.Vector3().setFromMatrixPosition(m).distanceTo(new THREE.Vector3().setFromMatrixPosition(p.m)) > POSE_TOLERANCE_M
+      || new THREE.Quaternion().setFromRotationMatrix(m).angleTo(new THREE.Quaternion().setFromRotationMatrix(p.m)) > POSE_TOLERANCE_DEG * Math.PI / 180
+      || Math.abs(camera.fov - p.fov) > 0.01 || Math.abs(camera.aspect - p.aspect) > 0.001 || w !== p.w || h !== p.h;
+    if (moved) {
+      this.pool = poolForPose(this.proxies, camera, w, h, this.farAlbedo, 1 + this.poses);
+      this._pose = { m, fov: camera.fov, aspect: camera.aspect, w, h };
+      this._sun = null;
+      this.poses += 1;
+    }
+    return this.pool;
+  }
+
+  _termsFor(sun) {
+    if (!this._sun || dot(this._sun, sun) < Math.cos(SUN_TOLERANCE_DEG * Math.PI / 180)) {
+      this._sunTerms = sunTerms(this.proxies, this.pool, sun);
+      this._skies.clear();
+      this._sun = sun.slice();
+    }
+    return this._sunTerms;
+  }
+
+  _skyFor(type, sun) {
+    if (!this._skies.has(type)) {
+      const sky = unitSky(type, sun);
+      this._skies.set(type, { sky, terms: skyTerms(this.pool, sky) });
+    }
+    return this._skies.get(type);
+  }
+
+  /**
+   * One estimate.
+   * @param {Uint8ClampedArray} rgba (h, w, 4) sRGB codes of the picture, rows from the top
+   * @param {number} w
+   * @param {number} h
+   * @param {THREE.Camera} camera the pose the picture was taken with
+   * @param {number[]} sun unit site direction toward the sun
+   * @returns {object|null} {sunNormal: RGB, skyHorizontal: RGB (picture units x pi), ratio
+   *   (luminance E_sun / k), skyType, used, sunlit, inlierFraction, pool}; null when the
+   *   picture has too few usable pixels of known surfaces
+   */
+  estimate(rgba, w, h, camera, sun) {
+    const pool = this._poolFor(camera, w, h);
+    const terms = this._termsFor(sun);
+    const values = [];
+    const rows = [];
+    for (let i = 0; i < pool.length; i++) {
+      const k = 4 * (pool[i].y * w + pool[i].x);
+      const codes = [rgba[k], rgba[k + 1], rgba[k + 2]];
+      if (Math.max(...codes) >= CLIP_CODE || Math.min(...codes) < DARK_CODE) continue;
+      values.push(codes.map((v) => srgbToLinear(v / 255)));
+      rows.push(i);
+    }
+    if (rows.length < MIN_SAMPLES) {
+      this.last = null;
+      return null;
+    }
+    const sunlit = rows.filter((i) => terms[i].cosI > 0.05).length;
+    let type = 12;
+    let fit = null;
+    for (let iteration = 0; iteration < 3; iteration++) {
+      const { terms: sky } = this._skyFor(type, sun);
+      const sunCol = rows.map((i) => [0, 1, 2].map((c) => (sunlit < MIN_SUNLIT ? 0
+        : pool[i].albedo[c] * (terms[i].cosI + terms[i].bSun[c]) / Math.PI)));
+      const skyCol = rows.map((i) => [0, 1, 2].map((c) => pool[i].albedo[c] * (sky[i] + terms[i].bSky[c]) / Math.PI));
+      fit = robustFit(values, sunCol, skyCol, this.rand, type === OVERCAST_TYPE);
+      fit.type = type;
+      const ratio = luma(fit.sun) / Math.max(luma(fit.sky), 1e-12);
+      const next = skyTypeForRatio(ratio);
+      if (next === type) break;
+      type = next;
+    }
+    const inliers = fit.weights.filter((x) => x > 0.5).length;
+    this.last = {
+      sunNormal: fit.sun, skyHorizontal: fit.sky, ratio: luma(fit.sun) / Math.max(luma(fit.sky), 1e-12),
+      skyType: fit.type, used: rows.length, sunlit, inlierFraction: inliers / rows.length, pool: pool.length,
+    };
+    return this.last;
+  }
+
+  /**
+   * The estimate as the light the client draws (the server's layout, lightstream.js): the
+   * sky's patch radiances (n x 3, W/(m^2 sr)) and the sun, scaled to NOMINAL_GLOBAL_W_M2.
+   * @param {object[]} lights the manifest's dome lights (centroid, cosine_weighted_sr)
+   * @param {number[]} sun unit direction
+   * @returns {{rgb: Float32Array, sun: {direction, normalIrradiance, source, estimated}}}
+   */
+  lightVector(estimate, lights, sun) {
+    const { rel } = unitSky(estimate.skyType, sun);
+    const raw = lights.map((l) => (l.centroid[1] > 0 ? rel(l.centroid) : 0));
+    const open = raw.reduce((s, v, i) => s + v * lights[i].cosine_weighted_sr, 0);
+    const up = Math.max(sun[1], 0);
+    const global = luma(estimate.skyHorizontal) + luma(estimate.sunNormal) * up;
+    const scale = global > 0 ? NOMINAL_GLOBAL_W_M2 / global : 0;
+    const rgb = new Float32Array(3 * lights.length);
+    raw.forEach((v, i) => {
+      for (let c = 0; c < 3; c++) rgb[3 * i + c] = v / open * estimate.skyHorizontal[c] * scale;
+    });
+    return {
+      rgb,
+      sun: { direction: sun.slice(), normalIrradiance: estimate.sunNormal.map((e) => e * scale), source: 'phone', estimated: true },
+    };
+  }
+}
+
+/** Reads the camera's video into a small copy and estimates, at most every ESTIMATE_PERIOD_S. */
+export class PhoneLight {
+  /**
+   * @param {HTMLVideoElement} video
+   * @param {PhoneEstimator} estimator
+   */
+  constructor(video, estimator) {
+    this.video = video;
+    this.estimator = estimator;
+    this.canvas = document.createElement('canvas');
+    [this.canvas.width, this.canvas.height] = ESTIMATE_SIZE;
+    this.context = this.canvas.getContext('2d', { willReadFrequently: true });
+    this.lastS = -Infinity;
+    this.estimates = 0; // estimates made (status.phoneEstimates)
+    this.ms = null; // the last estimate's milliseconds of CPU
+  }
+
+  /** @returns {object|null} a new estimate, or null (not due, no frame, nothing to read) */
+  read(camera, sun, nowS, force = false) {
+    if (!force && nowS - this.lastS < ESTIMATE_PERIOD_S) return null;
+    if (this.video.readyState < 2) return null;
+    this.lastS = nowS;
+    const t0 = performance.now();
+    const [w, h] = ESTIMATE_SIZE;
+    this.context.drawImage(this.video, 0, 0, w, h);
+    const estimate = this.estimator.estimate(this.context.getImageData(0, 0, w, h).data, w, h, camera, sun);
+    this.ms = performance.now() - t0;
+    if (estimate) this.estimates += 1;
+    return estimate;
+  }
+}
+
+// ------------------------------------------------------------------------------ the fit
+
+function irls(a, c, y, w0, iterations = 12, tukey = 4.685) {
+  let w = w0.slice();
+  const floor = 1e-9 + 0.02 * median(y.map(Math.abs));
+  for (let it = 0; it < iterations; it++) {
+    const [x1, x2] = nonneg2(a, c, y, w);
+    const rel = y.map((v, i) => {
+      const fit = a[i] * x1 + c[i] * x2;
+      return (v - fit) / Math.max(Math.abs(fit), floor);
+    });
+    const good = rel.filter((_, i) => w[i] > 0).map(Math.abs);
+    const scale = Math.max(good.length ? 1.4826 * median(good) : 1, 0.01);
+    w = rel.map((r) => {
+      const u = r / (tukey * scale);
+      return Math.abs(u) < 1 ? (1 - u * u) ** 2 : 0;
+    });
+  }
+  return w;
+}
+
+/** Weighted least squares of y ~ x1 a + x2 c with x1, x2 >= 0 (the 2 x 2 normal equations,
+ * or one column alone when the pair's solution has a negative part). */
+function nonneg2(a, c, y, w) {
+  let saa = 0; let scc = 0; let sac = 0; let say = 0; let scy = 0;
+  for (let i = 0; i < y.length; i++) {
+    saa += w[i] * a[i] * a[i]; scc += w[i] * c[i] * c[i]; sac += w[i] * a[i] * c[i];
+    say += w[i] * a[i] * y[i]; scy += w[i] * c[i] * y[i];
+  }
+  const det = saa * scc - sac * sac;
+  if (det > 1e-18 * Math.max(saa * scc, 1e-300)) {
+    const x1 = (say * scc - scy * sac) / det;
+    const x2 = (saa * scy - sac * say) / det;
+    if (x1 >= 0 && x2 >= 0) return [x1, x2];
+  }
+  const only1 = saa > 0 ? Math.max(say / saa, 0) : 0;
+  const only2 = scc > 0 ? Math.max(scy / scc, 0) : 0;
+  return residual(a, c, y, w, only1, 0) < residual(a, c, y, w, 0, only2) ? [only1, 0] : [0, only2];
+}
+
+function residual(a, c, y, w, x1, x2) {
+  let s = 0;
+  for (let i = 0; i < y.length; i++) s += w[i] * (y[i] - a[i] * x1 - c[i] * x2) ** 2;
+  return s;
+}
+
+/** The inliers (within 8 % relative) of the best of 150 two-sample fits, one sample with sun
+ * and one without (server/robustfit.py ransac_fit), and of the no-sun hypotheses. */
+function ransacInliers(a, c, y, rand, hypotheses = 150, tolerance = 0.08) {
+  const top = Math.max(...a);
+  const all = y.map((_, i) => i);
+  let sunny = top > 0 ? all.filter((i) => a[i] > 0.25 * top) : all;
+  let shade = top > 0 ? all.filter((i) => a[i] <= 0.25 * top) : all;
+  if (!sunny.length || !shade.length) sunny = shade = all;
+  let best = null;
+  let bestCount = -1;
+  const pick = (list) => list[Math.floor(rand() * list.length)];
+  for (let h = 0; h < 2 * hypotheses; h++) {
+    const j = pick(shade);
+    let x1 = 0;
+    let x2 = y[j] / Math.max(c[j], 1e-12);
+    if (h < hypotheses) {
+      const i = pick(sunny);
+      const det = a[i] * c[j] - a[j] * c[i];
+      if (Math.abs(det) < 1e-12) continue;
+      x1 = Math.max((y[i] * c[j] - y[j] * c[i]) / det, 0);
+      x2 = Math.max((a[i] * y[j] - a[j] * y[i]) / det, 0);
+    }
+    let count = 0;
+    const inside = y.map((v, k) => {
+      const fit = x1 * a[k] + x2 * c[k];
+      const ok = Math.abs(v - fit) <= tolerance * Math.max(fit, 1e-9);
+      count += ok;
+      return ok;
+    });
+    if (count > bestCount) {
+      bestCount = count;
+      best = inside;
+    }
+  }
+  return best;
+}
+
+// ------------------------------------------------------------------------------ small helpers
+
+function median(v) {
+  if (!v.length) return 0;
+  const s = v.slice().sort((p, q) => p - q);
+  return s[s.length >> 1];
+}
+
+function luma(rgb) {
+  return LUMA[0] * rgb[0] + LUMA[1] * rgb[1] + LUMA[2] * rgb[2];
+}
+
+function dot(p, q) {
+  return p[0] * q[0] + p[1] * q[1] + p[2] * q[2];
+}
+
+function add(p, d, t) {
+  return [p[0] + d[0] * t, p[1] + d[1] * t, p[2] + d[2] * t];
+}
+
+function normalized(v) {
+  const l = Math.hypot(...v) || 1;
+  return v.map((x) => x / l);
+}
+
+function tangents(n) {
+  const helper = Math.abs(n[1]) < 0.9 ? [0, 1, 0] : [1, 0, 0];
+  const t = normalized([helper[1] * n[2] - helper[2] * n[1], helper[2] * n[0] - helper[0] * n[2], helper[0] * n[1] - helper[1] * n[0]]);
+  return [t, [n[1] * t[2] - n[2] * t[1], n[2] * t[0] - n[0] * t[2], n[0] * t[1] - n[1] * t[0]]];
+}
+
+/** Stratified cosine-distributed directions about +Z, (count, 3). */
+function cosineDirections(count, rand) {
+  const side = Math.max(1, Math.floor(Math.sqrt(count)));
+  const rows = Math.ceil(count / side);
+  const out = [];
+  for (let i = 0; i < count; i++) {
+    const u = ((i % side) + rand()) / side;
+    const v = (Math.floor(i / side) + rand()) / rows;
+    const r = Math.sqrt(u);
+    out.push([r * Math.cos(2 * Math.PI * v), r * Math.sin(2 * Math.PI * v), Math.sqrt(Math.max(0, 1 - u))]);
+  }
+  return out;
+}
+
+/** A small seeded generator (the pool is the same for the same pose: reproducible tests). */
+function mulberry32(seed) {
+  let a = seed >>> 0;
+  return () => {
+    a = (a + 0x6d2b79f5) >>> 0;
+    let t = a;
+    t = Math.imul(t ^ (t >>> 15), t | 1);
+    t ^= t + Math.imul(t ^ (t >>> 7), t | 61);
+    return ((t ^ (t >>> 14)) >>> 0) / 4294967296;
+  };
+}
+
+/** Slab test: does the ray meet the box before tMax? */
+function slab(lo, hi, o, d, tMax) {
+  let t0 = 0;
+  let t1 = tMax;
+  for (let c = 0; c < 3; c++) {
+    const inv = 1 / d[c];
+    let near = (lo[c] - o[c]) * inv;
+    let far = (hi[c] - o[c]) * inv;
+    if (near > far) [near, far] = [far, near];
+    if (Number.isNaN(near) || Number.isNaN(far)) {
+      if (o[c] < lo[c] || o[c] > hi[c]) return false;
+      continue;
+    }
+    t0 = Math.max(t0, near);
+    t1 = Math.min(t1, far);
+    if (t0 > t1) return false;
+  }
+  return true;
+}
