@@ -22,10 +22,12 @@ camera.updateMatrixWorld(true);
 const estimator = new PhoneEstimator(meshes, c.groundAlbedo);
 const rgba = Uint8ClampedArray.from(c.picture.rgba);
 const out = { estimates: [] };
+if (c.forceType) estimator.forceType = c.forceType;
 for (let i = 0; i < (c.count ?? 1); i++) {
   out.estimates.push(estimator.estimate(rgba, c.picture.w, c.picture.h, camera, c.sun));
 }
 if (c.lights && out.estimates.at(-1)) out.light = estimator.lightVector(out.estimates.at(-1), c.lights, c.sun);
 out.light &&= { rgb: Array.from(out.light.rgb), sun: out.light.sun };
 out.pool = estimator.pool.map((s) => ({ x: s.x, y: s.y, normal: s.normal, albedo: s.albedo, sky: s.skyDirs.length, bounce: s.bounce.length }));
+if (c.fit) out.fit = { ...estimator.lastFit, terms: estimator._sunTerms };
 console.log(JSON.stringify(out));

@@ -11,11 +11,18 @@ import numpy as np
 
 from server.sceneestimate import PinholeView, SceneEstimator
 
-# Standing north of the building, eye height, looking south and 15 degrees down: the building's
-# shaded north face, its shadow on the ground, the sunlit ground between (tests/server/conftest.py
-# scene_build: an 8 x 5 x 6 m building at the origin, a wall to its west).
-STANDPOINT_M = [3.0, 1.6, -15.0]
-ORIENTATION = (180.0, 75.0, 0.0)  # alpha, beta, gamma (deviceorientation; beta 90 is level)
+# The poses (tests/server/conftest.py scene_build: an 8 x 5 x 6 m building at the origin, a
+# wall to its west), each a standpoint (m) and a device orientation (alpha, beta, gamma;
+# deviceorientation degrees, beta 90 is level, alpha 180 faces south):
+POSES = {
+    # the kiosk's standpoint (a phone held up on a balcony 7 m up), looking south and 17
+    # degrees down as the kiosk's view does: the building's shaded north face, its shadow on
+    # the ground, sunlit ground around it
+    "balcony": ([3.0, 7.0, -24.0], (180.0, 73.0, 0.0)),
+    # eye height 9 m north of the building, 15 degrees down: mostly its shaded north face and
+    # sunlit ground, the shaded ground seen at grazing angles
+    "eye": ([3.0, 1.6, -15.0], (180.0, 75.0, 0.0)),
+}
 
 
 def view_from_three(matrix_world: list[float], fov_y_deg: float, width: int,

@@ -32,7 +32,7 @@ import { srgbToLinear } from './picturemeter.js';
 export const ESTIMATE_SIZE = [192, 108];
 /** A new estimate at most this often, seconds (the sky changes over minutes; a phone's CPU). */
 export const ESTIMATE_PERIOD_S = 2;
-export const POOL_SIZE = 500; // candidate pixels of known surfaces per pose
+export const POOL_SIZE = 1000; // candidate pixels of known surfaces per pose
 const HEMISPHERE_RAYS = 48; // per sample: sky view factor and one bounce
 const EDGE_PX = 1.5; // a pixel's corners this far away must see the same plane
 const SURFACE_OFFSET_M = 0.01;
@@ -48,11 +48,12 @@ const OVERCAST_RATIO = 0.5;
 const CLEAR_RATIO = 3.0;
 const OVERCAST_TYPE = 2;
 const SUN_SIGNIFICANCE = 0.5; // overcast: the sun kept only if it halves the residual
+const SHARE_MEMORY = 0.8; // per estimate, the weight of the past in the model sky's share
 /** The level the estimate is scaled to: a sun and sky giving this on open ground. */
 export const NOMINAL_GLOBAL_W_M2 = 500;
 const LUMA = [0.2126, 0.7152, 0.0722];
 // CIE general skies (ISO 15469; daylit/sky.py CIE_SKY_TYPES): a, b, c, d, e
-const CIE = { 2: [4.0, -0.7, 2.0, -1.5, 0.15], 7: [0.0, -1.0, 5.0, -2.5, 0.3], 12: [-1.0, -0.32, 10.0, -3.0, 0.45] };
+const CIE = { 1: [4.0, -0.7, 0.0, -1.0, 0.0], 2: [4.0, -0.7, 2.0, -1.5, 0.15], 5: [0.0, -1.0, 0.0, -1.0, 0.0], 7: [0.0, -1.0, 5.0, -2.5, 0.3], 12: [-1.0, -0.32, 10.0, -3.0, 0.45] };
 
 /** The CIE sky type for a ratio of sun normal irradiance to sky horizontal irradiance. */
 export function skyTypeForRatio(ratio) {
@@ -280,42 +281,50 @@ export function skyTerms(pool, sky) {
 }
 
 /**
- * Fit the sun and the sky to the samples' linear RGB values.
+ * Fit the sun and the sky to the samples' linear RGB values (server/sceneestimate.py's solve):
+ * the inliers by RANSAC on the channel sum (sun and model sky), IRLS with Tukey's biweight on
+ * the sum with three columns (sun, model sky, isotropic sky) for the weights and the model
+ * sky's share, then each channel's sun and sky (the two skies blended by that share) with
+ * those weights. Under the overcast type the sun is kept only when it halves the residual.
  * @param {number[][]} values (n, 3) linear RGB
  * @param {number[][]} sunCol (n, 3) radiance per unit sun normal irradiance
- * @param {number[][]} skyCol (n, 3) radiance per unit sky horizontal irradiance
- * @returns {{sun: number[], sky: number[], weights: number[]}}
+ * @param {number[][]} skyCol (n, 3) radiance per unit horizontal irradiance of the model sky
+ * @param {number[][]} isoCol (n, 3) the same of an isotropic sky
+ * @param {(share: number) => number} follow the model share to use given this fit's (kept
+ *   across estimates by the caller: one picture's samples determine it poorly)
+ * @returns {{sun: number[], sky: number[], weights: number[], share: number}}
  */
-export function robustFit(values, sunCol, skyCol, rand, overcast = false) {
+export function robustFit(values, sunCol, skyCol, isoCol, rand, overcast = false, follow = (x) => x) {
   const sum = (r) => r[0] + r[1] + r[2];
   const a = sunCol.map(sum);
   const c = skyCol.map(sum);
+  const u = isoCol.map(sum);
   const y = values.map(sum);
-  let w = ransacInliers(a, c, y, rand).map((ok) => (ok ? 1 : 0));
-  w = irls(a, c, y, w);
+  const inliers = ransacInliers(a, c, y, rand).map((ok) => (ok ? 1 : 0));
+  const { x, w } = irls([a, c, u], y, inliers);
+  const share = follow(x[1] + x[2] > 0 ? x[1] / (x[1] + x[2]) : 1);
+  const blend = skyCol.map((r, i) => r.map((v, ch) => share * v + (1 - share) * isoCol[i][ch]));
   const sun = [0, 0, 0];
   const sky = [0, 0, 0];
+  const skyOnly = [0, 0, 0];
   let withSun = 0;
   let without = 0;
   for (let ch = 0; ch < 3; ch++) {
     const ac = sunCol.map((r) => r[ch]);
-    const cc = skyCol.map((r) => r[ch]);
+    const cc = blend.map((r) => r[ch]);
     const yc = values.map((r) => r[ch]);
-    [sun[ch], sky[ch]] = nonneg2(ac, cc, yc, w);
-    withSun += residual(ac, cc, yc, w, sun[ch], sky[ch]);
-    const kOnly = nonneg2(new Array(ac.length).fill(0), cc, yc, w)[1];
-    without += residual(ac, cc, yc, w, 0, kOnly);
-    if (overcast) sky[ch] = kOnly;
+    [sun[ch], sky[ch]] = nonneg([ac, cc], yc, w);
+    withSun += residual([ac, cc], yc, w, [sun[ch], sky[ch]]);
+    [skyOnly[ch]] = nonneg([cc], yc, w);
+    without += residual([cc], yc, w, [skyOnly[ch]]);
   }
-  if (overcast && withSun < (1 - SUN_SIGNIFICANCE) * without) {
-    // the sun explains the pixels clearly better: kept after all
-    for (let ch = 0; ch < 3; ch++) {
-      [sun[ch], sky[ch]] = nonneg2(sunCol.map((r) => r[ch]), skyCol.map((r) => r[ch]), values.map((r) => r[ch]), w);
-    }
-  } else if (overcast) {
+  if (overcast && !(withSun < (1 - SUN_SIGNIFICANCE) * without)) {
+    // a small sun that explains little more than the sky alone is the sky model's error
+    // (Jensen et al.: under heavy cloud, none)
     sun.fill(0);
+    sky.splice(0, 3, ...skyOnly);
   }
-  return { sun, sky, weights: w };
+  return { sun, sky, weights: w, share };
 }
 
 /** Reads a camera picture and estimates its sun and sky (camera mode without a server sky). */
@@ -332,6 +341,7 @@ export class PhoneEstimator {
     this._sun = null;
     this._sunTerms = null;
     this._skies = new Map();
+    this._share = new Map(); // per sky type, the model sky's share (the rest isotropic)
     this.rand = mulberry32(7);
     this.last = null; // the last estimate
     this.poses = 0; // pools computed (pose changes)
@@ -370,6 +380,22 @@ export class PhoneEstimator {
     return this._skies.get(type);
   }
 
+  /** Pool indices, as many in sun as in shadow where the pool has them (the shadowed ones are
+   * what tells the sky from the sun; a view of mostly sunlit ground would otherwise let the
+   * sunlit majority set the fit, server/sceneestimate.py's _pick). */
+  _balanced(terms) {
+    const lit = [];
+    const shade = [];
+    terms.forEach((t, i) => (t.cosI > 0 ? lit : shade).push(i));
+    const [small, large] = lit.length < shade.length ? [lit, shade] : [shade, lit];
+    const take = Math.max(small.length, MIN_SAMPLES);
+    for (let i = large.length - 1; i > 0; i--) { // a seeded shuffle of the larger group
+      const j = Math.floor(this.rand() * (i + 1));
+      [large[i], large[j]] = [large[j], large[i]];
+    }
+    return [...small, ...large.slice(0, take)];
+  }
+
   /**
    * One estimate.
    * @param {Uint8ClampedArray} rgba (h, w, 4) sRGB codes of the picture, rows from the top
@@ -386,7 +412,7 @@ export class PhoneEstimator {
     const terms = this._termsFor(sun);
     const values = [];
     const rows = [];
-    for (let i = 0; i < pool.length; i++) {
+    for (const i of this._balanced(terms)) {
       const k = 4 * (pool[i].y * w + pool[i].x);
       const codes = [rgba[k], rgba[k + 1], rgba[k + 2]];
       if (Math.max(...codes) >= CLIP_CODE || Math.min(...codes) < DARK_CODE) continue;
@@ -398,15 +424,22 @@ export class PhoneEstimator {
       return null;
     }
     const sunlit = rows.filter((i) => terms[i].cosI > 0.05).length;
-    let type = 12;
+    let type = this.forceType ?? 12;
     let fit = null;
-    for (let iteration = 0; iteration < 3; iteration++) {
+    for (let iteration = 0; iteration < (this.forceType ? 1 : 3); iteration++) {
       const { terms: sky } = this._skyFor(type, sun);
       const sunCol = rows.map((i) => [0, 1, 2].map((c) => (sunlit < MIN_SUNLIT ? 0
         : pool[i].albedo[c] * (terms[i].cosI + terms[i].bSun[c]) / Math.PI)));
       const skyCol = rows.map((i) => [0, 1, 2].map((c) => pool[i].albedo[c] * (sky[i] + terms[i].bSky[c]) / Math.PI));
-      fit = robustFit(values, sunCol, skyCol, this.rand, type === OVERCAST_TYPE);
+      // the isotropic part of the sky: the sky view factor (Perez and Hay-Davies split the
+      // sky the same way); its share beside the model's is followed across estimates
+      const isoCol = rows.map((i) => [0, 1, 2].map((c) => pool[i].albedo[c] * (pool[i].skyDirs.length / HEMISPHERE_RAYS + terms[i].bSky[c]) / Math.PI));
+      const previous = this._share.get(type);
+      fit = robustFit(values, sunCol, skyCol, isoCol, this.rand, type === OVERCAST_TYPE,
+        (share) => (previous === undefined ? share : SHARE_MEMORY * previous + (1 - SHARE_MEMORY) * share));
+      this._share.set(type, fit.share);
       fit.type = type;
+      this.lastFit = { rows, values, sunCol, skyCol, isoCol, weights: fit.weights }; // for tests
       const ratio = luma(fit.sun) / Math.max(luma(fit.sky), 1e-12);
       const next = skyTypeForRatio(ratio);
       if (next === type) break;
@@ -415,7 +448,7 @@ export class PhoneEstimator {
     const inliers = fit.weights.filter((x) => x > 0.5).length;
     this.last = {
       sunNormal: fit.sun, skyHorizontal: fit.sky, ratio: luma(fit.sun) / Math.max(luma(fit.sky), 1e-12),
-      skyType: fit.type, used: rows.length, sunlit, inlierFraction: inliers / rows.length, pool: pool.length,
+      skyType: fit.type, modelShare: fit.share, used: rows.length, sunlit, inlierFraction: inliers / rows.length, pool: pool.length,
     };
     return this.last;
   }
@@ -428,8 +461,9 @@ export class PhoneEstimator {
    * @returns {{rgb: Float32Array, sun: {direction, normalIrradiance, source, estimated}}}
    */
   lightVector(estimate, lights, sun) {
-    const { rel } = unitSky(estimate.skyType, sun);
-    const raw = lights.map((l) => (l.centroid[1] > 0 ? rel(l.centroid) : 0));
+    const { rel, toUnit } = unitSky(estimate.skyType, sun);
+    const share = estimate.modelShare;
+    const raw = lights.map((l) => (l.centroid[1] > 0 ? share * rel(l.centroid) * toUnit + (1 - share) / Math.PI : 0));
     const open = raw.reduce((s, v, i) => s + v * lights[i].cosine_weighted_sr, 0);
     const up = Math.max(sun[1], 0);
     const global = luma(estimate.skyHorizontal) + luma(estimate.sunNormal) * up;
@@ -479,47 +513,78 @@ export class PhoneLight {
 
 // ------------------------------------------------------------------------------ the fit
 
-function irls(a, c, y, w0, iterations = 12, tukey = 4.685) {
+/** IRLS with Tukey's biweight on residuals relative to the fit (server/robustfit.py):
+ * y ~ sum_j x_j cols[j], x >= 0, from the weights w0; returns x and the final weights. */
+function irls(cols, y, w0, iterations = 12, tukey = 4.685) {
   let w = w0.slice();
+  let x = cols.map(() => 0);
   const floor = 1e-9 + 0.02 * median(y.map(Math.abs));
   for (let it = 0; it < iterations; it++) {
-    const [x1, x2] = nonneg2(a, c, y, w);
+    x = nonneg(cols, y, w);
     const rel = y.map((v, i) => {
-      const fit = a[i] * x1 + c[i] * x2;
+      const fit = cols.reduce((s, col, j) => s + col[i] * x[j], 0);
       return (v - fit) / Math.max(Math.abs(fit), floor);
     });
     const good = rel.filter((_, i) => w[i] > 0).map(Math.abs);
     const scale = Math.max(good.length ? 1.4826 * median(good) : 1, 0.01);
     w = rel.map((r) => {
-      const u = r / (tukey * scale);
-      return Math.abs(u) < 1 ? (1 - u * u) ** 2 : 0;
+      const t = r / (tukey * scale);
+      return Math.abs(t) < 1 ? (1 - t * t) ** 2 : 0;
     });
   }
-  return w;
+  return { x, w };
 }
 
-/** Weighted least squares of y ~ x1 a + x2 c with x1, x2 >= 0 (the 2 x 2 normal equations,
- * or one column alone when the pair's solution has a negative part). */
-function nonneg2(a, c, y, w) {
-  let saa = 0; let scc = 0; let sac = 0; let say = 0; let scy = 0;
-  for (let i = 0; i < y.length; i++) {
-    saa += w[i] * a[i] * a[i]; scc += w[i] * c[i] * c[i]; sac += w[i] * a[i] * c[i];
-    say += w[i] * a[i] * y[i]; scy += w[i] * c[i] * y[i];
+/** Weighted non-negative least squares of y ~ sum_j x_j cols[j] for a few columns (at most
+ * 3): the normal equations on every subset of the columns, the feasible solution with the
+ * least residual (exact for so few unknowns, as scipy's NNLS). */
+function nonneg(cols, y, w) {
+  const p = cols.length;
+  const gram = cols.map((ci) => cols.map((cj) => ci.reduce((s, v, k) => s + w[k] * v * cj[k], 0)));
+  const rhs = cols.map((ci) => ci.reduce((s, v, k) => s + w[k] * v * y[k], 0));
+  let best = new Array(p).fill(0);
+  let bestR = residual(cols, y, w, best);
+  for (let mask = 1; mask < 1 << p; mask++) {
+    const idx = [...Array(p).keys()].filter((j) => mask & (1 << j));
+    const sol = solveSmall(idx.map((i) => idx.map((j) => gram[i][j])), idx.map((i) => rhs[i]));
+    if (!sol || sol.some((v) => !(v >= 0))) continue;
+    const x = new Array(p).fill(0);
+    idx.forEach((j, k) => { x[j] = sol[k]; });
+    const r = residual(cols, y, w, x);
+    if (r < bestR) {
+      bestR = r;
+      best = x;
+    }
   }
-  const det = saa * scc - sac * sac;
-  if (det > 1e-18 * Math.max(saa * scc, 1e-300)) {
-    const x1 = (say * scc - scy * sac) / det;
-    const x2 = (saa * scy - sac * say) / det;
-    if (x1 >= 0 && x2 >= 0) return [x1, x2];
-  }
-  const only1 = saa > 0 ? Math.max(say / saa, 0) : 0;
-  const only2 = scc > 0 ? Math.max(scy / scc, 0) : 0;
-  return residual(a, c, y, w, only1, 0) < residual(a, c, y, w, 0, only2) ? [only1, 0] : [0, only2];
+  return best;
 }
 
-function residual(a, c, y, w, x1, x2) {
+/** Gaussian elimination with partial pivoting of a small system; null when singular. */
+function solveSmall(m, b) {
+  const n = b.length;
+  const a = m.map((row, i) => [...row, b[i]]);
+  const scale = Math.max(...a.map((row) => Math.max(...row.slice(0, n).map(Math.abs))), 1e-300);
+  for (let c = 0; c < n; c++) {
+    let piv = c;
+    for (let r = c + 1; r < n; r++) if (Math.abs(a[r][c]) > Math.abs(a[piv][c])) piv = r;
+    if (Math.abs(a[piv][c]) < 1e-12 * scale) return null;
+    [a[c], a[piv]] = [a[piv], a[c]];
+    for (let r = 0; r < n; r++) {
+      if (r === c) continue;
+      const f = a[r][c] / a[c][c];
+      for (let k = c; k <= n; k++) a[r][k] -= f * a[c][k];
+    }
+  }
+  return a.map((row, i) => row[n] / row[i]);
+}
+
+function residual(cols, y, w, x) {
   let s = 0;
-  for (let i = 0; i < y.length; i++) s += w[i] * (y[i] - a[i] * x1 - c[i] * x2) ** 2;
+  for (let i = 0; i < y.length; i++) {
+    let fit = 0;
+    for (let j = 0; j < cols.length; j++) fit += cols[j][i] * x[j];
+    s += w[i] * (y[i] - fit) ** 2;
+  }
   return s;
 }
 
