@@ -54,3 +54,49 @@ def server_estimate(build_dir: Path, view: PinholeView, linear: np.ndarray, sun_
         ratios.append(float(lum @ light.sun_normal_irradiance) /
                       max(float(lum @ light.sky_horizontal_irradiance), 1e-9))
     return float(np.median(ratios))
+
+
+# Unobstructed surfaces: open ground and four walls (north, east, south, west)
+COMPOSITE_NORMALS = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0],
+                              [0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]])
+
+
+def open_irradiance_truth(spec, build_dir: Path, normals=COMPOSITE_NORMALS) -> np.ndarray:
+    """(n,) Radiance's irradiance (W/m^2, grey) of unobstructed surfaces of unit ``normals``
+    (site frame) under one gendaylit sky and its sun, nothing below the horizon."""
+    import tempfile
+
+    from benchmarks.bench_fidelity import (gendaylit, oconv, radiance_env, rtrace, sky_rad,
+                                           sun_rad, to_radiance)
+    from daylit import manifest as manifest_io
+    from tests.radiance_frames import SKY_IRRADIANCE
+
+    _, env = radiance_env()
+    sky = gendaylit(spec, manifest_io.load(build_dir), env)
+    with tempfile.TemporaryDirectory(prefix="daylit-radiance-") as tmp:
+        work = Path(tmp)
+        (work / "sky.rad").write_text(sky_rad(sky.skyfunc))
+        (work / "sun.rad").write_text(sun_rad(sky.sun_dir_rad, sky.sun_radiance)
+                                      if sky.has_sun else "")
+        octree = oconv(work / "open.oct", [work / "sky.rad", work / "sun.rad"], env)
+        rays = np.hstack([np.zeros((len(normals), 3)) + [0.0, 0.0, 0.001],
+                          to_radiance(np.asarray(normals, float))])
+        return rtrace(octree, rays, SKY_IRRADIANCE, env).mean(axis=1)
+
+
+def open_irradiance_estimated(estimate: dict, sun_dir, normals=COMPOSITE_NORMALS) -> np.ndarray:
+    """(n,) the irradiance of the same surfaces from the phone's estimate (its sun, and its sky:
+    ``modelShare`` of the CIE sky of its type, the rest isotropic; server/skyshape.py's
+    tilted_irradiance), in the estimate's own (uncalibrated) units."""
+    from server.skyshape import tilted_irradiance, unit_sky
+
+    sun = float(LUMA @ np.asarray(estimate["sunNormal"], float))
+    k = float(LUMA @ np.asarray(estimate["skyHorizontal"], float))
+    shape, to_unit = unit_sky(int(estimate["skyType"]), np.asarray(sun_dir, float))
+    share = float(estimate["modelShare"])
+    sky = share * tilted_irradiance(shape, to_unit, normals) + (1.0 - share) * 0.5 * (
+        1.0 + normals[:, 1])
+    return sun * np.clip(normals @ np.asarray(sun_dir, float), 0.0, None) + k * sky
+
+
+LUMA = np.array([0.2126, 0.7152, 0.0722])

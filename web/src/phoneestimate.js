@@ -32,8 +32,8 @@ import { srgbToLinear } from './picturemeter.js';
 export const ESTIMATE_SIZE = [192, 108];
 /** A new estimate at most this often, seconds (the sky changes over minutes; a phone's CPU). */
 export const ESTIMATE_PERIOD_S = 2;
-export const POOL_SIZE = 1000; // candidate pixels of known surfaces per pose
-const HEMISPHERE_RAYS = 48; // per sample: sky view factor and one bounce
+export const POOL_SIZE = 2000; // candidate pixels of known surfaces per pose
+const HEMISPHERE_RAYS = 64; // per sample: sky view factor and one bounce
 const EDGE_PX = 1.5; // a pixel's corners this far away must see the same plane
 const SURFACE_OFFSET_M = 0.01;
 const MIN_SAMPLES = 30; // fewer usable pixels: no estimate
@@ -47,7 +47,7 @@ const SUN_TOLERANCE_DEG = 0.1;
 const OVERCAST_RATIO = 0.5;
 const CLEAR_RATIO = 3.0;
 const OVERCAST_TYPE = 2;
-const SUN_SIGNIFICANCE = 0.5; // overcast: the sun kept only if it halves the residual
+const SUN_CONTRAST = 0.15; // overcast: the sun kept only if sunlit samples are 15 % brighter
 const SHARE_MEMORY = 0.8; // per estimate, the weight of the past in the model sky's share
 /** The level the estimate is scaled to: a sun and sky giving this on open ground. */
 export const NOMINAL_GLOBAL_W_M2 = 500;
@@ -306,23 +306,28 @@ export function robustFit(values, sunCol, skyCol, isoCol, rand, overcast = false
   const blend = skyCol.map((r, i) => r.map((v, ch) => share * v + (1 - share) * isoCol[i][ch]));
   const sun = [0, 0, 0];
   const sky = [0, 0, 0];
-  const skyOnly = [0, 0, 0];
-  let withSun = 0;
-  let without = 0;
+  const channel = (cols, ch) => cols.map((r) => r[ch]);
   for (let ch = 0; ch < 3; ch++) {
-    const ac = sunCol.map((r) => r[ch]);
-    const cc = blend.map((r) => r[ch]);
-    const yc = values.map((r) => r[ch]);
-    [sun[ch], sky[ch]] = nonneg([ac, cc], yc, w);
-    withSun += residual([ac, cc], yc, w, [sun[ch], sky[ch]]);
-    [skyOnly[ch]] = nonneg([cc], yc, w);
-    without += residual([cc], yc, w, [skyOnly[ch]]);
+    [sun[ch], sky[ch]] = nonneg([channel(sunCol, ch), channel(blend, ch)], channel(values, ch), w);
   }
-  if (overcast && !(withSun < (1 - SUN_SIGNIFICANCE) * without)) {
-    // a small sun that explains little more than the sky alone is the sky model's error
-    // (Jensen et al.: under heavy cloud, none)
-    sun.fill(0);
-    sky.splice(0, 3, ...skyOnly);
+  if (overcast) {
+    // Under heavy cloud sunlit and shadowed surfaces look alike (Jensen et al.): the sun is
+    // kept only when, against the sky alone (fitted with its own outliers), the samples the
+    // sun would reach are brighter than the shaded ones by more than SUN_CONTRAST. (A test on
+    // the residuals with the sun's fit's weights favours the sun: the shaded samples the sky
+    // model gets wrong are that fit's outliers, and a small sun then fits the rest.)
+    const b = blend.map(sum);
+    const { w: w2 } = irls([b], y, inliers.map(() => 1));
+    const skyOnly = [0, 1, 2].map((ch) => nonneg([channel(blend, ch)], channel(values, ch), w2)[0]);
+    const q = y.map((v, i) => v / Math.max([0, 1, 2].reduce((t, ch) => t + skyOnly[ch] * blend[i][ch], 0), 1e-12));
+    const top = Math.max(...a);
+    const lit = median(q.filter((_, i) => a[i] > 0.25 * top));
+    const shade = median(q.filter((_, i) => a[i] <= 0.25 * top));
+    if (!(lit > (1 + SUN_CONTRAST) * shade)) {
+      sun.fill(0);
+      sky.splice(0, 3, ...skyOnly);
+      return { sun, sky, weights: w2, share, contrast: lit / shade };
+    }
   }
   return { sun, sky, weights: w, share };
 }
