@@ -11,6 +11,8 @@ import numpy as np
 
 from server.sceneestimate import PinholeView, SceneEstimator
 
+LUMA = np.array([0.2126, 0.7152, 0.0722])
+
 # The poses (tests/server/conftest.py scene_build: an 8 x 5 x 6 m building at the origin, a
 # wall to its west), each a standpoint (m) and a device orientation (alpha, beta, gamma;
 # deviceorientation degrees, beta 90 is level, alpha 180 faces south):
@@ -47,12 +49,11 @@ def server_estimate(build_dir: Path, view: PinholeView, linear: np.ndarray, sun_
 
     mesh, albedo = real_proxies(build_dir, manifest_io.load(build_dir))
     est = SceneEstimator(mesh, albedo, view, seed=seed)
-    lum = np.array([0.2126, 0.7152, 0.0722])
     ratios = []
     for _ in range(frames):
         light = est.estimate(linear, sun_dir)
-        ratios.append(float(lum @ light.sun_normal_irradiance) /
-                      max(float(lum @ light.sky_horizontal_irradiance), 1e-9))
+        ratios.append(float(LUMA @ light.sun_normal_irradiance) /
+                      max(float(LUMA @ light.sky_horizontal_irradiance), 1e-9))
     return float(np.median(ratios))
 
 
@@ -66,8 +67,15 @@ def open_irradiance_truth(spec, build_dir: Path, normals=COMPOSITE_NORMALS) -> n
     (site frame) under one gendaylit sky and its sun, nothing below the horizon."""
     import tempfile
 
-    from benchmarks.bench_fidelity import (gendaylit, oconv, radiance_env, rtrace, sky_rad,
-                                           sun_rad, to_radiance)
+    from benchmarks.bench_fidelity import (
+        gendaylit,
+        oconv,
+        radiance_env,
+        rtrace,
+        sky_rad,
+        sun_rad,
+        to_radiance,
+    )
     from daylit import manifest as manifest_io
     from tests.radiance_frames import SKY_IRRADIANCE
 
@@ -98,5 +106,3 @@ def open_irradiance_estimated(estimate: dict, sun_dir, normals=COMPOSITE_NORMALS
         1.0 + normals[:, 1])
     return sun * np.clip(normals @ np.asarray(sun_dir, float), 0.0, None) + k * sky
 
-
-LUMA = np.array([0.2126, 0.7152, 0.0722])

@@ -13,6 +13,7 @@ calibrated: only the ratio (and the sky type it gives) is checked, not the level
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -47,9 +48,9 @@ def phone_build(request) -> Path:
 
 
 def _open(browser, build, y4m, query):
-    manifest_lights = __import__("json").loads((build / "manifest.json").read_text())
-    sky = np.full((manifest_lights["dome"]["count"], 3), 30.0)
-    return camera_page(browser, build, y4m, sky, query=query, size=SIZE)
+    """Camera mode with the stub server sending a sky (which ?sky=phone must ignore)."""
+    lights = json.loads((build / "manifest.json").read_text())["dome"]["count"]
+    return camera_page(browser, build, y4m, np.full((lights, 3), 30.0), query=query, size=SIZE)
 
 
 def _estimate(page, pose):
@@ -140,8 +141,40 @@ def test_phone_estimate_against_radiance_and_the_server(browser, phone_build, re
     for name, g in got.items():
         assert g["status"]["source"] == "phone", (name, g["status"])
         assert g["status"]["estimates"] >= 8 and "phone" in g["status"]["hud"], g["status"]
-    clear, overcast = got["clear"], got["overcast"]
+        # the light's shape: walls against the open ground within 30 % RMS (reached 4-22 %)
+        assert g["composite_rms"] < 0.3, (name, got)
+    clear, middle, overcast = got["clear"], got["intermediate"], got["overcast"]
+    # Goal: within 15 % (the server's reach on its kiosk view); reached -14 % here, the server
+    # -16 %: the tolerance leaves room for Radiance's ambient sampling from run to run.
     assert clear["phone"] == pytest.approx(clear["truth"], rel=0.25), got
+    assert clear["phone"] == pytest.approx(clear["server"], rel=0.25), got
     assert clear["type"] == 12, got
-    assert overcast["phone"] < 0.05 or pose == "balcony", got
+    # The intermediate sky is the model's weak case (reached x1.8 of the truth here; the
+    # server x0.5-0.7): the sun is found, and within a factor of 2.5.
+    assert middle["truth"] / 2.5 < middle["phone"] < 2.5 * middle["truth"], got
+    # Overcast: the sun below 5 % of the sky (goal and reached: 0).
+    assert overcast["phone"] < 0.05, got
     assert overcast["type"] == 2, got
+
+
+def test_camera_mode_takes_the_server_sky_when_there_is_one(browser, phone_build, tmp_path):
+    """With a server sky the phone does not estimate; with none (a server without cameras, or
+    offline) it does, without ?sky=phone."""
+    y4m = tmp_path / "grey.y4m"
+    write_y4m(y4m, np.full((RENDER[1], RENDER[0], 3), 120, np.uint8))
+    lights = json.loads((phone_build / "manifest.json").read_text())
+    sky = np.full((lights["dome"]["count"], 3), 30.0)
+    with camera_page(browser, phone_build, y4m, sky, size=SIZE) as (page, _, errors):
+        page.wait_for_function("window.daylit.status.lightSeq !== null", timeout=30000)
+        assert page.evaluate("window.daylit.debug.phoneEstimate()") is None
+        status = page.evaluate("""() => ({ source: window.daylit.status.lightSource,
+          n: window.daylit.status.phoneEstimates })""")
+        assert status == {"source": "server", "n": 0}, status
+        assert not errors, errors
+    noon = "2026-10-15T12:00:00%2B09:00"
+    with camera_page(browser, phone_build, y4m, None, query=f"&time={noon}",
+                     size=SIZE) as (page, _, errors):
+        page.wait_for_function("window.daylit.status.lightSource === 'phone'", timeout=30000)
+        page.wait_for_function("window.daylit.status.lightSeq !== null", timeout=30000)
+        assert page.evaluate("window.daylit.status.phoneEstimates") >= 1
+        assert not errors, errors

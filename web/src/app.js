@@ -28,6 +28,9 @@ const RELIGHT_THRESHOLD = 1e-3;     // ... until it is within 0.1 % of the measu
 const STALE_AFTER_MS = 16000;       // three missed keep-alives (the server sends every 5 s)
 const RETRY_BOOT_MS = 10000;
 const EXPOSURE_TAU_S = 1.5;
+// Camera mode draws with the phone's own estimate when no server sky came this long after the
+// start (offline, a server without cameras): a server's first vector usually takes < 1 s.
+const NO_SERVER_SKY_AFTER_S = 5;
 
 export class App {
   constructor({ canvas, hudRoot, params }) {
@@ -80,6 +83,7 @@ export class App {
   }
 
   async start() {
+    this._startS = performance.now() / 1000;
     this.hud = new Hud(this.hudRoot, this);
     this._createRenderer();
     const params = this.params;
@@ -389,15 +393,15 @@ export class App {
 
   /** Whether camera mode lights the hall with the phone's own estimate: asked for, or no
    * server sky has come (an offline visit, a site without cameras). */
-  phoneLightWanted() {
+  phoneLightWanted(nowS = performance.now() / 1000) {
     return this.mode === 'camera' && !!this.view?.video && !!this.site
-      && (this.phoneForced || this.serverLights === 0);
+      && (this.phoneForced || (this.serverLights === 0 && nowS - this._startS > NO_SERVER_SKY_AFTER_S));
   }
 
   /** Camera mode without a server sky: estimate the light from the picture, at most every
    * ESTIMATE_PERIOD_S, and draw with it as with a server's vector (phoneestimate.js). */
   _estimateLight(nowS, force = false) {
-    if (!this.ready || !this.phoneLightWanted()) return null;
+    if (!this.ready || !this.phoneLightWanted(nowS)) return null;
     if (!this.phoneLight || this.phoneLight.video !== this.view.video) {
       this.phoneEstimator ??= new PhoneEstimator([...this.site.nodes.real, ...this.site.nodes.ground], this.assets.manifest.ground.albedo);
       this.phoneLight = new PhoneLight(this.view.video, this.phoneEstimator);

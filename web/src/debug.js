@@ -71,6 +71,7 @@ export function debugApi(app) {
      */
     async relight(r, sequence = 0, sun = null) {
       app.stream?.stop(); // the test's vector, not the server's
+      app.serverLights += 1; // (nor the phone's own estimate: it stays off unless ?sky=phone)
       app.light = { rgb: Float32Array.from(r), sequence, captureTime: Date.now() / 1000, stale: false, sun };
       const v = Float64Array.from([...r, ...(sun?.normalIrradiance ?? [0, 0, 0])]);
       app.smoother.push(v, performance.now() / 1000);
