@@ -1,11 +1,12 @@
-// Runs web/src/phoneestimate.js's geometry and sky in Node on the cases given as JSON on stdin:
+// Runs web/src/phoneestimate.js's sky and web/src/proxyrays.js's ray caster in Node on the cases given as JSON on stdin:
 // `skies` [{type, sun, dirs}] -> the CIE sky's relative luminance at dirs and its factor to a
 // unit horizontal irradiance; `cast` {meshes [{vertices, faces, albedo}], origins, dirs} ->
 // the first triangle each ray meets (its distance, -1 for none) and whether any is met.
 // For tests/web/test_phoneestimate_js.py.
 import { readFileSync } from 'node:fs';
 import * as THREE from 'three';
-import { Proxies, unitSky } from '../../web/src/phoneestimate.js';
+import { unitSky } from '../../web/src/phoneestimate.js';
+import { Proxies } from '../../web/src/proxyrays.js';
 
 const c = JSON.parse(readFileSync(0, 'utf8'));
 const skies = c.skies.map(({ type, sun, dirs }) => {

@@ -1,6 +1,6 @@
-"""web/src/phoneestimate.js's parts (run by Node) against independent Python: its CIE skies
-against daylit.sky.CIESky and server/skyshape.py's unit scaling (the server's estimate's
-shapes), and its own ray caster against trimesh's on the scene estimate's test site (the
+"""The phone estimate's parts (run by Node) against independent Python: phoneestimate.js's CIE
+skies against daylit.sky.CIESky and server/skyshape.py's unit scaling (the server's estimate's
+shapes), and proxyrays.js's ray caster against trimesh's on the scene estimate's test site (the
 building, the wall and the ground of tests/radiance_frames.py)."""
 
 import json

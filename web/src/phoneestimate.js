@@ -20,13 +20,13 @@
 //
 // Costs: what depends on the pose (the pool of pixels, their surfaces, hemisphere rays) is
 // computed again only when the pose moved (POSE_TOLERANCE_*); what depends on the sun when
-// it moved; a frame reads ~POOL_SIZE pixels and solves a 2-unknown fit. Ray casts are this
-// module's own (Moller-Trumbore over the proxies' triangles, culled per mesh by its box): no
-// per-ray allocation, the triangle's index gives its albedo and plane, and the any-hit test
-// for shadows stops at the first blocker; three's Raycaster sorts every hit of every mesh.
+// it moved; an estimate reads its share of the pool's pixels and solves a small robust fit
+// (robustfit.js). The rays are cast against the proxies' triangles by proxyrays.js.
 // Directions: site-frame unit vectors (+X east, +Y up, -Z north); irradiances W/m^2.
 import * as THREE from 'three';
 import { srgbToLinear } from './picturemeter.js';
+import { Proxies } from './proxyrays.js';
+import { robustFit } from './robustfit.js';
 
 /** The estimated copy of the picture, pixels (w, h). */
 export const ESTIMATE_SIZE = [192, 108];
@@ -47,7 +47,6 @@ const SUN_TOLERANCE_DEG = 0.1;
 const OVERCAST_RATIO = 0.5;
 const CLEAR_RATIO = 3.0;
 const OVERCAST_TYPE = 2;
-const SUN_CONTRAST = 0.15; // overcast: the sun kept only if sunlit samples are 15 % brighter
 const SHARE_MEMORY = 0.8; // per estimate, the weight of the past in the model sky's share
 /** The level the estimate is scaled to: a sun and sky giving this on open ground. */
 export const NOMINAL_GLOBAL_W_M2 = 500;
@@ -90,103 +89,6 @@ export function unitSky(type, sun) {
     }
   }
   return { rel, toUnit: 1 / sum };
-}
-
-/** The real proxies and the ground as one triangle list for ray casts (world metres). */
-export class Proxies {
-  /**
-   * @param {THREE.Mesh[]} meshes the build's real proxies and its ground, userData.albedo a
-   *   THREE.Vector3 (site.js)
-   */
-  constructor(meshes) {
-    const tris = [];
-    const groups = [];
-    for (const mesh of meshes) {
-      mesh.updateMatrixWorld(true);
-      const g = mesh.geometry;
-      const pos = g.attributes.position;
-      const index = g.index ? g.index.array : Array.from({ length: pos.count }, (_, i) => i);
-      const albedo = mesh.userData.albedo?.toArray?.() ?? [0.2, 0.2, 0.2];
-      const first = tris.length;
-      const box = new THREE.Box3();
-      for (let f = 0; f + 2 < index.length; f += 3) {
-        const v = [0, 1, 2].map((k) => new THREE.Vector3().fromBufferAttribute(pos, index[f + k]).applyMatrix4(mesh.matrixWorld));
-        const n = new THREE.Vector3().subVectors(v[1], v[0]).cross(new THREE.Vector3().subVectors(v[2], v[0]));
-        if (n.lengthSq() < 1e-12) continue;
-        n.normalize();
-        for (const p of v) box.expandByPoint(p);
-        tris.push({ v, n, albedo });
-      }
-      groups.push({ first, last: tris.length, box: box.expandByScalar(1e-3) });
-    }
-    const t = tris.length;
-    this.count = t;
-    this.v0 = new Float64Array(3 * t);
-    this.e1 = new Float64Array(3 * t);
-    this.e2 = new Float64Array(3 * t);
-    this.normal = new Float64Array(3 * t);
-    this.albedo = new Float64Array(3 * t);
-    tris.forEach(({ v, n, albedo }, i) => {
-      for (let c = 0; c < 3; c++) {
-        const k = 3 * i + c;
-        this.v0[k] = v[0].getComponent(c);
-        this.e1[k] = v[1].getComponent(c) - v[0].getComponent(c);
-        this.e2[k] = v[2].getComponent(c) - v[0].getComponent(c);
-        this.normal[k] = n.getComponent(c);
-        this.albedo[k] = albedo[c];
-      }
-    });
-    this.groups = groups.map(({ first, last, box }) => ({ first, last, lo: box.min.toArray(), hi: box.max.toArray() }));
-    this.hitT = 0; // the last cast's distance
-  }
-
-  /** The first triangle a ray meets (its index; -1: none), its distance in this.hitT. With
-   * `any`, the first one found (shadow rays). */
-  cast(o, d, any = false, tMax = Infinity) {
-    let best = -1;
-    let bestT = tMax;
-    for (const g of this.groups) {
-      if (!slab(g.lo, g.hi, o, d, bestT)) continue;
-      for (let i = g.first; i < g.last; i++) {
-        const t = this._tri(i, o, d);
-        if (t > 1e-6 && t < bestT) {
-          bestT = t;
-          best = i;
-          if (any) return best;
-        }
-      }
-    }
-    this.hitT = bestT;
-    return best;
-  }
-
-  _tri(i, o, d) {
-    // Moller-Trumbore, both faces
-    const k = 3 * i;
-    const e1x = this.e1[k]; const e1y = this.e1[k + 1]; const e1z = this.e1[k + 2];
-    const e2x = this.e2[k]; const e2y = this.e2[k + 1]; const e2z = this.e2[k + 2];
-    const px = d[1] * e2z - d[2] * e2y; const py = d[2] * e2x - d[0] * e2z; const pz = d[0] * e2y - d[1] * e2x;
-    const det = e1x * px + e1y * py + e1z * pz;
-    if (Math.abs(det) < 1e-12) return -1;
-    const inv = 1 / det;
-    const tx = o[0] - this.v0[k]; const ty = o[1] - this.v0[k + 1]; const tz = o[2] - this.v0[k + 2];
-    const u = (tx * px + ty * py + tz * pz) * inv;
-    if (u < 0 || u > 1) return -1;
-    const qx = ty * e1z - tz * e1y; const qy = tz * e1x - tx * e1z; const qz = tx * e1y - ty * e1x;
-    const v = (d[0] * qx + d[1] * qy + d[2] * qz) * inv;
-    if (v < 0 || u + v > 1) return -1;
-    return (e2x * qx + e2y * qy + e2z * qz) * inv;
-  }
-
-  normalOf(i) { return [this.normal[3 * i], this.normal[3 * i + 1], this.normal[3 * i + 2]]; }
-
-  albedoOf(i) { return [this.albedo[3 * i], this.albedo[3 * i + 1], this.albedo[3 * i + 2]]; }
-
-  /** Signed distance of a point from triangle i's plane, metres. */
-  planeDistance(i, p) {
-    const k = 3 * i;
-    return (p[0] - this.v0[k]) * this.normal[k] + (p[1] - this.v0[k + 1]) * this.normal[k + 1] + (p[2] - this.v0[k + 2]) * this.normal[k + 2];
-  }
 }
 
 /**
@@ -278,58 +180,6 @@ export function sunTerms(proxies, pool, sun) {
  * sees (pi x the cosine-weighted mean of the relative radiance). */
 export function skyTerms(pool, sky) {
   return pool.map((s) => Math.PI * s.skyDirs.reduce((acc, d) => acc + sky.rel(d), 0) / HEMISPHERE_RAYS * sky.toUnit);
-}
-
-/**
- * Fit the sun and the sky to the samples' linear RGB values (server/sceneestimate.py's solve):
- * the inliers by RANSAC on the channel sum (sun and model sky), IRLS with Tukey's biweight on
- * the sum with three columns (sun, model sky, isotropic sky) for the weights and the model
- * sky's share, then each channel's sun and sky (the two skies blended by that share) with
- * those weights. Under the overcast type the sun is kept only when it halves the residual.
- * @param {number[][]} values (n, 3) linear RGB
- * @param {number[][]} sunCol (n, 3) radiance per unit sun normal irradiance
- * @param {number[][]} skyCol (n, 3) radiance per unit horizontal irradiance of the model sky
- * @param {number[][]} isoCol (n, 3) the same of an isotropic sky
- * @param {(share: number) => number} follow the model share to use given this fit's (kept
- *   across estimates by the caller: one picture's samples determine it poorly)
- * @returns {{sun: number[], sky: number[], weights: number[], share: number}}
- */
-export function robustFit(values, sunCol, skyCol, isoCol, rand, overcast = false, follow = (x) => x) {
-  const sum = (r) => r[0] + r[1] + r[2];
-  const a = sunCol.map(sum);
-  const c = skyCol.map(sum);
-  const u = isoCol.map(sum);
-  const y = values.map(sum);
-  const inliers = ransacInliers(a, c, y, rand).map((ok) => (ok ? 1 : 0));
-  const { x, w } = irls([a, c, u], y, inliers);
-  const share = follow(x[1] + x[2] > 0 ? x[1] / (x[1] + x[2]) : 1);
-  const blend = skyCol.map((r, i) => r.map((v, ch) => share * v + (1 - share) * isoCol[i][ch]));
-  const sun = [0, 0, 0];
-  const sky = [0, 0, 0];
-  const channel = (cols, ch) => cols.map((r) => r[ch]);
-  for (let ch = 0; ch < 3; ch++) {
-    [sun[ch], sky[ch]] = nonneg([channel(sunCol, ch), channel(blend, ch)], channel(values, ch), w);
-  }
-  if (overcast) {
-    // Under heavy cloud sunlit and shadowed surfaces look alike (Jensen et al.): the sun is
-    // kept only when, against the sky alone (fitted with its own outliers), the samples the
-    // sun would reach are brighter than the shaded ones by more than SUN_CONTRAST. (A test on
-    // the residuals with the sun's fit's weights favours the sun: the shaded samples the sky
-    // model gets wrong are that fit's outliers, and a small sun then fits the rest.)
-    const b = blend.map(sum);
-    const { w: w2 } = irls([b], y, inliers.map(() => 1));
-    const skyOnly = [0, 1, 2].map((ch) => nonneg([channel(blend, ch)], channel(values, ch), w2)[0]);
-    const q = y.map((v, i) => v / Math.max([0, 1, 2].reduce((t, ch) => t + skyOnly[ch] * blend[i][ch], 0), 1e-12));
-    const top = Math.max(...a);
-    const lit = median(q.filter((_, i) => a[i] > 0.25 * top));
-    const shade = median(q.filter((_, i) => a[i] <= 0.25 * top));
-    if (!(lit > (1 + SUN_CONTRAST) * shade)) {
-      sun.fill(0);
-      sky.splice(0, 3, ...skyOnly);
-      return { sun, sky, weights: w2, share, contrast: lit / shade };
-    }
-  }
-  return { sun, sky, weights: w, share };
 }
 
 /** Reads a camera picture and estimates its sun and sky (camera mode without a server sky). */
@@ -429,9 +279,9 @@ export class PhoneEstimator {
       return null;
     }
     const sunlit = rows.filter((i) => terms[i].cosI > 0.05).length;
-    let type = this.forceType ?? 12;
+    let type = 12;
     let fit = null;
-    for (let iteration = 0; iteration < (this.forceType ? 1 : 3); iteration++) {
+    for (let iteration = 0; iteration < 3; iteration++) {
       const { terms: sky } = this._skyFor(type, sun);
       const sunCol = rows.map((i) => [0, 1, 2].map((c) => (sunlit < MIN_SUNLIT ? 0
         : pool[i].albedo[c] * (terms[i].cosI + terms[i].bSun[c]) / Math.PI)));
@@ -444,7 +294,6 @@ export class PhoneEstimator {
         (share) => (previous === undefined ? share : SHARE_MEMORY * previous + (1 - SHARE_MEMORY) * share));
       this._share.set(type, fit.share);
       fit.type = type;
-      this.lastFit = { rows, values, sunCol, skyCol, isoCol, weights: fit.weights }; // for tests
       const ratio = luma(fit.sun) / Math.max(luma(fit.sky), 1e-12);
       const next = skyTypeForRatio(ratio);
       if (next === type) break;
@@ -516,120 +365,6 @@ export class PhoneLight {
   }
 }
 
-// ------------------------------------------------------------------------------ the fit
-
-/** IRLS with Tukey's biweight on residuals relative to the fit (server/robustfit.py):
- * y ~ sum_j x_j cols[j], x >= 0, from the weights w0; returns x and the final weights. */
-function irls(cols, y, w0, iterations = 12, tukey = 4.685) {
-  let w = w0.slice();
-  let x = cols.map(() => 0);
-  const floor = 1e-9 + 0.02 * median(y.map(Math.abs));
-  for (let it = 0; it < iterations; it++) {
-    x = nonneg(cols, y, w);
-    const rel = y.map((v, i) => {
-      const fit = cols.reduce((s, col, j) => s + col[i] * x[j], 0);
-      return (v - fit) / Math.max(Math.abs(fit), floor);
-    });
-    const good = rel.filter((_, i) => w[i] > 0).map(Math.abs);
-    const scale = Math.max(good.length ? 1.4826 * median(good) : 1, 0.01);
-    w = rel.map((r) => {
-      const t = r / (tukey * scale);
-      return Math.abs(t) < 1 ? (1 - t * t) ** 2 : 0;
-    });
-  }
-  return { x, w };
-}
-
-/** Weighted non-negative least squares of y ~ sum_j x_j cols[j] for a few columns (at most
- * 3): the normal equations on every subset of the columns, the feasible solution with the
- * least residual (exact for so few unknowns, as scipy's NNLS). */
-function nonneg(cols, y, w) {
-  const p = cols.length;
-  const gram = cols.map((ci) => cols.map((cj) => ci.reduce((s, v, k) => s + w[k] * v * cj[k], 0)));
-  const rhs = cols.map((ci) => ci.reduce((s, v, k) => s + w[k] * v * y[k], 0));
-  let best = new Array(p).fill(0);
-  let bestR = residual(cols, y, w, best);
-  for (let mask = 1; mask < 1 << p; mask++) {
-    const idx = [...Array(p).keys()].filter((j) => mask & (1 << j));
-    const sol = solveSmall(idx.map((i) => idx.map((j) => gram[i][j])), idx.map((i) => rhs[i]));
-    if (!sol || sol.some((v) => !(v >= 0))) continue;
-    const x = new Array(p).fill(0);
-    idx.forEach((j, k) => { x[j] = sol[k]; });
-    const r = residual(cols, y, w, x);
-    if (r < bestR) {
-      bestR = r;
-      best = x;
-    }
-  }
-  return best;
-}
-
-/** Gaussian elimination with partial pivoting of a small system; null when singular. */
-function solveSmall(m, b) {
-  const n = b.length;
-  const a = m.map((row, i) => [...row, b[i]]);
-  const scale = Math.max(...a.map((row) => Math.max(...row.slice(0, n).map(Math.abs))), 1e-300);
-  for (let c = 0; c < n; c++) {
-    let piv = c;
-    for (let r = c + 1; r < n; r++) if (Math.abs(a[r][c]) > Math.abs(a[piv][c])) piv = r;
-    if (Math.abs(a[piv][c]) < 1e-12 * scale) return null;
-    [a[c], a[piv]] = [a[piv], a[c]];
-    for (let r = 0; r < n; r++) {
-      if (r === c) continue;
-      const f = a[r][c] / a[c][c];
-      for (let k = c; k <= n; k++) a[r][k] -= f * a[c][k];
-    }
-  }
-  return a.map((row, i) => row[n] / row[i]);
-}
-
-function residual(cols, y, w, x) {
-  let s = 0;
-  for (let i = 0; i < y.length; i++) {
-    let fit = 0;
-    for (let j = 0; j < cols.length; j++) fit += cols[j][i] * x[j];
-    s += w[i] * (y[i] - fit) ** 2;
-  }
-  return s;
-}
-
-/** The inliers (within 8 % relative) of the best of 150 two-sample fits, one sample with sun
- * and one without (server/robustfit.py ransac_fit), and of the no-sun hypotheses. */
-function ransacInliers(a, c, y, rand, hypotheses = 150, tolerance = 0.08) {
-  const top = Math.max(...a);
-  const all = y.map((_, i) => i);
-  let sunny = top > 0 ? all.filter((i) => a[i] > 0.25 * top) : all;
-  let shade = top > 0 ? all.filter((i) => a[i] <= 0.25 * top) : all;
-  if (!sunny.length || !shade.length) sunny = shade = all;
-  let best = null;
-  let bestCount = -1;
-  const pick = (list) => list[Math.floor(rand() * list.length)];
-  for (let h = 0; h < 2 * hypotheses; h++) {
-    const j = pick(shade);
-    let x1 = 0;
-    let x2 = y[j] / Math.max(c[j], 1e-12);
-    if (h < hypotheses) {
-      const i = pick(sunny);
-      const det = a[i] * c[j] - a[j] * c[i];
-      if (Math.abs(det) < 1e-12) continue;
-      x1 = Math.max((y[i] * c[j] - y[j] * c[i]) / det, 0);
-      x2 = Math.max((a[i] * y[j] - a[j] * y[i]) / det, 0);
-    }
-    let count = 0;
-    const inside = y.map((v, k) => {
-      const fit = x1 * a[k] + x2 * c[k];
-      const ok = Math.abs(v - fit) <= tolerance * Math.max(fit, 1e-9);
-      count += ok;
-      return ok;
-    });
-    if (count > bestCount) {
-      bestCount = count;
-      best = inside;
-    }
-  }
-  return best;
-}
-
 // ------------------------------------------------------------------------------ small helpers
 
 function median(v) {
@@ -685,24 +420,4 @@ function mulberry32(seed) {
     t ^= t + Math.imul(t ^ (t >>> 7), t | 61);
     return ((t ^ (t >>> 14)) >>> 0) / 4294967296;
   };
-}
-
-/** Slab test: does the ray meet the box before tMax? */
-function slab(lo, hi, o, d, tMax) {
-  let t0 = 0;
-  let t1 = tMax;
-  for (let c = 0; c < 3; c++) {
-    const inv = 1 / d[c];
-    let near = (lo[c] - o[c]) * inv;
-    let far = (hi[c] - o[c]) * inv;
-    if (near > far) [near, far] = [far, near];
-    if (Number.isNaN(near) || Number.isNaN(far)) {
-      if (o[c] < lo[c] || o[c] > hi[c]) return false;
-      continue;
-    }
-    t0 = Math.max(t0, near);
-    t1 = Math.min(t1, far);
-    if (t0 > t1) return false;
-  }
-  return true;
 }
