@@ -242,6 +242,8 @@ export class App {
       if (this.site.sky) this.scene.remove(this.site.sky);
     }
     this.site = null;
+    this.phoneEstimator = null; // its proxies were the old site's meshes
+    this.phoneLight = null;
     this.sunShadows?.dispose();
     this.sunShadows = null;
     this.sunBounce?.dispose();
