@@ -14,7 +14,8 @@
 //
 // A phone's camera is not calibrated: its exposure and gain are unknown, so the fit's absolute
 // level is in the picture's units. What it must get right is the sun/sky ratio and the sky's
-// shape (a CIE sky of the type the ratio gives, server/skyshape.py's rule); the level is set
+// shape (a CIE sky of the type the ratio gives, server/skyshape.py's rule, blended with an
+// isotropic sky by a share fitted and followed across estimates); the level is set
 // to a nominal one (NOMINAL_GLOBAL_W_M2) and the picture meter (picturemeter.js) exposes the
 // hall at the picture's level, which removes any common scale.
 //
@@ -52,7 +53,7 @@ const SHARE_MEMORY = 0.8; // per estimate, the weight of the past in the model s
 export const NOMINAL_GLOBAL_W_M2 = 500;
 const LUMA = [0.2126, 0.7152, 0.0722];
 // CIE general skies (ISO 15469; daylit/sky.py CIE_SKY_TYPES): a, b, c, d, e
-const CIE = { 1: [4.0, -0.7, 0.0, -1.0, 0.0], 2: [4.0, -0.7, 2.0, -1.5, 0.15], 5: [0.0, -1.0, 0.0, -1.0, 0.0], 7: [0.0, -1.0, 5.0, -2.5, 0.3], 12: [-1.0, -0.32, 10.0, -3.0, 0.45] };
+const CIE = { 2: [4.0, -0.7, 2.0, -1.5, 0.15], 7: [0.0, -1.0, 5.0, -2.5, 0.3], 12: [-1.0, -0.32, 10.0, -3.0, 0.45] };
 
 /** The CIE sky type for a ratio of sun normal irradiance to sky horizontal irradiance. */
 export function skyTypeForRatio(ratio) {

@@ -55,7 +55,7 @@ export function robustFit(values, sunCol, skyCol, isoCol, rand, overcast = false
     if (!(lit > (1 + SUN_CONTRAST) * shade)) {
       sun.fill(0);
       sky.splice(0, 3, ...skyOnly);
-      return { sun, sky, weights: w2, share, contrast: lit / shade };
+      return { sun, sky, weights: w2, share };
     }
   }
   return { sun, sky, weights: w, share };
