@@ -231,10 +231,11 @@ def radiance_version() -> str:
 
 
 def render_build_view(build_dir: Path, spec: SkySpec, width: int, height: int,
-                      procs: int = 1) -> tuple[RenderedSky, PinholeView]:
-    """A build's first fixed view (scaled to ``width`` x ``height``) of its real proxies and
-    ground (``bench_fidelity.scene_files``; no virtual object) rendered by Radiance under one
-    gendaylit sky for the build's site."""
+                      procs: int = 1, view: PinholeView | None = None
+                      ) -> tuple[RenderedSky, PinholeView]:
+    """A build's first fixed view (scaled to ``width`` x ``height``), or ``view`` (a phone's
+    pose, at its own size), of its real proxies and ground (``bench_fidelity.scene_files``; no
+    virtual object) rendered by Radiance under one gendaylit sky for the build's site."""
     from benchmarks.bench_fidelity import scene_files
 
     _, env = radiance_env()
@@ -242,9 +243,12 @@ def render_build_view(build_dir: Path, spec: SkySpec, width: int, height: int,
         work = Path(tmp)
         files = scene_files(Path(build_dir), work)
         manifest = files["manifest"]
-        view = PinholeView.from_manifest(manifest["views"][0])
-        s = width / view.width
-        view = PinholeView(np.diag([s, s, 1.0]) @ view.K, view.world_from_camera, width, height)
+        if view is None:
+            view = PinholeView.from_manifest(manifest["views"][0])
+            s = width / view.width
+            view = PinholeView(np.diag([s, s, 1.0]) @ view.K, view.world_from_camera, width,
+                               height)
+        width, height = view.width, view.height
         sky = gendaylit(spec, manifest, env)
         (work / "sky.rad").write_text(sky_rad(sky.skyfunc))
         (work / "sun.rad").write_text(sun_rad(sky.sun_dir_rad, sky.sun_radiance))

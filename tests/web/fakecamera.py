@@ -56,11 +56,13 @@ READY = "window.daylit.status.ready && window.daylit.status.mode === 'camera'"
 @contextmanager
 def camera_page(browser, web_build, y4m, sky, query="", size=(640, 360), has_touch=False):
     """The client in camera mode in its own Chromium, whose fake camera plays ``y4m``, served
-    by a StubServer of ``web_build`` that sends the sky ``sky`` (n, 3). Yields
-    (page, server, errors): errors collects the page's uncaught exceptions."""
+    by a StubServer of ``web_build`` that sends the sky ``sky`` (n, 3; None: no sky, a server
+    without cameras). Yields (page, server, errors): errors collects the page's uncaught
+    exceptions."""
     flags = CHROMIUM_FLAGS + [f"--use-file-for-fake-video-capture={y4m}"]
     with StubServer(web_build) as server:
-        server.push(light_message(sky, 1), remember=True)
+        if sky is not None:
+            server.push(light_message(sky, 1), remember=True)
         camera_browser = browser.browser_type.launch(executable_path=chromium_path(),
                                                      args=flags, headless=True)
         try:

@@ -12,11 +12,13 @@ import { Kiosk } from './kiosk.js';
 import { KioskSun } from './kiosksun.js';
 import { LightSmoother, openSkyIrradiance, skySH9 } from './lightmath.js';
 import { LightStream } from './lightstream.js';
+import { ESTIMATE_PERIOD_S, PhoneEstimator, PhoneLight } from './phoneestimate.js';
 import { Relighter } from './relight.js';
 import { Site } from './site.js';
 import { makeStatus } from './status.js';
 import { chooseStart, firstBytes, measuredRate } from './startmode.js';
 import { mapSizeFor, SunShadows } from './sun.js';
+import { sunPosition } from './sunposition.js';
 import { SunBounce } from './sunbounce.js';
 import { VisitView } from './visit.js';
 import { arSupported, XRView } from './xr.js';
@@ -26,6 +28,9 @@ const RELIGHT_THRESHOLD = 1e-3;     // ... until it is within 0.1 % of the measu
 const STALE_AFTER_MS = 16000;       // three missed keep-alives (the server sends every 5 s)
 const RETRY_BOOT_MS = 10000;
 const EXPOSURE_TAU_S = 1.5;
+// Camera mode draws with the phone's own estimate when no server sky came this long after the
+// start (offline, a server without cameras): a server's first vector usually takes < 1 s.
+const NO_SERVER_SKY_AFTER_S = 5;
 
 export class App {
   constructor({ canvas, hudRoot, params }) {
@@ -63,10 +68,22 @@ export class App {
     this.exposure = 1;
     this.exposureMeter = 'scene'; // what set it (status.exposureMeter)
     this.pictureReading = null; // camera mode's last picture meter reading (picturemeter.js)
+    // The light's source in camera mode: the server's sky, or the phone's own estimate from its
+    // picture (phoneestimate.js) when there is no server sky or ?sky=phone asks for it.
+    this.phoneForced = params.get('sky') === 'phone';
+    this.phoneLight = null;
+    this.phoneEstimate = null; // the last estimate (status.phoneEstimate)
+    this.serverLights = 0;
+    // ?time= (ISO 8601 or Unix seconds): the client's clock starts there (the phone's sun
+    // without a server; tests and demos). Only the phone's estimate reads it.
+    const start = params.get('time');
+    const startMs = start === null ? NaN : (/^[0-9.]+$/.test(start) ? Number(start) * 1000 : Date.parse(start));
+    this.clockOffsetMs = Number.isFinite(startMs) ? startMs - Date.now() : 0;
     this.status = makeStatus(this);
   }
 
   async start() {
+    this._startS = performance.now() / 1000;
     this.hud = new Hud(this.hudRoot, this);
     this._createRenderer();
     const params = this.params;
@@ -225,6 +242,8 @@ export class App {
       if (this.site.sky) this.scene.remove(this.site.sky);
     }
     this.site = null;
+    this.phoneEstimator = null; // its proxies were the old site's meshes
+    this.phoneLight = null;
     this.sunShadows?.dispose();
     this.sunShadows = null;
     this.sunBounce?.dispose();
@@ -313,6 +332,10 @@ export class App {
   // ---------------------------------------------------------------------------- light
 
   _onLight(m) {
+    if (!m.phone) {
+      this.serverLights += 1;
+      if (this.phoneForced) return; // ?sky=phone: the phone's own estimate only
+    }
     this.light = m;
     this.saturated = m.saturated;
     // The sun's irradiance glides with the sky: smoothed as three more numbers after r.
@@ -337,12 +360,14 @@ export class App {
 
   isStale() {
     if (!this.light) return true;
+    if (this.light.phone) return Date.now() / 1000 - this.light.captureTime > 3 * ESTIMATE_PERIOD_S; // three missed estimates
     if (this.stream?.state !== 'open' || this.light.stale) return true;
     return performance.now() - this.stream.lastMessageMs > STALE_AFTER_MS;
   }
 
   lightAgeMs() {
     if (!this.light) return null;
+    if (this.light.phone) return Math.max(0, Math.round(Date.now() - this.light.captureTime * 1000));
     return Math.max(0, Math.round(this.stream.ageS(this.light.captureTime) * 1000));
   }
 
@@ -360,6 +385,39 @@ export class App {
       this.hud.setMessage(`${err.message}. Keeping the last light.`, 'warn');
       this._needRelight = true; // try the images again with the next vector
     });
+  }
+
+  /** The phone's sun (sunposition.js) at the client's clock (?time= moves it). */
+  sunNow() {
+    const s = this.assets.manifest.scene;
+    return sunPosition(s.latitude_deg, s.longitude_deg, (Date.now() + this.clockOffsetMs) / 1000).direction;
+  }
+
+  /** Whether camera mode lights the hall with the phone's own estimate: asked for, or no
+   * server sky has come (an offline visit, a site without cameras). */
+  phoneLightWanted(nowS = performance.now() / 1000) {
+    return this.mode === 'camera' && !!this.view?.video && !!this.site
+      && (this.phoneForced || (this.serverLights === 0 && nowS - this._startS > NO_SERVER_SKY_AFTER_S));
+  }
+
+  /** Camera mode without a server sky: estimate the light from the picture, at most every
+   * ESTIMATE_PERIOD_S, and draw with it as with a server's vector (phoneestimate.js). */
+  _estimateLight(nowS, force = false) {
+    if (!this.ready || !this.phoneLightWanted(nowS)) return null;
+    if (!this.phoneLight || this.phoneLight.video !== this.view.video) {
+      this.phoneEstimator ??= new PhoneEstimator([...this.site.nodes.real, ...this.site.nodes.ground], this.assets.manifest.ground.albedo);
+      this.phoneLight = new PhoneLight(this.view.video, this.phoneEstimator);
+    }
+    this.view.update(); // the pose the picture is read with
+    const sun = this.sunNow();
+    if (sun[1] <= 0) return null; // night: nothing to estimate (the last light stays)
+    const estimate = this.phoneLight.read(this.camera, sun, nowS, force);
+    if (!estimate) return null;
+    this.phoneEstimate = estimate;
+    const v = this.phoneEstimator.lightVector(estimate, this.assets.manifest.dome.lights, sun);
+    this._phoneSequence = (this._phoneSequence ?? 0) + 1;
+    this._onLight({ rgb: v.rgb, saturated: null, sequence: this._phoneSequence, captureTime: Date.now() / 1000, stale: false, flags: 0, sun: v.sun, phone: true });
+    return estimate;
   }
 
   _onApplied(applied) {
@@ -426,6 +484,7 @@ export class App {
     this.fps = this.fps ? this.fps + 0.1 * (1 / dt - this.fps) : 1 / dt;
     if (this.contextLost) return;
     const t0 = performance.now();
+    this._estimateLight(now / 1000);
     this._maybeRelight(now / 1000);
     this._updateExposure(dt, now / 1000);
     this.renderFrame(xrFrame);

@@ -71,6 +71,7 @@ export function debugApi(app) {
      */
     async relight(r, sequence = 0, sun = null) {
       app.stream?.stop(); // the test's vector, not the server's
+      app.serverLights += 1; // (nor the phone's own estimate: it stays off unless ?sky=phone)
       app.light = { rgb: Float32Array.from(r), sequence, captureTime: Date.now() / 1000, stale: false, sun };
       const v = Float64Array.from([...r, ...(sun?.normalIrradiance ?? [0, 0, 0])]);
       app.smoother.push(v, performance.now() / 1000);
@@ -217,6 +218,48 @@ export function debugApi(app) {
     /** Force the kiosk to pick a frame now (tests step it without waiting for rAF). */
     kioskTick: () => app.kiosk.render({ exposure: app.exposure, strength: 1 }),
     setExposure: (e) => { app.fixedExposure = e; },
+    /** Camera mode: stand at a site point (metres; the two-finger walk's standpoint, and its
+     * height, a phone held up on a balcony or at eye height). */
+    standAt: (position) => {
+      app.view.alignment.position = position.slice();
+      app.view.update();
+    },
+    /** The camera's pose as drawn now: world matrix (16, column-major) and vertical field of
+     * view, degrees (camera mode: from the standpoint and the device's orientation). */
+    cameraPose: () => {
+      app.view?.update?.();
+      app.camera.updateMatrixWorld();
+      return { matrixWorld: app.camera.matrixWorld.toArray(), fovDeg: app.camera.fov, aspect: app.camera.aspect };
+    },
+    /** The phone's own estimate from the picture now (phoneestimate.js; null: none possible),
+     * its light applied as the app applies it, and the pose and sun it was made with. */
+    phoneEstimate: () => {
+      const estimate = app._estimateLight(performance.now() / 1000, true);
+      app.camera.updateMatrixWorld();
+      return estimate && {
+        ...estimate, sun: app.sunNow(),
+        matrixWorld: app.camera.matrixWorld.toArray(), fovDeg: app.camera.fov, aspect: app.camera.aspect,
+      };
+    },
+    /** Mean milliseconds of n phone estimates (the pose held: pixels and the fit) and of one
+     * with the pool of the pose made again; and of n picture meter readings, the same-run
+     * baseline (both read the video into their copy). */
+    timePhoneEstimate(n = 5) {
+      const now = performance.now() / 1000;
+      app._estimateLight(now, true);
+      const time = (f) => {
+        const t0 = performance.now();
+        for (let i = 0; i < n; i++) f();
+        return (performance.now() - t0) / n;
+      };
+      const estimateMs = time(() => app.phoneLight.read(app.camera, app.sunNow(), now, true));
+      const t0 = performance.now();
+      app.phoneEstimator._pose = null;
+      app.phoneLight.read(app.camera, app.sunNow(), now, true);
+      const newPoseMs = performance.now() - t0;
+      const meterMs = time(() => app.view.meter.read(app.camera, now, true));
+      return { estimateMs, newPoseMs, meterMs, pool: app.phoneEstimator.pool.length };
+    },
     /** The camera mode's last device orientation read ({alpha, beta, gamma} degrees; null
      * before the first event or outside the camera mode). */
     cameraOrientation: () => {

@@ -108,9 +108,10 @@ export class Hud {
   update() {
     const s = this.app.status;
     const age = s.lightAgeMs === null ? '-' : formatAge(s.lightAgeMs);
-    const state = s.connected ? (s.stale ? 'stale' : 'live') : s.connection;
+    const phone = s.lightSource === 'phone'; // the phone's own estimate (phoneestimate.js)
+    const state = phone ? `phone's estimate${s.stale ? ', stale' : ''}` : s.connected ? (s.stale ? 'stale' : 'live') : s.connection;
     this.statusLine.textContent = `${state} · light ${age} · ${s.fps.toFixed(0)} fps${s.lightsExact || s.lightSeq === null ? '' : s.coarse ? ` · refining the light, ${(s.bytesLoaded / 1e6).toFixed(1)} MB` : ' · loading sun images'}`;
-    this.statusLine.dataset.state = s.stale || !s.connected ? 'stale' : 'live';
+    this.statusLine.dataset.state = s.stale || (!s.connected && !phone) ? 'stale' : 'live';
     const applied = this.app.relighter?.applied;
     if (!this.panel.hidden && applied && applied.sequence !== this._lastDomeSeq) {
       this._lastDomeSeq = applied.sequence;

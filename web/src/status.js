@@ -54,6 +54,14 @@ export function makeStatus(source) {
     exposure: () => source.exposure,
     exposureMeter: () => (source.fixedExposure !== null ? 'fixed' : source.exposureMeter),
     pictureGroundLevel: () => source.pictureReading?.level ?? null,
+    // Where the drawn light comes from: 'server' (its sky), 'phone' (camera mode's own estimate
+    // from the picture, phoneestimate.js: no server sky, or ?sky=phone), null (none yet); the
+    // last estimate ({ratio, skyType, sunNormal, skyHorizontal (the picture's units), used,
+    // sunlit, inlierFraction, pool}), how many were made and the last one's milliseconds.
+    lightSource: () => (source.light ? (source.light.phone ? 'phone' : 'server') : null),
+    phoneEstimate: () => source.phoneEstimate,
+    phoneEstimates: () => source.phoneLight?.estimates ?? 0,
+    phoneEstimateMs: () => source.phoneLight?.ms ?? null,
   };
   const status = {};
   for (const [name, get] of Object.entries(fields)) {

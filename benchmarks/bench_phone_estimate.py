@@ -1,0 +1,110 @@
+"""The phone's own estimate (issue 16, web/src/phoneestimate.js): time per estimate in the
+browser, with the picture meter (web/src/picturemeter.js) as the same-run baseline.
+
+Headless Chromium (SwiftShader, tests/web/harness.py's flags) in camera mode on the scene
+estimate's test site (tests/server/conftest.py scene_build, baked here at draft quality, or
+``--build`` an existing bake), its fake camera playing a Radiance frame of the clear sky from the
+phone's eye-height pose (tests/web/phoneframes.py). Timed in the page
+(``window.daylit.debug.timePhoneEstimate``): an estimate with the pose held (the video drawn into
+the 192x108 copy, its pixels read, the fit), an estimate after the pose moved (the pool of
+pixels and their hemisphere rays made again, then the fit), and a picture meter reading (the
+video into its 48x27 copy and its 1296 ground rays).
+
+Run (about a minute on the 2-core reference machine; pyradiance is a dev dependency)::
+
+    nice -n 10 .venv/bin/python benchmarks/bench_phone_estimate.py [--build DIR] [--runs 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import numpy as np  # noqa: E402
+
+
+def _bake(root: Path) -> Path:
+    from bake.pipeline import bake
+    from tests.sites import box, make_site, real_box
+
+    scene = make_site(
+        root / "scene",
+        virtual=[("sign", box([1.0, 1.0, 1.0], [10.0, 0.0, 12.0]), (0.5, 0.5, 0.5))],
+        real=real_box("building", (8.0, 5.0, 6.0), (0.0, 0.0, 0.0), (0.55, 0.45, 0.35))
+        + real_box("wall", (0.4, 2.0, 9.0), (-8.0, 0.0, -6.0), (0.40, 0.42, 0.45)),
+        views="""
+            [[view]]
+            name = "kiosk"
+            width = 320
+            height = 180
+            fov_y_deg = 45.0
+            position_m = [3.0, 7.0, -24.0]
+            look_at_m = [0.0, 0.5, -3.0]
+            """,
+        ground_m=60.0, ground_albedo=(0.22, 0.20, 0.18))
+    bake(scene, root / "build", progress=False, log=lambda msg: None)
+    return root / "build"
+
+
+def main() -> None:
+    from playwright.sync_api import sync_playwright
+
+    from benchmarks.bench_fidelity import SkySpec
+    from tests.radiance_frames import camera_frame, render_build_view
+    from tests.web.fakecamera import camera_page, orient, write_y4m
+    from tests.web.harness import CHROMIUM_FLAGS, chromium_path
+    from tests.web.phoneframes import POSES, view_from_three
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--build", type=Path, help="an existing bake of the test site")
+    ap.add_argument("--runs", type=int, default=5, help="timings, each the mean of 5 calls")
+    ap.add_argument("--json", type=Path)
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory(prefix="daylit-bench-phone-") as tmp:
+        tmp = Path(tmp)
+        build = args.build or _bake(tmp)
+        lights = json.loads((build / "manifest.json").read_text())["dome"]["count"]
+        standpoint, orientation = POSES["eye"]
+        with sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=chromium_path(), args=CHROMIUM_FLAGS,
+                                        headless=True)
+            grey = tmp / "grey.y4m"
+            write_y4m(grey, np.full((180, 320, 3), 120, np.uint8))
+            sky = np.full((lights, 3), 30.0)
+            with camera_page(browser, build, grey, sky, query="&sky=phone") as (page, _, _e):
+                page.evaluate("(p) => window.daylit.debug.standAt(p)", standpoint)
+                orient(page, *orientation)
+                pose = page.evaluate("window.daylit.debug.cameraPose()")
+            view = view_from_three(pose["matrixWorld"], pose["fovDeg"], 320, 180)
+            rendered, _ = render_build_view(
+                build, SkySpec("clear", 10, 15, "10.5", 800.0, 80.0), 320, 180, view=view)
+            codes, _ = camera_frame(rendered.sun_image, np.random.default_rng(4))
+            y4m = tmp / "clear.y4m"
+            write_y4m(y4m, codes)
+            query = f"&sky=phone&time={rendered.when_unix_s}"
+            with camera_page(browser, build, y4m, sky, query=query) as (page, _, errors):
+                page.evaluate("(p) => window.daylit.debug.standAt(p)", standpoint)
+                orient(page, *orientation)
+                runs = [page.evaluate("window.daylit.debug.timePhoneEstimate(5)")
+                        for _ in range(args.runs)]
+                assert not errors, errors
+            browser.close()
+    med = {k: float(np.median([r[k] for r in runs])) for k in ("estimateMs", "newPoseMs",
+                                                                "meterMs")}
+    print(f"phone estimate, pose held: {med['estimateMs']:.1f} ms "
+          f"(pool of {runs[0]['pool']} pixels)")
+    print(f"phone estimate, new pose (pool made again): {med['newPoseMs']:.1f} ms")
+    print(f"picture meter reading (baseline, same run): {med['meterMs']:.2f} ms")
+    print(f"estimate / meter: {med['estimateMs'] / med['meterMs']:.1f}x; "
+          f"share of one core at one estimate per 2 s: {med['estimateMs'] / 2000:.1%}")
+    if args.json:
+        args.json.write_text(json.dumps({"runs": runs, "median": med}, indent=1))
+
+
+if __name__ == "__main__":
+    main()

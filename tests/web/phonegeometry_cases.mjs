@@ -1,0 +1,32 @@
+// Runs web/src/phoneestimate.js's sky and web/src/proxyrays.js's ray caster in Node on the cases given as JSON on stdin:
+// `skies` [{type, sun, dirs}] -> the CIE sky's relative luminance at dirs and its factor to a
+// unit horizontal irradiance; `cast` {meshes [{vertices, faces, albedo}], origins, dirs} ->
+// the first triangle each ray meets (its distance, -1 for none) and whether any is met.
+// For tests/web/test_phoneestimate_js.py.
+import { readFileSync } from 'node:fs';
+import * as THREE from 'three';
+import { unitSky } from '../../web/src/phoneestimate.js';
+import { Proxies } from '../../web/src/proxyrays.js';
+
+const c = JSON.parse(readFileSync(0, 'utf8'));
+const skies = c.skies.map(({ type, sun, dirs }) => {
+  const s = unitSky(type, sun);
+  return { rel: dirs.map((d) => s.rel(d)), toUnit: s.toUnit };
+});
+const meshes = c.cast.meshes.map((m) => {
+  const g = new THREE.BufferGeometry();
+  g.setAttribute('position', new THREE.Float32BufferAttribute(m.vertices.flat(), 3));
+  g.setIndex(m.faces.flat());
+  const mesh = new THREE.Mesh(g);
+  mesh.userData.albedo = new THREE.Vector3(...m.albedo);
+  return mesh;
+});
+const proxies = new Proxies(meshes);
+const first = [];
+const any = [];
+c.cast.origins.forEach((o, i) => {
+  const tri = proxies.cast(o, c.cast.dirs[i]);
+  first.push(tri >= 0 ? proxies.hitT : -1);
+  any.push(proxies.cast(o, c.cast.dirs[i], true) >= 0);
+});
+console.log(JSON.stringify({ skies, first, any }));

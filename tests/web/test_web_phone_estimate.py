@@ -1,0 +1,180 @@
+"""The phone's own estimate of the sun and the sky (issue 16, web/src/phoneestimate.js) in the
+real client, against answers it did not produce.
+
+A small baked site (tests/server/conftest.py scene_build: a building and a wall) is rendered by
+Radiance (tests/radiance_frames.py: gendaylit skies, rtrace; not daylit's tracer) from the pose
+the client's camera mode takes for a standpoint and a device orientation, through the camera
+model (noise, sRGB, JPEG), and played to headless Chromium as its camera (fakecamera.py), with
+the client's clock at the render's time (``?time=``) and ``?sky=phone``. The browser's sun/sky
+ratio is compared with Radiance's truth (DNI over the sky's horizontal irradiance) and with the
+server's estimator (server/sceneestimate.py) on the same frame. The phone's camera is not
+calibrated: only the ratio (and the sky type it gives) is checked, not the level.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.server.conftest import scene_build  # noqa: F401 (the fixture)
+from tests.web.fakecamera import camera_page, orient, write_y4m
+from tests.web.phoneframes import (
+    POSES,
+    open_irradiance_estimated,
+    open_irradiance_truth,
+    server_estimate,
+    view_from_three,
+)
+
+pytest.importorskip("pyradiance")
+pytestmark = [pytest.mark.browser, pytest.mark.slow]
+
+SIZE = (640, 360)  # the page; the camera's picture is rendered at half that (same aspect)
+RENDER = (320, 180)
+LUMA = np.array([0.2126, 0.7152, 0.0722])
+# (name, local standard time, DNI, DHI) on 15 October at the test site (Nara)
+SKIES = [("clear", "10.5", 800.0, 80.0), ("intermediate", "13.0", 400.0, 200.0),
+         ("overcast", "12.0", 0.0, 150.0)]
+
+
+@pytest.fixture(scope="module")
+def phone_build(request) -> Path:
+    existing = os.environ.get("DAYLIT_PHONE_BUILD")  # an existing bake of scene_build
+    return Path(existing) if existing else request.getfixturevalue("scene_build")
+
+
+def _open(browser, build, y4m, query):
+    """Camera mode with the stub server sending a sky (which ?sky=phone must ignore)."""
+    lights = json.loads((build / "manifest.json").read_text())["dome"]["count"]
+    return camera_page(browser, build, y4m, np.full((lights, 3), 30.0), query=query, size=SIZE)
+
+
+def _estimate(page, pose):
+    standpoint, orientation = POSES[pose]
+    page.evaluate("(p) => window.daylit.debug.standAt(p)", standpoint)
+    orient(page, *orientation)
+    return page.evaluate("window.daylit.debug.phoneEstimate()")
+
+
+_RENDERS = {}
+
+
+@pytest.fixture(scope="module")
+def renders(browser, phone_build, tmp_path_factory):
+    """Per pose (read from the page once) and sky: the Radiance render, the camera's frame (a
+    Y4M for the fake camera) and the server's estimate on it."""
+    from benchmarks.bench_fidelity import SkySpec
+    from tests.radiance_frames import camera_frame, linearise, render_build_view
+
+    def make(pose):
+        if pose in _RENDERS:
+            return _RENDERS[pose]
+        tmp = tmp_path_factory.mktemp(f"phone-{pose}")
+        grey = tmp / "grey.y4m"
+        write_y4m(grey, np.full((RENDER[1], RENDER[0], 3), 120, np.uint8))
+        standpoint, orientation = POSES[pose]
+        with _open(browser, phone_build, grey, "&sky=phone") as (page, _, errors):
+            page.evaluate("(p) => window.daylit.debug.standAt(p)", standpoint)
+            orient(page, *orientation)
+            drawn = page.evaluate("window.daylit.debug.cameraPose()")
+            assert not errors, errors
+        view = view_from_three(drawn["matrixWorld"], drawn["fovDeg"], *RENDER)
+        out = {}
+        rng = np.random.default_rng(4)
+        for name, hour, dni, dhi in SKIES:
+            spec = SkySpec(name, 10, 15, hour, dni, dhi)
+            rendered, _ = render_build_view(phone_build, spec, *RENDER, view=view)
+            codes, _ = camera_frame(rendered.sun_image, rng)
+            y4m = tmp / f"{name}.y4m"
+            write_y4m(y4m, codes)
+            out[name] = {"rendered": rendered, "y4m": y4m,
+                         "open": open_irradiance_truth(spec, phone_build),
+                         "server": server_estimate(phone_build, view, linearise(codes),
+                                                   rendered.sun_dir)}
+        _RENDERS[pose] = out
+        return out
+
+    return make
+
+
+@pytest.mark.parametrize("pose", list(POSES))
+def test_phone_estimate_against_radiance_and_the_server(browser, phone_build, renders, pose):
+    got = {}
+    for name, sky in renders(pose).items():
+        rendered = sky["rendered"]
+        with _open(browser, phone_build, sky["y4m"],
+                   f"&sky=phone&time={rendered.when_unix_s}") as (page, _, errors):
+            est = _estimate(page, pose)
+            assert est is not None, (pose, name)
+            # the sun the client computed (sunposition.js) is Radiance's (gendaylit's own
+            # solar position) within a few tenths of a degree
+            angle = np.degrees(np.arccos(np.clip(np.dot(est["sun"], rendered.sun_dir), -1, 1)))
+            assert angle < 0.5, (name, angle)
+            # the sky's isotropic share is followed across estimates (one every 2 s in use):
+            # the last four of eight
+            more = [page.evaluate("window.daylit.debug.phoneEstimate()") for _ in range(7)][-4:]
+            # the light drawn is the phone's (not the stub server's sky, which ?sky=phone
+            # ignores): the relighter applied one of its vectors
+            page.wait_for_function("window.daylit.status.lightSeq !== null", timeout=30000)
+            status = page.evaluate("""() => ({ source: window.daylit.status.lightSource,
+              estimates: window.daylit.status.phoneEstimates,
+              hud: document.querySelector('.statusline')?.textContent ?? '' })""")
+            assert not errors, errors
+        truth = rendered.dni_w_m2 / rendered.dhi_w_m2
+        ests = more
+        # the composite: open ground and four walls lit by the estimate, relative to the open
+        # ground (the level is the picture's, not known), against Radiance's
+        mine = open_irradiance_estimated(ests[-1], est["sun"])
+        composite = (mine / mine[0]) / (sky["open"] / sky["open"][0]) - 1.0
+        got[name] = {"phone": float(np.median([e["ratio"] for e in ests])), "truth": truth,
+                     "server": sky["server"], "type": ests[-1]["skyType"],
+                     "share": round(ests[-1]["modelShare"], 2), "used": est["used"],
+                     "sunlit": est["sunlit"], "status": status,
+                     "composite_rms": float(np.sqrt(np.mean(composite[1:] ** 2))),
+                     "walls": np.round(composite[1:], 3).tolist()}
+    print(pose, {k: {q: (round(v, 3) if isinstance(v, float) else v) for q, v in g.items()
+                     if q != "status"} for k, g in got.items()})
+    for name, g in got.items():
+        assert g["status"]["source"] == "phone", (name, g["status"])
+        assert g["status"]["estimates"] >= 8 and "phone" in g["status"]["hud"], g["status"]
+        # the light's shape: walls against the open ground within 30 % RMS (reached 4-22 %)
+        assert g["composite_rms"] < 0.3, (name, got)
+    clear, middle, overcast = got["clear"], got["intermediate"], got["overcast"]
+    # Goal: within 15 % (the server's reach on its kiosk view); reached -14 % here, the server
+    # -16 %: the tolerance leaves room for Radiance's ambient sampling from run to run.
+    assert clear["phone"] == pytest.approx(clear["truth"], rel=0.25), got
+    assert clear["phone"] == pytest.approx(clear["server"], rel=0.25), got
+    assert clear["type"] == 12, got
+    # The intermediate sky is the model's weak case (reached x1.8 of the truth here; the
+    # server x0.5-0.7): the sun is found, and within a factor of 2.5.
+    assert middle["truth"] / 2.5 < middle["phone"] < 2.5 * middle["truth"], got
+    # Overcast: the sun below 5 % of the sky (goal and reached: 0).
+    assert overcast["phone"] < 0.05, got
+    assert overcast["type"] == 2, got
+
+
+def test_camera_mode_takes_the_server_sky_when_there_is_one(browser, phone_build, tmp_path):
+    """With a server sky the phone does not estimate; with none (a server without cameras, or
+    offline) it does, without ?sky=phone."""
+    y4m = tmp_path / "grey.y4m"
+    write_y4m(y4m, np.full((RENDER[1], RENDER[0], 3), 120, np.uint8))
+    lights = json.loads((phone_build / "manifest.json").read_text())
+    sky = np.full((lights["dome"]["count"], 3), 30.0)
+    with camera_page(browser, phone_build, y4m, sky, size=SIZE) as (page, _, errors):
+        page.wait_for_function("window.daylit.status.lightSeq !== null", timeout=30000)
+        assert page.evaluate("window.daylit.debug.phoneEstimate()") is None
+        status = page.evaluate("""() => ({ source: window.daylit.status.lightSource,
+          n: window.daylit.status.phoneEstimates })""")
+        assert status == {"source": "server", "n": 0}, status
+        assert not errors, errors
+    noon = "2026-10-15T12:00:00%2B09:00"
+    with camera_page(browser, phone_build, y4m, None, query=f"&time={noon}",
+                     size=SIZE) as (page, _, errors):
+        page.wait_for_function("window.daylit.status.lightSource === 'phone'", timeout=30000)
+        page.wait_for_function("window.daylit.status.lightSeq !== null", timeout=30000)
+        assert page.evaluate("window.daylit.status.phoneEstimates") >= 1
+        assert not errors, errors

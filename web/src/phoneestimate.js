@@ -1,0 +1,424 @@
+// The phone's own estimate of the sun and the sky from its camera picture (issue 16; after
+// Jensen, Andersen & Madsen 2006, as the server's server/sceneestimate.py, whose model this
+// follows): with no server sky (offline, a site without cameras, or ?sky=phone), camera mode
+// lights the hall with what this reads from the picture. docs/web.md, "The phone's own light".
+//
+// A Lambertian surface of albedo rho seen by the camera has the radiance
+//   L = rho / pi * (E_sun (cos_i in_sun + B_sun) + k (S + B_sky))
+// E_sun the sun's normal irradiance, k the sky's horizontal irradiance, S the model sky's
+// irradiance on the point per unit k over the directions it sees open sky, B one bounce off the
+// surfaces it sees instead (sunlit where the sun reaches them; lit by an isotropic sky on their
+// tilt). Linear in (E_sun, k): a few hundred pixels of the build's real proxies and ground,
+// some in sun and some in shadow, give both; people and wrong pixels are outliers of a robust
+// fit (RANSAC, then IRLS with Tukey's biweight on relative residuals, as server/robustfit.py).
+//
+// A phone's camera is not calibrated: its exposure and gain are unknown, so the fit's absolute
+// level is in the picture's units. What it must get right is the sun/sky ratio and the sky's
+// shape (a CIE sky of the type the ratio gives, server/skyshape.py's rule, blended with an
+// isotropic sky by a share fitted and followed across estimates); the level is set
+// to a nominal one (NOMINAL_GLOBAL_W_M2) and the picture meter (picturemeter.js) exposes the
+// hall at the picture's level, which removes any common scale.
+//
+// Costs: what depends on the pose (the pool of pixels, their surfaces, hemisphere rays) is
+// computed again only when the pose moved (POSE_TOLERANCE_*); what depends on the sun when
+// it moved; an estimate reads its share of the pool's pixels and solves a small robust fit
+// (robustfit.js). The rays are cast against the proxies' triangles by proxyrays.js.
+// Directions: site-frame unit vectors (+X east, +Y up, -Z north); irradiances W/m^2.
+import * as THREE from 'three';
+import { srgbToLinear } from './picturemeter.js';
+import { Proxies } from './proxyrays.js';
+import { robustFit } from './robustfit.js';
+
+/** The estimated copy of the picture, pixels (w, h). */
+export const ESTIMATE_SIZE = [192, 108];
+/** A new estimate at most this often, seconds (the sky changes over minutes; a phone's CPU). */
+export const ESTIMATE_PERIOD_S = 2;
+export const POOL_SIZE = 2000; // candidate pixels of known surfaces per pose
+const HEMISPHERE_RAYS = 64; // per sample: sky view factor and one bounce
+const EDGE_PX = 1.5; // a pixel's corners this far away must see the same plane
+const SURFACE_OFFSET_M = 0.01;
+const MIN_SAMPLES = 30; // fewer usable pixels: no estimate
+const MIN_SUNLIT = 10; // fewer sunlit ones: the sun cannot be told from the sky
+const CLIP_CODE = 250; // a pixel with a channel at or above this code is clipped
+const DARK_CODE = 3;
+const POSE_TOLERANCE_DEG = 1.0;
+const POSE_TOLERANCE_M = 0.2;
+const SUN_TOLERANCE_DEG = 0.1;
+// server/skyshape.py: the CIE sky by the sun/sky ratio
+const OVERCAST_RATIO = 0.5;
+const CLEAR_RATIO = 3.0;
+const OVERCAST_TYPE = 2;
+const SHARE_MEMORY = 0.8; // per estimate, the weight of the past in the model sky's share
+/** The level the estimate is scaled to: a sun and sky giving this on open ground. */
+export const NOMINAL_GLOBAL_W_M2 = 500;
+const LUMA = [0.2126, 0.7152, 0.0722];
+// CIE general skies (ISO 15469; daylit/sky.py CIE_SKY_TYPES): a, b, c, d, e
+const CIE = { 2: [4.0, -0.7, 2.0, -1.5, 0.15], 7: [0.0, -1.0, 5.0, -2.5, 0.3], 12: [-1.0, -0.32, 10.0, -3.0, 0.45] };
+
+/** The CIE sky type for a ratio of sun normal irradiance to sky horizontal irradiance. */
+export function skyTypeForRatio(ratio) {
+  if (ratio < OVERCAST_RATIO) return OVERCAST_TYPE;
+  return ratio >= CLEAR_RATIO ? 12 : 7;
+}
+
+/**
+ * A CIE general sky's luminance relative to its zenith, and the factor to an open horizontal
+ * irradiance of 1.
+ * @returns {{rel: (d: number[]) => number, toUnit: number}}
+ */
+export function unitSky(type, sun) {
+  const [a, b, c, d, e] = CIE[type];
+  const zSun = Math.acos(Math.max(-1, Math.min(1, Math.max(sun[1], 0))));
+  const grad = (cz) => 1 + a * Math.exp(b / cz);
+  const ind = (x) => 1 + c * (Math.exp(d * x) - Math.exp(d * Math.PI / 2)) + e * Math.cos(x) ** 2;
+  const norm = ind(zSun) * grad(1);
+  const sunUp = sun[1] > 0 ? sun : normalized([sun[0], 0, sun[2]]);
+  const rel = (v) => {
+    const cz = Math.max(v[1], 1e-6);
+    const chi = Math.acos(Math.max(-1, Math.min(1, v[0] * sunUp[0] + v[1] * sunUp[1] + v[2] * sunUp[2])));
+    return ind(chi) * grad(cz) / norm;
+  };
+  // horizontal irradiance by a midpoint grid (as server/skyshape.py)
+  const steps = 24;
+  let sum = 0;
+  for (let i = 0; i < steps; i++) {
+    const z = (i + 0.5) * Math.PI / 2 / steps;
+    for (let j = 0; j < 2 * steps; j++) {
+      const az = (j + 0.5) * Math.PI / steps;
+      const v = [Math.sin(z) * Math.sin(az), Math.cos(z), -Math.sin(z) * Math.cos(az)];
+      sum += rel(v) * Math.cos(z) * Math.sin(z) * (Math.PI / 2 / steps) * (Math.PI / steps);
+    }
+  }
+  return { rel, toUnit: 1 / sum };
+}
+
+/**
+ * The pool of pixels of a pose: which pixels of the copy see a known surface away from its
+ * edges, their surface points, normals, albedos, and what their hemispheres see.
+ * @param {Proxies} proxies
+ * @param {THREE.Camera} camera the pose (world) and projection of the picture
+ * @param {number} w copy width, pixels
+ * @param {number} h copy height
+ * @param {number[]} farAlbedo the open ground past the proxies (the build's ground albedo)
+ * @returns {object[]} samples {x, y, point, normal, albedo, skyDirs: number[][], bounce:
+ *   [{point|null, normal, albedo}]}
+ */
+export function poolForPose(proxies, camera, w, h, farAlbedo, seed = 1) {
+  camera.updateMatrixWorld();
+  const origin = new THREE.Vector3().setFromMatrixPosition(camera.matrixWorld).toArray();
+  const ray = new THREE.Vector3();
+  const rayAt = (x, y) => ray.set(x / w * 2 - 1, 1 - y / h * 2, 0.5).unproject(camera)
+    .sub(new THREE.Vector3(...origin)).normalize().toArray();
+  const rand = mulberry32(seed);
+  const hemi = cosineDirections(HEMISPHERE_RAYS, rand);
+  const pool = [];
+  for (let tries = 0; tries < 4 * POOL_SIZE && pool.length < POOL_SIZE; tries++) {
+    const x = 2 + Math.floor(rand() * (w - 4));
+    const y = 2 + Math.floor(rand() * (h - 4));
+    const d = rayAt(x + 0.5, y + 0.5);
+    const tri = proxies.cast(origin, d);
+    if (tri < 0) continue;
+    const n = proxies.normalOf(tri);
+    if (dot(n, d) > -0.05) continue; // seen from behind or edge-on
+    const point = add(origin, d, proxies.hitT);
+    let same = true;
+    for (const [dx, dy] of [[-1, -1], [1, -1], [-1, 1], [1, 1]]) {
+      const dc = rayAt(x + 0.5 + dx * EDGE_PX, y + 0.5 + dy * EDGE_PX);
+      const t2 = proxies.cast(origin, dc);
+      if (t2 < 0 || dot(proxies.normalOf(t2), n) < 0.999
+        || Math.abs(proxies.planeDistance(tri, add(origin, dc, proxies.hitT))) > 0.02) {
+        same = false;
+        break;
+      }
+    }
+    if (!same) continue;
+    const start = add(point, n, SURFACE_OFFSET_M);
+    const [t1, t2] = tangents(n);
+    const skyDirs = [];
+    const bounce = [];
+    for (const l of hemi) {
+      const dir = [0, 1, 2].map((c) => l[0] * t1[c] + l[1] * t2[c] + l[2] * n[c]);
+      const hit = proxies.cast(start, dir);
+      if (hit >= 0) {
+        bounce.push({ point: add(start, dir, proxies.hitT), normal: proxies.normalOf(hit), albedo: proxies.albedoOf(hit) });
+      } else if (dir[1] > 0) {
+        skyDirs.push(dir);
+      } else {
+        bounce.push({ point: null, normal: [0, 1, 0], albedo: farAlbedo }); // the open ground far off
+      }
+    }
+    pool.push({ x, y, point, normal: n, albedo: proxies.albedoOf(tri), skyDirs, bounce });
+  }
+  return pool;
+}
+
+/** The terms of the model that depend on the sun, per sample: in sun (cos_i, 0 in shadow),
+ * and the one bounce per unit sun normal irradiance and per unit sky irradiance (RGB). */
+export function sunTerms(proxies, pool, sun) {
+  const up = sun[1] > 0;
+  const lit = (point, normal) => {
+    const c = dot(normal, sun);
+    if (!up || c <= 0) return 0;
+    if (point === null) return c;
+    return proxies.cast(add(point, normal, SURFACE_OFFSET_M), sun, true) < 0 ? c : 0;
+  };
+  return pool.map((s) => {
+    const bSun = [0, 0, 0];
+    const bSky = [0, 0, 0];
+    for (const b of s.bounce) {
+      const l = lit(b.point, b.normal);
+      const tilt = 0.5 * (1 + b.normal[1]); // an isotropic sky on the bounce surface's tilt
+      for (let c = 0; c < 3; c++) {
+        bSun[c] += b.albedo[c] * l / HEMISPHERE_RAYS;
+        bSky[c] += b.albedo[c] * tilt / HEMISPHERE_RAYS;
+      }
+    }
+    return { cosI: lit(s.point, s.normal), bSun, bSky };
+  });
+}
+
+/** Per sample, the model sky's irradiance per unit horizontal irradiance over the open sky it
+ * sees (pi x the cosine-weighted mean of the relative radiance). */
+export function skyTerms(pool, sky) {
+  return pool.map((s) => Math.PI * s.skyDirs.reduce((acc, d) => acc + sky.rel(d), 0) / HEMISPHERE_RAYS * sky.toUnit);
+}
+
+/** Reads a camera picture and estimates its sun and sky (camera mode without a server sky). */
+export class PhoneEstimator {
+  /**
+   * @param {THREE.Mesh[]} meshes the real proxies and the ground (site.js nodes.real, .ground)
+   * @param {number[]} farAlbedo the build's ground albedo (manifest.ground.albedo)
+   */
+  constructor(meshes, farAlbedo) {
+    this.proxies = new Proxies(meshes);
+    this.farAlbedo = farAlbedo;
+    this.pool = null;
+    this._pose = null;
+    this._sun = null;
+    this._sunTerms = null;
+    this._skies = new Map();
+    this._share = new Map(); // per sky type, the model sky's share (the rest isotropic)
+    this.rand = mulberry32(7);
+    this.last = null; // the last estimate
+    this.poses = 0; // pools computed (pose changes)
+  }
+
+  _poolFor(camera, w, h) {
+    camera.updateMatrixWorld();
+    const m = camera.matrixWorld.clone();
+    const p = this._pose;
+    const moved = !p || new THREE.Vector3().setFromMatrixPosition(m).distanceTo(new THREE.Vector3().setFromMatrixPosition(p.m)) > POSE_TOLERANCE_M
+      || new THREE.Quaternion().setFromRotationMatrix(m).angleTo(new THREE.Quaternion().setFromRotationMatrix(p.m)) > POSE_TOLERANCE_DEG * Math.PI / 180
+      || Math.abs(camera.fov - p.fov) > 0.01 || Math.abs(camera.aspect - p.aspect) > 0.001 || w !== p.w || h !== p.h;
+    if (moved) {
+      this.pool = poolForPose(this.proxies, camera, w, h, this.farAlbedo, 1 + this.poses);
+      this._pose = { m, fov: camera.fov, aspect: camera.aspect, w, h };
+      this._sun = null;
+      this.poses += 1;
+    }
+    return this.pool;
+  }
+
+  _termsFor(sun) {
+    if (!this._sun || dot(this._sun, sun) < Math.cos(SUN_TOLERANCE_DEG * Math.PI / 180)) {
+      this._sunTerms = sunTerms(this.proxies, this.pool, sun);
+      this._skies.clear();
+      this._sun = sun.slice();
+    }
+    return this._sunTerms;
+  }
+
+  _skyFor(type, sun) {
+    if (!this._skies.has(type)) {
+      const sky = unitSky(type, sun);
+      this._skies.set(type, { sky, terms: skyTerms(this.pool, sky) });
+    }
+    return this._skies.get(type);
+  }
+
+  /** Pool indices, as many in sun as in shadow where the pool has them (the shadowed ones are
+   * what tells the sky from the sun; a view of mostly sunlit ground would otherwise let the
+   * sunlit majority set the fit, server/sceneestimate.py's _pick). */
+  _balanced(terms) {
+    const lit = [];
+    const shade = [];
+    terms.forEach((t, i) => (t.cosI > 0 ? lit : shade).push(i));
+    const [small, large] = lit.length < shade.length ? [lit, shade] : [shade, lit];
+    const take = Math.max(small.length, MIN_SAMPLES);
+    for (let i = large.length - 1; i > 0; i--) { // a seeded shuffle of the larger group
+      const j = Math.floor(this.rand() * (i + 1));
+      [large[i], large[j]] = [large[j], large[i]];
+    }
+    return [...small, ...large.slice(0, take)];
+  }
+
+  /**
+   * One estimate.
+   * @param {Uint8ClampedArray} rgba (h, w, 4) sRGB codes of the picture, rows from the top
+   * @param {number} w
+   * @param {number} h
+   * @param {THREE.Camera} camera the pose the picture was taken with
+   * @param {number[]} sun unit site direction toward the sun
+   * @returns {object|null} {sunNormal: RGB, skyHorizontal: RGB (picture units x pi), ratio
+   *   (luminance E_sun / k), skyType, used, sunlit, inlierFraction, pool}; null when the
+   *   picture has too few usable pixels of known surfaces
+   */
+  estimate(rgba, w, h, camera, sun) {
+    const pool = this._poolFor(camera, w, h);
+    const terms = this._termsFor(sun);
+    const values = [];
+    const rows = [];
+    for (const i of this._balanced(terms)) {
+      const k = 4 * (pool[i].y * w + pool[i].x);
+      const codes = [rgba[k], rgba[k + 1], rgba[k + 2]];
+      if (Math.max(...codes) >= CLIP_CODE || Math.min(...codes) < DARK_CODE) continue;
+      values.push(codes.map((v) => srgbToLinear(v / 255)));
+      rows.push(i);
+    }
+    if (rows.length < MIN_SAMPLES) {
+      this.last = null;
+      return null;
+    }
+    const sunlit = rows.filter((i) => terms[i].cosI > 0.05).length;
+    let type = 12;
+    let fit = null;
+    for (let iteration = 0; iteration < 3; iteration++) {
+      const { terms: sky } = this._skyFor(type, sun);
+      const sunCol = rows.map((i) => [0, 1, 2].map((c) => (sunlit < MIN_SUNLIT ? 0
+        : pool[i].albedo[c] * (terms[i].cosI + terms[i].bSun[c]) / Math.PI)));
+      const skyCol = rows.map((i) => [0, 1, 2].map((c) => pool[i].albedo[c] * (sky[i] + terms[i].bSky[c]) / Math.PI));
+      // the isotropic part of the sky: the sky view factor (Perez and Hay-Davies split the
+      // sky the same way); its share beside the model's is followed across estimates
+      const isoCol = rows.map((i) => [0, 1, 2].map((c) => pool[i].albedo[c] * (pool[i].skyDirs.length / HEMISPHERE_RAYS + terms[i].bSky[c]) / Math.PI));
+      const previous = this._share.get(type);
+      fit = robustFit(values, sunCol, skyCol, isoCol, this.rand, type === OVERCAST_TYPE,
+        (share) => (previous === undefined ? share : SHARE_MEMORY * previous + (1 - SHARE_MEMORY) * share));
+      this._share.set(type, fit.share);
+      fit.type = type;
+      const ratio = luma(fit.sun) / Math.max(luma(fit.sky), 1e-12);
+      const next = skyTypeForRatio(ratio);
+      if (next === type) break;
+      type = next;
+    }
+    const inliers = fit.weights.filter((x) => x > 0.5).length;
+    this.last = {
+      sunNormal: fit.sun, skyHorizontal: fit.sky, ratio: luma(fit.sun) / Math.max(luma(fit.sky), 1e-12),
+      skyType: fit.type, modelShare: fit.share, used: rows.length, sunlit, inlierFraction: inliers / rows.length, pool: pool.length,
+    };
+    return this.last;
+  }
+
+  /**
+   * The estimate as the light the client draws (the server's layout, lightstream.js): the
+   * sky's patch radiances (n x 3, W/(m^2 sr)) and the sun, scaled to NOMINAL_GLOBAL_W_M2.
+   * @param {object[]} lights the manifest's dome lights (centroid, cosine_weighted_sr)
+   * @param {number[]} sun unit direction
+   * @returns {{rgb: Float32Array, sun: {direction, normalIrradiance, source, estimated}}}
+   */
+  lightVector(estimate, lights, sun) {
+    const { rel, toUnit } = unitSky(estimate.skyType, sun);
+    const share = estimate.modelShare;
+    const raw = lights.map((l) => (l.centroid[1] > 0 ? share * rel(l.centroid) * toUnit + (1 - share) / Math.PI : 0));
+    const open = raw.reduce((s, v, i) => s + v * lights[i].cosine_weighted_sr, 0);
+    const up = Math.max(sun[1], 0);
+    const global = luma(estimate.skyHorizontal) + luma(estimate.sunNormal) * up;
+    const scale = global > 0 ? NOMINAL_GLOBAL_W_M2 / global : 0;
+    const rgb = new Float32Array(3 * lights.length);
+    raw.forEach((v, i) => {
+      for (let c = 0; c < 3; c++) rgb[3 * i + c] = v / open * estimate.skyHorizontal[c] * scale;
+    });
+    return {
+      rgb,
+      sun: { direction: sun.slice(), normalIrradiance: estimate.sunNormal.map((e) => e * scale), source: 'phone', estimated: true },
+    };
+  }
+}
+
+/** Reads the camera's video into a small copy and estimates, at most every ESTIMATE_PERIOD_S. */
+export class PhoneLight {
+  /**
+   * @param {HTMLVideoElement} video
+   * @param {PhoneEstimator} estimator
+   */
+  constructor(video, estimator) {
+    this.video = video;
+    this.estimator = estimator;
+    this.canvas = document.createElement('canvas');
+    [this.canvas.width, this.canvas.height] = ESTIMATE_SIZE;
+    this.context = this.canvas.getContext('2d', { willReadFrequently: true });
+    this.lastS = -Infinity;
+    this.estimates = 0; // estimates made (status.phoneEstimates)
+    this.ms = null; // the last estimate's milliseconds of CPU
+  }
+
+  /** @returns {object|null} a new estimate, or null (not due, no frame, nothing to read) */
+  read(camera, sun, nowS, force = false) {
+    if (!force && nowS - this.lastS < ESTIMATE_PERIOD_S) return null;
+    if (this.video.readyState < 2) return null;
+    this.lastS = nowS;
+    const t0 = performance.now();
+    const [w, h] = ESTIMATE_SIZE;
+    this.context.drawImage(this.video, 0, 0, w, h);
+    const estimate = this.estimator.estimate(this.context.getImageData(0, 0, w, h).data, w, h, camera, sun);
+    this.ms = performance.now() - t0;
+    if (estimate) this.estimates += 1;
+    return estimate;
+  }
+}
+
+// ------------------------------------------------------------------------------ small helpers
+
+function median(v) {
+  if (!v.length) return 0;
+  const s = v.slice().sort((p, q) => p - q);
+  return s[s.length >> 1];
+}
+
+function luma(rgb) {
+  return LUMA[0] * rgb[0] + LUMA[1] * rgb[1] + LUMA[2] * rgb[2];
+}
+
+function dot(p, q) {
+  return p[0] * q[0] + p[1] * q[1] + p[2] * q[2];
+}
+
+function add(p, d, t) {
+  return [p[0] + d[0] * t, p[1] + d[1] * t, p[2] + d[2] * t];
+}
+
+function normalized(v) {
+  const l = Math.hypot(...v) || 1;
+  return v.map((x) => x / l);
+}
+
+function tangents(n) {
+  const helper = Math.abs(n[1]) < 0.9 ? [0, 1, 0] : [1, 0, 0];
+  const t = normalized([helper[1] * n[2] - helper[2] * n[1], helper[2] * n[0] - helper[0] * n[2], helper[0] * n[1] - helper[1] * n[0]]);
+  return [t, [n[1] * t[2] - n[2] * t[1], n[2] * t[0] - n[0] * t[2], n[0] * t[1] - n[1] * t[0]]];
+}
+
+/** Stratified cosine-distributed directions about +Z, (count, 3). */
+function cosineDirections(count, rand) {
+  const side = Math.max(1, Math.floor(Math.sqrt(count)));
+  const rows = Math.ceil(count / side);
+  const out = [];
+  for (let i = 0; i < count; i++) {
+    const u = ((i % side) + rand()) / side;
+    const v = (Math.floor(i / side) + rand()) / rows;
+    const r = Math.sqrt(u);
+    out.push([r * Math.cos(2 * Math.PI * v), r * Math.sin(2 * Math.PI * v), Math.sqrt(Math.max(0, 1 - u))]);
+  }
+  return out;
+}
+
+/** A small seeded generator (the pool is the same for the same pose: reproducible tests). */
+function mulberry32(seed) {
+  let a = seed >>> 0;
+  return () => {
+    a = (a + 0x6d2b79f5) >>> 0;
+    let t = a;
+    t = Math.imul(t ^ (t >>> 15), t | 1);
+    t ^= t + Math.imul(t ^ (t >>> 7), t | 61);
+    return ((t ^ (t >>> 14)) >>> 0) / 4294967296;
+  };
+}
