@@ -53,11 +53,16 @@ import aiohttp  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
+from benchmarks.stream_clients import (  # noqa: E402
+    CLIENT_LIBS,
+    Receipts,
+    make_clients,
+    run_loop,
+)
 from server.fisheye import FisheyeCamera  # noqa: E402
 from server.simsky import SimulatedSky  # noqa: E402
 from tests.server.conftest import make_build  # noqa: E402
 
-HEADER = struct.Struct("<4sBBHIId")
 RATE_HZ = 10.0  # the replay's and so the vectors' rate; --rate-hz sets it
 MAX_CLIENTS = 12000  # per server process: above the largest level
 
@@ -144,55 +149,27 @@ def start_redis(port: int) -> subprocess.Popen:
     raise SystemExit("redis-server did not start")
 
 
-async def open_clients(session: aiohttp.ClientSession, url: str, clients: int, measuring: dict,
-                       sizes: set[int] | None = None):
-    """Connect ``clients`` light streams (100 at a time) and listen on each: while
-    ``measuring["on"]``, each LIGHT message's capture-to-receipt latency (s) is appended to its
-    client's list (and its size to ``sizes``). Returns (sockets, listening tasks, latencies)."""
-    latencies: list[list[float]] = [[] for _ in range(clients)]
-
-    async def listen(ws, k):
-        async for msg in ws:
-            if msg.type == aiohttp.WSMsgType.BINARY and measuring["on"]:
-                _, _, mtype, _, _, _, captured = HEADER.unpack_from(msg.data)
-                if mtype == 1:
-                    latencies[k].append(time.time() - captured)
-                    if sizes is not None:
-                        sizes.add(len(msg.data))
-
-    sockets = []
-    for start in range(0, clients, 100):
-        batch = range(start, min(start + 100, clients))
-        sockets += await asyncio.gather(*(session.ws_connect(url) for _ in batch))
-    tasks = [asyncio.create_task(listen(ws, k)) for k, ws in enumerate(sockets)]
-    return sockets, tasks, latencies
-
-
-async def close_clients(sockets, tasks) -> None:
-    await asyncio.gather(*(ws.close() for ws in sockets), return_exceptions=True)
-    for task in tasks:
-        task.cancel()
-    await asyncio.gather(*tasks, return_exceptions=True)
-
-
-def _client_process(url: str, clients: int, seconds: float, go_event, out) -> None:
-    """One client process of ``run_level_processes``: its latencies (s) and CPU seconds."""
+def _client_process(url: str, clients: int, seconds: float, go_event, out,
+                    client_lib: str = "aiohttp") -> None:
+    """One client process of ``run_level_processes``: its latencies (s) and CPU seconds.
+    ``client_lib``: aiohttp, or picows on uvloop (``stream_clients``; the same receipt
+    timing for both)."""
 
     async def go():
-        measuring = {"on": False}
-        async with aiohttp.ClientSession(connector=aiohttp.TCPConnector(limit=0)) as session:
-            sockets, tasks, latencies = await open_clients(session, url, clients, measuring)
-            out.put("connected")
-            await asyncio.to_thread(go_event.wait)  # every process connected, warmed up
-            measuring["on"] = True
-            cpu0 = time.process_time()
-            await asyncio.sleep(seconds)
-            measuring["on"] = False
-            cpu = time.process_time() - cpu0
-            await close_clients(sockets, tasks)
-        return latencies, cpu
+        receipts = Receipts(clients)
+        conns = make_clients(client_lib, url, receipts)
+        await conns.open(clients)
+        out.put("connected")
+        await asyncio.to_thread(go_event.wait)  # every process connected, warmed up
+        receipts.measuring = True
+        cpu0 = time.process_time()
+        await asyncio.sleep(seconds)
+        receipts.measuring = False
+        cpu = time.process_time() - cpu0
+        await conns.close()
+        return receipts.latencies_s, cpu
 
-    out.put(asyncio.run(go()))
+    out.put(run_loop(client_lib, go()))
 
 
 def summarize(latencies: list[list[float]], clients: int, seconds: float, server_cpu: float,
@@ -214,15 +191,18 @@ def summarize(latencies: list[list[float]], clients: int, seconds: float, server
 
 
 async def run_level_processes(url: str, clients: int, seconds: float, server_pid: int,
-                              processes: int, extra_pids: tuple[int, ...] = ()) -> dict:
-    """As :func:`run_level`, the clients spread over ``processes`` processes."""
+                              processes: int, extra_pids: tuple[int, ...] = (),
+                              client_lib: str = "aiohttp") -> dict:
+    """As :func:`run_level`, the clients spread over ``processes`` processes of
+    ``client_lib`` clients."""
     import multiprocessing as mp
 
     ctx = mp.get_context("spawn")
     queue = ctx.Queue()
     go_event = ctx.Event()
     shares = [clients // processes + (i < clients % processes) for i in range(processes)]
-    procs = [ctx.Process(target=_client_process, args=(url, n, seconds, go_event, queue))
+    procs = [ctx.Process(target=_client_process, args=(url, n, seconds, go_event, queue,
+                                                       client_lib))
              for n in shares if n]
     for p in procs:
         p.start()
@@ -255,19 +235,20 @@ async def wait_for_first_vector(base: str) -> None:
 
 
 async def run_level(url: str, clients: int, seconds: float, server_pid: int) -> dict:
-    measuring = {"on": False}
-    sizes: set[int] = set()
-    async with aiohttp.ClientSession(connector=aiohttp.TCPConnector(limit=0)) as session:
-        sockets, tasks, latencies = await open_clients(session, url, clients, measuring, sizes)
-        await asyncio.sleep(1.0)
-        measuring["on"] = True
-        cpu0, own0, t0 = cpu_seconds(server_pid), time.process_time(), time.monotonic()
-        await asyncio.sleep(seconds)
-        measuring["on"] = False
-        wall = time.monotonic() - t0
-        server_cpu = (cpu_seconds(server_pid) - cpu0) / wall
-        client_cpu = (time.process_time() - own0) / wall
-        await close_clients(sockets, tasks)
+    """One level with aiohttp clients in this process (``--client-processes 1``)."""
+    receipts = Receipts(clients)
+    conns = make_clients("aiohttp", url, receipts)
+    await conns.open(clients)
+    await asyncio.sleep(1.0)
+    receipts.measuring = True
+    cpu0, own0, t0 = cpu_seconds(server_pid), time.process_time(), time.monotonic()
+    await asyncio.sleep(seconds)
+    receipts.measuring = False
+    wall = time.monotonic() - t0
+    server_cpu = (cpu_seconds(server_pid) - cpu0) / wall
+    client_cpu = (time.process_time() - own0) / wall
+    await conns.close()
+    latencies, sizes = receipts.latencies_s, receipts.sizes
     return {
         **summarize(latencies, clients, seconds, server_cpu, client_cpu),
         "bytes": sorted(sizes),
@@ -347,7 +328,8 @@ def framing_costs(lights: int = 400, repeats: int = 20000) -> None:
 
 
 async def main_async(levels: list[int], seconds: float, protocols: list[int] | None = None,
-                     workers: int = 1, broker: str = "", client_processes: int = 1) -> None:
+                     workers: int = 1, broker: str = "", client_processes: int = 1,
+                     client_libs: tuple[str, ...] = ("aiohttp",), rounds: int = 1) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         build = make_build(tmp / "build", lights=400, scene_id="bench")
@@ -378,19 +360,27 @@ async def main_async(levels: list[int], seconds: float, protocols: list[int] | N
                   f"{RATE_HZ:g} Hz, {seconds:g} s a level, loopback, 2 cores shared")
             print(f"workers: {workers}, broker: {broker or 'none'}, client processes: "
                   f"{client_processes}\n")
-            print(f"{'clients':>7} {'vec/s each':>10} {'p50 ms':>7} {'p99 ms':>7} "
-                  f"{'max ms':>7} {'>=90% of vectors':>16} {'server CPU':>10} {'client CPU':>10} "
-                  f"{'msg/s per server core':>21}")
-            for n in levels:
-                if client_processes > 1 or workers > 1 or broker:
-                    r = await run_level_processes(url, n, seconds, proc.pid, client_processes,
-                                                  (redis.pid,) if redis else ())
-                else:
-                    r = await run_level(url, n, seconds, proc.pid)
-                print(f"{r['clients']:7d} {r['rate']:10.2f} {r['p50']:7.1f} {r['p99']:7.1f} "
-                      f"{r['max']:7.1f} {r['full']:10d}/{n:<5} {100 * r['server_cpu']:9.0f}% "
-                      f"{100 * r['client_cpu']:9.0f}% "
-                      f"{r['clients'] * r['rate'] / max(r['server_cpu'], 1e-9):21.0f}", flush=True)
+            print(f"{'round':>5} {'client lib':>10} {'clients':>7} {'vec/s each':>10} "
+                  f"{'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'>=90% of vectors':>16} "
+                  f"{'server CPU':>10} {'client CPU':>10} {'msg/s per server core':>21} "
+                  f"{'load avg 1 min':>14}")
+            for round_ in range(rounds):
+                # Interleaved: each level's client libraries, in the other order each round.
+                libs = client_libs if round_ % 2 == 0 else client_libs[::-1]
+                for n in levels:
+                    for lib in libs:
+                        if client_processes > 1 or workers > 1 or broker or lib != "aiohttp":
+                            r = await run_level_processes(
+                                url, n, seconds, proc.pid, client_processes,
+                                (redis.pid,) if redis else (), lib)
+                        else:
+                            r = await run_level(url, n, seconds, proc.pid)
+                        print(f"{round_ + 1:5d} {lib:>10} {r['clients']:7d} {r['rate']:10.2f} "
+                              f"{r['p50']:7.1f} {r['p99']:7.1f} {r['max']:7.1f} "
+                              f"{r['full']:10d}/{n:<5} {100 * r['server_cpu']:9.0f}% "
+                              f"{100 * r['client_cpu']:9.0f}% "
+                              f"{r['clients'] * r['rate'] / max(r['server_cpu'], 1e-9):21.0f} "
+                              f"{os.getloadavg()[0]:14.2f}", flush=True)
         finally:
             proc.terminate()
             proc.wait(timeout=30)
@@ -434,7 +424,18 @@ def main() -> None:
     parser.add_argument("--rate-hz", type=float, default=RATE_HZ,
                         help="vectors a second (the replay's frame rate); e.g. 2 for the "
                         "10,000-client level")
+    parser.add_argument("--client-lib", default="aiohttp",
+                        help="the clients' WebSocket library, one of "
+                        f"{','.join(CLIENT_LIBS)} (picows runs on uvloop), or several "
+                        "separated by commas: each level once per library, interleaved")
+    parser.add_argument("--rounds", type=int, default=1,
+                        help="repeat every level this many times (libraries in the other "
+                        "order each round)")
     args = parser.parse_args()
+    client_libs = tuple(args.client_lib.split(","))
+    for lib in client_libs:
+        if lib not in CLIENT_LIBS:
+            parser.error(f"--client-lib: {lib!r} is not one of {', '.join(CLIENT_LIBS)}")
     RATE_HZ = args.rate_hz
     # SIGTERM (a killed run) unwinds like Ctrl-C, so the server it started is stopped too.
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
@@ -445,7 +446,8 @@ def main() -> None:
         framing_costs()
     protocols = [int(x) for x in args.protocols.split(",") if x]
     asyncio.run(main_async([int(x) for x in args.levels.split(",")], args.seconds, protocols,
-                           args.workers, args.broker, args.client_processes))
+                           args.workers, args.broker, args.client_processes, client_libs,
+                           args.rounds))
 
 
 if __name__ == "__main__":
