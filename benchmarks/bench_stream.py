@@ -82,8 +82,11 @@ def make_frames(folder: Path, count: int = 10) -> None:
         cv2.imwrite(str(folder / f"{k:03d}.jpg"), bgr, [cv2.IMWRITE_JPEG_QUALITY, 92])
 
 
-def start_server(build: Path, frames: Path, port: int, extra: tuple[str, ...] = ()
-                 ) -> subprocess.Popen:
+def start_server(build: Path, frames: Path, port: int, extra: tuple[str, ...] = (),
+                 server_loop: str = "asyncio") -> subprocess.Popen:
+    """``daylit serve`` on the frames in ``frames``; ``server_loop`` "uvloop" runs it (and its
+    workers, which inherit the environment) on uvloop through a ``sitecustomize`` that
+    installs uvloop's event loop policy: an experiment, not a server setting."""
     cmd = [
         sys.executable, "-m", "daylit.cli", "serve", str(build), "--host", "127.0.0.1",
         "--port", str(port), "--sky", f"replay:{frames}", "--log-level", "warning",
@@ -94,8 +97,16 @@ def start_server(build: Path, frames: Path, port: int, extra: tuple[str, ...] = 
         "--set", "server.max_connections_per_address=10000",
         *extra,
     ]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, cwd=ROOT,
-                            env=dict(os.environ, PYTHONUNBUFFERED="1"))
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    if server_loop == "uvloop":
+        site = build.parent / "uvloop_site"
+        site.mkdir(exist_ok=True)
+        (site / "sitecustomize.py").write_text(
+            "import asyncio\nimport uvloop\n\n"
+            "asyncio.set_event_loop_policy(uvloop.EventLoopPolicy())\n")
+        env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(site),
+                                                          env.get("PYTHONPATH", "")]))
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, cwd=ROOT, env=env)
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline:
         line = proc.stdout.readline()
@@ -107,10 +118,11 @@ def start_server(build: Path, frames: Path, port: int, extra: tuple[str, ...] = 
     raise SystemExit("the server did not start")
 
 
-def cpu_seconds(pid: int) -> float:
-    """User + system CPU time of a process (Linux /proc)."""
+def cpu_seconds(pid: int, system_only: bool = False) -> float:
+    """User + system CPU time of a process (Linux /proc); ``system_only``: the kernel's part
+    (system calls: the sockets' sends, and on loopback the receiving side's TCP work)."""
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    return (int(fields[12]) + (0 if system_only else int(fields[11]))) / os.sysconf("SC_CLK_TCK")
 
 
 def process_tree(pid: int) -> list[int]:
@@ -124,11 +136,11 @@ def process_tree(pid: int) -> list[int]:
     return out
 
 
-def tree_cpu_seconds(pids: list[int]) -> float:
+def tree_cpu_seconds(pids: list[int], system_only: bool = False) -> float:
     total = 0.0
     for pid in pids:
         with contextlib.suppress(FileNotFoundError, ProcessLookupError):
-            total += cpu_seconds(pid)
+            total += cpu_seconds(pid, system_only)
     return total
 
 
@@ -156,7 +168,7 @@ def _client_process(url: str, clients: int, seconds: float, go_event, out,
     timing for both)."""
 
     async def go():
-        receipts = Receipts(clients)
+        receipts = Receipts(clients, keep_sequences=True)
         conns = make_clients(client_lib, url, receipts)
         await conns.open(clients)
         out.put("connected")
@@ -167,7 +179,7 @@ def _client_process(url: str, clients: int, seconds: float, go_event, out,
         receipts.measuring = False
         cpu = time.process_time() - cpu0
         await conns.close()
-        return receipts.latencies_s, cpu
+        return receipts.latencies_s, receipts.sequences, cpu
 
     out.put(run_loop(client_lib, go()))
 
@@ -210,17 +222,38 @@ async def run_level_processes(url: str, clients: int, seconds: float, server_pid
         assert await asyncio.to_thread(queue.get, True, 300) == "connected"
     await asyncio.sleep(1.0)  # warm-up, as run_level
     pids = process_tree(server_pid) + list(extra_pids)
-    cpu0, t0 = tree_cpu_seconds(pids), time.monotonic()
+    cpu0, sys0, t0 = tree_cpu_seconds(pids), tree_cpu_seconds(pids, True), time.monotonic()
     go_event.set()
     await asyncio.sleep(seconds)
     wall = time.monotonic() - t0
     server_cpu = (tree_cpu_seconds(pids) - cpu0) / wall
+    server_sys = (tree_cpu_seconds(pids, True) - sys0) / wall
     results = [await asyncio.to_thread(queue.get, True, 120) for _ in procs]
     for p in procs:
         p.join(30)
-    latencies = [x for lat, _ in results for x in lat]
-    return summarize(latencies, clients, seconds, server_cpu,
-                     sum(cpu for _, cpu in results) / seconds)
+    latencies = [x for lat, _, _ in results for x in lat]
+    sequences = [x for _, seq, _ in results for x in seq]
+    return {**summarize(latencies, clients, seconds, server_cpu,
+                        sum(cpu for _, _, cpu in results) / seconds),
+            **burst_figures(latencies, sequences), "server_sys": server_sys}
+
+
+def burst_figures(latencies: list[list[float]], sequences: list[list[int]]) -> dict:
+    """Where a vector's latency goes (ms, medians over the vectors every client could get):
+    ``first``, capture to its first copy's receipt (measuring, relay, the first write);
+    ``burst``, its first copy's receipt to its 99th-percentile copy's (writing it to every
+    client and the clients reading it: the fan-out)."""
+    by_sequence: dict[int, list[float]] = {}
+    for lat, seq in zip(latencies, sequences, strict=True):
+        for latency_s, sequence in zip(lat, seq, strict=True):
+            by_sequence.setdefault(sequence, []).append(latency_s)
+    if not by_sequence:
+        return {"first": float("nan"), "burst": float("nan")}
+    most = max(len(v) for v in by_sequence.values())
+    # Vectors at the run's edges reached only the clients still (or already) measuring.
+    whole = [np.asarray(v) * 1e3 for v in by_sequence.values() if len(v) >= 0.9 * most]
+    return {"first": float(np.median([v.min() for v in whole])),
+            "burst": float(np.median([np.percentile(v, 99) - v.min() for v in whole]))}
 
 
 async def wait_for_first_vector(base: str) -> None:
@@ -329,7 +362,8 @@ def framing_costs(lights: int = 400, repeats: int = 20000) -> None:
 
 async def main_async(levels: list[int], seconds: float, protocols: list[int] | None = None,
                      workers: int = 1, broker: str = "", client_processes: int = 1,
-                     client_libs: tuple[str, ...] = ("aiohttp",), rounds: int = 1) -> None:
+                     client_libs: tuple[str, ...] = ("aiohttp",), rounds: int = 1,
+                     server_loop: str = "asyncio") -> None:
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         build = make_build(tmp / "build", lights=400, scene_id="bench")
@@ -347,7 +381,7 @@ async def main_async(levels: list[int], seconds: float, protocols: list[int] | N
             extra = ("--workers", str(workers))
         if broker:
             extra += ("--broker", broker)
-        proc = start_server(build, frames, port, extra)
+        proc = start_server(build, frames, port, extra, server_loop)
         try:
             url = f"http://127.0.0.1:{port}/ws/light"
             await wait_for_first_vector(f"http://127.0.0.1:{port}")
@@ -359,10 +393,12 @@ async def main_async(levels: list[int], seconds: float, protocols: list[int] | N
             print(f"400 lights ({12 * 400 + 74} bytes a vector), 1280x960 JPEG replay at "
                   f"{RATE_HZ:g} Hz, {seconds:g} s a level, loopback, 2 cores shared")
             print(f"workers: {workers}, broker: {broker or 'none'}, client processes: "
-                  f"{client_processes}\n")
+                  f"{client_processes}, server event loop: {server_loop}\n")
             print(f"{'round':>5} {'client lib':>10} {'clients':>7} {'vec/s each':>10} "
                   f"{'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'>=90% of vectors':>16} "
-                  f"{'server CPU':>10} {'client CPU':>10} {'msg/s per server core':>21} "
+                  f"{'1st copy ms':>11} {'burst ms':>8} "
+                  f"{'server CPU':>10} {'of it kernel':>12} {'client CPU':>10} "
+                  f"{'msg/s per server core':>21} "
                   f"{'load avg 1 min':>14}")
             for round_ in range(rounds):
                 # Interleaved: each level's client libraries, in the other order each round.
@@ -377,7 +413,11 @@ async def main_async(levels: list[int], seconds: float, protocols: list[int] | N
                             r = await run_level(url, n, seconds, proc.pid)
                         print(f"{round_ + 1:5d} {lib:>10} {r['clients']:7d} {r['rate']:10.2f} "
                               f"{r['p50']:7.1f} {r['p99']:7.1f} {r['max']:7.1f} "
-                              f"{r['full']:10d}/{n:<5} {100 * r['server_cpu']:9.0f}% "
+                              f"{r['full']:10d}/{n:<5} "
+                              f"{r.get('first', float('nan')):11.1f} "
+                              f"{r.get('burst', float('nan')):8.1f} "
+                              f"{100 * r['server_cpu']:9.0f}% "
+                              f"{100 * r.get('server_sys', float('nan')):11.0f}% "
                               f"{100 * r['client_cpu']:9.0f}% "
                               f"{r['clients'] * r['rate'] / max(r['server_cpu'], 1e-9):21.0f} "
                               f"{os.getloadavg()[0]:14.2f}", flush=True)
@@ -431,6 +471,8 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=1,
                         help="repeat every level this many times (libraries in the other "
                         "order each round)")
+    parser.add_argument("--server-loop", choices=("asyncio", "uvloop"), default="asyncio",
+                        help="the server's event loop (uvloop: an experiment, set from outside)")
     args = parser.parse_args()
     client_libs = tuple(args.client_lib.split(","))
     for lib in client_libs:
@@ -447,7 +489,7 @@ def main() -> None:
     protocols = [int(x) for x in args.protocols.split(",") if x]
     asyncio.run(main_async([int(x) for x in args.levels.split(",")], args.seconds, protocols,
                            args.workers, args.broker, args.client_processes, client_libs,
-                           args.rounds))
+                           args.rounds, args.server_loop))
 
 
 if __name__ == "__main__":
