@@ -27,7 +27,17 @@ Several processes (issue 19): ``--workers N`` serves with N fan-out workers fed 
 measuring process (its Unix socket), ``--broker redis`` through a ``redis-server`` this script
 starts on a free port (``--broker redis://HOST:PORT/DB``: an existing one), and
 ``--client-processes K`` spreads the clients over K processes of their own. Server CPU is
-then the sum over the measuring process, its workers (and Redis).
+then the sum over the measuring process, its workers (and Redis), with its kernel share.
+
+Clients (``stream_clients.py``): ``--client-lib aiohttp`` (the default) or ``picows`` (Cython,
+on uvloop: clients cheap enough that 10,000 of them do not hide the server's latency), or
+``aiohttp,picows``: each level once per library against the same server, interleaved,
+``--rounds N`` times (the order swapped each round). Both time a message's receipt the same
+way. With client processes, each vector's first copy's latency and its burst (first copy to
+99th-percentile copy) are printed too, and every row ends with the load average.
+``--server-loop uvloop`` runs the server on uvloop (an experiment, through a sitecustomize).
+Example, the 10,000-client level: ``--levels 10000 --rate-hz 2 --client-processes 2
+--client-lib aiohttp,picows --rounds 2``.
 """
 
 from __future__ import annotations
