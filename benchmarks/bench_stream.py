@@ -353,9 +353,39 @@ def framing_costs(lights: int = 400, repeats: int = 20000) -> None:
             b.close()
         return spent / n * 1e6
 
+    def tcp_fanout_send_us(frame: bytes, sockets: int = 5000, rounds: int = 5
+                           ) -> tuple[float, float]:
+        """The frame sent once to each of ``sockets`` loopback TCP connections, as a fan-out
+        burst does (no asyncio, no aiohttp: the floor of a burst): (wall, system CPU) us
+        per send, medians over ``rounds``. On loopback the kernel also runs the receiving
+        side's TCP in the sender's system call."""
+        listener = socket.create_server(("127.0.0.1", 0), backlog=4096)
+        pairs, walls, systems = [], [], []
+        try:
+            for _ in range(sockets):
+                client = socket.create_connection(listener.getsockname())
+                server_side, _ = listener.accept()
+                server_side.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                pairs.append((server_side, client))
+            for _ in range(rounds):
+                sys0, t0 = resource.getrusage(resource.RUSAGE_SELF).ru_stime, time.perf_counter()
+                for server_side, _ in pairs:
+                    server_side.send(frame)
+                walls.append((time.perf_counter() - t0) / sockets * 1e6)
+                systems.append((resource.getrusage(resource.RUSAGE_SELF).ru_stime - sys0)
+                               / sockets * 1e6)
+                for _, client in pairs:
+                    client.recv(1 << 16)
+        finally:
+            listener.close()
+            for a, b in pairs:
+                a.close()
+                b.close()
+        return float(np.median(walls)), float(np.median(systems))
+
     print(f"Per message and per client, {lights} lights, {repeats} calls each (this process):")
     print(f"{'protocol':>8} {'bytes':>6} {'encode once us':>14} {'send_bytes us':>13} "
-          f"{'header+copy us':>14} {'socket send us':>14}")
+          f"{'header+copy us':>14} {'socket send us':>14} {'TCP x5000 us (sys)':>18}")
     for version in (2, 3):
         data = protocol.encode_light(sky, sat, 1, 2.0, version=version, sun=sun)
         encode_us = per_call_us(lambda v=version: protocol.encode_light(
@@ -365,8 +395,9 @@ def framing_costs(lights: int = 400, repeats: int = 20000) -> None:
         copy_us = per_call_us(lambda d=data: struct.pack("!BBH", 0x82, 126, len(d)) + d, repeats)
         frame = struct.pack("!BBH", 0x82, 126, len(data)) + data
         kernel_us = socket_send_us(frame, repeats // 4)
+        tcp_us, tcp_sys_us = tcp_fanout_send_us(frame)
         print(f"{version:8d} {len(data):6d} {encode_us:14.1f} {send_us:13.2f} {copy_us:14.2f} "
-              f"{kernel_us:14.2f}")
+              f"{kernel_us:14.2f} {tcp_us:9.2f} ({tcp_sys_us:5.2f})")
     print()
 
 
