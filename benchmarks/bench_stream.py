@@ -27,7 +27,17 @@ Several processes (issue 19): ``--workers N`` serves with N fan-out workers fed 
 measuring process (its Unix socket), ``--broker redis`` through a ``redis-server`` this script
 starts on a free port (``--broker redis://HOST:PORT/DB``: an existing one), and
 ``--client-processes K`` spreads the clients over K processes of their own. Server CPU is
-then the sum over the measuring process, its workers (and Redis).
+then the sum over the measuring process, its workers (and Redis), with its kernel share.
+
+Clients (``stream_clients.py``): ``--client-lib aiohttp`` (the default) or ``picows`` (Cython,
+on uvloop: clients cheap enough that 10,000 of them do not hide the server's latency), or
+``aiohttp,picows``: each level once per library against the same server, interleaved,
+``--rounds N`` times (the order swapped each round). Both time a message's receipt the same
+way. With client processes, each vector's first copy's latency and its burst (first copy to
+99th-percentile copy) are printed too, and every row ends with the load average.
+``--server-loop uvloop`` runs the server on uvloop (an experiment, through a sitecustomize).
+Example, the 10,000-client level: ``--levels 10000 --rate-hz 2 --client-processes 2
+--client-lib aiohttp,picows --rounds 2``.
 """
 
 from __future__ import annotations
@@ -53,11 +63,16 @@ import aiohttp  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
+from benchmarks.stream_clients import (  # noqa: E402
+    CLIENT_LIBS,
+    Receipts,
+    make_clients,
+    run_loop,
+)
 from server.fisheye import FisheyeCamera  # noqa: E402
 from server.simsky import SimulatedSky  # noqa: E402
 from tests.server.conftest import make_build  # noqa: E402
 
-HEADER = struct.Struct("<4sBBHIId")
 RATE_HZ = 10.0  # the replay's and so the vectors' rate; --rate-hz sets it
 MAX_CLIENTS = 12000  # per server process: above the largest level
 
@@ -77,8 +92,11 @@ def make_frames(folder: Path, count: int = 10) -> None:
         cv2.imwrite(str(folder / f"{k:03d}.jpg"), bgr, [cv2.IMWRITE_JPEG_QUALITY, 92])
 
 
-def start_server(build: Path, frames: Path, port: int, extra: tuple[str, ...] = ()
-                 ) -> subprocess.Popen:
+def start_server(build: Path, frames: Path, port: int, extra: tuple[str, ...] = (),
+                 server_loop: str = "asyncio") -> subprocess.Popen:
+    """``daylit serve`` on the frames in ``frames``; ``server_loop`` "uvloop" runs it (and its
+    workers, which inherit the environment) on uvloop through a ``sitecustomize`` that
+    installs uvloop's event loop policy: an experiment, not a server setting."""
     cmd = [
         sys.executable, "-m", "daylit.cli", "serve", str(build), "--host", "127.0.0.1",
         "--port", str(port), "--sky", f"replay:{frames}", "--log-level", "warning",
@@ -89,8 +107,16 @@ def start_server(build: Path, frames: Path, port: int, extra: tuple[str, ...] = 
         "--set", "server.max_connections_per_address=10000",
         *extra,
     ]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, cwd=ROOT,
-                            env=dict(os.environ, PYTHONUNBUFFERED="1"))
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    if server_loop == "uvloop":
+        site = build.parent / "uvloop_site"
+        site.mkdir(exist_ok=True)
+        (site / "sitecustomize.py").write_text(
+            "import asyncio\nimport uvloop\n\n"
+            "asyncio.set_event_loop_policy(uvloop.EventLoopPolicy())\n")
+        env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(site),
+                                                          env.get("PYTHONPATH", "")]))
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, cwd=ROOT, env=env)
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline:
         line = proc.stdout.readline()
@@ -102,10 +128,11 @@ def start_server(build: Path, frames: Path, port: int, extra: tuple[str, ...] = 
     raise SystemExit("the server did not start")
 
 
-def cpu_seconds(pid: int) -> float:
-    """User + system CPU time of a process (Linux /proc)."""
+def cpu_seconds(pid: int, system_only: bool = False) -> float:
+    """User + system CPU time of a process (Linux /proc); ``system_only``: the kernel's part
+    (system calls: the sockets' sends, and on loopback the receiving side's TCP work)."""
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    return (int(fields[12]) + (0 if system_only else int(fields[11]))) / os.sysconf("SC_CLK_TCK")
 
 
 def process_tree(pid: int) -> list[int]:
@@ -119,11 +146,11 @@ def process_tree(pid: int) -> list[int]:
     return out
 
 
-def tree_cpu_seconds(pids: list[int]) -> float:
+def tree_cpu_seconds(pids: list[int], system_only: bool = False) -> float:
     total = 0.0
     for pid in pids:
         with contextlib.suppress(FileNotFoundError, ProcessLookupError):
-            total += cpu_seconds(pid)
+            total += cpu_seconds(pid, system_only)
     return total
 
 
@@ -144,55 +171,27 @@ def start_redis(port: int) -> subprocess.Popen:
     raise SystemExit("redis-server did not start")
 
 
-async def open_clients(session: aiohttp.ClientSession, url: str, clients: int, measuring: dict,
-                       sizes: set[int] | None = None):
-    """Connect ``clients`` light streams (100 at a time) and listen on each: while
-    ``measuring["on"]``, each LIGHT message's capture-to-receipt latency (s) is appended to its
-    client's list (and its size to ``sizes``). Returns (sockets, listening tasks, latencies)."""
-    latencies: list[list[float]] = [[] for _ in range(clients)]
-
-    async def listen(ws, k):
-        async for msg in ws:
-            if msg.type == aiohttp.WSMsgType.BINARY and measuring["on"]:
-                _, _, mtype, _, _, _, captured = HEADER.unpack_from(msg.data)
-                if mtype == 1:
-                    latencies[k].append(time.time() - captured)
-                    if sizes is not None:
-                        sizes.add(len(msg.data))
-
-    sockets = []
-    for start in range(0, clients, 100):
-        batch = range(start, min(start + 100, clients))
-        sockets += await asyncio.gather(*(session.ws_connect(url) for _ in batch))
-    tasks = [asyncio.create_task(listen(ws, k)) for k, ws in enumerate(sockets)]
-    return sockets, tasks, latencies
-
-
-async def close_clients(sockets, tasks) -> None:
-    await asyncio.gather(*(ws.close() for ws in sockets), return_exceptions=True)
-    for task in tasks:
-        task.cancel()
-    await asyncio.gather(*tasks, return_exceptions=True)
-
-
-def _client_process(url: str, clients: int, seconds: float, go_event, out) -> None:
-    """One client process of ``run_level_processes``: its latencies (s) and CPU seconds."""
+def _client_process(url: str, clients: int, seconds: float, go_event, out,
+                    client_lib: str = "aiohttp") -> None:
+    """One client process of ``run_level_processes``: its latencies (s) and CPU seconds.
+    ``client_lib``: aiohttp, or picows on uvloop (``stream_clients``; the same receipt
+    timing for both)."""
 
     async def go():
-        measuring = {"on": False}
-        async with aiohttp.ClientSession(connector=aiohttp.TCPConnector(limit=0)) as session:
-            sockets, tasks, latencies = await open_clients(session, url, clients, measuring)
-            out.put("connected")
-            await asyncio.to_thread(go_event.wait)  # every process connected, warmed up
-            measuring["on"] = True
-            cpu0 = time.process_time()
-            await asyncio.sleep(seconds)
-            measuring["on"] = False
-            cpu = time.process_time() - cpu0
-            await close_clients(sockets, tasks)
-        return latencies, cpu
+        receipts = Receipts(clients, keep_sequences=True)
+        conns = make_clients(client_lib, url, receipts)
+        await conns.open(clients)
+        out.put("connected")
+        await asyncio.to_thread(go_event.wait)  # every process connected, warmed up
+        receipts.measuring = True
+        cpu0 = time.process_time()
+        await asyncio.sleep(seconds)
+        receipts.measuring = False
+        cpu = time.process_time() - cpu0
+        await conns.close()
+        return receipts.latencies_s, receipts.sequences, cpu
 
-    out.put(asyncio.run(go()))
+    out.put(run_loop(client_lib, go()))
 
 
 def summarize(latencies: list[list[float]], clients: int, seconds: float, server_cpu: float,
@@ -214,15 +213,18 @@ def summarize(latencies: list[list[float]], clients: int, seconds: float, server
 
 
 async def run_level_processes(url: str, clients: int, seconds: float, server_pid: int,
-                              processes: int, extra_pids: tuple[int, ...] = ()) -> dict:
-    """As :func:`run_level`, the clients spread over ``processes`` processes."""
+                              processes: int, extra_pids: tuple[int, ...] = (),
+                              client_lib: str = "aiohttp") -> dict:
+    """As :func:`run_level`, the clients spread over ``processes`` processes of
+    ``client_lib`` clients."""
     import multiprocessing as mp
 
     ctx = mp.get_context("spawn")
     queue = ctx.Queue()
     go_event = ctx.Event()
     shares = [clients // processes + (i < clients % processes) for i in range(processes)]
-    procs = [ctx.Process(target=_client_process, args=(url, n, seconds, go_event, queue))
+    procs = [ctx.Process(target=_client_process, args=(url, n, seconds, go_event, queue,
+                                                       client_lib))
              for n in shares if n]
     for p in procs:
         p.start()
@@ -230,17 +232,38 @@ async def run_level_processes(url: str, clients: int, seconds: float, server_pid
         assert await asyncio.to_thread(queue.get, True, 300) == "connected"
     await asyncio.sleep(1.0)  # warm-up, as run_level
     pids = process_tree(server_pid) + list(extra_pids)
-    cpu0, t0 = tree_cpu_seconds(pids), time.monotonic()
+    cpu0, sys0, t0 = tree_cpu_seconds(pids), tree_cpu_seconds(pids, True), time.monotonic()
     go_event.set()
     await asyncio.sleep(seconds)
     wall = time.monotonic() - t0
     server_cpu = (tree_cpu_seconds(pids) - cpu0) / wall
+    server_sys = (tree_cpu_seconds(pids, True) - sys0) / wall
     results = [await asyncio.to_thread(queue.get, True, 120) for _ in procs]
     for p in procs:
         p.join(30)
-    latencies = [x for lat, _ in results for x in lat]
-    return summarize(latencies, clients, seconds, server_cpu,
-                     sum(cpu for _, cpu in results) / seconds)
+    latencies = [x for lat, _, _ in results for x in lat]
+    sequences = [x for _, seq, _ in results for x in seq]
+    return {**summarize(latencies, clients, seconds, server_cpu,
+                        sum(cpu for _, _, cpu in results) / seconds),
+            **burst_figures(latencies, sequences), "server_sys": server_sys}
+
+
+def burst_figures(latencies: list[list[float]], sequences: list[list[int]]) -> dict:
+    """Where a vector's latency goes (ms, medians over the vectors every client could get):
+    ``first``, capture to its first copy's receipt (measuring, relay, the first write);
+    ``burst``, its first copy's receipt to its 99th-percentile copy's (writing it to every
+    client and the clients reading it: the fan-out)."""
+    by_sequence: dict[int, list[float]] = {}
+    for lat, seq in zip(latencies, sequences, strict=True):
+        for latency_s, sequence in zip(lat, seq, strict=True):
+            by_sequence.setdefault(sequence, []).append(latency_s)
+    if not by_sequence:
+        return {"first": float("nan"), "burst": float("nan")}
+    most = max(len(v) for v in by_sequence.values())
+    # Vectors at the run's edges reached only the clients still (or already) measuring.
+    whole = [np.asarray(v) * 1e3 for v in by_sequence.values() if len(v) >= 0.9 * most]
+    return {"first": float(np.median([v.min() for v in whole])),
+            "burst": float(np.median([np.percentile(v, 99) - v.min() for v in whole]))}
 
 
 async def wait_for_first_vector(base: str) -> None:
@@ -255,19 +278,20 @@ async def wait_for_first_vector(base: str) -> None:
 
 
 async def run_level(url: str, clients: int, seconds: float, server_pid: int) -> dict:
-    measuring = {"on": False}
-    sizes: set[int] = set()
-    async with aiohttp.ClientSession(connector=aiohttp.TCPConnector(limit=0)) as session:
-        sockets, tasks, latencies = await open_clients(session, url, clients, measuring, sizes)
-        await asyncio.sleep(1.0)
-        measuring["on"] = True
-        cpu0, own0, t0 = cpu_seconds(server_pid), time.process_time(), time.monotonic()
-        await asyncio.sleep(seconds)
-        measuring["on"] = False
-        wall = time.monotonic() - t0
-        server_cpu = (cpu_seconds(server_pid) - cpu0) / wall
-        client_cpu = (time.process_time() - own0) / wall
-        await close_clients(sockets, tasks)
+    """One level with aiohttp clients in this process (``--client-processes 1``)."""
+    receipts = Receipts(clients)
+    conns = make_clients("aiohttp", url, receipts)
+    await conns.open(clients)
+    await asyncio.sleep(1.0)
+    receipts.measuring = True
+    cpu0, own0, t0 = cpu_seconds(server_pid), time.process_time(), time.monotonic()
+    await asyncio.sleep(seconds)
+    receipts.measuring = False
+    wall = time.monotonic() - t0
+    server_cpu = (cpu_seconds(server_pid) - cpu0) / wall
+    client_cpu = (time.process_time() - own0) / wall
+    await conns.close()
+    latencies, sizes = receipts.latencies_s, receipts.sizes
     return {
         **summarize(latencies, clients, seconds, server_cpu, client_cpu),
         "bytes": sorted(sizes),
@@ -329,9 +353,39 @@ def framing_costs(lights: int = 400, repeats: int = 20000) -> None:
             b.close()
         return spent / n * 1e6
 
+    def tcp_fanout_send_us(frame: bytes, sockets: int = 5000, rounds: int = 5
+                           ) -> tuple[float, float]:
+        """The frame sent once to each of ``sockets`` loopback TCP connections, as a fan-out
+        burst does (no asyncio, no aiohttp: the floor of a burst): (wall, system CPU) us
+        per send, medians over ``rounds``. On loopback the kernel also runs the receiving
+        side's TCP in the sender's system call."""
+        listener = socket.create_server(("127.0.0.1", 0), backlog=4096)
+        pairs, walls, systems = [], [], []
+        try:
+            for _ in range(sockets):
+                client = socket.create_connection(listener.getsockname())
+                server_side, _ = listener.accept()
+                server_side.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                pairs.append((server_side, client))
+            for _ in range(rounds):
+                sys0, t0 = resource.getrusage(resource.RUSAGE_SELF).ru_stime, time.perf_counter()
+                for server_side, _ in pairs:
+                    server_side.send(frame)
+                walls.append((time.perf_counter() - t0) / sockets * 1e6)
+                systems.append((resource.getrusage(resource.RUSAGE_SELF).ru_stime - sys0)
+                               / sockets * 1e6)
+                for _, client in pairs:
+                    client.recv(1 << 16)
+        finally:
+            listener.close()
+            for a, b in pairs:
+                a.close()
+                b.close()
+        return float(np.median(walls)), float(np.median(systems))
+
     print(f"Per message and per client, {lights} lights, {repeats} calls each (this process):")
     print(f"{'protocol':>8} {'bytes':>6} {'encode once us':>14} {'send_bytes us':>13} "
-          f"{'header+copy us':>14} {'socket send us':>14}")
+          f"{'header+copy us':>14} {'socket send us':>14} {'TCP x5000 us (sys)':>18}")
     for version in (2, 3):
         data = protocol.encode_light(sky, sat, 1, 2.0, version=version, sun=sun)
         encode_us = per_call_us(lambda v=version: protocol.encode_light(
@@ -341,13 +395,16 @@ def framing_costs(lights: int = 400, repeats: int = 20000) -> None:
         copy_us = per_call_us(lambda d=data: struct.pack("!BBH", 0x82, 126, len(d)) + d, repeats)
         frame = struct.pack("!BBH", 0x82, 126, len(data)) + data
         kernel_us = socket_send_us(frame, repeats // 4)
+        tcp_us, tcp_sys_us = tcp_fanout_send_us(frame)
         print(f"{version:8d} {len(data):6d} {encode_us:14.1f} {send_us:13.2f} {copy_us:14.2f} "
-              f"{kernel_us:14.2f}")
+              f"{kernel_us:14.2f} {tcp_us:9.2f} ({tcp_sys_us:5.2f})")
     print()
 
 
 async def main_async(levels: list[int], seconds: float, protocols: list[int] | None = None,
-                     workers: int = 1, broker: str = "", client_processes: int = 1) -> None:
+                     workers: int = 1, broker: str = "", client_processes: int = 1,
+                     client_libs: tuple[str, ...] = ("aiohttp",), rounds: int = 1,
+                     server_loop: str = "asyncio") -> None:
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         build = make_build(tmp / "build", lights=400, scene_id="bench")
@@ -365,7 +422,7 @@ async def main_async(levels: list[int], seconds: float, protocols: list[int] | N
             extra = ("--workers", str(workers))
         if broker:
             extra += ("--broker", broker)
-        proc = start_server(build, frames, port, extra)
+        proc = start_server(build, frames, port, extra, server_loop)
         try:
             url = f"http://127.0.0.1:{port}/ws/light"
             await wait_for_first_vector(f"http://127.0.0.1:{port}")
@@ -377,20 +434,34 @@ async def main_async(levels: list[int], seconds: float, protocols: list[int] | N
             print(f"400 lights ({12 * 400 + 74} bytes a vector), 1280x960 JPEG replay at "
                   f"{RATE_HZ:g} Hz, {seconds:g} s a level, loopback, 2 cores shared")
             print(f"workers: {workers}, broker: {broker or 'none'}, client processes: "
-                  f"{client_processes}\n")
-            print(f"{'clients':>7} {'vec/s each':>10} {'p50 ms':>7} {'p99 ms':>7} "
-                  f"{'max ms':>7} {'>=90% of vectors':>16} {'server CPU':>10} {'client CPU':>10} "
-                  f"{'msg/s per server core':>21}")
-            for n in levels:
-                if client_processes > 1 or workers > 1 or broker:
-                    r = await run_level_processes(url, n, seconds, proc.pid, client_processes,
-                                                  (redis.pid,) if redis else ())
-                else:
-                    r = await run_level(url, n, seconds, proc.pid)
-                print(f"{r['clients']:7d} {r['rate']:10.2f} {r['p50']:7.1f} {r['p99']:7.1f} "
-                      f"{r['max']:7.1f} {r['full']:10d}/{n:<5} {100 * r['server_cpu']:9.0f}% "
-                      f"{100 * r['client_cpu']:9.0f}% "
-                      f"{r['clients'] * r['rate'] / max(r['server_cpu'], 1e-9):21.0f}", flush=True)
+                  f"{client_processes}, server event loop: {server_loop}\n")
+            print(f"{'round':>5} {'client lib':>10} {'clients':>7} {'vec/s each':>10} "
+                  f"{'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'>=90% of vectors':>16} "
+                  f"{'1st copy ms':>11} {'burst ms':>8} "
+                  f"{'server CPU':>10} {'of it kernel':>12} {'client CPU':>10} "
+                  f"{'msg/s per server core':>21} "
+                  f"{'load avg 1 min':>14}")
+            for round_ in range(rounds):
+                # Interleaved: each level's client libraries, in the other order each round.
+                libs = client_libs if round_ % 2 == 0 else client_libs[::-1]
+                for n in levels:
+                    for lib in libs:
+                        if client_processes > 1 or workers > 1 or broker or lib != "aiohttp":
+                            r = await run_level_processes(
+                                url, n, seconds, proc.pid, client_processes,
+                                (redis.pid,) if redis else (), lib)
+                        else:
+                            r = await run_level(url, n, seconds, proc.pid)
+                        print(f"{round_ + 1:5d} {lib:>10} {r['clients']:7d} {r['rate']:10.2f} "
+                              f"{r['p50']:7.1f} {r['p99']:7.1f} {r['max']:7.1f} "
+                              f"{r['full']:10d}/{n:<5} "
+                              f"{r.get('first', float('nan')):11.1f} "
+                              f"{r.get('burst', float('nan')):8.1f} "
+                              f"{100 * r['server_cpu']:9.0f}% "
+                              f"{100 * r.get('server_sys', float('nan')):11.0f}% "
+                              f"{100 * r['client_cpu']:9.0f}% "
+                              f"{r['clients'] * r['rate'] / max(r['server_cpu'], 1e-9):21.0f} "
+                              f"{os.getloadavg()[0]:14.2f}", flush=True)
         finally:
             proc.terminate()
             proc.wait(timeout=30)
@@ -434,7 +505,20 @@ def main() -> None:
     parser.add_argument("--rate-hz", type=float, default=RATE_HZ,
                         help="vectors a second (the replay's frame rate); e.g. 2 for the "
                         "10,000-client level")
+    parser.add_argument("--client-lib", default="aiohttp",
+                        help="the clients' WebSocket library, one of "
+                        f"{','.join(CLIENT_LIBS)} (picows runs on uvloop), or several "
+                        "separated by commas: each level once per library, interleaved")
+    parser.add_argument("--rounds", type=int, default=1,
+                        help="repeat every level this many times (libraries in the other "
+                        "order each round)")
+    parser.add_argument("--server-loop", choices=("asyncio", "uvloop"), default="asyncio",
+                        help="the server's event loop (uvloop: an experiment, set from outside)")
     args = parser.parse_args()
+    client_libs = tuple(args.client_lib.split(","))
+    for lib in client_libs:
+        if lib not in CLIENT_LIBS:
+            parser.error(f"--client-lib: {lib!r} is not one of {', '.join(CLIENT_LIBS)}")
     RATE_HZ = args.rate_hz
     # SIGTERM (a killed run) unwinds like Ctrl-C, so the server it started is stopped too.
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
@@ -445,7 +529,8 @@ def main() -> None:
         framing_costs()
     protocols = [int(x) for x in args.protocols.split(",") if x]
     asyncio.run(main_async([int(x) for x in args.levels.split(",")], args.seconds, protocols,
-                           args.workers, args.broker, args.client_processes))
+                           args.workers, args.broker, args.client_processes, client_libs,
+                           args.rounds, args.server_loop))
 
 
 if __name__ == "__main__":
