@@ -30,23 +30,9 @@ import numpy as np  # noqa: E402
 
 def _bake(root: Path) -> Path:
     from bake.pipeline import bake
-    from tests.sites import box, make_site, real_box
+    from tests.sites import scene_estimate_site
 
-    scene = make_site(
-        root / "scene",
-        virtual=[("sign", box([1.0, 1.0, 1.0], [10.0, 0.0, 12.0]), (0.5, 0.5, 0.5))],
-        real=real_box("building", (8.0, 5.0, 6.0), (0.0, 0.0, 0.0), (0.55, 0.45, 0.35))
-        + real_box("wall", (0.4, 2.0, 9.0), (-8.0, 0.0, -6.0), (0.40, 0.42, 0.45)),
-        views="""
-            [[view]]
-            name = "kiosk"
-            width = 320
-            height = 180
-            fov_y_deg = 45.0
-            position_m = [3.0, 7.0, -24.0]
-            look_at_m = [0.0, 0.5, -3.0]
-            """,
-        ground_m=60.0, ground_albedo=(0.22, 0.20, 0.18))
+    scene = scene_estimate_site(root / "scene")
     bake(scene, root / "build", progress=False, log=lambda msg: None)
     return root / "build"
 

@@ -132,3 +132,27 @@ def box(size, base_center) -> trimesh.Trimesh:
     m = trimesh.creation.box(extents=size)
     m.apply_translation([base_center[0], base_center[1] + size[1] / 2, base_center[2]])
     return m
+
+
+def scene_estimate_site(folder: Path) -> Path:
+    """The scene estimate's test site in ``folder`` (the scene folder, returned): a real
+    building (8 x 5 x 6 m, albedo 0.55/0.45/0.35) and wall, a small virtual box out of the way,
+    a kiosk view from the north, ground albedo 0.22/0.20/0.18 (tests/server/conftest.py
+    ``scene_build``, the phone estimate's tests and benchmark)."""
+    return make_site(
+        folder,
+        virtual=[("sign", box([1.0, 1.0, 1.0], [10.0, 0.0, 12.0]), (0.5, 0.5, 0.5))],
+        real=real_box("building", (8.0, 5.0, 6.0), (0.0, 0.0, 0.0), (0.55, 0.45, 0.35))
+        + real_box("wall", (0.4, 2.0, 9.0), (-8.0, 0.0, -6.0), (0.40, 0.42, 0.45)),
+        views="""
+            [[view]]
+            name = "kiosk"
+            width = 320
+            height = 180
+            fov_y_deg = 45.0
+            position_m = [3.0, 7.0, -24.0]
+            look_at_m = [0.0, 0.5, -3.0]
+            """,
+        ground_m=60.0,
+        ground_albedo=(0.22, 0.20, 0.18),
+    )
