@@ -211,9 +211,14 @@ export class PhoneEstimator {
       || new THREE.Quaternion().setFromRotationMatrix(m).angleTo(new THREE.Quaternion().setFromRotationMatrix(p.m)) > POSE_TOLERANCE_DEG * Math.PI / 180
       || Math.abs(camera.fov - p.fov) > 0.01 || Math.abs(camera.aspect - p.aspect) > 0.001 || w !== p.w || h !== p.h;
     if (moved) {
-      this.pool = poolForPose(this.proxies, camera, w, h, this.farAlbedo, 1 + this.poses);
+      // A new view starts afresh: its pool, its random draws and its followed shares depend on
+      // the pose alone, not on how many views or estimates came before (a test's result must
+      // not depend on how many estimates the machine managed before the pose was set).
+      this.pool = poolForPose(this.proxies, camera, w, h, this.farAlbedo, 1);
       this._pose = { m, fov: camera.fov, aspect: camera.aspect, w, h };
       this._sun = null;
+      this._share.clear();
+      this.rand = mulberry32(7);
       this.poses += 1;
     }
     return this.pool;
