@@ -264,9 +264,9 @@ class SceneEstimator:
 
     def _best_overcast_fit(self, sun_dir: np.ndarray, frame: _FrameSamples) -> SceneLight:
         """The overcast shape that explains the frames best without a sun (the sky-alone
-        residual, followed across frames), fitted with it; the
-        surfaces' albedo scales as that fit left them (each shape's fit starts from the same
-        scales: one shape's refit must not steer the other's)."""
+        residual, followed across frames), fitted with it; the surfaces' albedo scales as that
+        fit left them (each shape's fit starts from the same scales: one shape's refit must
+        not steer the other's)."""
         before = copy.deepcopy(self._surface_scales)
         fits = []
         for sky_type in OVERCAST_TYPES:
@@ -327,13 +327,13 @@ class SceneEstimator:
             both = np.column_stack([a_rgb[:, ch], sky_col[:, ch]])
             sun_rgb[ch], sky_rgb[ch] = weighted_nonneg(both, values[:, ch], weights)
             with_sun += _weighted_mse(values[:, ch], both @ [sun_rgb[ch], sky_rgb[ch]],
-                                           weights)
+                                      weights)
             sky_alone_rgb[ch] = weighted_nonneg(sky_col[:, ch:ch + 1], values[:, ch],
                                                 weights)[0]
             sky_alone += _weighted_mse(values[:, ch], sky_alone_rgb[ch] * sky_col[:, ch],
-                                            weights)
-        if sky_type in OVERCAST_TYPES and not with_sun < (1.0 - self.sun_significance) * \
-                sky_alone:
+                                       weights)
+        sun_needed = with_sun < (1.0 - self.sun_significance) * sky_alone
+        if sky_type in OVERCAST_TYPES and not sun_needed:
             # Overcast: a small sun that explains little more than the sky alone is the sky
             # model's error, not a sun (Jensen et al.: under heavy cloud, none).
             sun_rgb, sky_rgb = np.zeros(3), sky_alone_rgb
