@@ -410,7 +410,7 @@ class SceneEstimator:
             ratio = float(LUMINANCE_RGB @ result.sun_normal_irradiance) / max(
                 float(LUMINANCE_RGB @ result.sky_horizontal_irradiance), 1e-9)
             new_type = sky_type_for_ratio(ratio)
-            if new_type == sky_type or (new_type in OVERCAST_TYPES and sky_type in OVERCAST_TYPES):
+            if new_type == sky_type:
                 break
             sky_type = new_type
         if self.learn_albedo:
