@@ -408,6 +408,7 @@ export class App {
       this.phoneEstimator ??= new PhoneEstimator([...this.site.nodes.real, ...this.site.nodes.ground], this.assets.manifest.ground.albedo);
       this.phoneLight = new PhoneLight(this.view.video, this.phoneEstimator);
     }
+    if (!this.phoneLight.due(nowS, force)) return null; // the pose and sun only when it reads
     this.view.update(); // the pose the picture is read with
     const sun = this.sunNow();
     if (sun[1] <= 0) return null; // night: nothing to estimate (the last light stays)

@@ -356,10 +356,14 @@ export class PhoneLight {
     this.ms = null; // the last estimate's milliseconds of CPU
   }
 
+  /** @returns {boolean} whether an estimate is due at nowS (s) and the video has a frame */
+  due(nowS, force = false) {
+    return (force || nowS - this.lastS >= ESTIMATE_PERIOD_S) && this.video.readyState >= 2;
+  }
+
   /** @returns {object|null} a new estimate, or null (not due, no frame, nothing to read) */
   read(camera, sun, nowS, force = false) {
-    if (!force && nowS - this.lastS < ESTIMATE_PERIOD_S) return null;
-    if (this.video.readyState < 2) return null;
+    if (!this.due(nowS, force)) return null;
     this.lastS = nowS;
     const t0 = performance.now();
     const [w, h] = ESTIMATE_SIZE;
