@@ -51,6 +51,12 @@ function gpuNames(app) {
 }
 
 export function debugApi(app) {
+  /** The camera's world matrix (16, column-major), vertical field of view (degrees) and aspect
+   * as they are now (without updating the view). */
+  const drawnPose = () => {
+    app.camera.updateMatrixWorld();
+    return { matrixWorld: app.camera.matrixWorld.toArray(), fovDeg: app.camera.fov, aspect: app.camera.aspect };
+  };
   /** For each canvas pixel [x, y] (CSS px), `perPixel(hits, raycaster)` of the visible site's
    * surfaces along its ray (three's Raycaster, nearest first). */
   const siteHits = (pixels, perPixel) => {
@@ -228,18 +234,13 @@ export function debugApi(app) {
      * view, degrees (camera mode: from the standpoint and the device's orientation). */
     cameraPose: () => {
       app.view?.update?.();
-      app.camera.updateMatrixWorld();
-      return { matrixWorld: app.camera.matrixWorld.toArray(), fovDeg: app.camera.fov, aspect: app.camera.aspect };
+      return drawnPose();
     },
     /** The phone's own estimate from the picture now (phoneestimate.js; null: none possible),
      * its light applied as the app applies it, and the pose and sun it was made with. */
     phoneEstimate: () => {
       const estimate = app._estimateLight(performance.now() / 1000, true);
-      app.camera.updateMatrixWorld();
-      return estimate && {
-        ...estimate, sun: app.sunNow(),
-        matrixWorld: app.camera.matrixWorld.toArray(), fovDeg: app.camera.fov, aspect: app.camera.aspect,
-      };
+      return estimate && { ...estimate, sun: app.sunNow(), ...drawnPose() };
     },
     /** Mean milliseconds of n phone estimates (the pose held: pixels and the fit) and of one
      * with the pool of the pose made again; and of n picture meter readings, the same-run

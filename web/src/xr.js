@@ -12,6 +12,11 @@ const GESTURE_CLASS = 'xr-gestures';
 /** A touch that moves less than this, CSS px, and lifts is a tap. */
 const TAP_SLOP_PX = 10;
 
+/** Whether a pointer event is still within the tap's slop of where the tap went down. */
+function withinSlop(tap, e) {
+  return Math.hypot(e.clientX - tap.x, e.clientY - tap.y) <= TAP_SLOP_PX;
+}
+
 export async function arSupported() {
   try {
     return !!(navigator.xr && await navigator.xr.isSessionSupported('immersive-ar'));
@@ -55,7 +60,6 @@ export class XRView {
   }
 
   async init() {
-    const overlay = this.overlay;
     this.renderer.xr.enabled = true;
     this.renderer.xr.setReferenceSpaceType('local-floor');
     await this.renderer.xr.setSession(this.session);
@@ -74,7 +78,7 @@ export class XRView {
     // that meets no element reaches no page code). Each touch on the overlay would also end
     // in an XR select, which would put the site back at the reticle after every drag and
     // twist: the overlay cancels those (beforexrselect) and a tap places the site itself.
-    overlay.classList.add(GESTURE_CLASS);
+    this.overlay.classList.add(GESTURE_CLASS);
     this._beforeSelect = (e) => e.preventDefault();
     this._down = (e) => this._pointerDown(e);
     this._up = (e) => this._pointerUp(e);
@@ -97,8 +101,8 @@ export class XRView {
   _pointerUp(e) {
     if (!this._touches.delete(e.pointerId)) return;
     const tap = this._tap;
-    if (e.type === 'pointerup' && tap?.id === e.pointerId
-        && Math.hypot(e.clientX - tap.x, e.clientY - tap.y) <= TAP_SLOP_PX) {
+    // checked at the lift too: a browser need not send a move for the last stretch
+    if (e.type === 'pointerup' && tap?.id === e.pointerId && withinSlop(tap, e)) {
       this._place();
     }
     if (this._touches.size === 0) this._tap = null;
@@ -122,8 +126,7 @@ export class XRView {
   _gesture(e) {
     const last = this._touches.get(e.pointerId);
     if (!last) return;
-    if (this._tap && (this._touches.size > 1
-        || Math.hypot(e.clientX - this._tap.x, e.clientY - this._tap.y) > TAP_SLOP_PX)) {
+    if (this._tap && (this._touches.size > 1 || !withinSlop(this._tap, e))) {
       this._tap = null; // a drag or a twist, not a tap
     }
     const points = [...this._touches.entries()];
