@@ -25,15 +25,25 @@ READY = "window.daylit.status.ready"
 
 def settled_orbit(page) -> dict:
     """The orbit once the camera stopped moving (OrbitControls' damping runs on for some
-    frames after the fingers lift: waited for, not counted)."""
-    page.wait_for_function("""() => {
-      const o = window.daylit.debug.orbit();
-      const key = o.position.map((v) => v.toFixed(6)).join();
-      const same = window.__lastOrbit === key;
-      window.__lastOrbit = key;
-      return same && !o.autoRotate;
-    }""", polling=200, timeout=60000)
-    return page.evaluate("window.daylit.debug.orbit()")
+    frames after the fingers lift): the same over three frames the page drew in a row, read
+    after the app's own frame callback. Counted in drawn frames, not in time, so a slow
+    machine that draws few frames cannot pass off a pose from before the gesture's first
+    update as settled."""
+    return page.evaluate("""async () => {
+      const frame = () => new Promise((resolve) => requestAnimationFrame(resolve));
+      const limit = performance.now() + 60000;
+      let last = null;
+      let same = 0;
+      while (performance.now() < limit) {
+        await frame();
+        const o = window.daylit.debug.orbit();
+        const key = o.position.map((v) => v.toFixed(6)).join();
+        same = key === last && !o.autoRotate ? same + 1 : 0;
+        last = key;
+        if (same >= 3) return o;
+      }
+      throw new Error('the orbit did not settle within 60 s');
+    }""")
 
 
 def spherical(orbit: dict) -> tuple[float, float, float]:
