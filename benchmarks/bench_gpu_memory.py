@@ -3,6 +3,11 @@
 named by module (debug.gpuBreakdown), in headless Chromium.
 
     python benchmarks/bench_gpu_memory.py BUILD [--profiles phone,desktop] [--top 25]
+    python benchmarks/bench_gpu_memory.py BUILD --formats astc,exact
+
+``--formats``: the phone's hull-plane mode once per texture mode (`?textures=`) and once with
+every array decoded to RGBA8, the exact reference of the same run: the textures' bytes and each
+relit target's difference from the reference (RMS, largest and mean, % of the target's mean).
 
 Per profile (phone: 390 x 844 CSS px at device pixel ratio 3 with touch, the client draws 780 x
 1688 and takes its phone profile; desktop: 960 x 540 at 1) it opens the visit in lightmap mode
@@ -112,6 +117,56 @@ def measure(
     }
 
 
+def relit_targets(browser, server, profile: dict, query: str) -> tuple[dict, dict]:
+    """The phone's hull-plane mode with ``query``: its status and every relit target, (H*W*4,)
+    float32 each."""
+    import base64
+
+    import numpy as np
+
+    context = browser.new_context(
+        viewport={"width": profile["width"], "height": profile["height"]},
+        device_scale_factor=profile["dpr"], is_mobile=profile["mobile"],
+        has_touch=profile["mobile"],
+    )
+    page = context.new_page()
+    try:
+        page.goto(f"{server.url}/?mode=visit&test&shading=hull{query}")
+        page.wait_for_function(
+            "window.daylit && window.daylit.status.exactRelitMs !== null", timeout=120000
+        )
+        status = page.evaluate("JSON.parse(JSON.stringify(window.daylit.status))")
+        targets = {}
+        for key in page.evaluate("window.daylit.debug.targets()"):
+            snap = page.evaluate("(k) => window.daylit.debug.snapshot(k)", key)
+            targets[key] = np.frombuffer(base64.b64decode(snap["data"]), np.float32)
+    finally:
+        context.close()
+    return status, targets
+
+
+def compare_formats(browser, server, modes: list[str]) -> None:
+    """Print, per texture mode, the textures' bytes and the relit targets' differences from
+    the same targets drawn with every array decoded to RGBA8 (``?textures=rgba8``)."""
+    import numpy as np
+
+    phone = PROFILES["phone"]
+    _, reference = relit_targets(browser, server, phone, "&textures=rgba8")
+    print("mode     uastc  etc1s  textures MB  target        RMS %    max %   mean %"
+          "  (of the target's mean)")
+    for mode in modes:
+        status, targets = relit_targets(browser, server, phone, f"&textures={mode}")
+        head = (f"{mode:8s} {status['uastcTextures']:6s} {status['etc1sTextures']:6s} "
+                f"{mb(status['gpuTextureBytes']):>11s}")
+        for key, exact in reference.items():
+            exact_rgb = exact.reshape(-1, 4)[:, :3]
+            diff = targets[key].reshape(-1, 4)[:, :3] - exact_rgb
+            mean = float(np.abs(exact_rgb).mean()) or 1.0
+            print(f"{head}  {key:12s} {100 * np.sqrt((diff**2).mean()) / mean:7.3f} "
+                  f"{100 * np.abs(diff).max() / mean:8.3f} {100 * diff.mean() / mean:8.3f}")
+            head = " " * len(head)
+
+
 def mb(b: float) -> str:
     return f"{b / 1e6:.1f}"
 
@@ -123,6 +178,8 @@ def main() -> None:
     ap.add_argument("--query", default="", help="extra URL parameters, e.g. '&textures=rgba8'")
     ap.add_argument("--top", type=int, default=25)
     ap.add_argument("--json", type=Path, help="write every figure here")
+    ap.add_argument("--formats", help="texture modes to compare with RGBA8, e.g. astc,exact"
+                    " (the phone's hull-plane mode; instead of the memory table)")
     args = ap.parse_args()
     from playwright.sync_api import sync_playwright
 
@@ -135,6 +192,10 @@ def main() -> None:
         browser = p.chromium.launch(
             executable_path=chromium_path(), args=CHROMIUM_FLAGS, headless=True
         )
+        if args.formats:
+            compare_formats(browser, server, args.formats.split(","))
+            browser.close()
+            return
         print(
             "profile  sun  mode      textures  renderbuf  drawing(est)  total    hull extra   (MB)"
         )

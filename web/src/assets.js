@@ -26,8 +26,11 @@ export class Assets {
    * @param {{textureMode?: string}} options textureMode (the page's `?textures=`): 'exact'
    *   (default) transcodes the UASTC data to plain RGBA8 so the GPU reads exactly the texels the
    *   numpy reference reads (docs/web.md, "Texture formats"), and ETC1S data to ETC2 blocks
-   *   where the GPU has them (lossless); 'rgba8' decodes every file to RGBA8, ETC1S too (as
-   *   before 2026-11-25); 'gpu' lets KTX2Loader pick a compressed GPU format.
+   *   where the GPU has them (lossless); 'astc' as 'exact' but the UASTC data as ASTC 4x4
+   *   blocks where the GPU has them (a quarter of the memory; the GPU interpolates their
+   *   texels in 16 bits where the reference rounds to 8: docs/web.md "Texture formats");
+   *   'rgba8' decodes every file to RGBA8, ETC1S too (as before 2026-11-25); 'gpu' lets
+   *   KTX2Loader pick a compressed GPU format.
    *   onProgress(bytesLoaded): called as the bytes of each file arrive (assignable later,
    *   `assets.onProgress = null` to stop).
    */
@@ -185,7 +188,8 @@ export class Assets {
    * the largest file before the first picture: not after the manifest, beside it). */
   initTextures(renderer) {
     this.ktx2 = new KTX2Loader().setTranscoderPath(TRANSCODER_PATH).detectSupport(renderer);
-    this.etc1sFormat = 'rgba8';
+    this.etc1sFormat = this.exactTextures ? 'rgba8' : 'gpu'; // 'gpu': KTX2Loader's pick
+    this.uastcFormat = this.exactTextures ? 'rgba8' : 'gpu';
     if (this.exactTextures) {
       // Basis data are numbers, not pictures: UASTC decodes to RGBA8 exactly as the reference
       // does (ASTC, BC7 or ETC2 targets would add their own error to every basis value).
@@ -193,20 +197,23 @@ export class Assets {
       // ETC2, BPTC and S3TC all show (Mesa's desktop drivers emulate ETC2 by decoding it on
       // upload; so does SwiftShader, exactly). Phones decode ETC2 in hardware (OpenGL ES 3.0).
       const etc2 = renderer.extensions.has('WEBGL_compressed_texture_etc') && this.textureMode !== 'rgba8';
+      // UASTC is a subset of ASTC 4x4: the blocks go to the GPU as they are, 1 byte a texel.
+      const astc = renderer.extensions.has('WEBGL_compressed_texture_astc') && this.textureMode === 'astc';
       for (const key of Object.keys(this.ktx2.workerConfig)) {
-        if (key.endsWith('Supported')) this.ktx2.workerConfig[key] = false;
+        if (key.endsWith('Supported')) this.ktx2.workerConfig[key] = astc && key === 'astcSupported';
       }
+      if (astc) this.uastcFormat = 'astc';
       // ETC1S is a subset of ETC1, so an ETC1S file goes to the GPU as ETC2 RGB8 blocks with
       // no loss: the GPU decodes the very texels basisu's RGBA8 decode gives (integer
       // arithmetic, the same blocks), at half a byte a texel instead of four (docs/web.md,
       // "GPU memory"). A second loader, since the transcoder's targets are set per loader.
-      if (etc2) {
+      if (etc2 || astc) { // ETC1S never to ASTC: ETC2 blocks or RGBA8
         this.ktx2Etc1s = new KTX2Loader().setTranscoderPath(TRANSCODER_PATH).setWorkerLimit(2).detectSupport(renderer);
         for (const key of Object.keys(this.ktx2Etc1s.workerConfig)) {
-          if (key.endsWith('Supported')) this.ktx2Etc1s.workerConfig[key] = key === 'etc2Supported';
+          if (key.endsWith('Supported')) this.ktx2Etc1s.workerConfig[key] = etc2 && key === 'etc2Supported';
         }
         this.ktx2Etc1s.init().catch(() => {});
-        this.etc1sFormat = 'etc2';
+        if (etc2) this.etc1sFormat = 'etc2';
       }
     }
     this.ktx2.init().catch(() => {}); // a failure is reported by the first texture's parse

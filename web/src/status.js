@@ -40,8 +40,10 @@ export function makeStatus(source) {
     contextLost: () => source.contextLost,
     reconnects: () => source.stream?.reconnects ?? 0,
     integrity: () => source.assets?.verification ?? null,
-    // How ETC1S files reach the GPU: 'etc2' (lossless, half a byte a texel) or 'rgba8'.
+    // How ETC1S files reach the GPU: 'etc2' (lossless, half a byte a texel), 'rgba8' or 'gpu'.
     etc1sTextures: () => source.assets?.etc1sFormat ?? null,
+    // How UASTC files reach the GPU: 'rgba8' (exact), 'astc' (ASTC 4x4 blocks) or 'gpu'.
+    uastcTextures: () => source.assets?.uastcFormat ?? null,
     profile: () => source.profile, // 'phone' or 'desktop' (docs/web.md, "GPU memory")
     refetched: () => [...(source.assets?.refetched ?? [])],
     siteCameraDenied: () => source.stream?.siteCameraDenied ?? false,
