@@ -89,6 +89,33 @@ def test_sky_type_follows_the_sun_to_sky_ratio():
     assert sky_type_for_ratio(0.0) in OVERCAST_TYPES
     assert sky_type_for_ratio(1.0) == 7
     assert sky_type_for_ratio(10.0) == 12
+    # by Perez's clearness, not the ratio alone: Radiance's intermediate sky (DNI/DHI 2,
+    # clearness 2.28 with the sun 43 degrees up) is partly cloudy even when read at 3.5 (the
+    # clear CIE sky's reading of it), the test's clear sky (ratio 10, clearness 7.4) is clear
+    assert sky_type_for_ratio(3.5, 43.3) == 7
+    assert sky_type_for_ratio(10.0, 43.3) == 12
+
+
+def test_sky_clearness_is_gendaylits():
+    """Perez's sky clearness against the epsilon gendaylit (Radiance; not this code) prints for
+    the same DNI and DHI: three skies at three sun positions on the test site."""
+    import subprocess
+
+    from benchmarks.bench_fidelity import radiance_env
+    from server.skyshape import sky_clearness
+
+    _, env = radiance_env()
+    for dni, dhi in ((800.0, 80.0), (400.0, 200.0), (100.0, 250.0)):
+        for hour in ("8.5", "12", "15.5"):
+            text = subprocess.run(
+                ["gendaylit", "10", "15", hour, "-y", "2026", "-a", "34.47", "-o", "-135.82",
+                 "-m", "-135", "-W", str(dni), str(dhi), "-O", "1"], env=env, check=True,
+                capture_output=True, text=True).stdout
+            lines = text.splitlines()
+            altitude = float(next(x for x in lines if "altitude" in x).split(":")[1].split()[0])
+            epsilon = float(next(x for x in lines if "epsilon" in x).split(":")[1].split()[0])
+            assert sky_clearness(dni / dhi, altitude) == pytest.approx(epsilon, rel=2e-3), (
+                dni, dhi, hour, altitude, epsilon)
 
 
 def test_bad_frames_get_a_clear_error():
