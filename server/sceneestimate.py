@@ -402,6 +402,7 @@ class SceneEstimator:
                               p.albedo[pick], p.surface[pick], p.sky_view[pick])
         sky_type = 12
         result = None
+        sun_elevation_deg = math.degrees(math.asin(min(float(sun_dir[1]), 1.0)))
         for _ in range(3):
             if sky_type in OVERCAST_TYPES:
                 result = self._best_overcast_fit(sun_dir, frame)
@@ -409,7 +410,7 @@ class SceneEstimator:
                 result = self._fit_shape(sky_type, sun_dir, frame)[0]
             ratio = float(LUMINANCE_RGB @ result.sun_normal_irradiance) / max(
                 float(LUMINANCE_RGB @ result.sky_horizontal_irradiance), 1e-9)
-            new_type = sky_type_for_ratio(ratio)
+            new_type = sky_type_for_ratio(ratio, sun_elevation_deg)
             if new_type == sky_type:
                 break
             sky_type = new_type

@@ -22,17 +22,33 @@ OVERCAST_RATIO = 0.5  # E_sun / k below this: one of the overcast CIE skies (OVE
 # CIE overcast with steep gradation: uniform in azimuth (1, the CIE standard overcast) or with
 # a slight brightening toward the sun (2); the estimate takes the one that fits the frame best
 OVERCAST_TYPES = (1, 2)
-CLEAR_RATIO = 3.0  # at or above: the CIE clear sky (type 12); between: partly cloudy (7)
+# Perez's sky clearness at and above which the sky is clear (the CIE clear sky, type 12); below
+# it, partly cloudy (7). 4.5 is the lower edge of Perez's clear bins (7 and 8; Perez et al.
+# 1990, the bins of the all-weather sky model gendaylit uses). It replaced a ratio of 3.0, which
+# did not depend on the sun's height: for a sun 43 degrees high it called a sky of clearness 2.9
+# (Perez's bin 6, partly cloudy) clear, and Radiance's intermediate sky (DNI/DHI 2.0, clearness
+# 2.28) fitted with the clear sky read a ratio above 3 and stayed there (docs/web.md).
+CLEAR_CLEARNESS = 4.5
 
 
-def sky_type_for_ratio(sun_to_sky: float) -> int:
-    """The CIE general sky for a ratio of sun normal irradiance to sky horizontal irradiance:
-    ``OVERCAST_TYPES[0]`` (standing for the overcast family) below ``OVERCAST_RATIO``, 12
-    (clear) from ``CLEAR_RATIO``, 7 (partly cloudy) between. (Coarse on purpose: the
-    isotropic share fitted beside it adapts the shape.)"""
+def sky_clearness(sun_to_sky: float, sun_elevation_deg: float) -> float:
+    """Perez's sky clearness ``((DHI + DNI) / DHI + 1.041 Z^3) / (1 + 1.041 Z^3)`` (Z the sun's
+    zenith angle in radians) for a ratio ``DNI / DHI`` of the sun's normal irradiance to the
+    sky's horizontal irradiance: 1 under overcast, about 2-4.5 partly cloudy, above clear."""
+    z = math.radians(90.0 - min(max(sun_elevation_deg, 0.0), 90.0))
+    k = 1.041 * z**3
+    return (1.0 + max(sun_to_sky, 0.0) + k) / (1.0 + k)
+
+
+def sky_type_for_ratio(sun_to_sky: float, sun_elevation_deg: float = 90.0) -> int:
+    """The CIE general sky for a ratio of sun normal irradiance to sky horizontal irradiance
+    and the sun's elevation: ``OVERCAST_TYPES[0]`` (standing for the overcast family) below
+    ``OVERCAST_RATIO``, 12 (clear) from a clearness (:func:`sky_clearness`) of
+    ``CLEAR_CLEARNESS``, 7 (partly cloudy) between. (Coarse on purpose: the isotropic share
+    fitted beside it adapts the shape.)"""
     if sun_to_sky < OVERCAST_RATIO:
         return OVERCAST_TYPES[0]
-    return 12 if sun_to_sky >= CLEAR_RATIO else 7
+    return 12 if sky_clearness(sun_to_sky, sun_elevation_deg) >= CLEAR_CLEARNESS else 7
 
 
 def unit_sky(sky_type: int, sun_dir: np.ndarray) -> tuple[CIESky, float]:

@@ -9,6 +9,7 @@ and a wrong albedo the model does not know; a cloud passing over the sun.
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -89,6 +90,33 @@ def test_sky_type_follows_the_sun_to_sky_ratio():
     assert sky_type_for_ratio(0.0) in OVERCAST_TYPES
     assert sky_type_for_ratio(1.0) == 7
     assert sky_type_for_ratio(10.0) == 12
+    # by Perez's clearness, not the ratio alone: Radiance's intermediate sky (DNI/DHI 2,
+    # clearness 2.28 with the sun 43 degrees up) is partly cloudy even when read at 3.5 (the
+    # clear CIE sky's reading of it), the test's clear sky (ratio 10, clearness 7.4) is clear
+    assert sky_type_for_ratio(3.5, 43.3) == 7
+    assert sky_type_for_ratio(10.0, 43.3) == 12
+
+
+def test_sky_clearness_is_gendaylits():
+    """Perez's sky clearness against the epsilon gendaylit (Radiance; not this code) prints for
+    the same DNI and DHI: three skies at three sun positions on the test site."""
+    import subprocess
+
+    from benchmarks.bench_fidelity import radiance_env
+    from server.skyshape import sky_clearness
+
+    _, env = radiance_env()
+    for dni, dhi in ((800.0, 80.0), (400.0, 200.0), (100.0, 250.0)):
+        for hour in ("8.5", "12", "15.5"):
+            text = subprocess.run(
+                ["gendaylit", "10", "15", hour, "-y", "2026", "-a", "34.47", "-o", "-135.82",
+                 "-m", "-135", "-W", str(dni), str(dhi), "-O", "1"], env=env, check=True,
+                capture_output=True, text=True).stdout
+            lines = text.splitlines()
+            altitude = float(next(x for x in lines if "altitude" in x).split(":")[1].split()[0])
+            epsilon = float(next(x for x in lines if "epsilon" in x).split(":")[1].split()[0])
+            assert sky_clearness(dni / dhi, altitude) == pytest.approx(epsilon, rel=2e-3), (
+                dni, dhi, hour, altitude, epsilon)
 
 
 def test_bad_frames_get_a_clear_error():
@@ -170,21 +198,26 @@ def test_clear_sky_sun_and_sky_within_ten_percent(renders):
 
 @pytest.mark.slow
 def test_intermediate_sky_global_irradiance_within_ten_percent(renders):
-    """No goal in the issue for the split under an intermediate sky: the bright circumsolar
-    sky of a Perez intermediate sky shades like the sun, and part of it goes to the sun's
-    estimate (about +20 % sun, -25 % sky at noon: docs/benchmarks.md, "Scene estimate").
-    What lights the site, the global horizontal irradiance, must be right within 10 %."""
+    """What lights the site, the global horizontal irradiance, within 10 %; the split within
+    25 % (no goal in the issue for it): the sun reads high and the sky low, as the walls take
+    less of Radiance's partly cloudy sky than the CIE skies predict (+7 to +14 % sun, -10 to
+    -19 % sky over 9 streams; +3 to +27 % and -4 to -34 % while a ratio of 3 could keep the
+    clear CIE sky: docs/benchmarks.md, "The intermediate sky's split"). Perez's clearness of
+    this sky is 2.28: the partly cloudy CIE sky (7)."""
     site, rendered = renders
     mesh, albedo = site.mesh_and_albedo()
-    for k, hour in enumerate(HOURS):
+    # three streams per sun position: a stream that keeps the clear CIE sky is the failure
+    for hour, seed in itertools.product(HOURS, (10, 11, 12)):
         truth = rendered["intermediate", hour]
-        est = SceneEstimator(mesh, albedo, site.view, seed=10 + k)
-        last = _stream(site, truth, est, seed=10 + k)[-1]
+        est = SceneEstimator(mesh, albedo, site.view, seed=seed)
+        last = _stream(site, truth, est, seed=seed)[-1]
         sin_el = float(truth.sun_dir[1])
         e_sun, e_sky = _grey(last.sun_normal_irradiance), _grey(last.sky_horizontal_irradiance)
         global_truth = truth.dni_w_m2 * sin_el + truth.dhi_w_m2
-        assert e_sun * sin_el + e_sky == pytest.approx(global_truth, rel=0.10), (hour, last)
-        assert last.sun_observable and e_sun > 0.5 * truth.dni_w_m2, (hour, last)
+        assert e_sun * sin_el + e_sky == pytest.approx(global_truth, rel=0.10), (hour, seed, last)
+        assert last.sun_observable and last.sky_type == 7, (hour, seed, last)
+        assert e_sun == pytest.approx(truth.dni_w_m2, rel=0.25), (hour, seed, last)
+        assert e_sky == pytest.approx(truth.dhi_w_m2, rel=0.25), (hour, seed, last)
 
 
 @pytest.mark.slow

@@ -1,11 +1,12 @@
 // Runs web/src/phoneestimate.js's sky and web/src/proxyrays.js's ray caster in Node on the cases given as JSON on stdin:
 // `skies` [{type, sun, dirs}] -> the CIE sky's relative luminance at dirs and its factor to a
 // unit horizontal irradiance; `cast` {meshes [{vertices, faces, albedo}], origins, dirs} ->
-// the first triangle each ray meets (its distance, -1 for none) and whether any is met.
+// the first triangle each ray meets (its distance, -1 for none) and whether any is met;
+// `types` [{ratio, sunUp}] -> Perez's clearness and the CIE sky type the estimate takes.
 // For tests/web/test_phoneestimate_js.py.
 import { readFileSync } from 'node:fs';
 import * as THREE from 'three';
-import { unitSky } from '../../web/src/phoneestimate.js';
+import { skyClearness, skyTypeForRatio, unitSky } from '../../web/src/phoneestimate.js';
 import { Proxies } from '../../web/src/proxyrays.js';
 
 const c = JSON.parse(readFileSync(0, 'utf8'));
@@ -29,4 +30,7 @@ c.cast.origins.forEach((o, i) => {
   first.push(tri >= 0 ? proxies.hitT : -1);
   any.push(proxies.cast(o, c.cast.dirs[i], true) >= 0);
 });
-console.log(JSON.stringify({ skies, first, any }));
+const types = (c.types ?? []).map(({ ratio, sunUp }) => ({
+  clearness: skyClearness(ratio, sunUp), type: skyTypeForRatio(ratio, sunUp),
+}));
+console.log(JSON.stringify({ skies, first, any, types }));

@@ -68,7 +68,12 @@ def renders(browser, phone_build, tmp_path_factory):
     """Per pose (read from the page once) and sky: the Radiance render, the camera's frame (a
     Y4M for the fake camera) and the server's estimate on it."""
     from benchmarks.bench_fidelity import SkySpec
-    from tests.radiance_frames import camera_frame, linearise, render_build_view
+    from tests.radiance_frames import (
+        ACCURATE_CAMERA_RAYS,
+        camera_frame,
+        linearise,
+        render_build_view,
+    )
 
     def make(pose):
         if pose in _RENDERS:
@@ -87,11 +92,13 @@ def renders(browser, phone_build, tmp_path_factory):
         rng = np.random.default_rng(4)
         for name, hour, dni, dhi in SKIES:
             spec = SkySpec(name, 10, 15, hour, dni, dhi)
-            rendered, _ = render_build_view(phone_build, spec, *RENDER, view=view)
-            codes, _ = camera_frame(rendered.sun_image, rng)
+            # without the ambient cache: it put shaded surfaces 8-36 % too bright
+            rendered, _ = render_build_view(phone_build, spec, *RENDER, view=view,
+                                            rays=ACCURATE_CAMERA_RAYS)
+            codes, exposure = camera_frame(rendered.sun_image, rng)
             y4m = tmp / f"{name}.y4m"
             write_y4m(y4m, codes)
-            out[name] = {"rendered": rendered, "y4m": y4m,
+            out[name] = {"rendered": rendered, "y4m": y4m, "exposure": exposure,
                          "open": open_irradiance_truth(spec, phone_build),
                          "server": server_estimate(phone_build, view, linearise(codes),
                                                    rendered.sun_dir)}
@@ -130,7 +137,14 @@ def test_phone_estimate_against_radiance_and_the_server(browser, phone_build, re
         # ground (the level is the picture's, not known), against Radiance's
         mine = open_irradiance_estimated(ests[-1], est["sun"])
         composite = (mine / mine[0]) / (sky["open"] / sky["open"][0]) - 1.0
+        # the level: the test knows the camera's exposure (linear units per W/(m^2 sr)), the
+        # phone does not; its sun and sky in W/m^2 through it
+        level = [float(np.median([LUMA @ np.asarray(e[key]) for e in ests])) / sky["exposure"]
+                 for key in ("sunNormal", "skyHorizontal")]
         got[name] = {"phone": float(np.median([e["ratio"] for e in ests])), "truth": truth,
+                     "sun_err": (level[0] / rendered.dni_w_m2 - 1.0 if rendered.dni_w_m2 > 0
+                                 else level[0]),
+                     "sky_err": level[1] / rendered.dhi_w_m2 - 1.0,
                      "server": sky["server"], "type": ests[-1]["skyType"],
                      "share": round(ests[-1]["modelShare"], 2), "used": est["used"],
                      "sunlit": est["sunlit"], "status": status,
@@ -144,14 +158,20 @@ def test_phone_estimate_against_radiance_and_the_server(browser, phone_build, re
         # the light's shape: walls against the open ground within 30 % RMS (reached 4-22 %)
         assert g["composite_rms"] < 0.3, (name, got)
     clear, middle, overcast = got["clear"], got["intermediate"], got["overcast"]
-    # Goal: within 15 % (the server's reach on its kiosk view); reached -14 % here, the server
-    # -16 %: the tolerance leaves room for Radiance's ambient sampling from run to run.
-    assert clear["phone"] == pytest.approx(clear["truth"], rel=0.25), got
-    assert clear["phone"] == pytest.approx(clear["server"], rel=0.25), got
+    # Goal: the ratio within 15 % under the clear sky (reached +2 and +7 %, the server -1 and
+    # -0 %), and the sun within 25 % under the clear and the intermediate sky (reached +1 to
+    # +8 %; the sky -2 to -14 %)
+    assert clear["phone"] == pytest.approx(clear["truth"], rel=0.15), got
+    assert clear["phone"] == pytest.approx(clear["server"], rel=0.15), got
     assert clear["type"] == 12, got
-    # The intermediate sky is the model's weak case (reached x1.8 of the truth here; the
-    # server x0.5-0.7): the sun is found, and within a factor of 2.5.
-    assert middle["truth"] / 2.5 < middle["phone"] < 2.5 * middle["truth"], got
+    for g in (clear, middle):
+        assert abs(g["sun_err"]) < 0.25 and abs(g["sky_err"]) < 0.25, got
+    # The intermediate sky (Perez clearness 2.28) is partly cloudy, CIE type 7; its ratio
+    # reads high (+22 and +24 %: the sky 12-14 % low, the walls lit less than the CIE sky
+    # predicts).
+    # Before 2026-11-25 the clear sky's shape read it at +102 to +118 % (docs/web.md).
+    assert middle["type"] == 7, got
+    assert middle["phone"] == pytest.approx(middle["truth"], rel=0.35), got
     # Overcast: the sun below 5 % of the sky (goal and reached: 0).
     assert overcast["phone"] < 0.05, got
     assert overcast["type"] == 2, got

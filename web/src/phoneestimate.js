@@ -44,9 +44,11 @@ const DARK_CODE = 3;
 const POSE_TOLERANCE_DEG = 1.0;
 const POSE_TOLERANCE_M = 0.2;
 const SUN_TOLERANCE_DEG = 0.1;
-// server/skyshape.py: the CIE sky by the sun/sky ratio
+// server/skyshape.py: the CIE sky by the sun/sky ratio (overcast) and Perez's sky clearness
+// (clear from 4.5, the lower edge of Perez's clear bins; a ratio of 3 called Radiance's
+// intermediate sky clear once the clear sky's shape had read it high: docs/web.md)
 const OVERCAST_RATIO = 0.5;
-const CLEAR_RATIO = 3.0;
+const CLEAR_CLEARNESS = 4.5;
 const OVERCAST_TYPE = 2;
 const SHARE_MEMORY = 0.8; // per estimate, the weight of the past in the model sky's share
 /** The level the estimate is scaled to: a sun and sky giving this on open ground. */
@@ -55,10 +57,19 @@ const LUMA = [0.2126, 0.7152, 0.0722];
 // CIE general skies (ISO 15469; daylit/sky.py CIE_SKY_TYPES): a, b, c, d, e
 const CIE = { 2: [4.0, -0.7, 2.0, -1.5, 0.15], 7: [0.0, -1.0, 5.0, -2.5, 0.3], 12: [-1.0, -0.32, 10.0, -3.0, 0.45] };
 
-/** The CIE sky type for a ratio of sun normal irradiance to sky horizontal irradiance. */
-export function skyTypeForRatio(ratio) {
+/** Perez's sky clearness ((DHI + DNI) / DHI + 1.041 Z^3) / (1 + 1.041 Z^3), Z the sun's zenith
+ * angle (radians), for a ratio DNI / DHI and the sun's unit direction's up component. */
+export function skyClearness(ratio, sunUp) {
+  const z = Math.acos(Math.min(1, Math.max(0, sunUp)));
+  const k = 1.041 * z ** 3;
+  return (1 + Math.max(ratio, 0) + k) / (1 + k);
+}
+
+/** The CIE sky type for a ratio of sun normal irradiance to sky horizontal irradiance and the
+ * sun's up component (server/skyshape.py sky_type_for_ratio). */
+export function skyTypeForRatio(ratio, sunUp = 1) {
   if (ratio < OVERCAST_RATIO) return OVERCAST_TYPE;
-  return ratio >= CLEAR_RATIO ? 12 : 7;
+  return skyClearness(ratio, sunUp) >= CLEAR_CLEARNESS ? 12 : 7;
 }
 
 /**
@@ -301,7 +312,7 @@ export class PhoneEstimator {
       this._share.set(type, fit.share);
       fit.type = type;
       const ratio = luma(fit.sun) / Math.max(luma(fit.sky), 1e-12);
-      const next = skyTypeForRatio(ratio);
+      const next = skyTypeForRatio(ratio, sun[1]);
       if (next === type) break;
       type = next;
     }
