@@ -140,6 +140,7 @@ def graph_cut(
 
 
 _SUM3 = np.ones((1, 3), dtype=np.float32)  # cv2.transform: sum of the three channels
+_LUMA_BGR = np.array([[0.0722, 0.7152, 0.2126]], dtype=np.float32)  # Rec. 709, as shadow.py
 
 
 def squared_distance(a: np.ndarray, b: np.ndarray, inv_var: np.ndarray | None = None) -> np.ndarray:
@@ -233,6 +234,27 @@ class Segmenter:
         log_norm = 0.5 * np.log((2.0 * np.pi) ** 3 * (var[..., 0] * var[..., 1] * var[..., 2]))
         return d2, log_norm
 
+    def _dark_spread(self, codes: np.ndarray, box: Box) -> np.ndarray:
+        """(h, w) float32: standard deviation of the log luminance change (frame over
+        background) in the ``codec_chroma_px`` square around each pixel of a box.
+
+        At 4:2:0 a codec keeps one colour for each 2x2 pixels and its decoder interpolates
+        between them (and quantises it per 16x16 block): a pixel's chromaticity is partly its
+        neighbours'. Luminance is kept at full resolution, so how much the neighbours'
+        change differs from the pixel's own says how far its colour change can be off: at a
+        shadow's edge, where the sunlit ground's colour bleeds in, a lot; inside, little.
+        """
+        y0, y1, x0, x1 = box
+        tr, bg = self.transfer, self.background
+        lum = cv2.transform(tr.image_to_linear(codes), _LUMA_BGR)
+        lum_bg = cv2.transform(bg.linear[y0:y1, x0:x1], _LUMA_BGR)
+        change = cv2.log(cv2.max(lum, 1e-4)) - cv2.log(cv2.max(lum_bg, 1e-4))
+        k = self.settings.codec_chroma_px
+        mean = cv2.blur(change, (k, k), borderType=cv2.BORDER_REPLICATE)
+        mean_sq = cv2.blur(cv2.multiply(change, change), (k, k),
+                           borderType=cv2.BORDER_REPLICATE)
+        return cv2.sqrt(cv2.max(mean_sq - cv2.multiply(mean, mean), 0.0))
+
     def colour_terms(self, corrected: np.ndarray, box: Box) -> dict:
         """The colour costs ``U^C`` of one region and its shadow features (before the cut).
 
@@ -249,7 +271,8 @@ class Segmenter:
         y0, y1, x0, x1 = box
         codes = corrected[y0:y1, x0:x1]
         h, w = codes.shape[:2]
-        if s.codec_error_fraction > 0.0 and bg.blockiness >= s.codec_blockiness_min:
+        coded = s.codec_error_fraction > 0.0 and bg.blockiness >= s.codec_blockiness_min
+        if coded:
             d2, log_norm = self._codec_aware(codes, box)
         else:
             d2 = squared_distance(codes, bg.mean[y0:y1, x0:x1], bg.inv_var[y0:y1, x0:x1])
@@ -288,6 +311,9 @@ class Segmenter:
         features = shadow_features(
             lin, lin_bg, s, tr.log_flat.take(at), tr.log_flat.take(at_bg), noise,
         )
+        if coded and s.codec_chroma_px > 1:
+            local = self._dark_spread(codes, box)[ys[dark], xs[dark]]
+            features = features._replace(dark_local=local)
         # The candidates the signature is estimated from: the core of the foreground, away
         # from its rim on lit ground. Under heavy sensor noise the outer penumbra (ground lit
         # 70-90 %) and noise specks at that rim outnumbered the umbra in the signature's fine
@@ -341,7 +367,45 @@ class Segmenter:
                                            self.background.mean_contrast)
         person = np.zeros(different.shape, dtype=bool)
         person[part] = graph_cut(cost_fg[part], cost_bg[part], w_right, w_down, free)
+        person, shadow = self._drop_slivers(person, shadow, cand, as_shadow)
         return person, shadow & ~person
+
+    def _drop_slivers(self, person: np.ndarray, shadow: np.ndarray, candidates: np.ndarray,
+                      as_shadow: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Person regions that are thin slivers of possible shadow, given back to the shadow.
+
+        ``person``, ``shadow`` (h, w) bool of one region, ``candidates`` (h, w) bool and
+        ``as_shadow`` (n,) the candidates' shadow costs. Through a codec a shadow's rim keeps
+        part of the sunlit ground's colour (4:2:0, chroma left behind by motion
+        compensation) and the cut keeps it as lines one or two pixels wide along the
+        shadow's edges, apart from the person (issue 18: most of the shadow kept through
+        H.264). A region is a sliver when at least ``shadow_sliver_share`` of its pixels
+        pass the shadow's hard gates (finite cost) and a 3x3 erosion leaves at most a tenth
+        of it (at most about two pixels thick): a person, even in dark clothes that pass the
+        gates, is thicker than that somewhere (their body), and a far person's legs belong
+        to the same region as the body.
+        """
+        share = self.settings.shadow_sliver_share
+        if share <= 0.0:
+            return person, shadow
+        count, labels, stats, _ = cv2.connectedComponentsWithStats(person.view(np.uint8),
+                                                                   connectivity=8)
+        if count < 2:
+            return person, shadow
+        gated = np.zeros(person.shape, dtype=bool)
+        gated[candidates] = np.isfinite(as_shadow)
+        area = stats[:, cv2.CC_STAT_AREA]
+        drop = np.bincount(labels[gated & person], minlength=count) >= share * area
+        drop[0] = False
+        if not drop.any():
+            return person, shadow
+        core = cv2.erode(person.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
+        drop &= np.bincount(labels[core], minlength=count) <= 0.1 * area
+        if drop.any():
+            gone = drop[labels]
+            person = person & ~gone
+            shadow = shadow | gone
+        return person, shadow
 
     def segment(self, corrected: np.ndarray, boxes: list[Box]) -> tuple[np.ndarray, np.ndarray,
                                                                       np.ndarray]:
@@ -355,7 +419,7 @@ class Segmenter:
         terms = [self.colour_terms(corrected, box) for box in boxes]
         if terms:
             merged = tuple(np.concatenate([np.broadcast_to(t["features"][k], t["core"].shape)
-                                           [t["core"]] for t in terms]) for k in range(7))
+                                           [t["core"]] for t in terms]) for k in range(8))
             self.signature.update(merged)
         t1 = time.perf_counter()
         shape = corrected.shape[:2]
