@@ -399,7 +399,9 @@ class Segmenter:
         drop[0] = False
         if not drop.any():
             return person, shadow
-        core = cv2.erode(person.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
+        # Thin: an erosion of radius shadow_sliver_px (per 1024 px of width) leaves a tenth.
+        k = 2 * max(1, round(self.settings.shadow_sliver_px * self.background.width / 1024)) + 1
+        core = cv2.erode(person.view(np.uint8), np.ones((k, k), np.uint8)).view(bool)
         drop &= np.bincount(labels[core], minlength=count) <= 0.1 * area
         if drop.any():
             gone = drop[labels]

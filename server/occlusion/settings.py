@@ -179,6 +179,10 @@ SCHEMA: dict = {
                             "may be their penumbra (blue shift scaled to its darkening); "
                             "false: its darkening must be the shadows' within "
                             "shadow_dark_tolerance"},
+        "shadow_learn_spread": {"type": "boolean", "default": True,
+                                "description": "widen the blue-shift tolerance to twice the "
+                                "spread of the frame's shadows' blue shifts (learned with the "
+                                "signature; at most shadow_search): a codec's chroma error"},
         "shadow_search": _num(0.25, "half width, ln units, of the blue shifts searched "
                               "around the last estimate", minimum=0),
         "shadow_shift_tolerance": _num(0.1, "a shadow's blue shift is within this of the "
@@ -193,9 +197,12 @@ SCHEMA: dict = {
         "shadow_signature_rate": _num(0.3, "smoothing of the signature from frame to frame "
                                       "(1: no memory)", exclusiveMinimum=0, maximum=1),
         "shadow_sliver_share": _num(0.8, "a person region at least this share of which "
-                                    "passes the shadow's hard gates, and no more than two "
-                                    "pixels thick, is a shadow's rim the codec left (0: "
-                                    "off)", minimum=0, maximum=1),
+                                    "passes the shadow's hard gates, and thin (see "
+                                    "shadow_sliver_px), is a shadow's rim the codec left "
+                                    "(0: off)", minimum=0, maximum=1),
+        "shadow_sliver_px": _int(2, "a region is thin when an erosion of this radius, pixels "
+                                 "per 1024 px of frame width (at least 1), leaves at most a "
+                                 "tenth of it", minimum=0),
         "shadow_cost": _num(6.0, "background cost, nats, of a pixel that is a perfect shadow",
                             minimum=0),
         "shadow_slope": _num(4.0, "added cost, nats, per squared tolerance of deviation from "
@@ -274,12 +281,14 @@ class OcclusionSettings:
     shadow_signature: bool = _default("shadow_signature")
     daylight_temperatures_k: tuple[float, float] = _default("daylight_temperatures_k")
     shadow_penumbra: bool = _default("shadow_penumbra")
+    shadow_learn_spread: bool = _default("shadow_learn_spread")
     shadow_search: float = _default("shadow_search")
     shadow_shift_tolerance: float = _default("shadow_shift_tolerance")
     shadow_dark_tolerance: float = _default("shadow_dark_tolerance")
     shadow_signature_core_px: int = _default("shadow_signature_core_px")
     shadow_signature_rate: float = _default("shadow_signature_rate")
     shadow_sliver_share: float = _default("shadow_sliver_share")
+    shadow_sliver_px: int = _default("shadow_sliver_px")
     shadow_cost: float = _default("shadow_cost")
     shadow_slope: float = _default("shadow_slope")
     dark_floor: float = _default("dark_floor")

@@ -245,6 +245,8 @@ class ShadowSignature:
         """Tolerance of a shadow's blue shift, ln units: ``shadow_shift_tolerance``, or two
         learned spreads where the frames are noisier (a codec), at most ``shadow_search``."""
         s = self.settings
+        if not s.shadow_learn_spread:
+            return s.shadow_shift_tolerance
         return min(max(s.shadow_shift_tolerance, 2.0 * self.blue_spread),
                    max(s.shadow_search, s.shadow_shift_tolerance))
 
