@@ -140,7 +140,6 @@ def graph_cut(
 
 
 _SUM3 = np.ones((1, 3), dtype=np.float32)  # cv2.transform: sum of the three channels
-_LUMA_BGR = np.array([[0.0722, 0.7152, 0.2126]], dtype=np.float32)  # Rec. 709, as shadow.py
 
 
 def squared_distance(a: np.ndarray, b: np.ndarray, inv_var: np.ndarray | None = None) -> np.ndarray:
@@ -200,6 +199,8 @@ class Segmenter:
         self._log_global_w = math.log(lam) if lam > 0 else None
         self._log_pixel_w = math.log1p(-lam)
         self.signature = ShadowSignature(settings)
+        # ln(linear green) of each code, for the codec's local spread (_dark_spread)
+        self._log_green = np.ascontiguousarray(transfer.log_table[:, 0, 1]).reshape(256, 1)
         self.timings_ms: dict[str, float] = {}
 
     def reset(self) -> None:
@@ -234,26 +235,35 @@ class Segmenter:
         log_norm = 0.5 * np.log((2.0 * np.pi) ** 3 * (var[..., 0] * var[..., 1] * var[..., 2]))
         return d2, log_norm
 
-    def _dark_spread(self, codes: np.ndarray, box: Box) -> np.ndarray:
-        """(h, w) float32: standard deviation of the log luminance change (frame over
-        background) in the ``codec_chroma_px`` square around each pixel of a box.
+    def _dark_spread(self, codes: np.ndarray, box: Box, ys: np.ndarray,
+                     xs: np.ndarray) -> np.ndarray:
+        """(n,) float32: at the box pixels ``(ys, xs)``, the standard deviation of the
+        frame's log change in green (the channel luminance mostly is) over the background's,
+        in the ``codec_chroma_px`` square around each.
 
         At 4:2:0 a codec keeps one colour for each 2x2 pixels and its decoder interpolates
         between them (and quantises it per 16x16 block): a pixel's chromaticity is partly its
         neighbours'. Luminance is kept at full resolution, so how much the neighbours'
         change differs from the pixel's own says how far its colour change can be off: at a
         shadow's edge, where the sunlit ground's colour bleeds in, a lot; inside, little.
+        Computed over the pixels' bounding rectangle only (and a margin of half the square).
         """
-        y0, y1, x0, x1 = box
-        tr, bg = self.transfer, self.background
-        lum = cv2.transform(tr.image_to_linear(codes), _LUMA_BGR)
-        lum_bg = cv2.transform(bg.linear[y0:y1, x0:x1], _LUMA_BGR)
-        change = cv2.log(cv2.max(lum, 1e-4)) - cv2.log(cv2.max(lum_bg, 1e-4))
+        y0, _, x0, _ = box
         k = self.settings.codec_chroma_px
+        h, w = codes.shape[:2]
+        m = k // 2 + 1
+        r0, r1 = max(0, int(ys.min()) - m), min(h, int(ys.max()) + m + 1)
+        c0, c1 = max(0, int(xs.min()) - m), min(w, int(xs.max()) + m + 1)
+        log_g = self._log_green
+        change = cv2.subtract(
+            cv2.LUT(np.ascontiguousarray(codes[r0:r1, c0:c1, 1]), log_g),
+            cv2.LUT(np.ascontiguousarray(
+                self.background.mean_u8[y0 + r0:y0 + r1, x0 + c0:x0 + c1, 1]), log_g))
         mean = cv2.blur(change, (k, k), borderType=cv2.BORDER_REPLICATE)
         mean_sq = cv2.blur(cv2.multiply(change, change), (k, k),
                            borderType=cv2.BORDER_REPLICATE)
-        return cv2.sqrt(cv2.max(mean_sq - cv2.multiply(mean, mean), 0.0))
+        var = cv2.max(mean_sq - cv2.multiply(mean, mean), 0.0)
+        return np.sqrt(var[ys - r0, xs - c0])
 
     def colour_terms(self, corrected: np.ndarray, box: Box) -> dict:
         """The colour costs ``U^C`` of one region and its shadow features (before the cut).
@@ -311,8 +321,8 @@ class Segmenter:
         features = shadow_features(
             lin, lin_bg, s, tr.log_flat.take(at), tr.log_flat.take(at_bg), noise,
         )
-        if coded and s.codec_chroma_px > 1:
-            local = self._dark_spread(codes, box)[ys[dark], xs[dark]]
+        if coded and s.codec_chroma_px > 1 and np.any(dark):
+            local = self._dark_spread(codes, box, ys[dark], xs[dark])
             features = features._replace(dark_local=local)
         # The candidates the signature is estimated from: the core of the foreground, away
         # from its rim on lit ground. Under heavy sensor noise the outer penumbra (ground lit
