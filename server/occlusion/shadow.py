@@ -60,8 +60,9 @@ class ShadowFeatures(NamedTuple):
     F_background`` (``w`` cancels); ``blue = ln(G/B)_background - ln(G/B)`` (positive when
     bluer); ``dark``: log luminance ratio. ``*_noise``: standard deviation of each that the
     camera's noise alone gives (0 when unknown), added in quadrature to the tolerances.
-    ``dark_local``: on block-coded frames, the standard deviation of ``dark`` around the
-    pixel (over the codec's chroma reach, ``codec_chroma_px``), 0 otherwise: at 4:2:0 a
+    ``dark_local``: on block-coded frames, the standard deviation of the log change in
+    green (about ``dark``) around the pixel, over the codec's chroma reach
+    (``codec_chroma_px``; segment.Segmenter._dark_spread), 0 otherwise: at 4:2:0 a
     pixel's colour is shared with its neighbours, so its blue shift is off by as much as
     theirs differs (:meth:`ShadowSignature.cost` scales it by the signature's blue per
     darkening).
