@@ -390,31 +390,39 @@ class Segmenter:
         compensation) and the cut keeps it as lines one or two pixels wide along the
         shadow's edges, apart from the person (issue 18: most of the shadow kept through
         H.264). A region is a sliver when at least ``shadow_sliver_share`` of its pixels
-        pass the shadow's hard gates (finite cost) and a 3x3 erosion leaves at most a tenth
-        of it (at most about two pixels thick): a person, even in dark clothes that pass the
-        gates, is thicker than that somewhere (their body), and a far person's legs belong
-        to the same region as the body.
+        pass the shadow's hard gates (finite cost) and an erosion of radius
+        ``shadow_sliver_px`` (per 1024 px of frame width, at least 1: 1 at 480 px, 2 at
+        1024) leaves at most a tenth of it (at most about twice that thick): a person, even
+        in dark clothes that pass the gates, is thicker than that somewhere (their body),
+        and a far person's legs belong to the same region as the body. Computed over the
+        person pixels' bounding rectangle (and the erosion's margin) only.
         """
         share = self.settings.shadow_sliver_share
         if share <= 0.0:
             return person, shadow
-        count, labels, stats, _ = cv2.connectedComponentsWithStats(person.view(np.uint8),
-                                                                   connectivity=8)
+        x, y, w, h = cv2.boundingRect(person.view(np.uint8))
+        if w == 0:
+            return person, shadow
+        # Thin: an erosion of radius shadow_sliver_px (per 1024 px of width) leaves a tenth.
+        r = max(1, round(self.settings.shadow_sliver_px * self.background.width / 1024))
+        rows = slice(max(0, y - r - 1), y + h + r + 1)
+        cols = slice(max(0, x - r - 1), x + w + r + 1)
+        sub = np.ascontiguousarray(person[rows, cols]).view(np.uint8)
+        count, labels, stats, _ = cv2.connectedComponentsWithStats(sub, connectivity=8)
         if count < 2:
             return person, shadow
         gated = np.zeros(person.shape, dtype=bool)
         gated[candidates] = np.isfinite(as_shadow)
         area = stats[:, cv2.CC_STAT_AREA]
-        drop = np.bincount(labels[gated & person], minlength=count) >= share * area
+        drop = np.bincount(labels[gated[rows, cols] & (sub > 0)], minlength=count) >= share * area
         drop[0] = False
         if not drop.any():
             return person, shadow
-        # Thin: an erosion of radius shadow_sliver_px (per 1024 px of width) leaves a tenth.
-        k = 2 * max(1, round(self.settings.shadow_sliver_px * self.background.width / 1024)) + 1
-        core = cv2.erode(person.view(np.uint8), np.ones((k, k), np.uint8)).view(bool)
+        core = cv2.erode(sub, np.ones((2 * r + 1, 2 * r + 1), np.uint8)) > 0
         drop &= np.bincount(labels[core], minlength=count) <= 0.1 * area
         if drop.any():
-            gone = drop[labels]
+            gone = np.zeros(person.shape, dtype=bool)
+            gone[rows, cols] = drop[labels]
             person = person & ~gone
             shadow = shadow | gone
         return person, shadow
