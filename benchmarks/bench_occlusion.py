@@ -30,6 +30,10 @@ sequence before 2026-11-25), each raw, through JPEG 75 and through H.264 (libx26
 frames with people, shadow kept, phantom regions in the empty frames after learning) and the
 time to draw a frame (the demo's and the replays' cost) and to process it.
 
+With ``--codecs`` it runs the broadband sequence raw, through JPEG 75 and through H.264 at
+480x270 and 1024x512 with the detector before issue 18's codec work (those parts switched off
+by settings, :data:`BEFORE_CODEC_WORK`) and as it is now, frame by frame on the same frames.
+
 With ``--refit`` it times only the person colour mixture's warm refit, this code's numpy EM
 against OpenCV's ``EM.trainM`` from the same posteriors (the frames that set the p95 before
 2026-11-25).
@@ -43,7 +47,7 @@ regions (connected person regions of at least 25 px) in the empty frames after l
 ms per frame (median, p95).
 
 Run: ``.venv/bin/python benchmarks/bench_occlusion.py [--ablation] [--refit] [--synthetic]
-[--heldout [CONDITION ...]]``
+[--codecs] [--heldout [CONDITION ...]]``
 (about a minute, two with the ablation; the held-out conditions about 15 minutes; ``--help``
 lists the conditions).
 """
@@ -313,6 +317,58 @@ def synthetic(sizes=((480, 270), (1024, 512))) -> None:
                       f"{os.getloadavg()[0]:.1f} |", flush=True)
 
 
+# Issue 18's codec work (2026-11-25) switched off: the detector as it was before, for the
+# same-run baseline of --codecs (these settings reproduce its figures exactly).
+BEFORE_CODEC_WORK = {"shadow_learn_spread": False, "codec_chroma_px": 1,
+                     "shadow_sliver_share": 0.0, "shadow_ratio": (0.15, 0.92)}
+
+
+def codecs(sizes=((480, 270), (1024, 512))) -> None:
+    """Issue 18's figures through the codecs, the detector before and after its codec work,
+    interleaved frame by frame on the same frames (same run, same load)."""
+    from server.occlusion.settings import OcclusionSettings
+    from tests.server.occlusion.conftest import CODEC_EMPTY_S, CODECS, coded_truths
+
+    print("\nStandard sequence (broadband), 12 s at 10 frames/s, 1.6 s empty (1 s learned), "
+          "raw and coded: the detector before issue 18's codec work (settings "
+          f"{BEFORE_CODEC_WORK}) and now\n")
+    print("| size | frames as | detector | person IoU (median) | worst frame IoU | "
+          "shadow kept | phantom regions (empty frames) | CPU ms median | CPU ms p95 | load |")
+    print("|---|---|---|---:|---:|---:|---:|---:|---:|---:|")
+    variants = {"before": OcclusionSettings(**BEFORE_CODEC_WORK), "now": OcclusionSettings()}
+    for width, height in sizes:
+        site = default_site(width, height, empty_s=CODEC_EMPTY_S)
+        virtual = box_depth_image(site.camera, *VIRTUAL_BOX)
+        for name, codec in CODECS.items():
+            procs = {k: OcclusionProcessor(site.camera, virtual, v) for k, v in variants.items()}
+            res = {k: {"iou": [], "phantom": [], "cpu": [], "kept": 0} for k in variants}
+            shadow = 0
+            for truth in coded_truths(site, codec):
+                learning = False
+                for k, proc in procs.items():
+                    r, _, ms = cpu_timed(proc.process, truth.image, truth.time_s)
+                    learning = r.learning
+                    if learning:
+                        continue
+                    t = res[k]
+                    t["cpu"].append(ms)
+                    person = r.person_mask > 0
+                    t["kept"] += np.count_nonzero(truth.shadow & person)
+                    if truth.person.any():
+                        t["iou"].append(np.count_nonzero(person & truth.person)
+                                        / np.count_nonzero(person | truth.person))
+                    else:
+                        t["phantom"].append(regions(person))
+                if not learning:
+                    shadow += np.count_nonzero(truth.shadow)
+            for k, t in res.items():
+                print(f"| {width}x{height} | {name} | {k} | {statistics.median(t['iou']):.3f} | "
+                      f"{min(t['iou']):.3f} | {t['kept'] / max(shadow, 1):.3f} | "
+                      f"{sum(t['phantom'])} in {len(t['phantom'])} (max {max(t['phantom'])}) | "
+                      f"{statistics.median(t['cpu']):.1f} | {np.percentile(t['cpu'], 95):.1f} | "
+                      f"{os.getloadavg()[0]:.1f} |", flush=True)
+
+
 def refit(repeats: int = 200) -> None:
     """The person colour mixture's warm refit (300 samples, 5 components, at most 5 EM steps):
     this code's numpy EM against OpenCV's ``EM.trainM`` from the same posteriors, interleaved
@@ -380,6 +436,9 @@ def parse_args(argv: list[str] | None = None):
     ap.add_argument("--synthetic", action="store_true",
                     help="only the standard sequence, broadband and narrow-band light, raw, "
                          "JPEG 75 and H.264 (issue 18; a few minutes)")
+    ap.add_argument("--codecs", action="store_true",
+                    help="issue 18's figures through JPEG 75 and H.264, the detector before "
+                    "and after its codec work, same run")
     ap.add_argument("--refit", action="store_true",
                     help="only the person colour refit: numpy EM against OpenCV's trainM "
                          "(seconds)")
@@ -404,6 +463,9 @@ def main(argv: list[str] | None = None) -> None:
         return
     if args.synthetic:
         synthetic()
+        return
+    if args.codecs:
+        codecs()
         return
     print("Occlusion pipeline, one core (cv2.setNumThreads(1), BLAS/OpenMP threads 1)")
     for width, height in SIZES:

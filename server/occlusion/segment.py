@@ -199,6 +199,8 @@ class Segmenter:
         self._log_global_w = math.log(lam) if lam > 0 else None
         self._log_pixel_w = math.log1p(-lam)
         self.signature = ShadowSignature(settings)
+        # ln(linear green) of each code, for the codec's local spread (_dark_spread)
+        self._log_green = np.ascontiguousarray(transfer.log_table[:, 0, 1]).reshape(256, 1)
         self.timings_ms: dict[str, float] = {}
 
     def reset(self) -> None:
@@ -233,6 +235,36 @@ class Segmenter:
         log_norm = 0.5 * np.log((2.0 * np.pi) ** 3 * (var[..., 0] * var[..., 1] * var[..., 2]))
         return d2, log_norm
 
+    def _dark_spread(self, codes: np.ndarray, box: Box, ys: np.ndarray,
+                     xs: np.ndarray) -> np.ndarray:
+        """(n,) float32: at the box pixels ``(ys, xs)``, the standard deviation of the
+        frame's log change in green (the channel luminance mostly is) over the background's,
+        in the ``codec_chroma_px`` square around each.
+
+        At 4:2:0 a codec keeps one colour for each 2x2 pixels and its decoder interpolates
+        between them (and quantises it per 16x16 block): a pixel's chromaticity is partly its
+        neighbours'. Luminance is kept at full resolution, so how much the neighbours'
+        change differs from the pixel's own says how far its colour change can be off: at a
+        shadow's edge, where the sunlit ground's colour bleeds in, a lot; inside, little.
+        Computed over the pixels' bounding rectangle only (and a margin of half the square).
+        """
+        y0, _, x0, _ = box
+        k = self.settings.codec_chroma_px
+        h, w = codes.shape[:2]
+        m = k // 2 + 1
+        r0, r1 = max(0, int(ys.min()) - m), min(h, int(ys.max()) + m + 1)
+        c0, c1 = max(0, int(xs.min()) - m), min(w, int(xs.max()) + m + 1)
+        log_g = self._log_green
+        change = cv2.subtract(
+            cv2.LUT(np.ascontiguousarray(codes[r0:r1, c0:c1, 1]), log_g),
+            cv2.LUT(np.ascontiguousarray(
+                self.background.mean_u8[y0 + r0:y0 + r1, x0 + c0:x0 + c1, 1]), log_g))
+        mean = cv2.blur(change, (k, k), borderType=cv2.BORDER_REPLICATE)
+        mean_sq = cv2.blur(cv2.multiply(change, change), (k, k),
+                           borderType=cv2.BORDER_REPLICATE)
+        var = cv2.max(mean_sq - cv2.multiply(mean, mean), 0.0)
+        return np.sqrt(var[ys - r0, xs - c0])
+
     def colour_terms(self, corrected: np.ndarray, box: Box) -> dict:
         """The colour costs ``U^C`` of one region and its shadow features (before the cut).
 
@@ -249,7 +281,8 @@ class Segmenter:
         y0, y1, x0, x1 = box
         codes = corrected[y0:y1, x0:x1]
         h, w = codes.shape[:2]
-        if s.codec_error_fraction > 0.0 and bg.blockiness >= s.codec_blockiness_min:
+        coded = s.codec_error_fraction > 0.0 and bg.blockiness >= s.codec_blockiness_min
+        if coded:
             d2, log_norm = self._codec_aware(codes, box)
         else:
             d2 = squared_distance(codes, bg.mean[y0:y1, x0:x1], bg.inv_var[y0:y1, x0:x1])
@@ -288,6 +321,9 @@ class Segmenter:
         features = shadow_features(
             lin, lin_bg, s, tr.log_flat.take(at), tr.log_flat.take(at_bg), noise,
         )
+        if coded and s.codec_chroma_px > 1 and np.any(dark):
+            local = self._dark_spread(codes, box, ys[dark], xs[dark])
+            features = features._replace(dark_local=local)
         # The candidates the signature is estimated from: the core of the foreground, away
         # from its rim on lit ground. Under heavy sensor noise the outer penumbra (ground lit
         # 70-90 %) and noise specks at that rim outnumbered the umbra in the signature's fine
@@ -341,7 +377,55 @@ class Segmenter:
                                            self.background.mean_contrast)
         person = np.zeros(different.shape, dtype=bool)
         person[part] = graph_cut(cost_fg[part], cost_bg[part], w_right, w_down, free)
+        person, shadow = self._drop_slivers(person, shadow, cand, as_shadow)
         return person, shadow & ~person
+
+    def _drop_slivers(self, person: np.ndarray, shadow: np.ndarray, candidates: np.ndarray,
+                      as_shadow: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Person regions that are thin slivers of possible shadow, given back to the shadow.
+
+        ``person``, ``shadow`` (h, w) bool of one region, ``candidates`` (h, w) bool and
+        ``as_shadow`` (n,) the candidates' shadow costs. Through a codec a shadow's rim keeps
+        part of the sunlit ground's colour (4:2:0, chroma left behind by motion
+        compensation) and the cut keeps it as lines one or two pixels wide along the
+        shadow's edges, apart from the person (issue 18: most of the shadow kept through
+        H.264). A region is a sliver when at least ``shadow_sliver_share`` of its pixels
+        pass the shadow's hard gates (finite cost) and an erosion of radius
+        ``shadow_sliver_px`` (per 1024 px of frame width, at least 1: 1 at 480 px, 2 at
+        1024) leaves at most a tenth of it (at most about twice that thick): a person, even
+        in dark clothes that pass the gates, is thicker than that somewhere (their body),
+        and a far person's legs belong to the same region as the body. Computed over the
+        person pixels' bounding rectangle (and the erosion's margin) only.
+        """
+        share = self.settings.shadow_sliver_share
+        if share <= 0.0:
+            return person, shadow
+        x, y, w, h = cv2.boundingRect(person.view(np.uint8))
+        if w == 0:
+            return person, shadow
+        # Thin: an erosion of radius shadow_sliver_px (per 1024 px of width) leaves a tenth.
+        r = max(1, round(self.settings.shadow_sliver_px * self.background.width / 1024))
+        rows = slice(max(0, y - r - 1), y + h + r + 1)
+        cols = slice(max(0, x - r - 1), x + w + r + 1)
+        sub = np.ascontiguousarray(person[rows, cols]).view(np.uint8)
+        count, labels, stats, _ = cv2.connectedComponentsWithStats(sub, connectivity=8)
+        if count < 2:
+            return person, shadow
+        gated = np.zeros(person.shape, dtype=bool)
+        gated[candidates] = np.isfinite(as_shadow)
+        area = stats[:, cv2.CC_STAT_AREA]
+        drop = np.bincount(labels[gated[rows, cols] & (sub > 0)], minlength=count) >= share * area
+        drop[0] = False
+        if not drop.any():
+            return person, shadow
+        core = cv2.erode(sub, np.ones((2 * r + 1, 2 * r + 1), np.uint8)) > 0
+        drop &= np.bincount(labels[core], minlength=count) <= 0.1 * area
+        if drop.any():
+            gone = np.zeros(person.shape, dtype=bool)
+            gone[rows, cols] = drop[labels]
+            person = person & ~gone
+            shadow = shadow | gone
+        return person, shadow
 
     def segment(self, corrected: np.ndarray, boxes: list[Box]) -> tuple[np.ndarray, np.ndarray,
                                                                       np.ndarray]:
@@ -355,7 +439,7 @@ class Segmenter:
         terms = [self.colour_terms(corrected, box) for box in boxes]
         if terms:
             merged = tuple(np.concatenate([np.broadcast_to(t["features"][k], t["core"].shape)
-                                           [t["core"]] for t in terms]) for k in range(7))
+                                           [t["core"]] for t in terms]) for k in range(8))
             self.signature.update(merged)
         t1 = time.perf_counter()
         shape = corrected.shape[:2]

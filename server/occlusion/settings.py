@@ -92,6 +92,10 @@ SCHEMA: dict = {
         "codec_blockiness_min": _num(1.1, "the codec's error is modelled only when the "
                                      "learned frames' block-boundary step ratio "
                                      "(background.blockiness) is at least this", minimum=0),
+        "codec_chroma_px": _int(5, "side, pixels, of the square over which a block-coded "
+                                "frame's colour is shared (4:2:0 and its interpolation): a "
+                                "shadow's blue shift may be off by the spread of the "
+                                "darkening there (1: off)", minimum=1),
         # Background model (background.py)
         "bg_rate": _num(0.02, "per-frame update rate of the per-pixel background mean and "
                         "variance where the final label is background (time constant 1 / "
@@ -157,7 +161,7 @@ SCHEMA: dict = {
                         "wavelengths_nm"},
         "t_f": _num(0.12, "a pixel is shadow only when |ln F - ln F_background| < t_f",
                     exclusiveMinimum=0),
-        "shadow_ratio": _numbers([0.15, 0.92], 2, "(lo, hi) of a shadow's luminance over the "
+        "shadow_ratio": _numbers([0.05, 0.92], 2, "(lo, hi) of a shadow's luminance over the "
                                  "background's (hi < 1: darker), lo < hi", minimum=0),
         "shadow_min_blue_shift": _num(0.0, "least drop of ln(G/B) below the background's "
                                       "in shadow (lit by the bluer sky alone); 0: the paper's "
@@ -175,6 +179,10 @@ SCHEMA: dict = {
                             "may be their penumbra (blue shift scaled to its darkening); "
                             "false: its darkening must be the shadows' within "
                             "shadow_dark_tolerance"},
+        "shadow_learn_spread": {"type": "boolean", "default": True,
+                                "description": "widen the blue-shift tolerance to twice the "
+                                "spread of the frame's shadows' blue shifts (learned with the "
+                                "signature; at most shadow_search): a codec's chroma error"},
         "shadow_search": _num(0.25, "half width, ln units, of the blue shifts searched "
                               "around the last estimate", minimum=0),
         "shadow_shift_tolerance": _num(0.1, "a shadow's blue shift is within this of the "
@@ -188,6 +196,13 @@ SCHEMA: dict = {
                                          "0: all", minimum=0),
         "shadow_signature_rate": _num(0.3, "smoothing of the signature from frame to frame "
                                       "(1: no memory)", exclusiveMinimum=0, maximum=1),
+        "shadow_sliver_share": _num(0.8, "a person region at least this share of which "
+                                    "passes the shadow's hard gates, and thin (see "
+                                    "shadow_sliver_px), is a shadow's rim the codec left "
+                                    "(0: off)", minimum=0, maximum=1),
+        "shadow_sliver_px": _int(2, "a region is thin when an erosion of this radius, pixels "
+                                 "per 1024 px of frame width (at least 1), leaves at most a "
+                                 "tenth of it", minimum=0),
         "shadow_cost": _num(6.0, "background cost, nats, of a pixel that is a perfect shadow",
                             minimum=0),
         "shadow_slope": _num(4.0, "added cost, nats, per squared tolerance of deviation from "
@@ -231,6 +246,7 @@ class OcclusionSettings:
     codec_error_fraction: float = _default("codec_error_fraction")
     codec_block_px: int = _default("codec_block_px")
     codec_blockiness_min: float = _default("codec_blockiness_min")
+    codec_chroma_px: int = _default("codec_chroma_px")
 
     bg_rate: float = _default("bg_rate")
     bg_update_bands: int = _default("bg_update_bands")
@@ -265,11 +281,14 @@ class OcclusionSettings:
     shadow_signature: bool = _default("shadow_signature")
     daylight_temperatures_k: tuple[float, float] = _default("daylight_temperatures_k")
     shadow_penumbra: bool = _default("shadow_penumbra")
+    shadow_learn_spread: bool = _default("shadow_learn_spread")
     shadow_search: float = _default("shadow_search")
     shadow_shift_tolerance: float = _default("shadow_shift_tolerance")
     shadow_dark_tolerance: float = _default("shadow_dark_tolerance")
     shadow_signature_core_px: int = _default("shadow_signature_core_px")
     shadow_signature_rate: float = _default("shadow_signature_rate")
+    shadow_sliver_share: float = _default("shadow_sliver_share")
+    shadow_sliver_px: int = _default("shadow_sliver_px")
     shadow_cost: float = _default("shadow_cost")
     shadow_slope: float = _default("shadow_slope")
     dark_floor: float = _default("dark_floor")

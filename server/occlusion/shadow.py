@@ -60,6 +60,12 @@ class ShadowFeatures(NamedTuple):
     F_background`` (``w`` cancels); ``blue = ln(G/B)_background - ln(G/B)`` (positive when
     bluer); ``dark``: log luminance ratio. ``*_noise``: standard deviation of each that the
     camera's noise alone gives (0 when unknown), added in quadrature to the tolerances.
+    ``dark_local``: on block-coded frames, the standard deviation of the log change in
+    green (about ``dark``) around the pixel, over the codec's chroma reach
+    (``codec_chroma_px``; segment.Segmenter._dark_spread), 0 otherwise: at 4:2:0 a
+    pixel's colour is shared with its neighbours, so its blue shift is off by as much as
+    theirs differs (:meth:`ShadowSignature.cost` scales it by the signature's blue per
+    darkening).
     """
 
     usable: np.ndarray
@@ -69,6 +75,7 @@ class ShadowFeatures(NamedTuple):
     f_noise: np.ndarray | float = 0.0
     blue_noise: np.ndarray | float = 0.0
     dark_noise: np.ndarray | float = 0.0
+    dark_local: np.ndarray | float = 0.0
 
 
 def shadow_features(
@@ -126,6 +133,28 @@ def expected_blue_shift(settings: OcclusionSettings) -> float:
     return float(c2 * (1.0 / t_lit - 1.0 / t_sky) * (1.0 / lb - 1.0 / lg))
 
 
+def _spread(deviation: np.ndarray, start: float, most: float) -> float:
+    """Standard deviation of the population around 0 in ``deviation`` (N,), ln units.
+
+    1.4826 MAD of the values within a window that starts at ``start`` and widens to 2.5
+    spreads (at most ``most``): a window as wide as the search from the start would take in
+    a second population nearby (a neutral coat 0.2 less blue than the shadows) and widen
+    the tolerance enough to let it pass; a fixed narrow one would truncate a wide peak.
+    Underestimates a little where the window is still under 2.5 spreads wide.
+    """
+    window, sigma = start, 0.0
+    for _ in range(3):
+        inside = np.abs(deviation) < window
+        if np.count_nonzero(inside) < 20:
+            return sigma
+        sigma = 1.4826 * float(np.median(np.abs(deviation[inside])))
+        wider = min(most, 2.5 * sigma)
+        if wider <= window:
+            break
+        window = wider
+    return sigma
+
+
 class ShadowSignature:
     """The change of illuminant that every cast shadow of a frame shares, tracked over frames.
 
@@ -144,6 +173,12 @@ class ShadowSignature:
         self.settings = settings
         self.blue = expected_blue_shift(settings)
         self.dark: float | None = None  # unknown until the first shadows are seen
+        # Spread (ln units, a standard deviation) of the blue shift among the frame's shadow
+        # pixels, learned with the signature: what the camera's noise and a codec's chroma
+        # error make of one illuminant change (0 until measured). The darkening's is not
+        # learned: the candidates' darkening mixes garments of every shade with the shadows,
+        # and learning it changed nothing through the codecs (issue 18).
+        self.blue_spread = 0.0
         self.updates = 0
 
     def update(self, features) -> None:
@@ -196,10 +231,25 @@ class ShadowSignature:
         if np.count_nonzero(near) < 20:
             return
         nb_, nd_ = float(np.median(b[near])), float(np.median(d[near]))
+        # The spread about the peak. Through a block codec a shadow's blue shift spreads over
+        # +-0.15 (4:2:0 chroma bleeding from the sunlit side, coarse chroma quantisation; raw
+        # +-0.07), more than shadow_shift_tolerance allows.
+        sb = _spread(b - nb_, s.shadow_shift_tolerance, s.shadow_search)
         rate = 1.0 if self.updates == 0 else s.shadow_signature_rate
         self.blue += rate * (nb_ - self.blue)
         self.dark = nd_ if self.dark is None else self.dark + rate * (nd_ - self.dark)
+        self.blue_spread += rate * (sb - self.blue_spread)
         self.updates += 1
+
+    @property
+    def shift_tolerance(self) -> float:
+        """Tolerance of a shadow's blue shift, ln units: ``shadow_shift_tolerance``, or two
+        learned spreads where the frames are noisier (a codec), at most ``shadow_search``."""
+        s = self.settings
+        if not s.shadow_learn_spread:
+            return s.shadow_shift_tolerance
+        return min(max(s.shadow_shift_tolerance, 2.0 * self.blue_spread),
+                   max(s.shadow_search, s.shadow_shift_tolerance))
 
     def cost(self, features) -> np.ndarray:
         """(N,) float32 background cost, nats, of explaining each candidate as shadow.
@@ -223,10 +273,14 @@ class ShadowSignature:
             gate &= f.blue >= s.shadow_min_blue_shift
         m2 = (f.f_change / tol_f) ** 2
         if s.shadow_signature:
-            tol_b = s.shadow_shift_tolerance if self.updates else s.shadow_search
+            tol_b = self.shift_tolerance if self.updates else s.shadow_search
             blue = self.blue
             if self.dark is not None and not s.shadow_penumbra:
-                tol_d = _tolerance(s.shadow_dark_tolerance, f.dark_noise)
+                # dark_local: at a shadow's edge a codec blurs the luminance step too (JPEG's
+                # and H.264's quantised blocks, the deblocking filter), so the darkening
+                # there is uncertain by as much as it varies around the pixel.
+                tol_d = _tolerance(s.shadow_dark_tolerance, np.sqrt(
+                    np.square(f.dark_noise) + np.square(np.asarray(f.dark_local))))
                 m2 += ((f.dark - self.dark) / tol_d) ** 2
             elif self.dark is not None:
                 # Penumbra: covered a share c of the way, the ground is lit by
@@ -240,7 +294,14 @@ class ShadowSignature:
                         - np.log(np.maximum(1.0 - c * (1.0 - r_g), 1e-3)))
                 tol_d = _tolerance(s.shadow_dark_tolerance, f.dark_noise)
                 m2 += (np.minimum(f.dark - self.dark, 0.0) / tol_d) ** 2
-            m2 += ((f.blue - blue) / _tolerance(tol_b, f.blue_noise)) ** 2
+            blue_noise = f.blue_noise
+            if self.dark is not None and np.any(f.dark_local):
+                # The codec's chroma bleeding: neighbours darkened differently by dark_local
+                # (ln) are bluer by that times the shadows' blue per darkening.
+                per_dark = abs(self.blue / min(self.dark, -1e-3))
+                blue_noise = np.sqrt(np.square(blue_noise)
+                                     + np.square(per_dark * np.asarray(f.dark_local)))
+            m2 += ((f.blue - blue) / _tolerance(tol_b, blue_noise)) ** 2
         cost = s.shadow_cost + s.shadow_slope * m2
         return np.where(gate, cost, np.inf).astype(np.float32)
 

@@ -160,3 +160,59 @@ def test_neutral_and_bluish_shadows_are_learned(umbra_bgr):
             garment = ground * np.asarray(tint)[None, :]
             other = sig.cost(shadow_features(garment, ground, s))
             assert np.all(other > s.shadow_cost + 2 * s.shadow_slope), np.min(other)
+
+
+def _noisy_shadows(rng, n, blue_sd, dark_sd=0.05):
+    """Shadow features of ``n`` pixels of one illuminant change (blue shift 0.45, darkening
+    ln 0.22) whose blue shift a codec's chroma error spreads by ``blue_sd`` (Gaussian)."""
+    from server.occlusion.shadow import ShadowFeatures
+
+    blue = 0.45 + blue_sd * rng.standard_normal(n)
+    dark = np.log(0.22) + dark_sd * rng.standard_normal(n)
+    return ShadowFeatures(np.ones(n, bool), 0.02 * rng.standard_normal(n), blue, dark)
+
+
+@pytest.mark.parametrize("blue_sd", [0.03, 0.08, 0.12])
+def test_the_blue_shift_tolerance_is_learned_from_the_shadows_spread(blue_sd):
+    """Through a codec a shadow's blue shift spreads (about 0.13 through JPEG 75): the
+    signature measures the spread of its own shadows' shifts (a Gaussian's standard deviation
+    here, known) and allows two of them, but never less than ``shadow_shift_tolerance``."""
+    s = OcclusionSettings()
+    rng = np.random.default_rng(1)
+    sig = ShadowSignature(s)
+    sig.blue = 0.45  # as if learned: the search starts at the last estimate
+    for _ in range(12):
+        sig.update(_noisy_shadows(rng, 3000, blue_sd))
+    assert sig.blue == pytest.approx(0.45, abs=0.02)
+    assert sig.blue_spread == pytest.approx(blue_sd, rel=0.15)
+    assert sig.shift_tolerance == pytest.approx(max(s.shadow_shift_tolerance, 2 * blue_sd),
+                                                rel=0.15)
+    shadows = _noisy_shadows(rng, 3000, blue_sd)
+    # Within two spreads: cheap as shadow (m^2 about 1 at most) for 95 % of them.
+    assert np.mean(sig.test(shadows)) > 0.9
+    off = s.with_(shadow_learn_spread=False)
+    if blue_sd > 0.05:  # without learning, the fixed 0.1 lets far fewer of them pass
+        fixed = ShadowSignature(off)
+        fixed.blue, fixed.dark, fixed.updates = sig.blue, sig.dark, sig.updates
+        assert np.mean(fixed.test(shadows)) < np.mean(sig.test(shadows)) - 0.1
+
+
+def test_a_neutral_coat_near_the_shadows_does_not_widen_the_tolerance():
+    """A second population 0.22 less blue (a neutral coat, as many pixels as the shadows,
+    within the search) must not be taken as the shadows' spread: the window starts narrow and
+    widens only as the peak is wide. (A window as wide as the search from the start gave a
+    spread of 0.077 here, a tolerance of 0.15 that fails this test.)"""
+    s = OcclusionSettings()
+    rng = np.random.default_rng(2)
+    sig = ShadowSignature(s)
+    sig.blue = 0.45
+    for _ in range(12):
+        shadows = _noisy_shadows(rng, 1000, 0.03)
+        coat = _noisy_shadows(rng, 1000, 0.03)._replace(blue=0.23 + 0.03 * rng.standard_normal(
+            1000))
+        sig.update(tuple(np.concatenate([a, b]) for a, b in zip(shadows[:4], coat[:4],
+                                                                 strict=True)))
+    assert sig.blue == pytest.approx(0.45, abs=0.03)
+    assert sig.shift_tolerance < 0.12
+    coat = _noisy_shadows(rng, 2000, 0.03)._replace(blue=np.full(2000, 0.23))
+    assert not sig.test(coat).any()
