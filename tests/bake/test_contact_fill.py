@@ -104,3 +104,43 @@ def test_the_chord_is_linear_in_the_lights():
     summed = extrapolate_direct(atlas, direct.sum(axis=1, keepdims=True))
     assert np.allclose(per_light.sum(axis=1, keepdims=True), summed, rtol=1e-5)
     assert np.array_equal(np.delete(per_light, 3, axis=0), np.delete(direct, 3, axis=0))
+
+
+def test_solid_depth_finds_points_in_overlapping_solids_as_trimesh_does():
+    """bake.contact.solid_depth against trimesh's own point-in-mesh test (``contains``) on the
+    test courtyard's two walls, the end of one inside the other. The bake's vote (most of 16
+    rays say the point is in a solid) is trimesh's answer at every point; a ray's count is
+    the number of walls holding its origin except where it crosses faces that coincide
+    (both walls' tops, their west faces); just past ``exit_m`` a ray is outside both walls.
+    A point in one wall sees the other's inner faces from the front: the first hits alone
+    (the rule before) took some for visible."""
+    from bake.contact import PROBE_RAYS, solid_depth
+    from bake.raytrace import Geometry, RayScene
+    from tests.bake.test_contact import _courtyard
+
+    walls = [mesh for _, mesh, _ in _courtyard()]
+    parts = [SimpleNamespace(mesh=m, albedo=np.full((len(m.faces), 3), 0.5)) for m in walls]
+    scene = RayScene(Geometry.from_parts(parts, [True, True]))
+    rng = np.random.default_rng(7)
+    n = 600
+    points = rng.uniform([-1.5, 0.01, -1.5], [2.0, 2.9, 12.0], (n, 3))
+    points[: n // 3] = rng.uniform([-1.0, 0.01, -1.0], [0.0, 2.9, 0.0], (n // 3, 3))  # overlap
+    origins = np.repeat(points, PROBE_RAYS, axis=0)
+    dirs = rng.normal(size=(len(origins), 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    depth, exit_m = solid_depth(scene, origins, dirs)
+    held = np.array([w.contains(points) for w in walls]).sum(axis=0)  # walls holding each
+    vote = (depth > 0).reshape(n, PROBE_RAYS).mean(axis=1) > 0.5
+    assert np.array_equal(vote, held > 0)
+    per_ray = np.repeat(held, PROBE_RAYS)
+    assert np.mean(depth == per_ray) > 0.9 and (per_ray == 2).sum() > 1000
+    out = np.flatnonzero((depth > 0) & (per_ray > 0))
+    assert np.isfinite(exit_m[out]).all() and np.isinf(exit_m[depth <= 0]).all()
+    after = origins[out] + (exit_m[out] + 1e-3)[:, None] * dirs[out]
+    assert np.mean(np.array([w.contains(after) for w in walls]).any(axis=0)) < 0.01
+    # The rule before (every first hit a back face) missed points in one wall whose rays
+    # run on into the other: they meet its inner faces from the front.
+    face, _ = scene.first_hit(origins, dirs)
+    back = (face >= 0) & (np.einsum("ij,ij->i", dirs, scene.face_normals[face]) > 0)
+    before = back.reshape(n, PROBE_RAYS).all(axis=1)
+    assert (before != (held > 0)).sum() >= 5
