@@ -21,8 +21,9 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from bake import chunkio
+from bake import chunkio, contact
 from bake.irradiance import BounceCache, Estimator, SceneSet, cache_bounces, cache_points
+from bake.raytrace import RayScene
 
 RAYS_PER_CHUNK = 3_000_000
 STAGE_CODES = {"cache": 1, "atlas": 2, "view": 3, "cache bounces": 4}
@@ -96,6 +97,10 @@ class TraceWork:
         rng = np.random.default_rng([settings.seed, 0])
         self.cache = cache_points(
             geometry, settings.cache_spacing_m, max(2.0, 3 * settings.cache_spacing_m), rng
+        )
+        # Finer near contact lines, where a hit's nearest lit cache point lies farther out.
+        self.cache = contact.refine_cache(
+            geometry, RayScene(geometry), *self.cache, settings.cache_spacing_m
         )
         points, normals, _ = self.cache
         self.cache_set = PointSet("cache", "cache", points, normals, ("all", "real"), bounce=False)

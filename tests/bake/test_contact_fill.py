@@ -144,3 +144,57 @@ def test_solid_depth_finds_points_in_overlapping_solids_as_trimesh_does():
     back = (face >= 0) & (np.einsum("ij,ij->i", dirs, scene.face_normals[face]) > 0)
     before = back.reshape(n, PROBE_RAYS).all(axis=1)
     assert (before != (held > 0)).sum() >= 5
+
+
+def test_the_bounce_cache_is_refined_at_contact_lines_outside_every_solid():
+    """bake.contact.refine_cache on the test courtyard (two walls in an L on the ground,
+    cache spacing 1 m as in the test bakes). A bounce hit reads the nearest lit cache point
+    on its face; in the inner corner and along the walls' feet, every point of the faces
+    within 0.5 m of the contact line now has a cache point within the refined lattice's
+    reach (0.25 m spacing: within 0.18 m), where before the nearest lay up to about a metre
+    out, in brighter light. The added points lie outside both walls by trimesh's
+    point-in-mesh test (``contains``), and only near contact lines."""
+    import trimesh
+
+    from bake.contact import CACHE_REFINE, refine_cache
+    from bake.irradiance import cache_points
+    from bake.raytrace import Geometry, RayScene
+    from tests.bake.test_contact import _courtyard
+
+    walls = [mesh for _, mesh, _ in _courtyard()]
+    ground = trimesh.Trimesh([[-25, 0, -25], [25, 0, -25], [25, 0, 25], [-25, 0, 25]],
+                             [[0, 2, 1], [0, 3, 2]])
+    parts = [SimpleNamespace(mesh=m, albedo=np.full((len(m.faces), 3), 0.5))
+             for m in walls + [ground]]
+    geometry = Geometry.from_parts(parts, [True, True, False])
+    spacing = 1.0
+    before = cache_points(geometry, spacing, 3.0, np.random.default_rng(7))
+    points, normals, faces = refine_cache(geometry, RayScene(geometry), *before, spacing)
+    C = len(before[0])
+    assert np.array_equal(points[:C], before[0]) and np.array_equal(faces[:C], before[2])
+    added = points[C:]
+    assert 100 < len(added) < 20 * C
+    above = added + 1e-3 * normals[C:]  # on a face: just outside it, where rays start
+    assert not np.any([w.contains(above) for w in walls])
+    # Points where the first wall's courtyard face (z = 0) meets the ground and the second
+    # wall (x = 0), and along the ground at both walls' feet: the nearest cache point on
+    # the same face, before and after.
+    rng = np.random.default_rng(3)
+    probes = {
+        "corner of the wall face": np.c_[rng.uniform(0, 0.5, 200), rng.uniform(0, 0.5, 200),
+                                         np.zeros(200)],
+        "ground in the corner": np.c_[rng.uniform(0, 0.5, 200), np.zeros(200),
+                                      rng.uniform(0, 0.5, 200)],
+        "ground at the foot": np.c_[rng.uniform(2, 8, 200), np.zeros(200),
+                                    rng.uniform(0, 0.5, 200)],
+    }
+    normal = {"corner of the wall face": [0, 0, 1.0]}
+    reach = spacing / CACHE_REFINE / np.sqrt(2) + 1e-6
+    for name, q in probes.items():
+        n = np.array(normal.get(name, [0, 1.0, 0]))
+        on_face = np.flatnonzero((normals @ n > 0.999) & (np.abs((points - q[0]) @ n) < 1e-6))
+        lit_before = on_face[on_face < C]
+        d_after = np.min(np.linalg.norm(q[:, None] - points[None, on_face], axis=2), axis=1)
+        d_before = np.min(np.linalg.norm(q[:, None] - points[None, lit_before], axis=2), axis=1)
+        assert d_after.max() <= reach, name
+        assert d_before.max() > 2 * reach, name
