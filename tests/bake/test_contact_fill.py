@@ -198,3 +198,37 @@ def test_the_bounce_cache_is_refined_at_contact_lines_outside_every_solid():
         d_before = np.min(np.linalg.norm(q[:, None] - points[None, lit_before], axis=2), axis=1)
         assert d_after.max() <= reach, name
         assert d_before.max() > 2 * reach, name
+
+
+def test_no_direct_light_reaches_cache_points_inside_solids_as_trimesh_finds_them():
+    """The direct light (bake.irradiance.Estimator.direct) at the bounce-cache points of the
+    test courtyard with a third block inside the first wall, 160 lights as the demo: every
+    point inside a solid by trimesh's ``contains`` gets none, so the cache's "lit" rule
+    (``E_all > 0``) never takes it for lit. Before, a patch straddling a vertical face's
+    horizon whose samples all fell below it counted as unblocked (its exact, tiny value:
+    about 0.001), and 37 of the 152 points inside read lit. Points outside change by at
+    most 0.05 % of their total (those patches' own value)."""
+    import trimesh
+
+    from bake.dome import Dome
+    from bake.irradiance import Estimator, SceneSet, cache_points
+    from bake.raytrace import Geometry
+    from tests.bake.test_contact import _courtyard
+    from tests.sites import box
+
+    walls = [mesh for _, mesh, _ in _courtyard()]
+    walls.append(box([1.0, 2.0, 0.6], [3.0, 0.0, -0.5]))  # inside the first wall
+    ground = trimesh.Trimesh([[-25, 0, -25], [25, 0, -25], [25, 0, 25], [-25, 0, 25]],
+                             [[0, 2, 1], [0, 3, 2]])
+    parts = [SimpleNamespace(mesh=m, albedo=np.full((len(m.faces), 3), 0.5))
+             for m in walls + [ground]]
+    geometry = Geometry.from_parts(parts, [True] * len(walls) + [False])
+    points, normals, _ = cache_points(geometry, 0.5, 1.5, np.random.default_rng(1))
+    inside = np.any([w.contains(points + 1e-3 * normals) for w in walls], axis=0)
+    dome = Dome.for_light_count(160)
+    estimator = Estimator(dome.vertices, SceneSet.build(geometry, np.zeros(3)), 8, 0, None)
+    E = estimator.direct(points, normals, ("all",), np.random.default_rng(2))["all"]
+    assert inside.sum() > 100
+    assert not np.any(E[inside] > 0)
+    # Outside, every point not facing down (the walls' undersides face the ground) is lit.
+    assert np.all(E[~inside & (normals[:, 1] > -0.5)].sum(axis=1) > 0)
