@@ -58,7 +58,11 @@ from bake.writers import SunBounce, swap_into_place, write_atlas, write_view
 from daylit import __version__
 
 # Bump when the meaning of saved chunks changes, so stale partial bakes are not reused.
-CHUNK_FORMAT = 4  # 4: buried texels sampled on contact lines (bake.contact); 3: .npy records
+# 6: bounce-cache points added near contact lines (bake.contact.refine_cache), and a patch
+# whose samples all lie below the horizon lit by the share of them unblocked; 5: buried
+# texels found by counting the faces crossed (reverted, so chunks saved at 5 are not reused);
+# 4: buried texels sampled on contact lines (bake.contact); 3: .npy records.
+CHUNK_FORMAT = 6
 
 
 @dataclass

@@ -279,12 +279,20 @@ def hull_receivers(
 def drop_buried(receivers: list[Receiver], scene, probes: int = 9, rays: int = 24) -> list:
     """Receivers whose plane is not buried inside other (closed) geometry.
 
-    A point inside a closed mesh sees only back faces. Each plane is probed at up to
-    ``probes`` points with ``rays`` directions over its front hemisphere; it is dropped when
-    at least 90% of them first hit a back face (no view can ever see it, and its texels would
-    all be black).
+    Each plane is probed at up to ``probes`` of its texel centres with ``rays`` directions;
+    it is dropped when at least 90 % of the rays find their origin inside a solid: they
+    cross more back faces than front ones on their way out (:func:`bake.contact.solid_depth`;
+    no view can ever see such a plane, and its texels would all be black). Why not the first
+    hit alone (the rule before): where parts overlap, a plane inside one part sees another
+    part's faces inside it from the front, and was kept (a plinth's planes inside a hall,
+    facing a screen also inside it: tests/bake/test_receivers.py). The rays are turned
+    upward: the ground is an open surface, not a solid's face, and a downward ray from
+    inside a part meets the part's underside or the ground in one place, whichever the
+    tracer finds first (the count is then one off); upward rays never meet it, and where a
+    point lies does not depend on the direction it is probed in.
     """
     from bake import tracing_loops as loops
+    from bake.contact import solid_depth
     from bake.irradiance import lattice
     from bake.raytrace import RAY_OFFSET_M
 
@@ -300,11 +308,9 @@ def drop_buried(receivers: list[Receiver], scene, probes: int = 9, rays: int = 2
         loops.cosine_weighted_rays(
             points, normals, uv, np.zeros((len(pick), 2)), RAY_OFFSET_M, origins, all_dirs
         )
-        face, _ = scene.first_hit(origins, all_dirs)
-        hit = face >= 0
-        back = np.zeros(len(face), dtype=bool)
-        back[hit] = np.einsum("ij,ij->i", all_dirs[hit], scene.face_normals[face[hit]]) > 0.0
-        if back.mean() < 0.9:
+        all_dirs[:, 1] = np.abs(all_dirs[:, 1])
+        depth, _ = solid_depth(scene, origins, all_dirs)
+        if (depth > 0).mean() < 0.9:
             kept.append(receiver)
     return kept
 

@@ -67,8 +67,11 @@ def direct_sample_rays(origins, normals, pair_point, pair_patch, start, pool_dir
 def scatter_visible(blocked, weight, per_pair, pair_point, pair_patch, unoccluded, out):
     """``out[t, i] = unoccluded[t, i] * visible fraction`` of each pair's rays.
 
-    The fraction is the weight of the pair's unblocked rays over its total weight (1 if the
-    total is 0: every sample at grazing incidence).
+    The fraction is the weight of the pair's unblocked rays over its total weight. Where the
+    total is 0 (every sample at or below the surface's horizon: a patch straddling a wall's
+    horizon), the share of its rays that are unblocked: the rule before, 1, let a point
+    inside a solid read that patch's exact value (about 0.001) and pass for lit in the
+    bounce cache (tests/bake/test_contact_fill.py).
 
     Parameters
     ----------
@@ -80,12 +83,14 @@ def scatter_visible(blocked, weight, per_pair, pair_point, pair_patch, unocclude
     for p in range(len(pair_point)):
         total = 0.0
         visible = 0.0
+        free = 0
         for m in range(per_pair):
             r = p * per_pair + m
             total += weight[r]
             if not blocked[r]:
                 visible += weight[r]
-        fraction = visible / total if total > 0.0 else 1.0
+                free += 1
+        fraction = visible / total if total > 0.0 else free / per_pair
         t, i = pair_point[p], pair_patch[p]
         out[t, i] = unoccluded[t, i] * fraction
 

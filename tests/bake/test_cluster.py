@@ -12,6 +12,7 @@ from __future__ import annotations
 import os
 import signal
 import socket
+import threading
 from pathlib import Path
 
 import pytest
@@ -145,15 +146,26 @@ def test_workers_killed_mid_trace_are_replaced_and_the_bytes_are_the_same(
     """Worker processes killed (SIGKILL: a machine's out-of-memory killer, a reboot) while
     they trace: first one (Dask runs its chunks on the other and on the nanny's new one),
     then every one (the stage's setup is lost with them: the bake scatters it again). The
-    bake finishes with the local pool's bytes."""
+    bake finishes with the local pool's bytes.
+
+    The victims really hold work when they die, however many chunks the cache or the other
+    sets make and however fast the workers are: the first task of the second stage to
+    start holds its chunk (waits before tracing it) until its worker is killed, and after
+    that kill, the next task to start does the same until every worker is killed. The
+    first kill happens when another chunk is saved (so a chunk is saved before it), the
+    second as soon as a task holds. Nothing here depends on how many chunks got done
+    meanwhile."""
     from distributed import Client, LocalCluster
 
     monkeypatch.setattr(tracework, "RAYS_PER_CHUNK", RAYS_PER_CHUNK)
     out = tmp_path / "out"
+    gate = tmp_path / "gate"
+    gate.mkdir()
     killed: list = []
     sent: list = []
     save_chunk = chunkio.save_chunk
     run_once = cluster_mod.Cluster._run_once
+    monkeypatch.setattr(cluster_mod, "trace_chunk", _holding(cluster_mod.trace_chunk, gate))
 
     def counted_run_once(self, setup, remaining, bar):
         sent.append(len(remaining))
@@ -163,36 +175,82 @@ def test_workers_killed_mid_trace_are_replaced_and_the_bytes_are_the_same(
         n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0"
     ) as local, Client(local) as client:
 
-        def kill_workers(path, arrays):
+        def kill_one(path, arrays):
             save_chunk(path, arrays)
-            saved = len(list(path.parent.glob("*" + chunkio.SUFFIX)))
-            # A worker just killed may still be listed: ask the living ones.
-            pids = client.run(os.getpid, on_error="ignore")
-            processing = client.processing()
-            if saved == 2 and not killed:  # one busy worker
-                busy = [w for w, keys in processing.items() if keys and w in pids]
-                assert busy  # the victim is tracing (or about to trace) a chunk
-                os.kill(pids[busy[0]], signal.SIGKILL)
-                killed.append({busy[0]: processing[busy[0]]})
-            elif saved == 4 and len(killed) == 1:  # all of them
-                for pid in pids.values():
-                    os.kill(pid, signal.SIGKILL)
-                killed.append(pids)
+            if (gate / "hold1").exists() and not killed:  # the worker holding a chunk
+                held = int((gate / "hold1").read_text())
+                # A worker just killed may still be listed: ask the living ones.
+                victim = [w for w, pid in client.run(os.getpid, on_error="ignore").items()
+                          if pid == held]
+                processing = client.processing()
+                assert victim and processing[victim[0]]  # busy with the held chunk
+                os.kill(held, signal.SIGKILL)
+                killed.append({victim[0]: processing[victim[0]]})
+                (gate / "killed1").touch()  # from now on the next task to start holds
 
-        monkeypatch.setattr(chunkio, "save_chunk", kill_workers)
+        def kill_all():
+            # Not at a save: the held chunk may be the stage's last one.
+            while not (gate / "hold2").exists():
+                if stop.wait(0.05):
+                    return
+            pids = client.run(os.getpid, on_error="ignore")
+            assert int((gate / "hold2").read_text()) in pids.values()
+            for pid in pids.values():
+                os.kill(pid, signal.SIGKILL)
+            killed.append(pids)
+
+        stop = threading.Event()
+        killer = threading.Thread(target=kill_all, daemon=True)
+        killer.start()
+        monkeypatch.setattr(chunkio, "save_chunk", kill_one)
         monkeypatch.setattr(cluster_mod.Cluster, "_run_once", counted_run_once)
-        result = bake(scene, out, cluster=local.scheduler_address, **QUIET)
+        try:
+            result = bake(scene, out, cluster=local.scheduler_address, **QUIET)
+        finally:
+            stop.set()
+            killer.join()
     assert len(killed) == 2
     assert any(killed[0].values())  # it died holding chunks
-    # Once for the cache's chunk, once for the rest, and again after every worker died (with
-    # the chunks they held or had traced but not yet sent: their results died with them).
-    assert len(sent) == 3 and sent[0] == 1 and 0 < sent[2] < sent[1]
+    # Once for the cache's chunks, once for the rest, and again after every worker died (at
+    # least the held chunk: its result died with it).
+    assert len(sent) == 3 and sent[0] >= 1 and 0 < sent[2] < sent[1]
     assert result.rays > 0
     baked = build_files(out)
     assert baked.keys() == reference.keys()
     for path in reference:
         assert baked[path] == reference[path], path
     assert not (tmp_path / ".out.partial").exists()
+
+
+def _holding(trace_chunk, gate: Path, hold_s: float = 600.0):
+    """``trace_chunk`` (bake.cluster's) behind a gate in the folder ``gate``: the first of the
+    second stage's tasks (``bounce``) to start writes its process id to ``hold1`` and waits;
+    once ``killed1`` exists, the next task to start writes ``hold2`` and waits. A waiting
+    task traces as usual after ``hold_s`` (only if the test went wrong: it then fails on its
+    kills instead of hanging). The function is sent to the workers by value (cloudpickle: it
+    is defined in a function), and calls the real one, so the bytes are bake.cluster's."""
+
+    def held(setup, points, normals, configs, bounce, seed_words):
+        import os
+        import time
+
+        if bounce:
+            for k in (1, 2):
+                if k == 2 and not (gate / "killed1").exists():
+                    break
+                mine = gate / f"pid{os.getpid()}-{k}"
+                mine.write_text(str(os.getpid()))
+                try:  # a link is made whole or not at all: one task takes each hold
+                    os.link(mine, gate / f"hold{k}")
+                except FileExistsError:
+                    continue
+                deadline = time.monotonic() + hold_s
+                while time.monotonic() < deadline:
+                    time.sleep(0.05)
+                break
+        return trace_chunk(setup, points, normals, configs, bounce, seed_words)
+
+    return held
 
 
 def test_a_chunk_dask_gives_up_on_is_exit_2_with_what_to_do_and_resumes_locally(
