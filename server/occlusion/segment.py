@@ -44,7 +44,12 @@ from server.occlusion.background import BackgroundModel
 from server.occlusion.colour import Transfer, colour_index
 from server.occlusion.mixture import ColourMixture
 from server.occlusion.settings import OcclusionSettings, log_prior_table
-from server.occlusion.shadow import ShadowSignature, luminance, shadow_features
+from server.occlusion.shadow import (
+    ShadowFeatures,
+    ShadowSignature,
+    luminance,
+    shadow_features,
+)
 
 Box = tuple[int, int, int, int]  # y0, y1, x0, x1 (end exclusive), full resolution
 
@@ -439,7 +444,8 @@ class Segmenter:
         terms = [self.colour_terms(corrected, box) for box in boxes]
         if terms:
             merged = tuple(np.concatenate([np.broadcast_to(t["features"][k], t["core"].shape)
-                                           [t["core"]] for t in terms]) for k in range(8))
+                                           [t["core"]] for t in terms])
+                           for k in range(len(ShadowFeatures._fields)))
             self.signature.update(merged)
         t1 = time.perf_counter()
         shape = corrected.shape[:2]
