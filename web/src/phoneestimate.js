@@ -209,9 +209,8 @@ export class PhoneEstimator {
     this._sunTerms = null;
     this._skies = new Map();
     this._share = new Map(); // per sky type, the model sky's share (the rest isotropic)
-    this.rand = mulberry32(7);
+    this.rand = null; // the estimate's random draws, seeded afresh for each view (_poolFor)
     this.last = null; // the last estimate
-    this.poses = 0; // pools computed (pose changes)
   }
 
   _poolFor(camera, w, h) {
@@ -225,12 +224,11 @@ export class PhoneEstimator {
       // A new view starts afresh: its pool, its random draws and its followed shares depend on
       // the pose alone, not on how many views or estimates came before (a test's result must
       // not depend on how many estimates the machine managed before the pose was set).
-      this.pool = poolForPose(this.proxies, camera, w, h, this.farAlbedo, 1);
+      this.pool = poolForPose(this.proxies, camera, w, h, this.farAlbedo);
       this._pose = { m, fov: camera.fov, aspect: camera.aspect, w, h };
       this._sun = null;
       this._share.clear();
       this.rand = mulberry32(7);
-      this.poses += 1;
     }
     return this.pool;
   }
