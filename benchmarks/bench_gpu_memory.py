@@ -68,15 +68,20 @@ def sun_of(spec: str) -> dict:
     }
 
 
-def measure(
-    browser, server, reference, profile: dict, shading: str, sun: bool, query: str = ""
-) -> dict:
-    context = browser.new_context(
+def new_context(browser, profile: dict):
+    """A browser context with the device ``profile``'s viewport (a phone: touch, mobile)."""
+    return browser.new_context(
         viewport={"width": profile["width"], "height": profile["height"]},
         device_scale_factor=profile["dpr"],
         is_mobile=profile["mobile"],
         has_touch=profile["mobile"],
     )
+
+
+def measure(
+    browser, server, reference, profile: dict, shading: str, sun: bool, query: str = ""
+) -> dict:
+    context = new_context(browser, profile)
     page = context.new_page()
     try:
         hull = "&shading=hull" if shading == "hull" else ""
@@ -124,11 +129,7 @@ def relit_targets(browser, server, profile: dict, query: str) -> tuple[dict, dic
 
     import numpy as np
 
-    context = browser.new_context(
-        viewport={"width": profile["width"], "height": profile["height"]},
-        device_scale_factor=profile["dpr"], is_mobile=profile["mobile"],
-        has_touch=profile["mobile"],
-    )
+    context = new_context(browser, profile)
     page = context.new_page()
     try:
         page.goto(f"{server.url}/?mode=visit&test&shading=hull{query}")
