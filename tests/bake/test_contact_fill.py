@@ -17,6 +17,21 @@ TEXEL_M = 0.5
 FEET_M = np.linspace(1.0, 1.5, 26)[:-1]  # where the foot lies inside texel 2 (1.0-1.5 m)
 
 
+def courtyard_geometry(walls, ground: bool):
+    """bake.raytrace.Geometry of the closed ``walls`` (trimesh meshes, albedo 0.5) and, if
+    ``ground``, a 50 m ground square (open, not a solid)."""
+    import trimesh
+
+    from bake.raytrace import Geometry
+
+    meshes = list(walls)
+    if ground:
+        meshes.append(trimesh.Trimesh([[-25, 0, -25], [25, 0, -25], [25, 0, 25], [-25, 0, 25]],
+                                      [[0, 2, 1], [0, 3, 2]]))
+    parts = [SimpleNamespace(mesh=m, albedo=np.full((len(m.faces), 3), 0.5)) for m in meshes]
+    return Geometry.from_parts(parts, [True] * len(walls) + [False] * ground)
+
+
 def wall_foot(x_m, h_m):
     """Direct irradiance (uniform sky, L = 1) on the ground ``x_m`` from an infinite wall."""
     return np.pi * (1.0 + np.cos(np.arctan(h_m / np.maximum(x_m, 1e-12)))) / 2.0
@@ -115,12 +130,11 @@ def test_solid_depth_finds_points_in_overlapping_solids_as_trimesh_does():
     A point in one wall sees the other's inner faces from the front: the first hits alone
     (the rule before) took some for visible."""
     from bake.contact import PROBE_RAYS, solid_depth
-    from bake.raytrace import Geometry, RayScene
+    from bake.raytrace import RayScene
     from tests.bake.test_contact import _courtyard
 
     walls = [mesh for _, mesh, _ in _courtyard()]
-    parts = [SimpleNamespace(mesh=m, albedo=np.full((len(m.faces), 3), 0.5)) for m in walls]
-    scene = RayScene(Geometry.from_parts(parts, [True, True]))
+    scene = RayScene(courtyard_geometry(walls, ground=False))
     rng = np.random.default_rng(7)
     n = 600
     points = rng.uniform([-1.5, 0.01, -1.5], [2.0, 2.9, 12.0], (n, 3))
@@ -154,19 +168,13 @@ def test_the_bounce_cache_is_refined_at_contact_lines_outside_every_solid():
     reach (0.25 m spacing: within 0.18 m), where before the nearest lay up to about a metre
     out, in brighter light. The added points lie outside both walls by trimesh's
     point-in-mesh test (``contains``), and only near contact lines."""
-    import trimesh
-
     from bake.contact import CACHE_REFINE, refine_cache
     from bake.irradiance import cache_points
-    from bake.raytrace import Geometry, RayScene
+    from bake.raytrace import RayScene
     from tests.bake.test_contact import _courtyard
 
     walls = [mesh for _, mesh, _ in _courtyard()]
-    ground = trimesh.Trimesh([[-25, 0, -25], [25, 0, -25], [25, 0, 25], [-25, 0, 25]],
-                             [[0, 2, 1], [0, 3, 2]])
-    parts = [SimpleNamespace(mesh=m, albedo=np.full((len(m.faces), 3), 0.5))
-             for m in walls + [ground]]
-    geometry = Geometry.from_parts(parts, [True, True, False])
+    geometry = courtyard_geometry(walls, ground=True)
     spacing = 1.0
     before = cache_points(geometry, spacing, 3.0, np.random.default_rng(7))
     points, normals, faces = refine_cache(geometry, RayScene(geometry), *before, spacing)
@@ -208,21 +216,14 @@ def test_no_direct_light_reaches_cache_points_inside_solids_as_trimesh_finds_the
     horizon whose samples all fell below it counted as unblocked (its exact, tiny value:
     about 0.001), and 37 of the 152 points inside read lit. Points outside change by at
     most 0.05 % of their total (those patches' own value)."""
-    import trimesh
-
     from bake.dome import Dome
     from bake.irradiance import Estimator, SceneSet, cache_points
-    from bake.raytrace import Geometry
     from tests.bake.test_contact import _courtyard
     from tests.sites import box
 
     walls = [mesh for _, mesh, _ in _courtyard()]
     walls.append(box([1.0, 2.0, 0.6], [3.0, 0.0, -0.5]))  # inside the first wall
-    ground = trimesh.Trimesh([[-25, 0, -25], [25, 0, -25], [25, 0, 25], [-25, 0, 25]],
-                             [[0, 2, 1], [0, 3, 2]])
-    parts = [SimpleNamespace(mesh=m, albedo=np.full((len(m.faces), 3), 0.5))
-             for m in walls + [ground]]
-    geometry = Geometry.from_parts(parts, [True] * len(walls) + [False])
+    geometry = courtyard_geometry(walls, ground=True)
     points, normals, _ = cache_points(geometry, 0.5, 1.5, np.random.default_rng(1))
     inside = np.any([w.contains(points + 1e-3 * normals) for w in walls], axis=0)
     dome = Dome.for_light_count(160)
