@@ -180,6 +180,23 @@ def test_ar_places_the_hall_on_the_floor_and_holds_it(new_page, web_build, sky, 
         assert not ar.errors and not visit.errors, ar.errors + visit.errors
 
 
+def test_ar_from_the_linear_visit_has_an_antialiased_layer(new_page, web_build, sky):
+    """The visit drawn through its linear frame keeps the canvas without MSAA (its frame has
+    its own: docs/web.md, "GPU memory"); AR entered from it asks the XR layer for MSAA all
+    the same (three.js gives the layer the context's antialias unless told otherwise)."""
+    with StubServer(web_build) as server:
+        server.push(light_message(sky, 1), remember=True)
+        ar = new_page(*SIZE)
+        ar.page.add_init_script(xremu.init_script())
+        ar.open(server.url + f"/?mode=visit&test&exposure={EXPOSURE}", READY)
+        ar.page.locator('[data-mode="ar"]').click()
+        ar.wait("window.daylit.status.mode === 'ar' && window.daylit.debug.xrState().frames > 2")
+        state = ar.page.evaluate("window.daylit.debug.xrState()")
+        assert state["canvasAntialias"] is False  # a precondition: the linear frame's canvas
+        assert state["layerAntialias"] is True
+        assert not ar.errors, ar.errors
+
+
 def test_ar_sun_matches_the_visit(new_page, web_build, sky):
     """With the sun, the AR frame equals the visit's from the same site-relative pose: the
     sun's maps are in the site's frame and the materials' uniforms follow the placed site

@@ -21,7 +21,7 @@ import { mapSizeFor, SunShadows } from './sun.js';
 import { sunPosition } from './sunposition.js';
 import { SunBounce } from './sunbounce.js';
 import { VisitView } from './visit.js';
-import { arSupported, XRView } from './xr.js';
+import { arSupported, rendererWithXrAntialias, XRView } from './xr.js';
 
 const RELIGHT_MIN_INTERVAL_S = 0.1; // while the smoothed light glides, relight at most 10 Hz
 const RELIGHT_THRESHOLD = 1e-3;     // ... until it is within 0.1 % of the measured one
@@ -104,11 +104,10 @@ export class App {
     // The canvas's own MSAA only where the frame is drawn straight to it (AR, ?frame=direct, a
     // GPU without half-float targets): the linear frame has its own (hdr.js) and reaches the
     // canvas as one full-screen pass, which MSAA leaves as it was, while 4 samples of colour
-    // and depth cost 42 MB at a phone's 780 x 1688 (docs/web.md, "GPU memory"). AR chosen
-    // later from the visit is drawn without it.
+    // and depth cost 42 MB at a phone's 780 x 1688 (docs/web.md, "GPU memory"). AR's layer
+    // is antialiased either way, also when AR is chosen later from the visit.
     const direct = this.mode === 'ar' || !this.linearFrame || !HdrFrame.probe();
-    const renderer = new THREE.WebGLRenderer({
-      canvas: this.canvas,
+    const renderer = rendererWithXrAntialias(this.canvas, {
       antialias: this.mode !== 'kiosk' && direct,
       preserveDrawingBuffer: this.testing, // screenshots in tests
       powerPreference: 'high-performance',

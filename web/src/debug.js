@@ -301,7 +301,7 @@ export function debugApi(app) {
      * The AR session as drawn: XR frames seen, the reticle (shown, world position, metres), the
      * site's world matrix, and the first view's camera (world matrix and projection; the
      * emulated device draws its left eye), all column-major 16-arrays in the session's
-     * local-floor space.
+     * local-floor space; whether the XR layer and the canvas are antialiased.
      */
     xrState() {
       const view = app.view;
@@ -314,6 +314,10 @@ export function debugApi(app) {
         reticle: new THREE.Vector3().setFromMatrixPosition(view.reticle.matrix).toArray(),
         site: app.site.root.matrixWorld.toArray(),
         alignment: view.alignment,
+        // The XR layer's MSAA (an XRWebGLLayer's own; xr.js rendererWithXrAntialias) and the
+        // canvas's, which the visit's linear frame leaves off.
+        layerAntialias: app.renderer.xr.getBaseLayer()?.antialias ?? null,
+        canvasAntialias: app.renderer.getContext().getContextAttributes().antialias,
         eye: eye ? { matrixWorld: eye.matrixWorld.toArray(), projection: eye.projectionMatrix.toArray() } : null,
       };
     },

@@ -17,6 +17,31 @@ function withinSlop(tap, e) {
   return Math.hypot(e.clientX - tap.x, e.clientY - tap.y) <= TAP_SLOP_PX;
 }
 
+/**
+ * A three.js WebGLRenderer on `canvas` whose WebXR layer is antialiased whatever the canvas
+ * is. three.js (0.187) gives the XR layer (XRWebGLLayer, or the projection layer's samples)
+ * the context's own `antialias`, read once while the renderer is made; a visit's canvas has
+ * none (its linear frame has its own MSAA: app.js), so AR entered from the visit would have
+ * none either. The context is asked for what three.js itself asks for; it reads as
+ * antialiased only while the renderer is made.
+ * @param {HTMLCanvasElement} canvas
+ * @param {{antialias: boolean, preserveDrawingBuffer: boolean, powerPreference: string}} options
+ */
+export function rendererWithXrAntialias(canvas, options) {
+  const gl = canvas.getContext('webgl2', {
+    alpha: true, depth: true, stencil: false, premultipliedAlpha: true,
+    failIfMajorPerformanceCaveat: false, ...options,
+  });
+  if (!gl) return new THREE.WebGLRenderer({ canvas, ...options }); // three.js words the error
+  const own = gl.getContextAttributes;
+  gl.getContextAttributes = () => ({ ...own.call(gl), antialias: true });
+  try {
+    return new THREE.WebGLRenderer({ canvas, context: gl });
+  } finally {
+    delete gl.getContextAttributes; // the prototype's again: the canvas's true attributes
+  }
+}
+
 export async function arSupported() {
   try {
     return !!(navigator.xr && await navigator.xr.isSessionSupported('immersive-ar'));
@@ -30,7 +55,7 @@ export class XRView {
   static async open(renderer, scene, siteRoot, overlay, onEnd) {
     const session = await navigator.xr.requestSession('immersive-ar', {
       requiredFeatures: ['local-floor'],
-      optionalFeatures: ['hit-test', 'dom-overlay', 'light-estimation'],
+      optionalFeatures: ['hit-test', 'dom-overlay'],
       domOverlay: { root: overlay },
     });
     const view = new XRView(renderer, scene, siteRoot, overlay, session, onEnd);
