@@ -12,6 +12,7 @@ import { Kiosk } from './kiosk.js';
 import { KioskSun } from './kiosksun.js';
 import { LightSmoother, openSkyIrradiance, skySH9 } from './lightmath.js';
 import { LightStream } from './lightstream.js';
+import { KeptLight, keepForOffline, registerOffline } from './offline.js';
 import { ESTIMATE_PERIOD_S, PhoneEstimator, PhoneLight } from './phoneestimate.js';
 import { Relighter } from './relight.js';
 import { Site } from './site.js';
@@ -74,6 +75,11 @@ export class App {
     this.phoneLight = null;
     this.phoneEstimate = null; // the last estimate (status.phoneEstimate)
     this.serverLights = 0;
+    // The offline visit (offline.js): the service worker's state, what it has kept, and the
+    // last live light kept on the phone (shown when a visit opens without any).
+    this.offlineWorker = 'none';
+    this.offlineKept = null;
+    this.keptLight = null;
     // ?time= (ISO 8601 or Unix seconds): the client's clock starts there (the phone's sun
     // without a server; tests and demos). Only the phone's estimate reads it.
     const start = params.get('time');
@@ -87,6 +93,7 @@ export class App {
     this.hud = new Hud(this.hudRoot, this);
     this._createRenderer();
     const params = this.params;
+    this._offlineRegistered = registerOffline(params).then((state) => { this.offlineWorker = state; });
     this.stream = new LightStream({
       siteCamera: this.mode === 'kiosk',
       // The kiosk URL's ?token= (docs/server.md, "Who can see what") opens the site camera.
@@ -209,8 +216,13 @@ export class App {
         this.sunShadows.setMaterials(this.site.sunMaterials());
         await this._enterMode(this.mode);
       }
+      this.keptLight = new KeptLight(manifest.scene.id);
+      if (this.light && !this.light.phone && !this.light.kept) this.keptLight.save(this.light);
       this.ready = true;
       this.error = null;
+      // What this visit loaded, kept for the next one without a network (offline.js).
+      this._offlineRegistered.then(() => (this.offlineWorker === 'registered' ? keepForOffline() : null))
+        .then((answer) => { this.offlineKept = answer; }, () => {});
       if (this.smoother.value) this._needRelight = true;
       const ar = !kiosk && await arSupported();
       this.hud.showModes({ ar, camera: !kiosk && !!navigator.mediaDevices?.getUserMedia, align: this.mode === 'camera' || this.mode === 'ar' });
@@ -331,8 +343,9 @@ export class App {
   // ---------------------------------------------------------------------------- light
 
   _onLight(m) {
-    if (!m.phone) {
+    if (!m.phone && !m.kept) {
       this.serverLights += 1;
+      this.keptLight?.save(m);
       if (this.phoneForced) return; // ?sky=phone: the phone's own estimate only
     }
     this.light = m;
@@ -360,13 +373,14 @@ export class App {
   isStale() {
     if (!this.light) return true;
     if (this.light.phone) return Date.now() / 1000 - this.light.captureTime > 3 * ESTIMATE_PERIOD_S; // three missed estimates
+    if (this.light.kept) return true;
     if (this.stream?.state !== 'open' || this.light.stale) return true;
     return performance.now() - this.stream.lastMessageMs > STALE_AFTER_MS;
   }
 
   lightAgeMs() {
     if (!this.light) return null;
-    if (this.light.phone) return Math.max(0, Math.round(Date.now() - this.light.captureTime * 1000));
+    if (this.light.phone || this.light.kept) return Math.max(0, Math.round(Date.now() - this.light.captureTime * 1000));
     return Math.max(0, Math.round(this.stream.ageS(this.light.captureTime) * 1000));
   }
 
@@ -397,6 +411,19 @@ export class App {
   phoneLightWanted(nowS = performance.now() / 1000) {
     return this.mode === 'camera' && !!this.view?.video && !!this.site
       && (this.phoneForced || (this.serverLights === 0 && nowS - this._startS > NO_SERVER_SKY_AFTER_S));
+  }
+
+  /** No live light NO_SERVER_SKY_AFTER_S after the start and none of the phone's own: draw the
+   * last live light kept on this phone (offline.js), once, and say how old it is. */
+  _useKeptLight(nowS) {
+    if (!this.ready || this.light || this.serverLights > 0 || this._keptLightTried
+      || nowS - this._startS <= NO_SERVER_SKY_AFTER_S || this.phoneLightWanted(nowS)) return;
+    this._keptLightTried = true;
+    const kept = this.keptLight.load();
+    if (!kept || kept.rgb.length !== 3 * this.assets.manifest.dome.count) return;
+    this._onLight({ ...kept, saturated: null, sequence: 0, stale: true, flags: 0, kept: true });
+    const when = new Date(kept.captureTime * 1000).toLocaleString([], { dateStyle: 'medium', timeStyle: 'short' });
+    this.hud.setMessage(`No live sky (offline?): the light of ${when}, kept from the last visit.`, 'warn');
   }
 
   /** Camera mode without a server sky: estimate the light from the picture, at most every
@@ -485,6 +512,7 @@ export class App {
     if (this.contextLost) return;
     const t0 = performance.now();
     this._estimateLight(now / 1000);
+    this._useKeptLight(now / 1000);
     this._maybeRelight(now / 1000);
     this._updateExposure(dt, now / 1000);
     this.renderFrame(xrFrame);

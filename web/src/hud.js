@@ -109,7 +109,8 @@ export class Hud {
     const s = this.app.status;
     const age = s.lightAgeMs === null ? '-' : formatAge(s.lightAgeMs);
     const phone = s.lightSource === 'phone'; // the phone's own estimate (phoneestimate.js)
-    const state = phone ? `phone's estimate${s.stale ? ', stale' : ''}` : s.connected ? (s.stale ? 'stale' : 'live') : s.connection;
+    const state = phone ? `phone's estimate${s.stale ? ', stale' : ''}` : s.connected ? (s.stale ? 'stale' : 'live')
+      : s.lightSource === 'kept' ? `kept light, ${s.connection}` : s.connection;
     this.statusLine.textContent = `${state} · light ${age} · ${s.fps.toFixed(0)} fps${s.lightsExact || s.lightSeq === null ? '' : s.coarse ? ` · refining the light, ${(s.bytesLoaded / 1e6).toFixed(1)} MB` : ' · loading sun images'}`;
     this.statusLine.dataset.state = s.stale || (!s.connected && !phone) ? 'stale' : 'live';
     const applied = this.app.relighter?.applied;

@@ -57,11 +57,17 @@ export function makeStatus(source) {
     exposureMeter: () => (source.fixedExposure !== null ? 'fixed' : source.exposureMeter),
     pictureGroundLevel: () => source.pictureReading?.level ?? null,
     // Where the drawn light comes from: 'server' (its sky), 'phone' (camera mode's own estimate
-    // from the picture, phoneestimate.js: no server sky, or ?sky=phone), null (none yet); the
+    // from the picture, phoneestimate.js: no server sky, or ?sky=phone), 'kept' (no live light:
+    // the last one this phone kept, offline.js), null (none yet); the
     // last estimate ({ratio, skyType, sunNormal, skyHorizontal (the picture's units), used,
     // sunlit, inlierFraction, pool}), how many were made and the last one's milliseconds.
-    lightSource: () => (source.light ? (source.light.phone ? 'phone' : 'server') : null),
+    lightSource: () => (source.light ? (source.light.phone ? 'phone' : source.light.kept ? 'kept' : 'server') : null),
     phoneEstimate: () => source.phoneEstimate,
+    // The offline visit (offline.js): the service worker ('registered', or why not: 'insecure',
+    // 'test', 'unsupported', 'failed: ...'; 'none' before it is asked) and its answer to
+    // keeping this visit's files ({kept, failed}; null until it answered).
+    offlineWorker: () => source.offlineWorker,
+    offlineKept: () => source.offlineKept,
     phoneEstimates: () => source.phoneLight?.estimates ?? 0,
     phoneEstimateMs: () => source.phoneLight?.ms ?? null,
   };
