@@ -2,7 +2,7 @@
 (`daylit serve`) keeps its files in the service worker (web/sw.js) and the last live light on
 the phone; with the server gone, the page opens again from what was kept, every file with its
 manifest's SHA-256, and draws the kept light: the same picture as a page served live and given
-that light, within the AR test's tolerance."""
+that light, within the AR test's tolerance. The server back, the live light takes over."""
 
 from __future__ import annotations
 
@@ -80,6 +80,11 @@ def test_an_offline_visit_opens_from_what_was_kept_with_the_kept_light(new_page,
         time.sleep(1)
     assert diff.mean() < 1.0 and np.percentile(diff, 99) <= 4, (diff.mean(),
                                                                 np.percentile(diff, 99))
+
+    # The server back on its port: the live light replaces the kept one, and its note goes.
+    with DaylitServer(web_build, port=server.port):
+        online.wait("window.daylit.status.lightSource === 'server'", 60000)
+        online.wait("document.querySelector('#hud').innerText.indexOf('kept from') < 0")
     errors = [e for e in online.errors
               if "WebSocket" not in e and "ERR_CONNECTION_REFUSED" not in e]
     assert not errors and not live.errors, errors + live.errors

@@ -346,6 +346,7 @@ export class App {
     if (!m.phone && !m.kept) {
       this.serverLights += 1;
       this.keptLight?.save(m);
+      if (this.light?.kept) this.hud.setMessage(null); // live again: the kept light's note goes
       if (this.phoneForced) return; // ?sky=phone: the phone's own estimate only
     }
     this.light = m;
