@@ -28,7 +28,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import numpy as np  # noqa: E402
 
 
-def _bake(root: Path) -> Path:
+def bake_test_site(root: Path) -> Path:
+    """The scene estimate's test site (tests/sites.py) baked at draft quality under root."""
     from bake.pipeline import bake
     from tests.sites import scene_estimate_site
 
@@ -53,7 +54,7 @@ def main() -> None:
     args = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="daylit-bench-phone-") as tmp:
         tmp = Path(tmp)
-        build = args.build or _bake(tmp)
+        build = args.build or bake_test_site(tmp)
         lights = json.loads((build / "manifest.json").read_text())["dome"]["count"]
         standpoint, orientation = POSES["eye"]
         with sync_playwright() as p:
