@@ -50,6 +50,7 @@ from server.occlusion.shadow import (
     luminance,
     shadow_features,
 )
+from server.occlusion.shadowislands import give_back_islands
 
 Box = tuple[int, int, int, int]  # y0, y1, x0, x1 (end exclusive), full resolution
 
@@ -286,7 +287,7 @@ class Segmenter:
         y0, y1, x0, x1 = box
         codes = corrected[y0:y1, x0:x1]
         h, w = codes.shape[:2]
-        coded = s.codec_error_fraction > 0.0 and bg.blockiness >= s.codec_blockiness_min
+        coded = self.coded()
         if coded:
             d2, log_norm = self._codec_aware(codes, box)
         else:
@@ -383,7 +384,14 @@ class Segmenter:
         person = np.zeros(different.shape, dtype=bool)
         person[part] = graph_cut(cost_fg[part], cost_bg[part], w_right, w_down, free)
         person, shadow = self._drop_slivers(person, shadow, cand, as_shadow)
+        person, shadow = give_back_islands(person, shadow, s.shadow_island_share)
         return person, shadow & ~person
+
+    def coded(self) -> bool:
+        """Whether the learned frames were block-coded (the codec's terms apply)."""
+        s = self.settings
+        return (s.codec_error_fraction > 0.0
+                and self.background.blockiness >= s.codec_blockiness_min)
 
     def _drop_slivers(self, person: np.ndarray, shadow: np.ndarray, candidates: np.ndarray,
                       as_shadow: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
