@@ -205,9 +205,9 @@ SCHEMA: dict = {
                                     "passes the shadow's hard gates, and thin (see "
                                     "shadow_sliver_px), is a shadow's rim the codec left "
                                     "(0: off)", minimum=0, maximum=1),
-        "shadow_island_share": _num(0.3, "a person region whose one-pixel ring is at least "
+        "shadow_island_share": _num(0.5, "a person region whose one-pixel ring is at least "
                                     "this share shadow is a piece of that shadow and joins it "
-                                    "(shadowislands.py; 0: off)", minimum=0, maximum=1),
+                                    "(shadowpieces.py; 0: off)", minimum=0, maximum=1),
         "shadow_sliver_px": _int(2, "a region is thin when an erosion of this radius, pixels "
                                  "per 1024 px of frame width (at least 1), leaves at most a "
                                  "tenth of it", minimum=0),
