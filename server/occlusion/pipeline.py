@@ -4,7 +4,9 @@ This is the one class the light server calls. Per frame::
 
     frame --check--> coarse copy --gain--> reference illumination --shift (register.py)-->
           background's pixel grid --difference--> regions
-          --graph cut (segment.py, shadows inside)--> people --foot line (depth.py)-->
+          --graph cut (segment.py, shadows inside)--> people
+          --outlines onto luminance edges (outline.py; block-coded frames)-->
+          --foot line (depth.py)-->
           depth per person --vs virtual depth--> occlusion mask (+ slow background update)
 
 Usage::
@@ -350,6 +352,7 @@ class OcclusionProcessor:
                     cut_person[by0:by1, bx0:bx1], corrected[by0:by1, bx0:bx1],
                     s.outline_radius_px, s.outline_eps)
             shadow = shadow & ~person
+            foreground = foreground | person  # people stay inside the foreground
             lap("outline")
         # 4. People, their depth from the foot line, and the mask of those in front.
         labels, people = find_people(person, s.min_person_px, s.foot_min_px, boxes)

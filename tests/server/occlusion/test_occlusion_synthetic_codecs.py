@@ -10,11 +10,12 @@ in the empty frames after learning.
 Since the detector's codec work (2026-11-25: the blue-shift tolerance learned from the frame's
 shadows, the codec's chroma and luminance blur at a shadow's edge in its noise model, thin
 shadow slivers given back) and its outline work (the same day: outlines moved onto the
-luminance edges, person regions ringed by shadow given back), JPEG 75 meets the shadow goal at
-this size; person IoU through either codec and H.264's shadow goal are not met at 480x270 (figures here and at 1024x512 in
-docs/benchmarks.md; docs/occlusion.md, Limitations): what is left is mostly the people's rims,
-one or two pixels wide, which at this size are a tenth of a walker's area. Those tests are
-strict xfails, so that a fix shows as a pass to be taken out of :data:`NOT_MET`.
+luminance edges, person regions ringed by shadow given back), JPEG 75 meets the shadow goal
+at this size; person IoU through either codec and H.264's shadow goal are not met at 480x270
+(figures here and at 1024x512 in docs/benchmarks.md; docs/occlusion.md, Limitations): what
+is left is mostly the people's rims, one or two pixels wide, which at this size are a tenth
+of a walker's area. Those tests are strict xfails, so that a fix shows as a pass to be taken
+out of :data:`NOT_MET`.
 """
 
 from __future__ import annotations
