@@ -1,4 +1,5 @@
-"""Person regions that are pieces of a cast shadow, given back to it (block-coded frames).
+"""Person regions that are pieces of a cast shadow, given back to it (on every frame; made for
+block-coded ones, where they arise).
 
 Through a codec, parts of a cast shadow keep some of the sunlit ground's colour (4:2:0 chroma
 at half resolution, motion compensation that has not caught up), fail the shadow test and are
