@@ -32,7 +32,8 @@ time to draw a frame (the demo's and the replays' cost) and to process it.
 
 With ``--codecs`` it runs the broadband sequence raw, through JPEG 75 and through H.264 at
 480x270 and 1024x512 with the detector before issue 18's codec work (those parts switched off
-by settings, :data:`BEFORE_CODEC_WORK`) and as it is now, frame by frame on the same frames.
+by settings, :data:`BEFORE_CODEC_WORK`), after it but before the outline work
+(:data:`BEFORE_OUTLINES`) and as it is now, frame by frame on the same frames.
 
 With ``--refit`` it times only the person colour mixture's warm refit, this code's numpy EM
 against OpenCV's ``EM.trainM`` from the same posteriors (the frames that set the p95 before
@@ -320,7 +321,11 @@ def synthetic(sizes=((480, 270), (1024, 512))) -> None:
 # Issue 18's codec work (2026-11-25) switched off: the detector as it was before, for the
 # same-run baseline of --codecs (these settings reproduce its figures exactly).
 BEFORE_CODEC_WORK = {"shadow_learn_spread": False, "codec_chroma_px": 1,
-                     "shadow_sliver_share": 0.0, "shadow_ratio": (0.15, 0.92)}
+                     "shadow_sliver_share": 0.0, "shadow_ratio": (0.15, 0.92),
+                     "outline_radius_px": 0, "shadow_island_share": 0.0}
+# The outline work of 2026-11-25 (outline.py, shadowpieces.py's islands) switched off: the
+# detector as the codec work left it, the same-run baseline of the outlines.
+BEFORE_OUTLINES = {"outline_radius_px": 0, "shadow_island_share": 0.0}
 
 
 def codecs(sizes=((480, 270), (1024, 512))) -> None:
@@ -331,11 +336,13 @@ def codecs(sizes=((480, 270), (1024, 512))) -> None:
 
     print("\nStandard sequence (broadband), 12 s at 10 frames/s, 1.6 s empty (1 s learned), "
           "raw and coded: the detector before issue 18's codec work (settings "
-          f"{BEFORE_CODEC_WORK}) and now\n")
+          f"{BEFORE_CODEC_WORK}), after it but before the outline work ({BEFORE_OUTLINES}) "
+          "and now\n")
     print("| size | frames as | detector | person IoU (median) | worst frame IoU | "
           "shadow kept | phantom regions (empty frames) | CPU ms median | CPU ms p95 | load |")
     print("|---|---|---|---:|---:|---:|---:|---:|---:|---:|")
-    variants = {"before": OcclusionSettings(**BEFORE_CODEC_WORK), "now": OcclusionSettings()}
+    variants = {"before": OcclusionSettings(**BEFORE_CODEC_WORK),
+                "codec work": OcclusionSettings(**BEFORE_OUTLINES), "now": OcclusionSettings()}
     for width, height in sizes:
         site = default_site(width, height, empty_s=CODEC_EMPTY_S)
         virtual = box_depth_image(site.camera, *VIRTUAL_BOX)

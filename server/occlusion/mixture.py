@@ -136,6 +136,10 @@ class ColourMixture:
             em.setCovarianceMatrixType(cv2.ml.EM_COV_MAT_GENERIC)
             em.setTermCriteria((cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, self.max_iter,
                                 1e-3))
+            # k-means draws its first centres from OpenCV's global generator: seeded here,
+            # so a processor's masks do not depend on what ran before it in the process
+            # (the same frames gave person IoU 0.887 first in a process, 0.885 after another).
+            cv2.setRNGSeed(len(x))
             try:
                 ok = em.trainEM(x)[0]
             except cv2.error:

@@ -4,7 +4,9 @@ This is the one class the light server calls. Per frame::
 
     frame --check--> coarse copy --gain--> reference illumination --shift (register.py)-->
           background's pixel grid --difference--> regions
-          --graph cut (segment.py, shadows inside)--> people --foot line (depth.py)-->
+          --graph cut (segment.py, shadows inside)--> people
+          --outlines onto luminance edges (outline.py; block-coded frames)-->
+          --foot line (depth.py)-->
           depth per person --vs virtual depth--> occlusion mask (+ slow background update)
 
 Usage::
@@ -36,6 +38,7 @@ import numpy as np
 from server.occlusion.background import BackgroundModel, shrink
 from server.occlusion.colour import Transfer, apply_table
 from server.occlusion.depth import Person, PerspectiveCamera, find_people, occlusion_mask
+from server.occlusion.outline import refine_outline
 from server.occlusion.register import Registration, shift_image
 from server.occlusion.segment import Segmenter, regions_of_interest
 from server.occlusion.settings import OcclusionSettings
@@ -337,6 +340,20 @@ class OcclusionProcessor:
         person, shadow, foreground = self.segmenter.segment(corrected, boxes)
         lap("segment")
         timings.update({f"segment.{k}": v for k, v in self.segmenter.timings_ms.items()})
+        # 3b. On block-coded frames, the outlines moved onto the luminance edges (outline.py).
+        # Only what is sent changes: the label history, the person colours and next frame's
+        # regions keep the cut's labels (fed back, the moved outlines grew frame by frame).
+        cut_person = person
+        refined = s.outline_radius_px > 0 and self.segmenter.coded()
+        if refined:
+            person = person.copy()
+            for by0, by1, bx0, bx1 in boxes:
+                person[by0:by1, bx0:bx1] = refine_outline(
+                    cut_person[by0:by1, bx0:bx1], corrected[by0:by1, bx0:bx1],
+                    s.outline_radius_px, s.outline_eps)
+            shadow = shadow & ~person
+            foreground = foreground | person  # people stay inside the foreground
+            lap("outline")
         # 4. People, their depth from the foot line, and the mask of those in front.
         labels, people = find_people(person, s.min_person_px, s.foot_min_px, boxes)
         person = labels > 0
@@ -350,14 +367,20 @@ class OcclusionProcessor:
         mask = occlusion_mask(labels, people, self.virtual_depth_m)
         lap("depth")
         # 5. Memory: label history, person colours, slow background update, gain exclusion.
-        self.segmenter.remember(person, corrected)
-        busy = person | shadow
+        if not refined:
+            cut_person = person
+        else:  # the cut's labels in the people kept (their outlines moved by at most r)
+            r = 2 * s.outline_radius_px + 1
+            kept = cv2.dilate(person.view(np.uint8), np.ones((r, r), np.uint8))
+            cut_person = cut_person & kept.view(bool)
+        self.segmenter.remember(cut_person, corrected)
+        busy = person | cut_person | shadow
         near = cv2.dilate(busy.view(np.uint8), np.ones((2 * s.bg_protect_px + 1,) * 2, np.uint8))
         bg.update(corrected, near == 0)
         self._previous_exclude = shrink(near * np.uint8(255), s.detect_scale) > 0
         # Regions follow last frame's people, not its shadow labels: a codec's scattered
         # specks taken as shadow would otherwise keep the regions as large as the frame.
-        self._previous_people = shrink(person.view(np.uint8) * np.uint8(255),
+        self._previous_people = shrink(cut_person.view(np.uint8) * np.uint8(255),
                                        s.detect_scale) > 0
         u8 = np.uint8(255)
         masks = (mask, person.view(np.uint8) * u8, shadow.view(np.uint8) * u8,

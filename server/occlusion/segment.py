@@ -50,6 +50,7 @@ from server.occlusion.shadow import (
     luminance,
     shadow_features,
 )
+from server.occlusion.shadowpieces import give_back_pieces
 
 Box = tuple[int, int, int, int]  # y0, y1, x0, x1 (end exclusive), full resolution
 
@@ -286,7 +287,7 @@ class Segmenter:
         y0, y1, x0, x1 = box
         codes = corrected[y0:y1, x0:x1]
         h, w = codes.shape[:2]
-        coded = s.codec_error_fraction > 0.0 and bg.blockiness >= s.codec_blockiness_min
+        coded = self.coded()
         if coded:
             d2, log_norm = self._codec_aware(codes, box)
         else:
@@ -382,55 +383,20 @@ class Segmenter:
                                            self.background.mean_contrast)
         person = np.zeros(different.shape, dtype=bool)
         person[part] = graph_cut(cost_fg[part], cost_bg[part], w_right, w_down, free)
-        person, shadow = self._drop_slivers(person, shadow, cand, as_shadow)
+        # Pieces of the shadow the codec kept as person: thin slivers and islands (module
+        # shadowpieces). The sliver's radius is per 1024 px of frame width (1 at 480, 2 at 1024).
+        gated = np.zeros(person.shape, dtype=bool)
+        gated[cand] = np.isfinite(as_shadow)
+        person, shadow = give_back_pieces(
+            person, shadow, gated, s.shadow_sliver_share,
+            round(s.shadow_sliver_px * self.background.width / 1024), s.shadow_island_share)
         return person, shadow & ~person
 
-    def _drop_slivers(self, person: np.ndarray, shadow: np.ndarray, candidates: np.ndarray,
-                      as_shadow: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Person regions that are thin slivers of possible shadow, given back to the shadow.
-
-        ``person``, ``shadow`` (h, w) bool of one region, ``candidates`` (h, w) bool and
-        ``as_shadow`` (n,) the candidates' shadow costs. Through a codec a shadow's rim keeps
-        part of the sunlit ground's colour (4:2:0, chroma left behind by motion
-        compensation) and the cut keeps it as lines one or two pixels wide along the
-        shadow's edges, apart from the person (issue 18: most of the shadow kept through
-        H.264). A region is a sliver when at least ``shadow_sliver_share`` of its pixels
-        pass the shadow's hard gates (finite cost) and an erosion of radius
-        ``shadow_sliver_px`` (per 1024 px of frame width, at least 1: 1 at 480 px, 2 at
-        1024) leaves at most a tenth of it (at most about twice that thick): a person, even
-        in dark clothes that pass the gates, is thicker than that somewhere (their body),
-        and a far person's legs belong to the same region as the body. Computed over the
-        person pixels' bounding rectangle (and the erosion's margin) only.
-        """
-        share = self.settings.shadow_sliver_share
-        if share <= 0.0:
-            return person, shadow
-        x, y, w, h = cv2.boundingRect(person.view(np.uint8))
-        if w == 0:
-            return person, shadow
-        # Thin: an erosion of radius shadow_sliver_px (per 1024 px of width) leaves a tenth.
-        r = max(1, round(self.settings.shadow_sliver_px * self.background.width / 1024))
-        rows = slice(max(0, y - r - 1), y + h + r + 1)
-        cols = slice(max(0, x - r - 1), x + w + r + 1)
-        sub = np.ascontiguousarray(person[rows, cols]).view(np.uint8)
-        count, labels, stats, _ = cv2.connectedComponentsWithStats(sub, connectivity=8)
-        if count < 2:
-            return person, shadow
-        gated = np.zeros(person.shape, dtype=bool)
-        gated[candidates] = np.isfinite(as_shadow)
-        area = stats[:, cv2.CC_STAT_AREA]
-        drop = np.bincount(labels[gated[rows, cols] & (sub > 0)], minlength=count) >= share * area
-        drop[0] = False
-        if not drop.any():
-            return person, shadow
-        core = cv2.erode(sub, np.ones((2 * r + 1, 2 * r + 1), np.uint8)) > 0
-        drop &= np.bincount(labels[core], minlength=count) <= 0.1 * area
-        if drop.any():
-            gone = np.zeros(person.shape, dtype=bool)
-            gone[rows, cols] = drop[labels]
-            person = person & ~gone
-            shadow = shadow | gone
-        return person, shadow
+    def coded(self) -> bool:
+        """Whether the learned frames were block-coded (the codec's terms apply)."""
+        s = self.settings
+        return (s.codec_error_fraction > 0.0
+                and self.background.blockiness >= s.codec_blockiness_min)
 
     def segment(self, corrected: np.ndarray, boxes: list[Box]) -> tuple[np.ndarray, np.ndarray,
                                                                       np.ndarray]:

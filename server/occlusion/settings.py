@@ -89,6 +89,11 @@ SCHEMA: dict = {
                                      "(0: off)", minimum=0),
         "codec_block_px": _int(16, "side, pixels, of the square that share of the change is "
                                "averaged over (16: a 4:2:0 chroma block)", minimum=1),
+        "outline_radius_px": _int(2, "on block-coded frames, people's outlines are moved "
+                                  "onto the luminance edges by a guided filter of this window "
+                                  "radius, pixels (outline.py; 0: off)", minimum=0),
+        "outline_eps": _num(25.0, "the guided filter's regulariser, squared 8-bit codes",
+                            exclusiveMinimum=0),
         "codec_blockiness_min": _num(1.1, "the codec's error is modelled only when the "
                                      "learned frames' block-boundary step ratio "
                                      "(background.blockiness) is at least this", minimum=0),
@@ -200,6 +205,9 @@ SCHEMA: dict = {
                                     "passes the shadow's hard gates, and thin (see "
                                     "shadow_sliver_px), is a shadow's rim the codec left "
                                     "(0: off)", minimum=0, maximum=1),
+        "shadow_island_share": _num(0.5, "a person region whose one-pixel ring is at least "
+                                    "this share shadow is a piece of that shadow and joins it "
+                                    "(shadowpieces.py; 0: off)", minimum=0, maximum=1),
         "shadow_sliver_px": _int(2, "a region is thin when an erosion of this radius, pixels "
                                  "per 1024 px of frame width (at least 1), leaves at most a "
                                  "tenth of it", minimum=0),
@@ -245,6 +253,8 @@ class OcclusionSettings:
 
     codec_error_fraction: float = _default("codec_error_fraction")
     codec_block_px: int = _default("codec_block_px")
+    outline_radius_px: int = _default("outline_radius_px")
+    outline_eps: float = _default("outline_eps")
     codec_blockiness_min: float = _default("codec_blockiness_min")
     codec_chroma_px: int = _default("codec_chroma_px")
 
@@ -289,6 +299,7 @@ class OcclusionSettings:
     shadow_signature_rate: float = _default("shadow_signature_rate")
     shadow_sliver_share: float = _default("shadow_sliver_share")
     shadow_sliver_px: int = _default("shadow_sliver_px")
+    shadow_island_share: float = _default("shadow_island_share")
     shadow_cost: float = _default("shadow_cost")
     shadow_slope: float = _default("shadow_slope")
     dark_floor: float = _default("dark_floor")
