@@ -51,20 +51,36 @@ SAMPLES_PER_PATCH = 96  # rays per dome patch for its mean radiance (0.3 % RMS o
 
 def uniform_in_patch(vertices: np.ndarray, count: int, seed: int) -> np.ndarray:
     """(count, 3) directions uniform in solid angle inside a spherical triangle ``vertices``
-    (3, 3), by rejection from the sphere (inside its three edges' great circles)."""
+    (3, 3), by rejection from the smallest spherical cap around its centre that holds it
+    (uniform in the cap: cos(theta) uniform), keeping those inside its three edges' great
+    circles."""
     rng = np.random.default_rng(seed)
     centre = vertices.sum(axis=0)
     centre /= np.linalg.norm(centre)
     edges = np.cross(vertices, np.roll(vertices, -1, axis=0))
     edges *= np.sign(edges @ centre)[:, None]  # inside: dot >= 0, whatever the winding
+    cos_cap = float((vertices @ centre).min())
+    # An orthonormal frame around the centre.
+    u = np.cross(centre, [1.0, 0.0, 0.0] if abs(centre[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(centre, u)
     out, have = [], 0
     while have < count:
-        d = rng.normal(size=(20_000, 3))
-        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        cos_t = rng.uniform(cos_cap, 1.0, 4 * count)
+        phi = rng.uniform(0.0, 2 * np.pi, 4 * count)
+        sin_t = np.sqrt(1.0 - cos_t**2)
+        d = (cos_t[:, None] * centre + (sin_t * np.cos(phi))[:, None] * u
+             + (sin_t * np.sin(phi))[:, None] * v)
         d = d[np.all(d @ edges.T >= 0.0, axis=1)]
         out.append(d)
         have += len(d)
     return np.concatenate(out)[:count]
+
+
+def patch_directions(patch_vertices: np.ndarray, samples: int = SAMPLES_PER_PATCH) -> np.ndarray:
+    """(n * samples, 3) directions, ``samples`` uniform in each patch, patch by patch."""
+    return np.concatenate([uniform_in_patch(v, samples, seed=i)
+                           for i, v in enumerate(patch_vertices)])
 
 
 def gendaylit_sky(sun_dir: np.ndarray, dni_W_m2: float, dhi_W_m2: float, env: dict) -> str:
@@ -86,13 +102,15 @@ def gendaylit_sky(sun_dir: np.ndarray, dni_W_m2: float, dhi_W_m2: float, env: di
 
 
 def gendaylit_vector(sun_dir, dni_W_m2: float, dhi_W_m2: float, patch_vertices: np.ndarray,
-                     env: dict, samples: int = SAMPLES_PER_PATCH) -> np.ndarray:
+                     env: dict, dirs: np.ndarray | None = None) -> np.ndarray:
     """The light vector (n, 3) W/(m^2 sr) of gendaylit's clear sky without its sun's disc:
-    each patch's mean radiance over ``samples`` directions uniform in it (rtrace -ab 0 of
-    the sky function). ``patch_vertices`` (n, 3, 3), site frame."""
+    each patch's mean radiance over directions uniform in it (``dirs`` from
+    :func:`patch_directions`, made here if not given; rtrace -ab 0 of the sky function).
+    ``patch_vertices`` (n, 3, 3), site frame."""
     skyfunc = gendaylit_sky(sun_dir, dni_W_m2, dhi_W_m2, env)
-    dirs = np.concatenate([uniform_in_patch(v, samples, seed=i)
-                           for i, v in enumerate(patch_vertices)])
+    if dirs is None:
+        dirs = patch_directions(patch_vertices)
+    samples = len(dirs) // len(patch_vertices)
     with tempfile.TemporaryDirectory(prefix="daylit-sbd-") as tmp:
         work = Path(tmp)
         (work / "sky.rad").write_text(sky_rad(skyfunc))
@@ -173,11 +191,12 @@ def measure(build_dir: Path, log=print) -> list[dict]:
                      for i, sc in enumerate(s["compact"]["lights"]["scale"]) if sc is not None})
     log(f"{len(needed)} lights with sun-bounce images; gendaylit skies ...")
     skies = {}
+    dirs = patch_directions(build.dome_vertices)
     for p in needed:
         sun = np.asarray(lights[p]["centroid"], float)
         sun /= np.linalg.norm(sun)
         dni, dhi = clear_sky_sun(sun, m["scene"]["elevation_m"])
-        r = gendaylit_vector(sun, dni, dhi, build.dome_vertices, env)
+        r = gendaylit_vector(sun, dni, dhi, build.dome_vertices, env, dirs)
         skies[p] = (sun, dni, dhi, r, np.full(3, dni / lights[p]["solid_angle_sr"]))
     rows = []
     for owner, _ in owners:
