@@ -219,7 +219,9 @@ class Compressor:
         self.log(f"  all compact files (what the server offers): {mb('all')}")
         sun_rows = [row for row in self.report() if ".sun_bounce." in row["stack"]]
         if sun_rows:
-            default = [r for r in sun_rows if not r["stack"].startswith("hull.")]
+            # The default shading's atlases (not the hull's, nor the fixed views': the kiosk's)
+            shown = {f"{a['id']}." for a in manifest["atlases"] if a["id"] != "hull"}
+            default = [r for r in sun_rows if r["stack"].startswith(tuple(shown))]
             per_light = sum(r["light_bytes_per_light"] for r in default)
             total = sum(r["light_bytes"] for r in sun_rows)
             masters = sum(
