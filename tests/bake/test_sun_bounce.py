@@ -351,39 +351,11 @@ def tight_build(sun_site_build, tmp_path_factory) -> Path:
     """A copy of the sun site whose sun-bounce stacks the baker's function compressed again
     with a budget of 0.2 %, so that some images need their refinement and some do not; its
     manifest lists them (and their files)."""
-    import hashlib
-    import json
-    import shutil
-    from dataclasses import replace
+    from tests.sunbounce_levels import recompress_sun_bounce
 
-    from bake.compress import Settings
-    from bake.sunbounce import DisplaySkies, compress_sun_bounce
-
-    copy = tmp_path_factory.mktemp("tight") / "build"
-    shutil.copytree(sun_site_build, copy)
-    build = Build(copy)
-    manifest = build.manifest
-    lights = build.selection.selectable
-    skies = DisplaySkies.of_dome(build.dome_vertices, build.solid_angles, lights,
-                                 manifest["scene"]["elevation_m"])
-    settings = replace(Settings(), sun_bounce_budget=TIGHT_BUDGET)
-    for atlas in manifest["atlases"]:
-        for stack, entry in atlas.get("sun_bounce", {}).items():
-            result = compress_sun_bounce(
-                build.sun_bounce_stack(atlas["id"], stack), f"{atlas['id']}.sun_bounce.{stack}",
-                copy, lights, settings, build.stack(atlas["id"], stack), skies,
-            )
-            entry["compact"] = result.entry
-    listed = {f["path"] for f in manifest["files"]}
-    manifest["files"] = [f for f in manifest["files"] if (copy / f["path"]).is_file()]
-    for path in sorted((copy / "ktx2").glob("*.sun_bounce.*")):
-        rel = path.relative_to(copy).as_posix()
-        data = path.read_bytes()
-        row = {"path": rel, "bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()}
-        manifest["files"] = [f for f in manifest["files"] if f["path"] != rel] + [row]
-    assert listed  # the copy's manifest lists files as the bake's
-    (copy / "manifest.json").write_text(json.dumps(manifest))
-    return copy
+    return recompress_sun_bounce(
+        sun_site_build, tmp_path_factory.mktemp("tight") / "build", TIGHT_BUDGET
+    )
 
 
 def test_sun_bounce_images_are_within_the_budget_as_displayed(sun_site_build):
