@@ -69,13 +69,16 @@ class CompactReader:
         if not missing:
             return {i: self._lights[i] for i in indices}
         table = self.entry["lights"]
-        files = [self.dir / pattern.format(index=i) for i in missing for pattern in table["ktx2"]]
-        decoded = decode(files)
-        levels = len(table["ktx2"])
-        for slot, i in enumerate(missing):
+        # Light i has len(scale[i]) levels, the first of the ``ktx2`` patterns (a sun-bounce
+        # image may have no refinement: bake.sunbounce).
+        levels = {i: len(table["scale"][i]) for i in missing}
+        files = [self.dir / pattern.format(index=i) for i in missing
+                 for pattern in table["ktx2"][: levels[i]]]
+        decoded = iter(decode(files))
+        for i in missing:
             value = np.zeros(self.shape + (3,), dtype=np.float32)
-            for level in range(levels):
-                raw = decoded[slot * levels + level][0, :, :, :3].astype(np.float32) / 255.0
+            for level in range(levels[i]):
+                raw = next(decoded)[0, :, :, :3].astype(np.float32) / 255.0
                 value += raw * np.float32(table["scale"][i][level]) + np.float32(
                     table["offset"][i][level]
                 )

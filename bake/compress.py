@@ -85,6 +85,11 @@ class Settings:
     # layer spans a few steps of its coarse layer, so level 1's better worst texel does not
     # show there, and level 0 is faster.
     rms_refine_level: int = 0
+    # A sun-bounce image whose coarse level alone is within this RMS error of the displayed
+    # value (sky without the disc plus the sun's bounce, clear sky, the sun at the patch's
+    # centre) gets no refinement (bake.sunbounce; docs/compact-assets.md, "The sun's bounce").
+    # None: every image keeps its refinement, as before 2026-11-25.
+    sun_bounce_budget: float | None = 0.01
     # Zstandard supercompression of the UASTC blocks (lossless): level 19 for arrays (the
     # base layers every phone downloads: 15 made them larger), 15 for separate light images
     # (less encode time for a fraction of a per cent more bytes).

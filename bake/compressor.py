@@ -38,7 +38,9 @@ class Compressor:
             max_rank=c["max_rank"],
             encoding=c["encoding"],
             selected_lights=c["selected_lights"],
+            sun_bounce_budget=c["sun_bounce_budget"],
         )
+        self.display_skies = None  # set by start()
         self.log = log
         self.rows: dict[str, dict] = {}  # stack name -> report row (written from two threads)
         self.stack_names: list[str] = []
@@ -64,6 +66,10 @@ class Compressor:
         self.skies, self.S, self.S_inv, self.selection = compress.prepare(
             scene, dome.vertices, dome.solid_angles_sr, self.settings.selected_lights,
             selectable=selectable, sun_in_patch=False,
+        )
+        # The clear skies each sun-bounce image is judged under as displayed.
+        self.display_skies = sunbounce.DisplaySkies.of_dome(
+            dome.vertices, dome.solid_angles_sr, self.selection.selectable, site.elevation_m
         )
         self.log(
             f"  {len(self.selection.selectable)} of {dome.count} lights can be selected "
@@ -117,22 +123,25 @@ class Compressor:
         return out
 
     def run_sun_bounce(
-        self, image: np.ndarray, name: str, staging: Path, master: str | None = None
+        self, image: np.ndarray, name: str, staging: Path, master: str | None = None,
+        sky: np.ndarray | None = None,
     ) -> dict | None:
         """Compress one sun-bounce stack ``name`` (``<atlas or view>.sun_bounce.<stack>``)
-        into one image per light the sun can be in
+        into one image per light the sun can be in, each refined only where its coarse image
+        shows against its sky stack ``sky`` (H, W, n, 3; None: every one refined)
         (:func:`bake.sunbounce.compress_sun_bounce`); its compact entry, or None when it is
         zero everywhere (then the master, ``master`` relative to ``staging``, by default
         ``exr/<name>.exr``, is dropped too)."""
+        skies = self.display_skies if sky is not None else None
         try:
             if self.cluster is None:
                 result = sunbounce.compress_sun_bounce(
-                    image, name, staging, self.selection.selectable, self.settings
+                    image, name, staging, self.selection.selectable, self.settings, sky, skies
                 )
             else:
                 result, files = self.cluster.compress(
                     compressjobs.sun_bounce_job, image, name, self.selection.selectable,
-                    self.settings, label=f"the sun-bounce stack {name}",
+                    self.settings, sky, skies, label=f"the sun-bounce stack {name}",
                 )
                 compressjobs.write_files(staging, files)
                 if result is not None:
@@ -143,10 +152,12 @@ class Compressor:
         if result is None:
             (staging / (master or f"exr/{name}.exr")).unlink(missing_ok=True)
             return None
+        error = result.entry["error"]
         self.rows[name] = {
             "stack": name,
             "k": result.entry["k"],
-            "error": result.entry["error"]["max"],
+            # As displayed where judged so (the budget's measure), else against the column.
+            "error": error.get("displayed", error)["max"],
             "base_bytes": 0,
             "light_bytes": result.light_bytes,
             "light_bytes_per_light": round(
@@ -208,7 +219,9 @@ class Compressor:
         self.log(f"  all compact files (what the server offers): {mb('all')}")
         sun_rows = [row for row in self.report() if ".sun_bounce." in row["stack"]]
         if sun_rows:
-            default = [r for r in sun_rows if not r["stack"].startswith("hull.")]
+            # The default shading's atlases (not the hull's, nor the fixed views': the kiosk's)
+            shown = {f"{a['id']}." for a in manifest["atlases"] if a["id"] != "hull"}
+            default = [r for r in sun_rows if r["stack"].startswith(tuple(shown))]
             per_light = sum(r["light_bytes_per_light"] for r in default)
             total = sum(r["light_bytes"] for r in sun_rows)
             masters = sum(

@@ -83,8 +83,8 @@ def sun_patches_over(manifest: dict, start: str, end: str, step: str = STEP) -> 
 
 def sun_bounce_bytes(manifest: dict, atlases: list[dict], patches: list[int]) -> int:
     """Bytes of the sun-bounce images a client fetches for the sun in each of ``patches``:
-    light ``p``'s files (both levels) of every sun-bounce stack of ``atlases`` (atlas or
-    view entries)."""
+    light ``p``'s files (each level it has: ``len(scale[p])``) of every sun-bounce stack of
+    ``atlases`` (atlas or view entries)."""
     sizes = {f["path"]: f["bytes"] for f in manifest["files"]}
     total = 0
     for atlas in atlases:
@@ -92,7 +92,8 @@ def sun_bounce_bytes(manifest: dict, atlases: list[dict], patches: list[int]) ->
             table = stack["compact"]["lights"]
             for p in patches:
                 if table["scale"][p] is not None:
-                    total += sum(sizes[pattern.format(index=p)] for pattern in table["ktx2"])
+                    levels = table["ktx2"][: len(table["scale"][p])]
+                    total += sum(sizes[pattern.format(index=p)] for pattern in levels)
     return total
 
 

@@ -360,6 +360,7 @@ def _load_settings(root: _Table, file: Path, lights: int | None, quality: str | 
         "max_rank": compression_t.number("max_rank"),
         "encoding": compression_t.string("encoding"),
         "selected_lights": compression_t.number("selected_lights"),
+        "sun_bounce_budget": compression_t.number("sun_bounce_budget"),
     }
 
     q = levels[chosen]

@@ -174,6 +174,12 @@ SCHEMA: dict = _table({
                                 "the views were fitted without the disc kept 1 for the views "
                                 "(docs/compact-assets.md, \"The sun apart\")", 0, 64,
                                 integer=True),
+        "sun_bounce_budget": _num(0.01, "a sun-bounce image keeps its refinement only where "
+                                  "its coarse level alone is off by more than this, as "
+                                  "displayed: RMS over the mean of the sky without the sun's "
+                                  "disc plus the sun's bounce, under a clear sky with the sun "
+                                  "at the patch's centre (0: every image keeps it; "
+                                  "docs/compact-assets.md, \"The sun's bounce\")", 0.0, 0.5),
     }),
     "virtual": _array_of(_table({
         "name": _str(None, "unique"),

@@ -1,6 +1,7 @@
 """Compression of the sun-bounce stacks (docs/sun.md, item 5): one image per light the sun
 can be in, each its column as it is (no base, no gain), encoded and checked as the client
-decodes it.
+decodes it; a light's refinement image is kept only where its coarse image alone would show
+(:class:`DisplaySkies`).
 """
 
 from __future__ import annotations
@@ -8,6 +9,7 @@ from __future__ import annotations
 import shutil
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -19,9 +21,109 @@ from bake.ktx2decoder import decode
 from bake.quantize import quantized_png, refinement_png
 
 SUN_BOUNCE_DECODE_CHUNK = 16  # light images decoded at a time (memory: the lightmap is large)
+DISPLAY_SKY_SAMPLES_PER_SIDE = 6  # the display skies' patch integration (as the test skies')
 
 
-def compress_sun_bounce(image, name, out_dir, lights, settings) -> CompactStack | None:
+@dataclass
+class DisplaySkies:
+    """What a sun-bounce image is judged against: for each light ``p`` of ``lights``, a clear
+    sky with the sun at the patch's centre. Its sun and sky brightness are pvlib's
+    Ineichen-Perez clear sky for that elevation (``daylit.sun.clear_sky_irradiance``): the
+    sky has the CIE clear sky's shape (``daylit.sky.clear_sky``, type 12) scaled to put the
+    model's DHI on an open horizontal surface, so that the sky dims as the sun sets (the CIE
+    sky's zenith radiance is a constant: it judged the low sun's images against too bright a
+    sky, and the high sun's against too dim a one, by up to a factor 2-3 against Radiance's
+    gendaylit; docs/benchmarks.md, "The sun-bounce images as displayed"). ``r`` (L, n, 3)
+    W/(m^2 sr) the sky without the sun's disc (what the client relights the sky stacks
+    with), ``weight`` (L, 3) W/(m^2 sr) ``E_sun / solid_angle_p`` (what the client multiplies
+    column ``p`` by). Row ``j`` belongs to light ``lights[j]``."""
+
+    lights: np.ndarray  # (L,) int
+    r: np.ndarray  # (L, n, 3)
+    weight: np.ndarray  # (L, 3)
+
+    @classmethod
+    def of_dome(cls, dome_vertices: np.ndarray, solid_angles_sr: np.ndarray, lights,
+                site_elevation_m: float = 0.0, day_of_year: float = 80.0) -> DisplaySkies:
+        """The skies for ``lights`` of a dome (``dome_vertices`` (n, 3, 3) unit vectors,
+        ``solid_angles_sr`` (n,)) at a site this high, on this day (the equinox's by
+        default: the sun's normal irradiance varies 3 % over the year)."""
+        from daylit import sky as skies
+        from daylit.sun import clear_sky_irradiance, sun_colour
+
+        lights = np.asarray(lights, dtype=int)
+        centres = dome_vertices.mean(axis=1)
+        centres /= np.linalg.norm(centres, axis=1, keepdims=True)  # the manifest's centroids
+        # The open horizontal surface's irradiance per unit radiance of each patch.
+        up = np.array([0.0, 1.0, 0.0])
+        cosine_weighted = skies.patch_mean_radiance(
+            _Cosine(up), dome_vertices, DISPLAY_SKY_SAMPLES_PER_SIDE
+        )[:, 0] * solid_angles_sr
+        r = np.zeros((len(lights), len(dome_vertices), 3))
+        weight = np.zeros((len(lights), 3))
+        for j, p in enumerate(lights):
+            az, el = skies.azimuth_elevation_from_direction(centres[p][None, :])
+            el = max(float(el[0]), 0.5)  # a patch centre at the horizon: a sun just above it
+            dni, dhi = clear_sky_irradiance(90.0 - el, day_of_year, site_elevation_m)
+            shape = skies.patch_mean_radiance(
+                skies.clear_sky(float(az[0]), el), dome_vertices,
+                samples_per_side=DISPLAY_SKY_SAMPLES_PER_SIDE, include_sun=False,
+            )
+            horizontal = float((cosine_weighted @ shape).mean())
+            r[j] = shape * float(dhi[0]) / max(horizontal, 1e-30)
+            weight[j] = float(dni[0]) * sun_colour(el) / solid_angles_sr[p]
+        return cls(lights, r, weight)
+
+    def row(self, light: int) -> int:
+        return int(np.searchsorted(self.lights, light))
+
+
+class _Cosine:
+    """A "sky" whose radiance is the cosine to ``normal`` (clamped), grey: its patch means
+    times the solid angles are each patch's cosine-weighted solid angle."""
+
+    sun = None
+
+    def __init__(self, normal):
+        self.normal = np.asarray(normal, float)
+
+    def radiance(self, dirs):
+        return np.repeat(np.clip(dirs @ self.normal, 0.0, None)[:, None], 3, axis=1)
+
+
+class DisplayCheck:
+    """The error a decoded sun-bounce column makes in what the client shows, for one stack:
+    the sky stack ``sky`` (H, W, n, 3, the same atlas's or view's) relit with the display sky
+    plus the sun's bounce (the master column), over the receiver texels (the sky stack's
+    non-zero ones). The sun's direct term, drawn apart, is left out: with it every error
+    would be smaller."""
+
+    def __init__(self, sky: np.ndarray, skies: DisplaySkies):
+        self.valid = np.any(sky != 0.0, axis=(2, 3))
+        # (3, V, n) per channel, contiguous: a chunk of lights is one matrix product each.
+        self.sky = np.stack([sky[..., c][self.valid] for c in range(3)])
+        self.skies = skies
+
+    def sky_shown(self, lights) -> np.ndarray:
+        """(len(lights), V, 3) the sky stack relit with each light's display sky."""
+        rows = [self.skies.row(p) for p in lights]
+        out = np.empty((len(rows), self.sky.shape[1], 3), dtype=np.float64)
+        for c in range(3):
+            out[:, :, c] = (self.sky[c] @ self.skies.r[rows, :, c].T.astype(np.float32)).T
+        return out
+
+    def error(self, light: int, sky_shown: np.ndarray, master, decoded) -> float:
+        """RMS error over the mean of the displayed value with the sun in ``light``'s patch,
+        when its column is ``decoded`` instead of ``master`` (both (H, W, 3));
+        ``sky_shown`` (V, 3) from :meth:`sky_shown`."""
+        weight = self.skies.weight[self.skies.row(light)]
+        truth = master[self.valid].astype(np.float64) * weight
+        err = (decoded[self.valid].astype(np.float64) * weight) - truth
+        return float(np.sqrt((err**2).mean()) / max(float((sky_shown + truth).mean()), 1e-30))
+
+
+def compress_sun_bounce(image, name, out_dir, lights, settings, sky=None,
+                        skies: DisplaySkies | None = None) -> CompactStack | None:
     """Compress a sun-bounce stack ``image`` (H, W, n, 3), whose columns outside ``lights``
     (the patches the sun can be in) are zero, into one image per light of ``lights``: its
     column, as it is (no base, no gain, no ``d - I``).
@@ -32,23 +134,34 @@ def compress_sun_bounce(image, name, out_dir, lights, settings) -> CompactStack 
     would have to be downloaded whole, and the columns are not low rank anyway (docs/sun.md,
     item 5).
 
-    Each image is encoded exactly as the ordinary stacks' light images
+    Each image is encoded as the ordinary stacks' light images
     (:func:`bake.compress.compress_stack`): quantized to 8 bits with its own scale and
-    offset, encoded at UASTC level ``settings.uastc_level``, decoded, and what was lost
-    encoded again as a refinement at level ``settings.refine_level``. Every column is then
-    decoded as the client decodes it (:class:`CompactReader`) and checked against the master:
-    RMS error over the stack's valid texels relative to the column's mean there.
+    offset, encoded at UASTC level ``settings.uastc_level`` and decoded. What was lost is
+    encoded again as a refinement at level ``settings.refine_level`` only where the coarse
+    image alone is off by more than ``settings.sun_bounce_budget`` as displayed
+    (:class:`DisplayCheck`: ``sky`` (H, W, n, 3), the same atlas's or view's sky stack,
+    relit with ``skies``' clear sky for that patch, plus the bounce); without ``sky`` and
+    ``skies``, or with the budget None, every light keeps its refinement. Every column is
+    then decoded as the client decodes it (:class:`CompactReader`) and checked against the
+    master: RMS error over the stack's valid texels relative to the column's mean there, and
+    as displayed.
 
-    Writes ``ktx2/<name>.L<i>.ktx2`` and ``ktx2/<name>.L<i>r.ktx2`` for each light ``i`` of
-    ``lights``. Returns the :class:`CompactStack` (entry ``{"k": 0, "lights", "error"}``;
-    ``error`` holds ``max`` and ``median`` over the columns, the ``worst_light`` and the
-    number of ``test_lights``), or ``None`` when the stack is zero everywhere."""
+    Writes ``ktx2/<name>.L<i>.ktx2`` for each light ``i`` of ``lights`` and
+    ``ktx2/<name>.L<i>r.ktx2`` for those that keep a refinement. Returns the
+    :class:`CompactStack` (entry ``{"k": 0, "lights", "error"}``: ``lights.ktx2`` one pattern
+    per level any light has, ``scale[i]`` / ``offset[i]`` one entry per level light ``i`` has;
+    ``error`` holds ``max`` and ``median`` over the columns, the ``worst_light``, the number
+    of ``test_lights``, and when judged ``displayed``: ``max``, ``median``, ``worst_light``,
+    ``budget`` and ``refined`` lights), or ``None`` when the stack is zero everywhere."""
     started = time.perf_counter()
     H, W, n, _ = image.shape
     lights = np.asarray(lights, dtype=int)
     valid = np.any(image != 0.0, axis=(2, 3))
     if not valid.any() or len(lights) == 0:
         return None
+    budget = getattr(settings, "sun_bounce_budget", None)
+    check = DisplayCheck(sky, skies) if sky is not None and skies is not None else None
+    judged = check is not None and budget is not None
     # The selected lights' images' two levels (coarse at uastc_level, refinement at
     # refine_level), not the RMS stacks' cheaper refinement (rms_refine_level): a column's
     # refinement is noise-like, and level 1 cut the worst column's error for a few per cent
@@ -56,71 +169,93 @@ def compress_sun_bounce(image, name, out_dir, lights, settings) -> CompactStack 
     image_settings = settings
     (out_dir / "ktx2").mkdir(exist_ok=True)
     light_files = []
+    refined: list[int] = []
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         coarse_dir, refine_dir = tmp / "coarse", tmp / "refine"
         coarse_dir.mkdir()
         refine_dir.mkdir()
-        coarse_q = [
-            quantized_png(image[:, :, i], tmp / f"{name}.L{i:04d}.png") for i in lights
-        ]
-        encode([q.path for q in coarse_q], coarse_dir, image_settings, array=False)
-        refine_q = []
+        coarse_q = {
+            int(i): quantized_png(image[:, :, i], tmp / f"{name}.L{i:04d}.png") for i in lights
+        }
+        encode([q.path for q in coarse_q.values()], coarse_dir, image_settings, array=False)
+        refine_q = {}
         for start in range(0, len(lights), SUN_BOUNCE_DECODE_CHUNK):
-            chunk = lights[start : start + SUN_BOUNCE_DECODE_CHUNK]
+            chunk = [int(i) for i in lights[start : start + SUN_BOUNCE_DECODE_CHUNK]]
             decoded = decode([coarse_dir / f"{name}.L{i:04d}.ktx2" for i in chunk])
+            shown = check.sky_shown(chunk) if judged else None
             for j, i in enumerate(chunk):
-                coarse = coarse_q[start + j].value(decoded[j][0])
-                refine_q.append(
-                    refinement_png(image[:, :, i] - coarse, tmp / f"{name}.L{i:04d}r.png", None)
+                coarse = coarse_q[i].value(decoded[j][0])
+                # The coarse image alone is enough where its error does not show.
+                if judged and check.error(i, shown[j], image[:, :, i], coarse) <= budget:
+                    continue
+                refined.append(i)
+                refine_q[i] = refinement_png(
+                    image[:, :, i] - coarse, tmp / f"{name}.L{i:04d}r.png", None
                 )
-            del decoded
-        encode(
-            [q.path for q in refine_q], refine_dir, image_settings, array=False,
-            level=image_settings.refine_level,
-        )
+            del decoded, shown
+        if refine_q:
+            encode(
+                [q.path for q in refine_q.values()], refine_dir, image_settings, array=False,
+                level=image_settings.refine_level,
+            )
         for i in lights:
             for folder, suffix in ((coarse_dir, ""), (refine_dir, "r")):
+                if suffix and int(i) not in refine_q:
+                    continue
                 target = out_dir / "ktx2" / f"{name}.L{i:04d}{suffix}.ktx2"
                 shutil.move(folder / f"{name}.L{i:04d}{suffix}.ktx2", target)
                 light_files.append(target)
     encode_s = time.perf_counter() - started
-    # [light][level], null for the lights the sun is never in (they have no images).
+    # [light][level], null for the lights the sun is never in (they have no images); a
+    # light without a refinement has one level.
     scales: list = [None] * n
     offsets: list = [None] * n
-    for i, q, r in zip(lights, coarse_q, refine_q, strict=True):
-        scales[i], offsets[i] = [q.scale_list, r.scale_list], [q.offset_list, r.offset_list]
-    entry = {
-        "k": 0,
-        "lights": {
-            "ktx2": [f"ktx2/{name}.L{{index:04d}}.ktx2", f"ktx2/{name}.L{{index:04d}}r.ktx2"],
-            "scale": scales,
-            "offset": offsets,
-        },
-    }
-    errors = sun_bounce_errors(CompactReader(out_dir, entry, (H, W)), image, valid, lights)
+    for i, q in coarse_q.items():
+        levels = [q] + ([refine_q[i]] if i in refine_q else [])
+        scales[i] = [level.scale_list for level in levels]
+        offsets[i] = [level.offset_list for level in levels]
+    patterns = [f"ktx2/{name}.L{{index:04d}}.ktx2"]
+    if refine_q:
+        patterns.append(f"ktx2/{name}.L{{index:04d}}r.ktx2")
+    entry = {"k": 0, "lights": {"ktx2": patterns, "scale": scales, "offset": offsets}}
+    reader = CompactReader(out_dir, entry, (H, W))
+    errors, displayed = sun_bounce_errors(reader, image, valid, lights, check)
     entry["error"] = {
         "test_lights": int(len(lights)),
         "max": round(float(errors.max()), 6),
         "median": round(float(np.median(errors)), 6),
         "worst_light": int(lights[int(np.argmax(errors))]),
     }
+    if check is not None:
+        entry["error"]["displayed"] = {
+            "max": round(float(displayed.max()), 6),
+            "median": round(float(np.median(displayed)), 6),
+            "worst_light": int(lights[int(np.argmax(displayed))]),
+            "budget": budget,
+            "refined": len(refined),
+        }
     compact = CompactStack(entry, light_files, encode_s=encode_s)
     compact.light_bytes = sum(p.stat().st_size for p in light_files)
     return compact
 
 
-def sun_bounce_errors(reader: CompactReader, image, valid, lights) -> np.ndarray:
+def sun_bounce_errors(reader: CompactReader, image, valid, lights,
+                      check: DisplayCheck | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Each column ``p`` of ``lights`` decoded from its images as the client decodes it,
     against the master ``image[:, :, p]`` (H, W, n, 3): RMS error over the ``valid`` texels
-    (H, W) relative to the column's mean there. Returns (len(lights),)."""
-    errors = []
+    (H, W) relative to the column's mean there, and (with ``check``) as displayed
+    (:meth:`DisplayCheck.error`; empty without). Returns two arrays (len(lights),)."""
+    errors, displayed = [], []
     for start in range(0, len(lights), SUN_BOUNCE_DECODE_CHUNK):
         chunk = [int(i) for i in lights[start : start + SUN_BOUNCE_DECODE_CHUNK]]
         decoded = reader.lights(chunk)
-        for i in chunk:
+        shown = check.sky_shown(chunk) if check is not None else None
+        for j, i in enumerate(chunk):
             truth = image[:, :, i][valid].astype(np.float64)
             rms = np.sqrt(((decoded[i][valid] - truth) ** 2).mean())
             errors.append(rms / max(float(truth.mean()), 1e-30))
+            if check is not None:
+                displayed.append(check.error(i, shown[j], image[:, :, i], decoded[i]))
         reader.forget_lights()
-    return np.array(errors)
+    return np.array(errors), np.array(displayed)

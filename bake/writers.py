@@ -146,8 +146,10 @@ def write_atlas(a, traced: TracedResults, staging: Path, compressor, sun_bounce)
     # Shadowing atlases show I / d: their two stacks are compressed together for it.
     for stack, compact in compressor.run(images, a.id, staging).items():
         entry["stacks"][stack]["compact"] = compact
+    # The sky stacks judge the sun-bounce images as displayed (bake.sunbounce).
+    sun_entries = _write_sun_bounce(sun_images, a.id, "exr", "irradiance", staging, compressor,
+                                    images)
     del images
-    sun_entries = _write_sun_bounce(sun_images, a.id, "exr", "irradiance", staging, compressor)
     if sun_entries:
         entry["sun_bounce"] = sun_entries
     return entry
@@ -245,7 +247,7 @@ def write_view(
     }
     up = dome.cosine_weighted_sr
     results = traced.load(view.name)
-    sun_images = {}
+    sun_images, sky_images = {}, {}
     for stack, config in (("O", "all"), ("S", "real")):
         direct, bounce = lookup_result(results, f"{view.name}.{stack}", config)
         E = _rgb(direct, config)
@@ -264,8 +266,12 @@ def write_view(
             "channels": CHANNEL_PATTERN,
             "compact": compressor.run({stack: image}, view.name, staging)[stack],
         }
+        if stack in sun_images:  # it judges the sun-bounce images as displayed
+            sky_images[stack] = image
+        del image
     sun_entries = _write_sun_bounce(sun_images, view.name, "views", "radiance", staging,
-                                    compressor)
+                                    compressor, sky_images)
+    del sky_images
     if sun_entries:
         entry["sun_bounce"] = sun_entries
     entry["mask"] = f"views/{view.name}.mask.png"
@@ -339,10 +345,11 @@ def swap_into_place(staging: Path, out_dir: Path) -> None:
 
 
 def _write_sun_bounce(sun_images: dict, owner: str, folder: str, quantity: str, staging: Path,
-                      compressor) -> dict:
+                      compressor, sky_images: dict) -> dict:
     """Write and compress an atlas's or a view's sun-bounce stacks (``sun_images``: stack ->
     image, emptied as they are written) as ``<folder>/<owner>.sun_bounce.<stack>.exr`` masters
-    and their compact images; the manifest entries of the stacks that are not zero
+    and their compact images, each judged as displayed with its sky stack (``sky_images``:
+    stack -> image, (H, W, n, 3)); the manifest entries of the stacks that are not zero
     everywhere."""
     entries = {}
     for stack in list(sun_images):
@@ -350,7 +357,8 @@ def _write_sun_bounce(sun_images: dict, owner: str, folder: str, quantity: str, 
         name = f"{owner}.sun_bounce.{stack}"
         rel = f"{folder}/{name}.exr"
         write_stack_exr(staging / rel, image)
-        compact = compressor.run_sun_bounce(image, name, staging, master=rel)
+        compact = compressor.run_sun_bounce(image, name, staging, master=rel,
+                                            sky=sky_images.get(stack))
         if compact is not None:
             entries[stack] = {
                 "master": rel,

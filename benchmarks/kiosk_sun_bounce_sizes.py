@@ -31,7 +31,7 @@ def sizes(build_dir: Path) -> dict:
                 table = entry["compact"]["lights"]
                 for p, scale in enumerate(table["scale"]):
                     if scale is not None:
-                        total += sum(files[t.format(index=p)] for t in table["ktx2"])
+                        total += sum(files[t.format(index=p)] for t in table["ktx2"][:len(scale)])
         return total
 
     views = manifest["views"]
@@ -40,7 +40,7 @@ def sizes(build_dir: Path) -> dict:
         f"{v['id']}.{s}": round(
             sum(files[t.format(index=p)]
                 for p, scale in enumerate(e["compact"]["lights"]["scale"]) if scale is not None
-                for t in e["compact"]["lights"]["ktx2"]) / max(lights, 1))
+                for t in e["compact"]["lights"]["ktx2"][:len(scale)]) / max(lights, 1))
         for v in views for s, e in v.get("sun_bounce", {}).items()
     }
     return {

@@ -170,7 +170,8 @@ def test_ktx2_files_parse_with_an_independent_reader(build):
     # The sun's bounce has one image per sun-path light: one of them.
     ground = build.atlases["ground"]
     lit = build.selection.selectable[len(build.selection.selectable) // 2]
-    for level in build.sun_bounce_compact("ground", "I").entry["lights"]["ktx2"]:
+    table = build.sun_bounce_compact("ground", "I").entry["lights"]
+    for level in table["ktx2"][: len(table["scale"][lit])]:  # its levels (one or two)
         files.append(build.dir / level.format(index=lit))
         expected.append((ground["width"], ground["height"], 0, UASTC))
     result = subprocess.run(

@@ -87,16 +87,18 @@ def test_a_visit_selects_the_suns_patches_and_a_day_more(demo_draft_build):
 
 
 def test_the_suns_bounce_is_one_lights_images_per_stack_per_patch(tmp_path):
-    """The sun's bounce: light p's two files of each sun-bounce stack for each patch p the
-    sun is in; the hull's only in hull-plane mode; a light without files counts nothing;
-    the kiosk's, of its view's O and S, apart."""
+    """The sun's bounce: light p's files (its levels: light 0 has its coarse file alone,
+    light 1 a refinement too) of each sun-bounce stack for each patch p the sun is in; the
+    hull's only in hull-plane mode; a light without files counts nothing; the kiosk's, of
+    its view's O and S, apart."""
     pattern = "ktx2/{atlas}.sun_bounce.{stack}.L{{index:04d}}{suffix}.ktx2"
 
     def sun_stack(atlas: str, stack: str) -> dict:
         files = [pattern.format(atlas=atlas, stack=stack, suffix=s) for s in ("", "r")]
         levels = [[1.0, 1.0, 1.0], [0.1, 0.1, 0.1]]
         return {"compact": {"k": 0, "lights": {
-            "ktx2": files, "scale": [levels, levels, None], "offset": [levels, levels, None],
+            "ktx2": files, "scale": [levels[:1], levels, None],
+            "offset": [levels[:1], levels, None],
         }}}
 
     sizes = {"site.glb": 1000}
@@ -121,14 +123,15 @@ def test_the_suns_bounce_is_one_lights_images_per_stack_per_patch(tmp_path):
     (tmp_path / "manifest.json").write_text(json.dumps(manifest))
     got = downloads.download_bytes(manifest, tmp_path, visit_lights=0, day_lights=0,
                                    visit_sun=[1, 0], day_sun=[1, 0, 2])
-    kiosk = {p: (400 + 10 * p) * 2 + 5 + (500 + 10 * p) * 2 + 5 for p in (0, 1)}
+    # light 0: the coarse files alone (base + 10 p); light 1: and the refinements (+ 5)
+    kiosk = {0: 400 + 500, 1: 410 * 2 + 5 + 510 * 2 + 5}
     assert got["kiosk_sun_bounce_start"] == kiosk[1]  # sunrise's patch
     assert got["kiosk_sun_bounce_day"] == kiosk[0] + kiosk[1]
-    one = {p: (100 + 10 * p) * 2 + 5 + (200 + 10 * p) * 2 + 5 for p in (0, 1)}
+    one = {0: 100 + 200, 1: 110 * 2 + 5 + 210 * 2 + 5}
     assert got["sun_bounce_start"] == one[1]  # the sun's patch at the visit's start
     assert got["sun_bounce_visit"] == one[0] + one[1]
     assert got["sun_bounce_day"] == one[0] + one[1]  # light 2 has no files
-    assert got["sun_bounce_hull_visit"] == (300 * 2 + 5) + (310 * 2 + 5)
+    assert got["sun_bounce_hull_visit"] == 300 + (310 * 2 + 5)
     assert (got["visit_sun_patches"], got["day_sun_patches"]) == (2, 3)
 
 

@@ -174,7 +174,9 @@ def test_compact_answers_agree_with_the_masters(site, capsys):
     compact = probe_json(capsys, *args, "--compact")
     for m, c in zip(master, compact, strict=True):
         assert c["sun_W_m2"] == m["sun_W_m2"]
-        assert np.allclose(c["sun_bounce_W_m2"], m["sun_bounce_W_m2"], rtol=0.05, atol=0.05)
+        # atol 0.5 W/m^2: a coarse image alone (no refinement where it does not show as
+        # displayed, docs/compact-assets.md) loses bounces of a few tenths of a W/m^2.
+        assert np.allclose(c["sun_bounce_W_m2"], m["sun_bounce_W_m2"], rtol=0.05, atol=0.5)
         assert np.allclose(c["sky_W_m2"], m["sky_W_m2"], rtol=0.05)
 
 

@@ -293,9 +293,11 @@ def column_error(image: np.ndarray, master: np.ndarray, p: int) -> float:
     )
 
 
-def test_compact_sun_bounce_within_budget_on_every_sun_path_column(sun_site_build):
-    """Every light the sun can be in has its own image (no base), decoded as the client
-    decodes it within the budget of its master column; the other lights have none."""
+def test_compact_sun_bounce_layout_and_the_bakes_own_check(sun_site_build):
+    """Every light the sun can be in has its own images (no base): a coarse image, and a
+    refinement only where the bake kept one (``scale[p]`` has one entry per level, the
+    first of the ``ktx2`` patterns); the other lights have none. Decoded as the client
+    decodes them, the columns' errors against their masters are what the bake reported."""
     build = Build(sun_site_build)
     lights = build.selection.selectable.tolist()
     names = []
@@ -305,18 +307,21 @@ def test_compact_sun_bounce_within_budget_on_every_sun_path_column(sun_site_buil
             compact = entry["compact"]
             assert set(compact) == {"k", "lights", "error"} and compact["k"] == 0
             table = compact["lights"]
-            assert table["ktx2"] == [
-                f"ktx2/{atlas_id}.sun_bounce.{stack}.L{{index:04d}}.ktx2",
-                f"ktx2/{atlas_id}.sun_bounce.{stack}.L{{index:04d}}r.ktx2",
-            ]
-            with_files = [i for i, s in enumerate(table["scale"]) if s is not None]
-            assert with_files == lights
+            coarse = f"ktx2/{atlas_id}.sun_bounce.{stack}.L{{index:04d}}.ktx2"
+            refine = f"ktx2/{atlas_id}.sun_bounce.{stack}.L{{index:04d}}r.ktx2"
+            levels = {i: len(s) for i, s in enumerate(table["scale"]) if s is not None}
+            assert sorted(levels) == lights
+            assert set(levels.values()) <= {1, 2}
+            assert table["ktx2"] == ([coarse, refine] if 2 in levels.values() else [coarse])
+            for i, count in levels.items():  # the files are there for the levels listed
+                assert (sun_site_build / coarse.format(index=i)).is_file()
+                assert (sun_site_build / refine.format(index=i)).is_file() == (count == 2)
             assert compact["error"]["test_lights"] == len(lights)
-            assert compact["error"]["max"] <= BUDGET, (atlas_id, stack, compact["error"])
+            shown = compact["error"]["displayed"]
+            assert shown["refined"] == sum(c == 2 for c in levels.values())
             reader = build.sun_bounce_compact(atlas_id, stack)
             master = build.sun_bounce_stack(atlas_id, stack)
             errors = [column_error(reader.lights([p])[p], master, p) for p in lights]
-            assert max(errors) <= BUDGET, (atlas_id, stack, max(errors))
             # The bake measured the same thing.
             assert max(errors) == pytest.approx(compact["error"]["max"], abs=1e-5)
     assert sorted(names) == ["ground.I", "ground.d", "hull.I", "hull.d", "lightmap.I"]
@@ -325,9 +330,65 @@ def test_compact_sun_bounce_within_budget_on_every_sun_path_column(sun_site_buil
         assert set(atlas["stacks"]) <= {"I", "d"}
 
 
+TIGHT_BUDGET = 0.002  # between the sun site's coarse images' errors as displayed (0.03-0.5 %)
+
+
+def judged_by_gendaylit(build_dir: Path) -> list[dict]:
+    """Every sun-bounce column of a build judged as displayed by an independent computation
+    (benchmarks/sun_bounce_display.py): the sky stack's EXR master relit with Radiance's
+    gendaylit clear sky without its disc (pyradiance; not ``daylit.sky``), the sun at the
+    patch's centre with pvlib's Ineichen DNI and DHI, plus DNI / solid_angle_p times the
+    sun-bounce EXR master's column; the error of the column decoded from its coarse image
+    alone and from every level the build stores. Rows of ``measure``."""
+    pytest.importorskip("pyradiance")
+    from benchmarks.sun_bounce_display import measure
+
+    return measure(build_dir, log=lambda msg: None)
+
+
+@pytest.fixture(scope="module")
+def tight_build(sun_site_build, tmp_path_factory) -> Path:
+    """A copy of the sun site whose sun-bounce stacks the baker's function compressed again
+    with a budget of 0.2 %, so that some images need their refinement and some do not; its
+    manifest lists them (and their files)."""
+    from tests.sunbounce_levels import recompress_sun_bounce
+
+    return recompress_sun_bounce(
+        sun_site_build, tmp_path_factory.mktemp("tight") / "build", TIGHT_BUDGET
+    )
+
+
+def test_sun_bounce_images_are_within_the_budget_as_displayed(sun_site_build):
+    """Under the independent sky every column of the sun site, as stored, is within the
+    budget as displayed (RMS over the mean of sky plus bounce): 1.1 times it, since the
+    bake judged it under its own clear sky (CIE shape, 0-5 % apart from gendaylit's here)."""
+    rows = judged_by_gendaylit(sun_site_build)
+    build = Build(sun_site_build)
+    assert len(rows) == 5 * len(build.selection.selectable)
+    worst = max(rows, key=lambda r: r["stored"]["rms"])
+    assert worst["stored"]["rms"] <= 1.1 * BUDGET, worst
+
+
+def test_the_refinement_is_kept_where_the_coarse_image_would_show(tight_build):
+    """The rule, against the independent judgement, with a budget between the coarse
+    images' errors: a light whose coarse image alone is within the budget as displayed under
+    gendaylit's sky (below 0.9 of it) has no refinement file, one over it (above 1.1 of it)
+    has one, and then its stored images are within the budget; both kinds occur (else the
+    test would show nothing)."""
+    rows = judged_by_gendaylit(tight_build)
+    within = [r for r in rows if r["coarse"]["rms"] < 0.9 * TIGHT_BUDGET]
+    over = [r for r in rows if r["coarse"]["rms"] > 1.1 * TIGHT_BUDGET]
+    assert len(within) >= 10 and len(over) >= 10, sorted(r["coarse"]["rms"] for r in rows)
+    assert all(r["levels"] == 1 for r in within), [r for r in within if r["levels"] != 1]
+    assert all(r["levels"] == 2 for r in over), [r for r in over if r["levels"] != 2]
+    worst = max(rows, key=lambda r: r["stored"]["rms"])
+    assert worst["stored"]["rms"] <= 1.1 * TIGHT_BUDGET, worst
+
+
 def test_the_sun_in_patch_p_reads_file_p_and_shuffled_files_break_it(sun_site_build, tmp_path):
-    """The index rule: with the sun in patch p the client reads L{p} (both levels) with
-    scale[p] and offset[p]. Swapping the files of the build's lights breaks every column."""
+    """The index rule: with the sun in patch p the client reads L{p} (its levels) with
+    scale[p] and offset[p]. Swapping the coarse files of the build's lights breaks every
+    column."""
     import json
     import shutil
 
@@ -335,21 +396,24 @@ def test_the_sun_in_patch_p_reads_file_p_and_shuffled_files_break_it(sun_site_bu
     lights = build.selection.selectable.tolist()
     master = build.sun_bounce_stack("ground", "I")
     reader = build.sun_bounce_compact("ground", "I")
-    for p in held_out_patches(build):
-        assert column_error(reader.lights([p])[p], master, p) <= BUDGET
+    # Against the column alone a coarse image without its refinement is up to 10 % off on
+    # the open ground, whose bounce is small (within the budget as displayed:
+    # test_sun_bounce_images_are_within_the_budget_as_displayed).
+    right = {p: column_error(reader.lights([p])[p], master, p) for p in held_out_patches(build)}
+    assert max(right.values()) <= 10 * BUDGET, right
     # A copy of the build whose light files are moved one light along (p gets p's
     # neighbour's files, with p's own scale and offset).
     copy = tmp_path / "shuffled"
     shutil.copytree(sun_site_build, copy)
     table = reader.entry["lights"]
     for p, q in zip(lights, lights[1:] + lights[:1], strict=True):
-        for pattern in table["ktx2"]:
-            shutil.copyfile(
-                sun_site_build / pattern.format(index=q), copy / pattern.format(index=p)
-            )
+        # The coarse images (every light has one; the refinements only some).
+        pattern = table["ktx2"][0]
+        shutil.copyfile(sun_site_build / pattern.format(index=q), copy / pattern.format(index=p))
     shuffled = CompactReader(copy, json.loads(json.dumps(reader.entry)), reader.shape)
     for p in held_out_patches(build):
-        assert column_error(shuffled.lights([p])[p], master, p) > 10 * BUDGET
+        wrong = column_error(shuffled.lights([p])[p], master, p)
+        assert wrong > max(10 * BUDGET, 3 * right[p]), (p, wrong, right[p])
 
 
 def test_compact_oracle_agrees_with_the_masters(sun_site_build):
@@ -360,8 +424,10 @@ def test_compact_oracle_agrees_with_the_masters(sun_site_build):
     normals = [(0.0, 1.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, -1.0)]
     master = build.sun_bounce(points, normals, sun, 800.0)
     compact = build.sun_bounce(points, normals, sun, 800.0, source="compact")
-    assert np.allclose(compact["with"], master["with"], rtol=0.05, atol=0.05)
-    assert np.allclose(compact["without"], master["without"], rtol=0.05, atol=0.05)
+    # atol 0.5 W/m^2: the coarse image alone (no refinement where it does not show) loses
+    # bounces of a few tenths of a W/m^2 in the wall's shadow, under a sky of about 100.
+    assert np.allclose(compact["with"], master["with"], rtol=0.05, atol=0.5)
+    assert np.allclose(compact["without"], master["without"], rtol=0.05, atol=0.5)
 
 
 @pytest.mark.parametrize("moved", [False, True])
@@ -434,7 +500,11 @@ def test_views_sun_bounce_against_an_independent_ray_cast(view_site_build):
         assert entry["quantity"] == "radiance"
         table = entry["compact"]["lights"]
         assert [i for i, s in enumerate(table["scale"]) if s is not None] == lights
-        assert entry["compact"]["error"]["max"] <= BUDGET, (stack, entry["compact"]["error"])
+        # Within the budget as displayed (the bake's own judgement: the views' O and S relit
+        # with its clear sky plus the bounce; the atlases' are checked against gendaylit in
+        # test_sun_bounce_images_are_within_the_budget_as_displayed).
+        shown = entry["compact"]["error"]["displayed"]
+        assert shown["max"] <= BUDGET, (stack, entry["compact"]["error"])
         reader = CompactReader(build.dir, entry["compact"], (view["height"], view["width"]))
         master = read_stack_exr(build.dir / entry["master"])
         assert not master[:, :, [i for i in range(build.light_count) if i not in lights]].any()

@@ -265,13 +265,12 @@ def test_shadow_maps_follow_the_sun_not_the_frames(new_page, sun_build, sun_refe
         assert not page.errors, page.errors
 
 
-def test_sun_bounce_on_the_shaded_face(new_page, sun_build, sun_reference):
-    """The virtual box's west face, away from the low eastern sun, lit by the sky and by the
-    sun's bounce off the sunlit ground in front of it: displayed as the oracle says (the
-    baked sky and sun bounce, compact), and clearly brighter than the sky alone would make it."""
-    build, casters = sun_reference
+def shaded_face_shown(new_page, build_dir, build, casters):
+    """The virtual box's west face in the visit of ``build_dir`` (read by ``build``): the
+    displayed codes, what the compact oracle expects, the sky-only codes, the sun bounce's
+    share of the face's light and the page's errors."""
     s, r = sun_and_sky(build)
-    with StubServer(sun_build) as server:
+    with StubServer(build_dir) as server:
         page = open_page(new_page, server)
         sp = SunPage(page, build, s, r)
         assert page.page.evaluate("window.daylit.debug.sunBounce()") >= 0
@@ -285,17 +284,57 @@ def test_sun_bounce_on_the_shaded_face(new_page, sun_build, sun_reference):
                                              atlases=("lightmap",))
         no_bounce = srgb_codes(neutral_tone_map(albedo / math.pi * sky * EXPOSURE))  # sky only
         share = sun.sum(axis=1) / (sun + sky).sum(axis=1)
-        print(f"the shaded face: the sun's bounce is {100 * share.min():.0f}-"
-              f"{100 * share.max():.0f} % of its light")
-        # A precondition, not a fidelity check (tests/bake/test_sun_bounce.py checks the
-        # baked bounce against a view-factor integral): the bounce is large enough here for
-        # the displayed codes to tell it from the sky alone. Lowest at the face's foot, which
-        # looks over the box's own shadow (0.095 there since the bake fits a plane when it
-        # smooths the bounce instead of averaging toward the face's middle).
-        assert share.min() > 0.08, share
-        assert np.abs(shown - expected).max() <= 3.0, (shown, expected)
-        assert (shown.mean(axis=1) > no_bounce.mean(axis=1) + 3.0).all(), (shown, no_bounce)
-        assert not page.errors, page.errors
+        return shown, expected, no_bounce, share, list(page.errors)
+
+
+def test_sun_bounce_on_the_shaded_face(new_page, sun_build, sun_reference):
+    """The virtual box's west face, away from the low eastern sun, lit by the sky and by the
+    sun's bounce off the sunlit ground in front of it: displayed as the oracle says (the
+    baked sky and sun bounce, compact), and clearly brighter than the sky alone would make it."""
+    build, casters = sun_reference
+    shown, expected, no_bounce, share, errors = shaded_face_shown(new_page, sun_build, build,
+                                                                  casters)
+    print(f"the shaded face: the sun's bounce is {100 * share.min():.0f}-"
+          f"{100 * share.max():.0f} % of its light")
+    # A precondition, not a fidelity check (tests/bake/test_sun_bounce.py checks the
+    # baked bounce against a view-factor integral): the bounce is large enough here for
+    # the displayed codes to tell it from the sky alone. Lowest at the face's foot, which
+    # looks over the box's own shadow (0.095 there since the bake fits a plane when it
+    # smooths the bounce instead of averaging toward the face's middle).
+    assert share.min() > 0.08, share
+    assert np.abs(shown - expected).max() <= 3.0, (shown, expected)
+    assert (shown.mean(axis=1) > no_bounce.mean(axis=1) + 3.0).all(), (shown, no_bounce)
+    assert not errors, errors
+
+
+def test_sun_bounce_with_and_without_refinement_files(new_page, sun_build, sun_reference,
+                                                      tmp_path):
+    """A build whose sun-bounce stacks mix lights with a coarse image alone and lights with a
+    refinement (the site's stacks compressed again with a 0.3 % budget; the bake's own 1 %
+    leaves every light of this site one level): with the sun in a patch whose lightmap image
+    has its coarse level alone in a stack that lists both levels' patterns (and the ground's
+    has both), the client fetches each light's own files (asking for a refinement that is not
+    there would fail the fetch and leave no bounce) and shows the shaded face as that build's
+    compact oracle says."""
+    from bake.evaluate import Build
+    from tests.sunbounce_levels import recompress_sun_bounce
+
+    mixed = recompress_sun_bounce(sun_build, tmp_path / "mixed", 0.003)
+    build = Build(mixed)
+    s, _ = sun_and_sky(build)
+    p = build.sun_patch(s)
+    tables = {f"{o['id']}.{k}": e["compact"]["lights"]
+              for o in build.manifest["atlases"] for k, e in o["sun_bounce"].items()}
+    levels = {k: (len(t["ktx2"]), len(t["scale"][p])) for k, t in tables.items()}
+    print(f"patch {p}: (patterns, its levels) {levels}")
+    # Preconditions: the face's stack lists two patterns and has one level here; another two.
+    assert levels["lightmap.I"] == (2, 1) and levels["ground.I"] == (2, 2), levels
+    _, casters = sun_reference
+    shown, expected, no_bounce, share, errors = shaded_face_shown(new_page, mixed, build,
+                                                                  casters)
+    assert np.abs(shown - expected).max() <= 3.0, (shown, expected)
+    assert (shown.mean(axis=1) > no_bounce.mean(axis=1) + 3.0).all(), (shown, no_bounce)
+    assert not errors, errors
 
 
 @pytest.mark.parametrize("profile", ["desktop", "phone"])

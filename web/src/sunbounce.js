@@ -4,8 +4,9 @@
 // and of each fixed view's O and S (`views[i].sun_bounce[stack]`, radiance: the kiosk's);
 // the sun's bounce is the image of the patch that holds the sun times E_sun / solid_angle_p
 // (the bounce is smooth over neighbouring patches, so spreading the sun over its patch is
-// harmless here, unlike for its direct term). One image (two refinement levels) per stack is
-// fetched when the sun enters a patch; its target is rendered once per sun update.
+// harmless here, unlike for its direct term). One image per stack (its coarse level, and a
+// refinement where the bake kept one) is fetched when the sun enters a patch; its target is
+// rendered once per sun update.
 import * as THREE from 'three';
 import { patchContaining } from './lightmath.js';
 import { RGBE_ENCODE } from './relight.glsl.js';
@@ -59,7 +60,10 @@ class BounceStack {
 
   fetch(light) {
     if (!this.images.has(light)) {
-      const files = this.compact.lights.ktx2.map((pattern) => pattern.replace('{index:04d}', String(light).padStart(4, '0')));
+      // The light's own levels (len(scale[light])): a sun-bounce image whose coarse level
+      // suffices as displayed has no refinement file (docs/compact-assets.md).
+      const levels = this.compact.lights.scale[light].length;
+      const files = this.compact.lights.ktx2.slice(0, levels).map((pattern) => pattern.replace('{index:04d}', String(light).padStart(4, '0')));
       const promise = Promise.all(files.map((f) => this.assets.texture(f))).then((textures) => {
         for (const t of textures) t.minFilter = t.magFilter = THREE.NearestFilter;
         if (this.images.get(light) === promise) this.loaded.set(light, textures);

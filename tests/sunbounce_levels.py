@@ -1,0 +1,49 @@
+"""A copy of a build whose sun-bounce stacks are compressed again with another
+``compression.sun_bounce_budget`` (``bake.sunbounce.compress_sun_bounce``, the baker's own
+function), its manifest listing the new entries and files: a build where some lights keep a
+refinement and some do not, for the tests of the bake (tests/bake/test_sun_bounce.py) and of
+the client (tests/web/test_web_sun.py)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+from dataclasses import replace
+from pathlib import Path
+
+
+def recompress_sun_bounce(build_dir: Path, copy: Path, budget: float) -> Path:
+    """Copy ``build_dir`` to ``copy`` and compress its atlases' and views' sun-bounce stacks
+    again, judged with ``budget``; returns ``copy``."""
+    from bake.compress import Settings
+    from bake.evaluate import Build
+    from bake.sunbounce import DisplaySkies, compress_sun_bounce
+    from daylit.stackio import read_stack_exr
+
+    shutil.copytree(build_dir, copy)
+    for old in (copy / "ktx2").glob("*.sun_bounce.*"):
+        old.unlink()
+    build = Build(copy)
+    manifest = build.manifest
+    lights = build.selection.selectable
+    skies = DisplaySkies.of_dome(build.dome_vertices, build.solid_angles, lights,
+                                 manifest["scene"]["elevation_m"])
+    settings = replace(Settings(), sun_bounce_budget=budget)
+    for owner in manifest["atlases"] + manifest["views"]:
+        for stack, entry in owner.get("sun_bounce", {}).items():
+            result = compress_sun_bounce(
+                read_stack_exr(copy / entry["master"]), f"{owner['id']}.sun_bounce.{stack}",
+                copy, lights, settings, read_stack_exr(copy / owner["stacks"][stack]["master"]),
+                skies,
+            )
+            entry["compact"] = result.entry
+    files = [f for f in manifest["files"] if ".sun_bounce." not in f["path"]
+             or not f["path"].startswith("ktx2/")]
+    for path in sorted((copy / "ktx2").glob("*.sun_bounce.*")):
+        data = path.read_bytes()
+        files.append({"path": path.relative_to(copy).as_posix(), "bytes": len(data),
+                      "sha256": hashlib.sha256(data).hexdigest()})
+    manifest["files"] = files
+    (copy / "manifest.json").write_text(json.dumps(manifest, indent=1))
+    return copy
