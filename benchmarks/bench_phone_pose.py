@@ -11,9 +11,10 @@ model (noise, sRGB, JPEG) into Chromium's fake camera. The client in camera mode
 alpha), its tilt (beta) or its standpoint moved. For each, the median of four estimates: the
 sun's normal and the sky's horizontal irradiance through the render's exposure (known to the
 benchmark, not to the phone) against gendaylit's DNI and DHI, and the sun/sky ratio against
-the truth's; the true pose is the same-run baseline.
+the truth's, with the estimate's pose registration on the picture (web/src/poseregister.js)
+and, the same-run baseline, without it; the true pose is the other baseline.
 
-Run (about 10 minutes on the 2-core reference machine; pyradiance is a dev dependency)::
+Run (about 15 minutes on the 2-core reference machine; pyradiance is a dev dependency)::
 
     nice -n 10 .venv/bin/python benchmarks/bench_phone_pose.py [--build DIR]
 """
@@ -84,39 +85,50 @@ def _render(build: Path, browser, tmp: Path) -> list[dict]:
 
 
 def _measure(build: Path, browser, sky: dict) -> list[dict]:
-    """The client's estimate under each pose error of ERRORS, for one rendered sky."""
-    from tests.web.fakecamera import camera_page, orient
-    from tests.web.phoneframes import POSES
+    """The client's estimate under each pose error of ERRORS, for one rendered sky, with the
+    pose registration on and off (the same page, the same frames)."""
+    from tests.web.fakecamera import camera_page
 
     lights = json.loads((build / "manifest.json").read_text())["dome"]["count"]
-    standpoint, (alpha, beta, gamma) = POSES["eye"]
-    rendered = sky["rendered"]
-    query = f"&sky=phone&time={rendered.when_unix_s}"
+    query = f"&sky=phone&time={sky['rendered'].when_unix_s}"
     rows = []
     with camera_page(browser, build, sky["y4m"], np.full((lights, 3), 30.0), query=query,
                      size=(2 * RENDER[0], 2 * RENDER[1])) as (page, _, errors):
-        for label, d_heading, d_tilt, (dx, dz) in ERRORS:
-            # deviceorientation alpha grows counter-clockwise seen from above: a compass
-            # reading more than the truth turns the drawn view to the left
-            page.evaluate("(p) => window.daylit.debug.standAt(p)",
-                          [standpoint[0] + dx, standpoint[1], standpoint[2] + dz])
-            orient(page, alpha + d_heading, beta + d_tilt, gamma)
-            ests = [page.evaluate("window.daylit.debug.phoneEstimate()")
-                    for _ in range(ESTIMATES)][1:]
-            if any(e is None for e in ests):
-                rows.append({"error": label, "none": True})
-                continue
-            sun, sky_h = (float(np.median([LUMA @ np.asarray(e[key]) for e in ests]))
-                          / sky["exposure"] for key in ("sunNormal", "skyHorizontal"))
-            ratio = float(np.median([e["ratio"] for e in ests]))
-            rows.append({"error": label,
-                         "sun": sun / rendered.dni_w_m2 - 1.0,
-                         "sky": sky_h / rendered.dhi_w_m2 - 1.0,
-                         "ratio": ratio / (rendered.dni_w_m2 / rendered.dhi_w_m2) - 1.0,
-                         "used": int(np.median([e["used"] for e in ests])),
-                         "inliers": float(np.median([e["inlierFraction"] for e in ests]))})
+        for registered in (True, False):
+            page.evaluate("(on) => window.daylit.debug.registerPose(on)", registered)
+            for error in ERRORS:
+                rows.append({"registered": registered, **_estimate(page, sky, *error)})
         assert not errors, errors
     return rows
+
+
+def _estimate(page, sky: dict, label: str, d_heading: float, d_tilt: float,
+              offset_m: tuple[float, float]) -> dict:
+    """The median of four estimates with the phone told a pose off by these: its errors
+    against the render's truth (fractions), pixels used, inlier share, registration shift."""
+    from tests.web.fakecamera import orient
+    from tests.web.phoneframes import POSES
+
+    standpoint, (alpha, beta, gamma) = POSES["eye"]
+    rendered = sky["rendered"]
+    # deviceorientation alpha grows counter-clockwise seen from above: a compass reading
+    # more than the truth turns the drawn view to the left
+    page.evaluate("(p) => window.daylit.debug.standAt(p)",
+                  [standpoint[0] + offset_m[0], standpoint[1], standpoint[2] + offset_m[1]])
+    orient(page, alpha + d_heading, beta + d_tilt, gamma)
+    ests = [page.evaluate("window.daylit.debug.phoneEstimate()") for _ in range(ESTIMATES)][1:]
+    if any(e is None for e in ests):
+        return {"error": label, "none": True}
+    sun, sky_h = (float(np.median([LUMA @ np.asarray(e[key]) for e in ests])) / sky["exposure"]
+                  for key in ("sunNormal", "skyHorizontal"))
+    ratio = float(np.median([e["ratio"] for e in ests]))
+    return {"error": label,
+            "sun": sun / rendered.dni_w_m2 - 1.0,
+            "sky": sky_h / rendered.dhi_w_m2 - 1.0,
+            "ratio": ratio / (rendered.dni_w_m2 / rendered.dhi_w_m2) - 1.0,
+            "used": int(np.median([e["used"] for e in ests])),
+            "inliers": float(np.median([e["inlierFraction"] for e in ests])),
+            "shift": ests[-1]["shiftPx"]}
 
 
 def main() -> None:
@@ -141,15 +153,17 @@ def main() -> None:
             browser.close()
     print("\nthe phone's estimate against gendaylit (sun: DNI, sky: DHI, ratio: DNI/DHI);"
           " the true pose first (the same-run baseline)")
-    print(f"{'sky':<13} {'pose error':<22} {'sun':>7} {'sky':>7} {'ratio':>7} {'used':>5}"
-          f" {'inliers':>8}")
+    print(f"{'sky':<13} {'registered':<11} {'pose error':<22} {'sun':>7} {'sky':>7} {'ratio':>7}"
+          f" {'used':>5} {'inliers':>8} {'shift px':>9}")
     for name, rows in results.items():
         for r in rows:
+            head = f"{name:<13} {'yes' if r['registered'] else 'no':<11} {r['error']:<22}"
             if r.get("none"):
-                print(f"{name:<13} {r['error']:<22} no estimate")
+                print(f"{head} no estimate")
                 continue
-            print(f"{name:<13} {r['error']:<22} {r['sun']:>+7.1%} {r['sky']:>+7.1%}"
-                  f" {r['ratio']:>+7.1%} {r['used']:>5d} {r['inliers']:>8.2f}")
+            print(f"{head} {r['sun']:>+7.1%} {r['sky']:>+7.1%}"
+                  f" {r['ratio']:>+7.1%} {r['used']:>5d} {r['inliers']:>8.2f}"
+                  f" {r['shift'][0]:>+4d},{r['shift'][1]:>+4d}")
     if args.json:
         args.json.write_text(json.dumps(results, indent=1))
 

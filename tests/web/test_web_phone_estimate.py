@@ -177,6 +177,57 @@ def test_phone_estimate_against_radiance_and_the_server(browser, phone_build, re
     assert overcast["type"] == 2, got
 
 
+def _copy_shift_px(true_pose: dict, drawn_pose: dict) -> np.ndarray:
+    """Where the drawn view's pixels lie in the true camera's picture, in pixels of the
+    estimate's copy (ESTIMATE_SIZE 192 x 108; the page is 16:9): the median displacement over
+    a grid of the copy, the shift a registration should find (a turn moves the picture's edges
+    further than its centre). Both cameras stand at the same point."""
+    def rotation(pose):
+        return np.asarray(pose["matrixWorld"], float).reshape(4, 4).T[:3, :3]
+
+    w, h = 192, 108
+    t = np.tan(np.radians(true_pose["fovDeg"]) / 2.0)
+    aspect = SIZE[0] / SIZE[1]
+    xs, ys = np.meshgrid(np.linspace(0, w, 25), np.linspace(0, h, 15))
+    ndc = np.column_stack([xs.ravel() / w * 2 - 1, 1 - ys.ravel() / h * 2])
+    drawn = np.column_stack([ndc[:, 0] * t * aspect, ndc[:, 1] * t, -np.ones(len(ndc))])
+    v = drawn @ rotation(drawn_pose).T @ rotation(true_pose)  # three looks down -Z
+    seen = np.column_stack([v[:, 0] / -v[:, 2] / (t * aspect), v[:, 1] / -v[:, 2] / t])
+    moved = np.column_stack([(seen[:, 0] - ndc[:, 0]) * w / 2, -(seen[:, 1] - ndc[:, 1]) * h / 2])
+    return np.median(moved, axis=0)
+
+
+def test_phone_estimate_registers_a_wrong_pose(browser, phone_build, renders):
+    """A compass 6 degrees off and a tilt 3 degrees off (the phone told a wrong pose): the
+    estimate finds the picture's shift that puts the model's sun and shade on the picture's
+    (poseregister.js) where the test's geometry puts it, and its sun and sky stay within the
+    main test's 25 % (unregistered, the tilt alone took 27 % off the clear sky's sky and 44 %
+    off the intermediate's: benchmarks/bench_phone_pose.py)."""
+    standpoint, (alpha, beta, gamma) = POSES["eye"]
+    for name in ("clear", "intermediate"):
+        sky = renders("eye")[name]
+        rendered = sky["rendered"]
+        with _open(browser, phone_build, sky["y4m"],
+                   f"&sky=phone&time={rendered.when_unix_s}") as (page, _, errors):
+            page.evaluate("(p) => window.daylit.debug.standAt(p)", standpoint)
+            orient(page, alpha, beta, gamma)
+            true_pose = page.evaluate("window.daylit.debug.cameraPose()")
+            orient(page, alpha + 6.0, beta + 3.0, gamma)
+            drawn_pose = page.evaluate("window.daylit.debug.cameraPose()")
+            ests = [page.evaluate("window.daylit.debug.phoneEstimate()") for _ in range(5)][1:]
+            assert not errors, errors
+        expected = _copy_shift_px(true_pose, drawn_pose)
+        assert np.hypot(*expected) > 8  # a precondition: the error moves the picture
+        for e in ests:
+            np.testing.assert_allclose(e["shiftPx"], expected, atol=1.5, err_msg=name)
+        sun, sky_h = (float(np.median([LUMA @ np.asarray(e[key]) for e in ests]))
+                      / sky["exposure"] for key in ("sunNormal", "skyHorizontal"))
+        sun_err, sky_err = sun / rendered.dni_w_m2 - 1.0, sky_h / rendered.dhi_w_m2 - 1.0
+        print(name, "shift", ests[-1]["shiftPx"], "expected", np.round(expected, 1),
+              "sun", round(sun_err, 3), "sky", round(sky_err, 3))
+        assert abs(sun_err) < 0.25 and abs(sky_err) < 0.25, (name, sun_err, sky_err)
+
+
 def test_camera_mode_takes_the_server_sky_when_there_is_one(browser, phone_build, tmp_path):
     """With a server sky the phone does not estimate; with none (a server without cameras, or
     offline) it does, without ?sky=phone."""

@@ -242,6 +242,12 @@ export function debugApi(app) {
       const estimate = app._estimateLight(performance.now() / 1000, true);
       return estimate && { ...estimate, sun: app.sunNow(), ...drawnPose() };
     },
+    /** The phone estimate's pose registration (poseregister.js) on or off: the benchmark's
+     * baseline. Takes effect from the next estimate. */
+    registerPose: (on) => {
+      app._estimateLight(performance.now() / 1000, true); // the estimator exists
+      app.phoneEstimator.registerPose = !!on;
+    },
     /** Mean milliseconds of n phone estimates (the pose held: pixels and the fit) and of one
      * with the pool of the pose made again; and of n picture meter readings, the same-run
      * baseline (both read the video into their copy). */

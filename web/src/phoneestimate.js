@@ -26,6 +26,7 @@
 // Directions: site-frame unit vectors (+X east, +Y up, -Z north); irradiances W/m^2.
 import * as THREE from 'three';
 import { srgbToLinear } from './picturemeter.js';
+import { registerShift } from './poseregister.js';
 import { Proxies } from './proxyrays.js';
 import { robustFit } from './robustfit.js';
 
@@ -211,6 +212,7 @@ export class PhoneEstimator {
     this._share = new Map(); // per sky type, the model sky's share (the rest isotropic)
     this.rand = null; // the estimate's random draws, seeded afresh for each view (_poolFor)
     this.last = null; // the last estimate
+    this.registerPose = true; // poseregister.js (benchmarks switch it off for a baseline)
   }
 
   _poolFor(camera, w, h) {
@@ -274,16 +276,26 @@ export class PhoneEstimator {
    * @param {THREE.Camera} camera the pose the picture was taken with
    * @param {number[]} sun unit site direction toward the sun
    * @returns {object|null} {sunNormal: RGB, skyHorizontal: RGB (picture units x pi), ratio
-   *   (luminance E_sun / k), skyType, used, sunlit, inlierFraction, pool}; null when the
+   *   (luminance E_sun / k), skyType, used, sunlit, inlierFraction, pool, shiftPx (the
+   *   registration's [dx, dy], pixels of the copy), fisher, fisherAtZero}; null when the
    *   picture has too few usable pixels of known surfaces
    */
   estimate(rgba, w, h, camera, sun) {
     const pool = this._poolFor(camera, w, h);
     const terms = this._termsFor(sun);
+    // The pose registered on the picture: the shift that puts the model's sun and shade on
+    // the picture's (poseregister.js); the pool's pixels are read there.
+    const shift = this.registerPose
+      ? registerShift(rgba, w, h, pool, terms.map((t) => t.cosI > 0), camera.fov,
+        { clipCode: CLIP_CODE, darkCode: DARK_CODE })
+      : { dx: 0, dy: 0, fisher: NaN, fisherAtZero: NaN };
     const values = [];
     const rows = [];
     for (const i of this._balanced(terms)) {
-      const k = 4 * (pool[i].y * w + pool[i].x);
+      const x = pool[i].x + shift.dx;
+      const y = pool[i].y + shift.dy;
+      if (x < 0 || y < 0 || x >= w || y >= h) continue;
+      const k = 4 * (y * w + x);
       const codes = [rgba[k], rgba[k + 1], rgba[k + 2]];
       if (Math.max(...codes) >= CLIP_CODE || Math.min(...codes) < DARK_CODE) continue;
       values.push(codes.map((v) => srgbToLinear(v / 255)));
@@ -318,6 +330,7 @@ export class PhoneEstimator {
     this.last = {
       sunNormal: fit.sun, skyHorizontal: fit.sky, ratio: luma(fit.sun) / Math.max(luma(fit.sky), 1e-12),
       skyType: fit.type, modelShare: fit.share, used: rows.length, sunlit, inlierFraction: inliers / rows.length, pool: pool.length,
+      shiftPx: [shift.dx, shift.dy], fisher: shift.fisher, fisherAtZero: shift.fisherAtZero,
     };
     return this.last;
   }
