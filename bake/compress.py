@@ -267,6 +267,9 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
 
         # Stage 2: refinements of the gain, the base layers that matter and every light image.
         lost = [b - c for b, c in zip(base, coarse_base, strict=True)]  # (H, W, 3) each
+        # The base, its coarse decoding and the loss are each k x texels x 3: only the loss
+        # is needed from here (memory: docs/benchmarks.md, "A large site").
+        del base, coarse_base, decoded, arrays
         if refine_all:
             refine = list(range(f.k))
         else:
