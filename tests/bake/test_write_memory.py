@@ -1,5 +1,6 @@
 """The write stage's memory (issue 20, "A large site"): an atlas stack is assembled by blocks
-of lights (bake.writers.LIGHT_BLOCK) into the same bytes as made whole, and a shadowing pair
+of lights (bake.writers.LIGHT_BLOCK), its bounce fitted within each surface by blocks of
+channels (bake.denoise.FIT_BYTES), into the same bytes as made whole, and a shadowing pair
 lets go of its whole (H, W, n, 3) stacks once their valid texels are gathered, before any
 encoding (bake.compress.compress_stacks)."""
 
@@ -11,7 +12,7 @@ import weakref
 import numpy as np
 import pytest
 
-from bake import compress, writers
+from bake import compress, denoise, writers
 from bake.evaluate import Build
 from bake.pipeline import bake
 from tests.buildfiles import build_files
@@ -41,7 +42,11 @@ def whole(scene, tmp_path_factory):
 def test_stacks_assembled_by_blocks_of_lights_are_the_bytes_of_whole_ones(
     scene, whole, tmp_path, monkeypatch
 ):
-    monkeypatch.setattr(writers, "LIGHT_BLOCK", 7)  # 40 lights: six blocks, 7 lights each and the last 5
+    monkeypatch.setattr(writers, "LIGHT_BLOCK", 7)  # 40 lights: six blocks (7 each, then 5)
+    # And the fits within a surface a few channels at a time: one at a time wherever a fit's
+    # region has 8 k texels or more.
+    monkeypatch.setattr(denoise, "FIT_BYTES", 1 << 16)
+    assert denoise.channel_blocks(21, 8192) == [(c, c + 1) for c in range(21)]
     calls = []
     smooth = writers.smooth_bounce
 
