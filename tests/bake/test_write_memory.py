@@ -101,3 +101,29 @@ def test_light_blocks_cover_every_light_once():
         covered = np.concatenate([np.arange(n)[b] for b in writers.light_blocks(n)])
         assert np.array_equal(covered, np.arange(n))
         assert max(b.stop - b.start for b in writers.light_blocks(n)) <= writers.LIGHT_BLOCK
+
+
+def test_fits_by_blocks_of_channels_are_the_fits_of_all_channels_at_once(monkeypatch):
+    """The bounce fit and its continuation into buried texels, on a surface of 60 k texels
+    with a buried patch, 120 channels: one channel at a time gives the same bits as all at
+    once (each channel is fitted on its own)."""
+    from bake import contact, denoise
+
+    rng = np.random.default_rng(7)
+    labels = np.full((260, 250), 0, dtype=np.int64)
+    labels[:, 240:] = 1
+    labels[100:140, 100:160] = -2  # buried texels of surface 0
+    image = rng.random((260, 250, 40, 3), dtype=np.float32)
+
+    def both():
+        fit = denoise.smooth_within_labels(image, labels, 1.5, order=1)
+        return fit, contact.continue_into_buried(fit, labels)
+
+    at_once = both()
+    assert denoise.channel_blocks(120, 260 * 240) == [(0, 120)]
+    monkeypatch.setattr(denoise, "FIT_BYTES", 8 * 260 * 240)  # one channel per block
+    assert len(denoise.channel_blocks(120, 260 * 240)) == 120
+    blocked = both()
+    for a, b in zip(at_once, blocked, strict=True):
+        assert a.tobytes() == b.tobytes()
+    assert not np.array_equal(at_once[0], image)  # the fit did change the values
