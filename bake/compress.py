@@ -162,7 +162,9 @@ def compress_stack(
     refine_mask: np.ndarray | None = None,
     ratio: RatioRefinement | None = None,
 ) -> CompactStack:
-    """Factor, quantize, encode and verify one stack ``image`` (H, W, n, 3).
+    """Factor, quantize, encode and verify one stack ``image`` (H, W, n, 3), or None when
+``valid`` and ``spectrum`` are given (everything is then read from the spectrum: a caller
+that let go of the image holds one stack's valid texels, not its whole (H, W, n, 3) too).
 
     With a ``spectrum`` whose gain is not all ones (shadowing atlases, see
     :func:`compress_ratio_pair`), every texel is divided by its gain ``g`` before factoring and
@@ -200,7 +202,10 @@ def compress_stack(
     shadowing pair more than ``RATIO_UNREFINED`` in the ratio at some texel).
     """
     started = time.perf_counter()
-    H, W, n, _ = image.shape
+    if image is None:  # the texels are in the spectrum (which the caller let go of the image)
+        (H, W), n = valid.shape, spectrum.M.shape[1]
+    else:
+        H, W, n, _ = image.shape
     if valid is None:
         valid = np.any(image != 0.0, axis=(2, 3))
     if spectrum is None:
@@ -267,6 +272,9 @@ def compress_stack(
 
         # Stage 2: refinements of the gain, the base layers that matter and every light image.
         lost = [b - c for b, c in zip(base, coarse_base, strict=True)]  # (H, W, 3) each
+        # The base, its coarse decoding and the loss are each k x texels x 3: only the loss
+        # is needed from here (memory: docs/benchmarks.md, "A large site").
+        del base, coarse_base, decoded, arrays
         if refine_all:
             refine = list(range(f.k))
         else:
@@ -376,17 +384,21 @@ def compress_stacks(images, prefix, out_dir, skies, S, S_inv, selection, setting
     other stack alone (:func:`compress_stack`, its refinements at the UASTC level
     ``settings.rms_refine_level``), each named ``<prefix>.<name>``.
 
+    ``images`` is emptied as its stacks are taken: each is let go of once its valid texels
+    are gathered (a whole stack is lights x texels: holding them all through the encoding
+    was most of the write stage's peak memory, docs/benchmarks.md "A large site").
+
     Returns ``[(name, CompactStack)]`` in sorted name order."""
     names = sorted(images)
     if names == ["I", "d"]:
         results = compress_ratio_pair(
-            images["I"], images["d"], (f"{prefix}.I", f"{prefix}.d"), out_dir,
+            images.pop("I"), images.pop("d"), (f"{prefix}.I", f"{prefix}.d"), out_dir,
             skies, S, S_inv, selection, settings,
         )
     else:
         rms_settings = replace(settings, refine_level=settings.rms_refine_level)
         results = [
-            compress_rms_stack(images[name], f"{prefix}.{name}", out_dir, skies, S, S_inv,
+            compress_rms_stack(images.pop(name), f"{prefix}.{name}", out_dir, skies, S, S_inv,
                                selection, rms_settings)
             for name in names
         ]
@@ -404,10 +416,11 @@ def compress_rms_stack(image, name, out_dir, skies, S, S_inv, selection, setting
     tries = list(dict.fromkeys(tries))  # in order, once each
     valid = np.any(image != 0.0, axis=(2, 3))
     spectrum = Spectrum.of(image[valid], np.ones(int(valid.sum()), np.float32), S)
+    del image  # the spectrum holds the valid texels (a caller's reference keeps it, if any)
     first = None
     for j0 in tries:
         result = compress_stack(
-            image, name, out_dir, skies, S, S_inv, selection,
+            None, name, out_dir, skies, S, S_inv, selection,
             replace(settings, etc1s_from_layer=j0), valid=valid, spectrum=spectrum,
             rank=None if first is None else first.entry["k"],
         )
@@ -437,24 +450,27 @@ def compress_ratio_pair(I, d, names, out_dir, skies, S, S_inv, selection, settin
     of ``d``, both checked against their masters.
     """
     valid = np.any(I != 0.0, axis=(2, 3)) | np.any(d != 0.0, axis=(2, 3))
-    delta = d - I
     gain = np.maximum(gain_of(d[valid]), gain_of(I[valid]))
-    spec_delta = Spectrum.of(delta[valid] / gain[:, None, None], gain, S)
-    spec_d = Spectrum.of(d[valid] / gain[:, None, None], gain, S)
-    k_start = rms_rank(spec_d, S, S_inv, skies, selection, settings)[0]
-    k = ratio_rank(spec_delta, spec_d, k_start, S, S_inv, skies, selection, settings)
+    delta = d - I
+    del I  # from here on the pair is d and delta (the caller's reference keeps I, if any)
     # The ratio's error is -delta' / d + delta d' / d^2: where the virtual objects change
     # nothing (delta = 0) the errors of d do not matter. Refine only near delta != 0.
     effect = np.abs(delta).max(axis=(2, 3)) > 1e-4 * np.abs(d).max(axis=(2, 3))
     refine_mask = cv2.dilate(effect.astype(np.uint8), np.ones((9, 9), np.uint8)) > 0
+    spec_delta = Spectrum.of(_normalized(delta, valid, gain), gain, S)
+    del delta
+    spec_d = Spectrum.of(_normalized(d, valid, gain), gain, S)
+    del d  # the spectra hold the valid texels: a whole stack is no longer held
+    k_start = rms_rank(spec_d, S, S_inv, skies, selection, settings)[0]
+    k = ratio_rank(spec_delta, spec_d, k_start, S, S_inv, skies, selection, settings)
     ratio_d, ratio_delta = RatioRefinement.pair(spec_d, spec_delta, skies, selection)
     common = dict(valid=valid, rank=k, verify=False, refine_mask=refine_mask)
     d_stack = compress_stack(
-        d, names[1], out_dir, skies, S, S_inv, selection, settings, spectrum=spec_d,
+        None, names[1], out_dir, skies, S, S_inv, selection, settings, spectrum=spec_d,
         ratio=ratio_d, **common,
     )
     delta_stack = compress_stack(
-        delta,
+        None,
         names[0],
         out_dir,
         skies,
@@ -492,6 +508,14 @@ def compress_ratio_pair(I, d, names, out_dir, skies, S, S_inv, selection, settin
     ):
         _record_errors(stack.entry, references, lambda r, f=rebuild: f(r)[valid], skies)
     return delta_stack, d_stack
+
+
+def _normalized(image: np.ndarray, valid: np.ndarray, gain: np.ndarray) -> np.ndarray:
+    """``image[valid] / gain`` (T, n, 3) float32, divided in place: one copy of the valid
+    texels, not two (the same values as the division into a new array)."""
+    out = image[valid]
+    out /= gain[:, None, None]
+    return out
 
 
 def _selected_by_any(skies, selection: Selection) -> list[int]:

@@ -47,7 +47,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bake.denoise import MAX_CHANNELS, fitted_values, gaussian, plane_weights
+from bake.denoise import channel_blocks, fitted_values, gaussian, plane_weights
 
 # False: texels at contact lines are treated as before issue 20 (buried texels dark, their
 # bounce the nearest open texel's): benchmarks/bench_contact.py's "before", in one run.
@@ -115,8 +115,7 @@ def continue_into_buried(image: np.ndarray, labels: np.ndarray,
         y0, x0 = y0 + wy0, x0 + wx0
         y1, x1 = y0 + (wy1 - wy0), x0 + (wx1 - wx0)
         weights = plane_weights(mask, target, blur, sigma_px)
-        for c0 in range(0, flat.shape[2], MAX_CHANNELS):
-            c1 = min(c0 + MAX_CHANNELS, flat.shape[2])
+        for c0, c1 in channel_blocks(flat.shape[2], mask.size):
             region = flat[y0:y1, x0:x1, c0:c1].astype(np.float64) * mask[:, :, None]
             value = fitted_values(region, weights, blur, target)
             out[y0:y1, x0:x1, c0:c1][target] = np.maximum(value, 0.0)

@@ -28,6 +28,10 @@ import cv2
 import numpy as np
 
 MAX_CHANNELS = 128  # OpenCV 5 rejects images of more channels (measured: 256 fails)
+# Bytes of one float64 working array of a fit (a surface's bounding box x the channels done at
+# once): a surface whose charts are spread over a whole atlas has a bounding box of the atlas,
+# and a fit holds several such arrays (docs/benchmarks.md, "A large site").
+FIT_BYTES = 64 << 20
 # Ridge on the local fit's slopes, as a fraction of the kernel's second moment (sigma^2 times
 # its weight): enough to keep a one-texel strip's fit finite (no spread across it: its slope
 # across is then 0), small enough not to shrink the slope that an edge's value needs.
@@ -60,8 +64,7 @@ def smooth_within_labels(
             weights = [(blur(mask)[inside] ** -1, None)]
         else:
             weights = plane_weights(mask.astype(np.float64), inside, blur, sigma_px)
-        for c0 in range(0, flat.shape[2], MAX_CHANNELS):
-            c1 = min(c0 + MAX_CHANNELS, flat.shape[2])
+        for c0, c1 in channel_blocks(flat.shape[2], mask.size):
             region = flat[y0:y1, x0:x1, c0:c1] * mask[:, :, None]
             if order == 1:  # G(m x v) - x0 G(m v) cancels: float32 loses 1e-4 of v at x ~ 400
                 region = region.astype(np.float64)
@@ -70,6 +73,15 @@ def smooth_within_labels(
                 value = np.maximum(value, 0.0)
             out[y0:y1, x0:x1, c0:c1][inside] = value
     return out.reshape(image.shape)
+
+
+def channel_blocks(channels: int, texels: int) -> list[tuple[int, int]]:
+    """``(first, stop)`` blocks of ``channels`` fitted at a time over a region of ``texels``:
+    at most :data:`MAX_CHANNELS`, and few enough that a float64 working array stays within
+    :data:`FIT_BYTES` (at least one channel). Each channel is fitted on its own, so the
+    blocks give the same values whatever their size."""
+    step = max(1, min(MAX_CHANNELS, FIT_BYTES // (8 * max(texels, 1))))
+    return [(c, min(c + step, channels)) for c in range(0, channels, step)]
 
 
 def gaussian(sigma_px: float):

@@ -256,6 +256,14 @@ def lookup_result(results: dict, name: str, config: str):
     return found[config], found.get("bounce:" + config)
 
 
+def release_result(results: dict, name: str, config: str) -> None:
+    """Drop one stack's configuration arrays (as :func:`lookup_result` finds them) from
+    ``results``, so that they are let go of once no stack needs them any more."""
+    found = results[name] if name in results else results[name.split(".")[0] + ".shared"]
+    found.pop(config, None)
+    found.pop("bounce:" + config, None)
+
+
 def _chunk_path(partial: Path, s: PointSet, index: int) -> Path:
     return partial / "chunks" / f"{s.stage}-{s.name}-{index:05d}{chunkio.SUFFIX}"
 

@@ -22,12 +22,17 @@ from bake.contact import (
     extrapolate_direct,
     near_contact,
 )
-from bake.denoise import fill_from_nearest, smooth_within_labels, surface_labels
+from bake.denoise import (
+    MAX_CHANNELS,
+    fill_from_nearest,
+    smooth_within_labels,
+    surface_labels,
+)
 from bake.dome import Dome
 from bake.errors import BakeError
 from bake.raytrace import Geometry
 from bake.scene import Site
-from bake.tracework import TracedResults, lookup_result
+from bake.tracework import TracedResults, lookup_result, release_result
 from bake.views import mask_image, radiance_image, virtual_depth_image
 from daylit.stackio import CHANNEL_PATTERN, write_exr, write_stack_exr
 
@@ -35,6 +40,9 @@ BOUNCE_SIGMA_TEXELS = 1.5  # smoothing of the indirect bounce within a surface (
 # An atlas's bounce is smoothed with a local linear fit (bake.denoise: no bias at a surface's
 # edges, where the bounce beside a sunlit wall changes fastest); views keep the plain mean.
 BOUNCE_ORDER = 1
+# Lights of an atlas stack assembled at a time: one of the smoothing's channel blocks (three
+# channels a light), so that 40 lights are one block and 400 lights ten.
+LIGHT_BLOCK = MAX_CHANNELS // 3
 
 
 @dataclass
@@ -60,17 +68,21 @@ class SunBounce:
         ] if enabled else []
         return cls(enabled, dome.cosine_weighted_sr, np.asarray(site.ground.albedo), names)
 
-    def image(self, a, config, smoothed, coverage) -> np.ndarray:
-        """The one-bounce part of an atlas stack (H, W, n, 3), exactly as
-        :func:`_atlas_image` adds it (``smoothed``: the stack's bounce as
-        :func:`smooth_bounce` gave it, (H, W, n, 3); gutters filled here), for the lights
-        the sun can be in; zero in the other columns (light i stays column i). The smoothing
-        is done once for both: it treats each light's column on its own (Gaussian blurs and
-        per-texel arithmetic), so its columns are those a smoothing of the sun's columns
-        alone gave, bit for bit (tests/bake/test_sun_bounce.py).
+    def image(self, a, config, smoothed, coverage, block: slice = slice(None)) -> np.ndarray:
+        """The one-bounce part of an atlas stack's lights ``block`` (of the n: (H, W, b, 3),
+        b the block's lights), exactly as :func:`_atlas_image` adds it (``smoothed``: those
+        lights' bounce as :func:`smooth_bounce` gave it, (H, W, b, 3); gutters filled here),
+        for the lights the sun can be in; zero in the other columns (light i stays column
+        i - block.start). The smoothing is done once for both: it treats each light's column
+        on its own (Gaussian blurs and per-texel arithmetic), so its columns are those a
+        smoothing of the sun's columns alone gave, bit for bit
+        (tests/bake/test_sun_bounce.py); so is every step here, hence a stack made by blocks
+        of lights is the stack made whole.
         ``"none"`` (a hull plane's ``d``) has the open ground's bounce in closed form,
         ``albedo E_up_i (1 - n_y) / 2`` (:meth:`Estimator.basis`)."""
-        lights = self.lights
+        start, stop, _ = block.indices(len(self.up))
+        lights = self.lights[(self.lights >= start) & (self.lights < stop)]
+        columns = lights - start
         if config == "none":
             lower = 0.5 * (1.0 - a.normals[:, 1])
             part = a.to_image(
@@ -81,10 +93,10 @@ class SunBounce:
                 ).astype(np.float32)
             )
         else:
-            part = smoothed[:, :, lights]  # a copy: the gutters are filled in it
+            part = smoothed[:, :, columns]  # a copy: the gutters are filled in it
         part = _dilate(part, coverage, rings=3)
-        image = np.zeros((a.height, a.width, len(self.up), 3), dtype=np.float32)
-        image[:, :, lights] = part
+        image = np.zeros((a.height, a.width, stop - start, 3), dtype=np.float32)
+        image[:, :, columns] = part
         return image
 
     def view_image(self, view, hits, smoothed: np.ndarray) -> np.ndarray:
@@ -119,31 +131,56 @@ def write_atlas(a, traced: TracedResults, staging: Path, compressor, sun_bounce)
     coverage = a.coverage()
     labels = a.label_image()
     results = traced.load(a.id)
-    images, sun_images = {}, {}
+    images, sun_entries = {}, {}
+    configs = list(a.stacks.values())
     for stack, config in a.stacks.items():
         direct, bounce = lookup_result(results, f"{a.id}.{stack}", config)
         if config != "none":  # texels moved onto contact lines: their chord (bake.contact)
             direct = extrapolate_direct(a, direct)
         open_labels = _open_labels(a, labels, direct, config)
-        # Smoothed once, for the stack and its sun-bounce stack (it took a quarter of the
-        # write stage's time when done for each: docs/benchmarks.md).
-        smoothed = (
-            None if bounce is None
-            else smooth_bounce(a.to_image(bounce), *_bounce_labels(a, open_labels))
-        )
-        images[stack] = _atlas_image(a, config, direct, smoothed, coverage, open_labels)
+        bounce_labels = None if bounce is None else _bounce_labels(a, open_labels)
+        with_sun = sun_bounce.enabled and (bounce is not None or config == "none")
+        n = direct.shape[1]
+        image = np.empty((a.height, a.width, n, 3), dtype=np.float32)
+        sun_image = np.empty_like(image) if with_sun else None
+        # By blocks of lights: the smoothing's working arrays (several of the block's size)
+        # are then those of a block, not of every light (docs/benchmarks.md, "A large site").
+        # Every step treats each light on its own: the same values as the stack made whole.
+        for block in light_blocks(n):
+            # Smoothed once, for the stack and its sun-bounce stack (it took a quarter of the
+            # write stage's time when done for each: docs/benchmarks.md).
+            smoothed = (
+                None if bounce is None
+                else smooth_bounce(a.to_image(bounce[:, block]), *bounce_labels)
+            )
+            image[:, :, block] = _atlas_image(
+                a, config, direct[:, block], smoothed, coverage, open_labels
+            )
+            if with_sun:
+                sun_image[:, :, block] = sun_bounce.image(a, config, smoothed, coverage, block)
+            del smoothed
+        images[stack] = image
         rel = f"exr/{a.id}.{stack}.exr"
-        write_stack_exr(staging / rel, images[stack])
+        write_stack_exr(staging / rel, image)
         entry["stacks"][stack] = {
             "master": rel,
             "quantity": "irradiance",
             "channels": CHANNEL_PATTERN,
         }
-        if sun_bounce.enabled and (bounce is not None or config == "none"):
-            sun_images[stack] = sun_bounce.image(a, config, smoothed, coverage)
-        del smoothed
-    del results, direct, bounce  # the images hold what compression needs
-    # Shadowing atlases show I / d: their two stacks are compressed together for it.
+        if with_sun:
+            # Written and compressed at once, not held until the stacks are: each is a whole
+            # lights x texels array (docs/benchmarks.md, "A large site").
+            sun_entries.update(
+                _write_sun_bounce({stack: sun_image}, a.id, "exr", "irradiance", staging,
+                                  compressor)
+            )
+        image = sun_image = direct = bounce = None  # let go before the next stack's are made
+        configs.remove(config)
+        if config not in configs:  # no other stack of the atlas reads its traced arrays
+            release_result(results, f"{a.id}.{stack}", config)
+    del results  # the images hold what compression needs
+    # Shadowing atlases show I / d: their two stacks are compressed together for it (the
+    # compressor empties ``images`` as it takes them).
     for stack, compact in compressor.run(images, a.id, staging).items():
         entry["stacks"][stack]["compact"] = compact
     # The sky stacks judge the sun-bounce images as displayed (bake.sunbounce).
@@ -153,6 +190,11 @@ def write_atlas(a, traced: TracedResults, staging: Path, compressor, sun_bounce)
     if sun_entries:
         entry["sun_bounce"] = sun_entries
     return entry
+
+
+def light_blocks(n: int) -> list[slice]:
+    """The lights 0..n-1 in blocks of :data:`LIGHT_BLOCK`."""
+    return [slice(i, min(i + LIGHT_BLOCK, n)) for i in range(0, n, LIGHT_BLOCK)]
 
 
 def _atlas_image(a, config, direct, smoothed, coverage, labels) -> np.ndarray:
