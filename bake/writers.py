@@ -169,10 +169,11 @@ def write_atlas(a, traced: TracedResults, staging: Path, compressor, sun_bounce)
         }
         if with_sun:
             # Written and compressed at once, not held until the stacks are: each is a whole
-            # lights x texels array (docs/benchmarks.md, "A large site").
+            # lights x texels array (docs/benchmarks.md, "A large site"); judged as displayed
+            # with its sky stack (bake.sunbounce), here while both are.
             sun_entries.update(
                 _write_sun_bounce({stack: sun_image}, a.id, "exr", "irradiance", staging,
-                                  compressor)
+                                  compressor, {stack: image})
             )
         image = sun_image = direct = bounce = None  # let go before the next stack's are made
         configs.remove(config)
@@ -183,10 +184,6 @@ def write_atlas(a, traced: TracedResults, staging: Path, compressor, sun_bounce)
     # compressor empties ``images`` as it takes them).
     for stack, compact in compressor.run(images, a.id, staging).items():
         entry["stacks"][stack]["compact"] = compact
-    # The sky stacks judge the sun-bounce images as displayed (bake.sunbounce).
-    sun_entries = _write_sun_bounce(sun_images, a.id, "exr", "irradiance", staging, compressor,
-                                    images)
-    del images
     if sun_entries:
         entry["sun_bounce"] = sun_entries
     return entry
