@@ -81,10 +81,13 @@ def main() -> None:
                         for _ in range(args.runs)]
                 assert not errors, errors
             browser.close()
-    med = {k: float(np.median([r[k] for r in runs])) for k in ("estimateMs", "newPoseMs",
-                                                                "meterMs")}
+    med = {k: float(np.median([r[k] for r in runs])) for k in ("estimateMs", "unregisteredMs",
+                                                                "newPoseMs", "meterMs")}
     print(f"phone estimate, pose held: {med['estimateMs']:.1f} ms "
           f"(pool of {runs[0]['pool']} pixels)")
+    print(f"  of which the pose's registration (poseregister.js): "
+          f"{med['estimateMs'] - med['unregisteredMs']:.1f} ms "
+          f"(without it {med['unregisteredMs']:.1f} ms)")
     print(f"phone estimate, new pose (pool made again): {med['newPoseMs']:.1f} ms")
     print(f"picture meter reading (baseline, same run): {med['meterMs']:.2f} ms")
     print(f"estimate / meter: {med['estimateMs'] / med['meterMs']:.1f}x; "

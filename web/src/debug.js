@@ -248,9 +248,10 @@ export function debugApi(app) {
       app._estimateLight(performance.now() / 1000, true); // the estimator exists
       app.phoneEstimator.registerPose = !!on;
     },
-    /** Mean milliseconds of n phone estimates (the pose held: pixels and the fit) and of one
-     * with the pool of the pose made again; and of n picture meter readings, the same-run
-     * baseline (both read the video into their copy). */
+    /** Mean milliseconds of n phone estimates (the pose held: the pose's registration, pixels
+     * and the fit), of n without the registration, and of one with the pool of the pose made
+     * again; and of n picture meter readings, the same-run baseline (both read the video into
+     * their copy). */
     timePhoneEstimate(n = 5) {
       const now = performance.now() / 1000;
       app._estimateLight(now, true);
@@ -260,12 +261,15 @@ export function debugApi(app) {
         return (performance.now() - t0) / n;
       };
       const estimateMs = time(() => app.phoneLight.read(app.camera, app.sunNow(), now, true));
+      app.phoneEstimator.registerPose = false; // the pose registration's share (poseregister.js)
+      const unregisteredMs = time(() => app.phoneLight.read(app.camera, app.sunNow(), now, true));
+      app.phoneEstimator.registerPose = true;
       const t0 = performance.now();
       app.phoneEstimator._pose = null;
       app.phoneLight.read(app.camera, app.sunNow(), now, true);
       const newPoseMs = performance.now() - t0;
       const meterMs = time(() => app.view.meter.read(app.camera, now, true));
-      return { estimateMs, newPoseMs, meterMs, pool: app.phoneEstimator.pool.length };
+      return { estimateMs, unregisteredMs, newPoseMs, meterMs, pool: app.phoneEstimator.pool.length };
     },
     /** The camera mode's last device orientation read ({alpha, beta, gamma} degrees; null
      * before the first event or outside the camera mode). */
