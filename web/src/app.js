@@ -80,6 +80,7 @@ export class App {
     this.offlineWorker = 'none';
     this.offlineKept = null;
     this.keptLight = null;
+    this._keptLightTried = false; // the kept light is looked for once a visit (_useKeptLight)
     // ?time= (ISO 8601 or Unix seconds): the client's clock starts there (the phone's sun
     // without a server; tests and demos). Only the phone's estimate reads it.
     const start = params.get('time');
