@@ -519,14 +519,17 @@ export class App {
     this._updateExposure(dt, now / 1000);
     this.renderFrame(xrFrame);
     this.frameMs = performance.now() - t0;
+    // One time for the frame: a first relit frame that is also exact has both equal (two
+    // clock reads could straddle the browser's 0.1 ms clock step).
+    const drawnMs = performance.now();
     if (this._firstRelitPending && this.relighter?.applied) {
       this._firstRelitPending = false;
-      this.firstRelitMs = performance.now();
+      this.firstRelitMs = drawnMs;
       this.firstRelitBytes = this.assets.bytesLoaded; // what that picture waited for
     }
     if (this._exactRelitPending && this.relighter?.applied) {
       this._exactRelitPending = false;
-      this.exactRelitMs = performance.now();
+      this.exactRelitMs = drawnMs;
     }
     this.hud.update();
   }
