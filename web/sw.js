@@ -16,12 +16,11 @@ function kept(url, method) {
   return !url.pathname.startsWith('/ws/') && !url.pathname.startsWith('/api/');
 }
 
-/** The cache's key: a page under its path alone (`/?mode=camera` opens offline as `/` was
- * kept); every other file under its whole URL (a build file's `?v=` is its version). */
-function keyOf(request) {
-  const url = new URL(request.url);
-  if (request.mode === 'navigate') return url.origin + url.pathname;
-  return url.href;
+/** The cache's key of `url` (a URL): a page (`navigate`) under its path alone
+ * (`/?mode=camera` opens offline as `/` was kept); every other file under its whole URL (a
+ * build file's `?v=` is its version). */
+function keyOf(url, navigate) {
+  return navigate ? url.origin + url.pathname : url.href;
 }
 
 /** Keep `response` for `key`, dropping the other versions (`?v=`) of the same path. */
@@ -38,16 +37,17 @@ async function store(cache, key, response) {
 
 async function networkFirst(event) {
   const { request } = event;
+  const key = keyOf(new URL(request.url), request.mode === 'navigate');
   try {
     const response = await fetch(request);
     // Whole answers only (a 206 range or an error page is not the file).
     if (response.status === 200) {
       const copy = response.clone();
-      event.waitUntil(caches.open(CACHE).then((cache) => store(cache, keyOf(request), copy)));
+      event.waitUntil(caches.open(CACHE).then((cache) => store(cache, key, copy)));
     }
     return response;
   } catch (err) {
-    const cached = await caches.match(keyOf(request), { cacheName: CACHE });
+    const cached = await caches.match(key, { cacheName: CACHE });
     if (cached) return cached;
     throw err;
   }
@@ -69,11 +69,10 @@ self.addEventListener('message', (event) => {
     for (const href of event.data.urls) {
       const url = new URL(href, self.location.origin);
       if (!kept(url, 'GET')) continue;
-      const navigate = url.href === event.data.page;
       try {
         const response = await fetch(url.href);
         if (response.status !== 200) throw new Error(String(response.status));
-        await store(cache, navigate ? url.origin + url.pathname : url.href, response);
+        await store(cache, keyOf(url, url.href === event.data.page), response);
       } catch {
         failed += 1;
       }
