@@ -37,7 +37,8 @@ def test_an_offline_visit_opens_from_what_was_kept_with_the_kept_light(new_page,
         online = new_page().open(server.url + URL, READY)
         online.wait("window.daylit.status.lightSource === 'server'"
                     " && window.daylit.status.lightsExact"
-                    " && window.daylit.status.offlineKept !== null", 60000)
+                    " && window.daylit.status.offlineKept !== null"
+                    " && window.daylit.status.sunBouncePatch !== null", 60000)
         status = online.status()
         assert status["offlineWorker"] == "registered"
         assert status["offlineKept"]["failed"] == 0, status["offlineKept"]
@@ -51,8 +52,9 @@ def test_an_offline_visit_opens_from_what_was_kept_with_the_kept_light(new_page,
     # The server is gone: the same page opens again from the worker's copies.
     online.page.reload()
     online.wait(READY, 60000)
-    online.wait("window.daylit.status.lightSource === 'kept' && window.daylit.status.lightsExact",
-                60000)
+    # Its sun's bounce drawn too (its images read after the site is shown, as online).
+    online.wait("window.daylit.status.lightSource === 'kept' && window.daylit.status.lightsExact"
+                " && window.daylit.status.sunBouncePatch !== null", 60000)
     status = online.status()
     assert not status["connected"]
     assert status["bytesLoaded"] == loaded_bytes

@@ -142,10 +142,12 @@ def test_loading_counts_the_bytes(new_page, web_build, sky):
         page.open(f"{server.url}/?mode=visit", READY, timeout_ms=180000)
         messages = page.page.evaluate("window.__messages")
         loaded = [float(m.split("…")[1].split()[0]) for m in messages if m.startswith("Loading")]
-        total_mb = page.status()["bytesLoaded"] / 1e6
+        # What was loaded when the site was shown (a coarse start and the sun's bounce load
+        # more after it, at the page's pace: bytesLoaded is not the note's last count).
+        shown_mb = page.status()["readyBytes"] / 1e6
         assert len(set(loaded)) >= 3, messages  # seconds of loading: the count moved on
         assert loaded == sorted(loaded), loaded
-        assert loaded[-1] == pytest.approx(total_mb, abs=0.1), (loaded[-1], total_mb)
+        assert loaded[-1] == pytest.approx(shown_mb, abs=0.051), (loaded[-1], shown_mb)
         assert messages[-1] == "", messages  # gone once the site is shown
 
 

@@ -63,6 +63,7 @@ export class App {
     this.firstRelitMs = null; // the first relit frame (from a coarse start, if the build has one)
     this.exactRelitMs = null; // the first exactly relit frame (every layer, every light image)
     this.firstRelitBytes = null;
+    this.readyBytes = null;
     this.smoother = new LightSmoother(this.smoothingS);
     this.light = null; // the newest message
     this.saturated = null;
@@ -197,6 +198,7 @@ export class App {
       // Everything is here (or a coarse start: the status line counts the rest): the loading
       // note goes (before the mode, whose note must stay).
       this.assets.onProgress = null;
+      this.readyBytes = this.assets.bytesLoaded; // the loading note's last count
       this.hud.setMessage(null);
       if (this.stream.hello) this._onHello(); // a kiosk's note that outlasts the loading
       if (kiosk) {

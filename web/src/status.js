@@ -19,6 +19,9 @@ export function makeStatus(source) {
     error: () => source.error,
     ready: () => source.ready,
     bytesLoaded: () => source.assets?.bytesLoaded ?? 0,
+    // The bytes loaded when the site was first shown and the loading note went (null before);
+    // a coarse start and the sun's bounce images load more after it.
+    readyBytes: () => source.readyBytes ?? null,
     firstRelitMs: () => source.firstRelitMs,
     exactRelitMs: () => source.exactRelitMs,
     firstRelitBytes: () => source.firstRelitBytes,
@@ -50,6 +53,8 @@ export function makeStatus(source) {
     // The kiosk's sun bounce: 'drawn' (the view's images of the sun's patch are in O' and S'),
     // 'none' (no sun, or its patch has none), 'absent: ...' (a build before 2026-11-25).
     kioskSunBounce: () => source.kiosk?.sunBounceNote ?? null,
+    // The sky patch whose sun bounce is drawn (-1: no sun, or none; null: not drawn yet).
+    sunBouncePatch: () => source.sunBounce?.patch ?? null,
     // The exposure and what set it: 'fixed' (?exposure=), 'scene' (the lightness key),
     // 'picture' (camera mode: the camera picture's ground, picturemeter.js), 'camera' (AR, or
     // no ground in the picture: the ground at middle grey); the picture's ground level.
