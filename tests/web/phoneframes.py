@@ -106,3 +106,23 @@ def open_irradiance_estimated(estimate: dict, sun_dir, normals=COMPOSITE_NORMALS
         1.0 + normals[:, 1])
     return sun * np.clip(normals @ np.asarray(sun_dir, float), 0.0, None) + k * sky
 
+
+def copy_shift_px(true_pose: dict, drawn_pose: dict, aspect: float = 16 / 9) -> np.ndarray:
+    """Where the drawn view's pixels lie in the true camera's picture, in pixels of the
+    estimate's copy (ESTIMATE_SIZE 192 x 108 in web/src/phoneestimate.js; ``aspect`` the
+    page's): the median displacement over a grid of the copy, the shift a registration should
+    find (a turn moves the picture's edges further than its centre). Both poses are camera
+    mode's (``debug.cameraPose()``: matrixWorld, fovDeg) at the same standpoint. Returns
+    [dx, dy], pixels."""
+    def rotation(pose):
+        return np.asarray(pose["matrixWorld"], float).reshape(4, 4).T[:3, :3]
+
+    w, h = 192, 108
+    t = np.tan(np.radians(true_pose["fovDeg"]) / 2.0)
+    xs, ys = np.meshgrid(np.linspace(0, w, 25), np.linspace(0, h, 15))
+    ndc = np.column_stack([xs.ravel() / w * 2 - 1, 1 - ys.ravel() / h * 2])
+    drawn = np.column_stack([ndc[:, 0] * t * aspect, ndc[:, 1] * t, -np.ones(len(ndc))])
+    v = drawn @ rotation(drawn_pose).T @ rotation(true_pose)  # three looks down -Z
+    seen = np.column_stack([v[:, 0] / -v[:, 2] / (t * aspect), v[:, 1] / -v[:, 2] / t])
+    moved = np.column_stack([(seen[:, 0] - ndc[:, 0]) * w / 2, -(seen[:, 1] - ndc[:, 1]) * h / 2])
+    return np.median(moved, axis=0)

@@ -32,6 +32,7 @@ const EXPOSURE_TAU_S = 1.5;
 // Camera mode draws with the phone's own estimate when no server sky came this long after the
 // start (offline, a server without cameras): a server's first vector usually takes < 1 s.
 const NO_SERVER_SKY_AFTER_S = 5;
+const MIN_TURN_DEG = 0.1; // a smaller registration turn leaves the view as it is
 
 export class App {
   constructor({ canvas, hudRoot, params }) {
@@ -430,21 +431,32 @@ export class App {
     this.hud.setMessage(`No live sky (offline?): the light of ${when}, kept from the last visit.`, 'warn');
   }
 
-  /** Camera mode without a server sky: estimate the light from the picture, at most every
-   * ESTIMATE_PERIOD_S, and draw with it as with a server's vector (phoneestimate.js). */
-  _estimateLight(nowS, force = false) {
+  /** The phone's light reader for the camera's video, or null where it is not wanted. */
+  _phoneLightNow(nowS) {
     if (!this.ready || !this.phoneLightWanted(nowS)) return null;
     if (!this.phoneLight || this.phoneLight.video !== this.view.video) {
       this.phoneEstimator ??= new PhoneEstimator([...this.site.nodes.real, ...this.site.nodes.ground], this.assets.manifest.ground.albedo);
-      this.phoneLight = new PhoneLight(this.view.video, this.phoneEstimator);
+      this.phoneLight = new PhoneLight(this.view.video, this.phoneEstimator, this.phoneLight?.held);
     }
-    if (!this.phoneLight.due(nowS, force)) return null; // the pose and sun only when it reads
+    return this.phoneLight;
+  }
+
+  /** Camera mode without a server sky: estimate the light from the picture, at most every
+   * ESTIMATE_PERIOD_S, and draw with it as with a server's vector (phoneestimate.js). */
+  _estimateLight(nowS, force = false) {
+    if (!this._phoneLightNow(nowS)?.due(nowS, force)) return null; // the pose and sun only when it reads
     this.view.update(); // the pose the picture is read with
     const sun = this.sunNow();
     if (sun[1] <= 0) return null; // night: nothing to estimate (the last light stays)
     const estimate = this.phoneLight.read(this.camera, sun, nowS, force);
     if (!estimate) return null;
     this.phoneEstimate = estimate;
+    // The registration's turn, past a tenth of a degree, puts the drawn model on the picture;
+    // a one-pixel shift only half (under a soft-shadowed sky the best shift wanders a pixel
+    // from estimate to estimate: the view settles instead of stepping back and forth).
+    const [dx, dy] = estimate.shiftPx;
+    const gain = Math.max(Math.abs(dx), Math.abs(dy)) <= 1 ? 0.5 : 1;
+    if (Math.hypot(...estimate.turnDeg) > MIN_TURN_DEG) this.view.turnBy(...estimate.turnDeg.map((t) => gain * t));
     const v = this.phoneEstimator.lightVector(estimate, this.assets.manifest.dome.lights, sun);
     this._phoneSequence = (this._phoneSequence ?? 0) + 1;
     this._onLight({ rgb: v.rgb, saturated: null, sequence: this._phoneSequence, captureTime: Date.now() / 1000, stale: false, flags: 0, sun: v.sun, phone: true });

@@ -2,10 +2,12 @@
 // as the background, the view turned by the device's orientation (deviceorientation, W3C
 // convention: alpha about z, beta about x, gamma about y). The visitor stands at a standpoint
 // on the site (the kiosk's view by default); drag with one finger to turn the model until it
-// sits on the real site (a heading offset), with two fingers to move the standpoint. The
-// alignment is kept in localStorage.
+// sits on the real site (a heading offset), with two fingers to move the standpoint. Where the
+// phone estimates its own light, the picture registers the view too (`turnBy`: the compass's
+// heading error and the tilt's, poseregister.js). The alignment is kept in localStorage.
 import * as THREE from 'three';
 import { PictureMeter } from './picturemeter.js';
+import { REGISTER_HEADING_DEG, REGISTER_TILT_DEG } from './poseregister.js';
 
 const STORAGE_KEY = 'daylit.alignment.camera';
 
@@ -38,7 +40,10 @@ export class CameraView {
     scene.background = this.texture;
     const view = manifest.views[0];
     const start = view ? view.world_from_camera.map((row) => row[3]).slice(0, 3) : [0, 1.6, 20];
-    this.alignment = { headingDeg: 0, position: [start[0], 1.6, start[2]], ...load() };
+    // headingDeg: the visitor's turn about the vertical; registeredHeadingDeg, registeredTiltDeg:
+    // the picture's (turnBy), about the vertical (a compass's error) and up about the camera's
+    // own horizontal axis (a tilt sensor's), each within the registration's search range.
+    this.alignment = { headingDeg: 0, registeredHeadingDeg: 0, registeredTiltDeg: 0, position: [start[0], 1.6, start[2]], ...load() };
     this.orientation = null;
     // A device without the sensors (and headless Chromium) sends one event of nulls, which
     // may arrive after real readings: it must not turn the view back to level.
@@ -106,14 +111,34 @@ export class CameraView {
       const screenDeg = screen.orientation?.angle ?? 0;
       q.multiply(new THREE.Quaternion().setFromAxisAngle(new THREE.Vector3(0, 0, 1), -THREE.MathUtils.degToRad(screenDeg)));
     }
-    const heading = new THREE.Quaternion().setFromAxisAngle(new THREE.Vector3(0, 1, 0), THREE.MathUtils.degToRad(this.alignment.headingDeg));
-    this.camera.quaternion.copy(heading.multiply(q));
+    const a = this.alignment;
+    const heading = new THREE.Quaternion().setFromAxisAngle(new THREE.Vector3(0, 1, 0), THREE.MathUtils.degToRad(a.headingDeg + a.registeredHeadingDeg));
+    const tilt = new THREE.Quaternion().setFromAxisAngle(new THREE.Vector3(1, 0, 0), THREE.MathUtils.degToRad(a.registeredTiltDeg));
+    this.camera.quaternion.copy(heading.multiply(q).multiply(tilt));
     this.camera.position.set(...this.alignment.position);
+  }
+
+  /**
+   * Turn the view so that the model lies where the picture shows the site (the registration's
+   * turn, poseregister.js): leftDeg to the left (taken as the compass's error, about the
+   * vertical: a turn about the vertical moves the picture by cos(pitch) of it), upDeg up
+   * (the tilt's, about the camera's horizontal axis). Kept with the alignment; the sums stay
+   * within the registration's search range, so that pictures it misreads (the phone pointed
+   * away from the site) cannot turn the view further than one search could turn it back.
+   */
+  turnBy(leftDeg, upDeg) {
+    const pitch = Math.asin(THREE.MathUtils.clamp(this.camera.getWorldDirection(new THREE.Vector3()).y, -1, 1));
+    const a = this.alignment;
+    a.registeredHeadingDeg = THREE.MathUtils.clamp(a.registeredHeadingDeg + leftDeg / Math.max(Math.cos(pitch), 0.5),
+      -REGISTER_HEADING_DEG, REGISTER_HEADING_DEG);
+    a.registeredTiltDeg = THREE.MathUtils.clamp(a.registeredTiltDeg + upDeg, -REGISTER_TILT_DEG, REGISTER_TILT_DEG);
+    save(a);
+    this.update();
   }
 
   resetAlignment() {
     localStorage.removeItem(STORAGE_KEY);
-    this.alignment.headingDeg = 0;
+    Object.assign(this.alignment, { headingDeg: 0, registeredHeadingDeg: 0, registeredTiltDeg: 0 });
   }
 
   dispose() {

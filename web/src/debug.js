@@ -226,6 +226,8 @@ export function debugApi(app) {
     setExposure: (e) => { app.fixedExposure = e; },
     /** Camera mode: stand at a site point (metres; the two-finger walk's standpoint, and its
      * height, a phone held up on a balcony or at eye height). */
+    /** The HUD's alignment reset: the visitor's and the registration's turns go. */
+    resetAlignment: () => app.resetAlignment(),
     standAt: (position) => {
       app.view.alignment.position = position.slice();
       app.view.update();
@@ -237,10 +239,20 @@ export function debugApi(app) {
       return drawnPose();
     },
     /** The phone's own estimate from the picture now (phoneestimate.js; null: none possible),
-     * its light applied as the app applies it, and the pose and sun it was made with. */
+     * its light applied as the app applies it, and the pose and sun it was made with; `turned`:
+     * the pose after the registration turned the view (camera-view.js turnBy). */
     phoneEstimate: () => {
+      app.view?.update?.();
+      const read = drawnPose();
       const estimate = app._estimateLight(performance.now() / 1000, true);
-      return estimate && { ...estimate, sun: app.sunNow(), ...drawnPose() };
+      return estimate && { ...estimate, sun: app.sunNow(), ...read, turned: drawnPose() };
+    },
+    /** The frame loop's phone estimates held (true) or let go: only phoneEstimate()'s are made,
+     * so that a test knows the pose each was read with. False where no estimate is wanted. */
+    holdPhoneEstimates: (held) => {
+      const reader = app._phoneLightNow(performance.now() / 1000);
+      if (reader) reader.held = !!held;
+      return !!reader;
     },
     /** The phone estimate's pose registration (poseregister.js) on or off: the benchmark's
      * baseline. Takes effect from the next estimate. */

@@ -18,9 +18,10 @@
 // them with one luminous efficacy for daylight, an approximation (direct sun ~95 lm/W, diffuse
 // sky ~125: Littlefair 1985), within 0.15 decade of the key's input.
 
+import { LUMA } from './colour.js';
+
 export const DISPLAY_KEY = 0.18;   // the open ground's display level in daylight (linear)
 export const K_LM_PER_W = 110;     // luminous efficacy of daylight, lm/W
-const LUMA = [0.2126, 0.7152, 0.0722];
 
 /** Krawczyk et al.'s key for a luminance in cd/m^2. */
 export function lightnessKey(luminanceCdM2) {

@@ -4,6 +4,8 @@
 // where it would cover a fifth of the site. At the kiosk only an unobtrusive status line is
 // shown (H shows the dome and the smoothing: a kiosk has one fixed view, so no modes).
 
+import { luminance } from './colour.js';
+
 const DOME_PX = 120;
 const SMALL_PORTRAIT = '(orientation: portrait) and (max-width: 600px)'; // as in style.css
 
@@ -129,7 +131,7 @@ export class Hud {
     const R = c - 2;
     ctx.clearRect(0, 0, DOME_PX, DOME_PX);
     let max = 1e-9;
-    for (let i = 0; i < lights.length; i++) max = Math.max(max, luminance(r, i));
+    for (let i = 0; i < lights.length; i++) max = Math.max(max, patchLuminance(r, i));
     const project = ([x, y, z]) => {
       const theta = Math.acos(Math.max(-1, Math.min(1, y))); // zenith angle
       const h = Math.hypot(x, z) || 1;
@@ -137,7 +139,7 @@ export class Hud {
       return [c + (rho * x) / h, c + (rho * z) / h]; // +X east right, -Z north up
     };
     lights.forEach((light, i) => {
-      const lum = Math.max(1e-9, luminance(r, i));
+      const lum = Math.max(1e-9, patchLuminance(r, i));
       // Hue from the patch's own RGB, brightness (lum / max)^(1/4): the sun's patch can be a
       // hundred times the sky's, and the sky's own gradient should still show.
       const level = Math.pow(lum / max, 1 / 4) * 255;
@@ -158,8 +160,9 @@ export class Hud {
   }
 }
 
-function luminance(r, i) {
-  return 0.2126 * r[3 * i] + 0.7152 * r[3 * i + 1] + 0.0722 * r[3 * i + 2];
+/** Light i's luminance in r (n x 3). */
+function patchLuminance(r, i) {
+  return luminance(r[3 * i], r[3 * i + 1], r[3 * i + 2]);
 }
 
 function formatAge(ms) {

@@ -3,6 +3,7 @@
 // server streams one, and the occlusion mask of people in front of the virtual objects
 // (issue 6), each mask paired with the frame of the same capture time.
 import * as THREE from 'three';
+import { LINEAR_OF_CODE, luminance } from './colour.js';
 import { FullscreenPass, makeTarget } from './relight.js';
 import { RATIO_FLOOR_SCENE } from './display.glsl.js';
 import { FLOAT_DECODE, RGBE_DECODE } from './relight.glsl.js';
@@ -200,7 +201,7 @@ export class Kiosk {
       for (let x = step >> 1; x < width; x += step) {
         const p = 4 * (y * width + x);
         if (maskData && maskData[y * width + x] !== 0) continue;
-        samples.push([x / width, y / height, 0.2126 * data[p] + 0.7152 * data[p + 1] + 0.0722 * data[p + 2]]);
+        samples.push([x / width, y / height, luminance(data[p], data[p + 1], data[p + 2])]);
       }
     }
     this.sLowRes = samples;
@@ -242,8 +243,7 @@ export class Kiosk {
     let sumS = 0;
     for (const [u, v, s] of this.sLowRes) {
       const i = 4 * (Math.min(h - 1, Math.floor(v * h)) * w + Math.min(w - 1, Math.floor(u * w)));
-      const lin = (c) => { c /= 255; return c <= 0.04045 ? c / 12.92 : ((c + 0.055) / 1.055) ** 2.4; };
-      sumP += 0.2126 * lin(px[i]) + 0.7152 * lin(px[i + 1]) + 0.0722 * lin(px[i + 2]);
+      sumP += luminance(LINEAR_OF_CODE[px[i]], LINEAR_OF_CODE[px[i + 1]], LINEAR_OF_CODE[px[i + 2]]);
       sumS += s;
     }
     if (sumS <= 0 || sumP <= 0) return;

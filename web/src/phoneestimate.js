@@ -25,7 +25,7 @@
 // (robustfit.js). The rays are cast against the proxies' triangles by proxyrays.js.
 // Directions: site-frame unit vectors (+X east, +Y up, -Z north); irradiances W/m^2.
 import * as THREE from 'three';
-import { srgbToLinear } from './picturemeter.js';
+import { LINEAR_OF_CODE, luminance } from './colour.js';
 import { registerShift } from './poseregister.js';
 import { Proxies } from './proxyrays.js';
 import { robustFit } from './robustfit.js';
@@ -54,7 +54,6 @@ const OVERCAST_TYPE = 2;
 const SHARE_MEMORY = 0.8; // per estimate, the weight of the past in the model sky's share
 /** The level the estimate is scaled to: a sun and sky giving this on open ground. */
 export const NOMINAL_GLOBAL_W_M2 = 500;
-const LUMA = [0.2126, 0.7152, 0.0722];
 // CIE general skies (ISO 15469; daylit/sky.py CIE_SKY_TYPES): a, b, c, d, e
 const CIE = { 2: [4.0, -0.7, 2.0, -1.5, 0.15], 7: [0.0, -1.0, 5.0, -2.5, 0.3], 12: [-1.0, -0.32, 10.0, -3.0, 0.45] };
 
@@ -277,7 +276,8 @@ export class PhoneEstimator {
    * @param {number[]} sun unit site direction toward the sun
    * @returns {object|null} {sunNormal: RGB, skyHorizontal: RGB (picture units x pi), ratio
    *   (luminance E_sun / k), skyType, used, sunlit, inlierFraction, pool, shiftPx (the
-   *   registration's [dx, dy], pixels of the copy), fisher, fisherAtZero}; null when the
+   *   registration's [dx, dy], pixels of the copy), turnDeg (the camera's turn that puts the
+   *   model on the picture: [left, up], degrees), fisher, fisherAtZero}; null when the
    *   picture has too few usable pixels of known surfaces
    */
   estimate(rgba, w, h, camera, sun) {
@@ -288,7 +288,7 @@ export class PhoneEstimator {
     const shift = this.registerPose
       ? registerShift(rgba, w, h, pool, terms.map((t) => t.cosI > 0), camera.fov,
         { clipCode: CLIP_CODE, darkCode: DARK_CODE })
-      : { dx: 0, dy: 0, fisher: NaN, fisherAtZero: NaN };
+      : { dx: 0, dy: 0, fisher: NaN, fisherAtZero: NaN, turnDeg: [0, 0] };
     const values = [];
     const rows = [];
     for (const i of this._balanced(terms)) {
@@ -298,7 +298,7 @@ export class PhoneEstimator {
       const k = 4 * (y * w + x);
       const codes = [rgba[k], rgba[k + 1], rgba[k + 2]];
       if (Math.max(...codes) >= CLIP_CODE || Math.min(...codes) < DARK_CODE) continue;
-      values.push(codes.map((v) => srgbToLinear(v / 255)));
+      values.push(codes.map((v) => LINEAR_OF_CODE[v]));
       rows.push(i);
     }
     if (rows.length < MIN_SAMPLES) {
@@ -330,7 +330,7 @@ export class PhoneEstimator {
     this.last = {
       sunNormal: fit.sun, skyHorizontal: fit.sky, ratio: luma(fit.sun) / Math.max(luma(fit.sky), 1e-12),
       skyType: fit.type, modelShare: fit.share, used: rows.length, sunlit, inlierFraction: inliers / rows.length, pool: pool.length,
-      shiftPx: [shift.dx, shift.dy], fisher: shift.fisher, fisherAtZero: shift.fisherAtZero,
+      shiftPx: [shift.dx, shift.dy], turnDeg: shift.turnDeg, fisher: shift.fisher, fisherAtZero: shift.fisherAtZero,
     };
     return this.last;
   }
@@ -366,10 +366,13 @@ export class PhoneLight {
   /**
    * @param {HTMLVideoElement} video
    * @param {PhoneEstimator} estimator
+   * @param {boolean} [held] no estimate unless forced (tests: only theirs, none of the frame
+   *   loop's between them)
    */
-  constructor(video, estimator) {
+  constructor(video, estimator, held = false) {
     this.video = video;
     this.estimator = estimator;
+    this.held = held;
     this.canvas = document.createElement('canvas');
     [this.canvas.width, this.canvas.height] = ESTIMATE_SIZE;
     this.context = this.canvas.getContext('2d', { willReadFrequently: true });
@@ -380,7 +383,7 @@ export class PhoneLight {
 
   /** @returns {boolean} whether an estimate is due at nowS (s) and the video has a frame */
   due(nowS, force = false) {
-    return (force || nowS - this.lastS >= ESTIMATE_PERIOD_S) && this.video.readyState >= 2;
+    return (force || (!this.held && nowS - this.lastS >= ESTIMATE_PERIOD_S)) && this.video.readyState >= 2;
   }
 
   /** @returns {object|null} a new estimate, or null (not due, no frame, nothing to read) */
@@ -406,7 +409,7 @@ function median(v) {
 }
 
 function luma(rgb) {
-  return LUMA[0] * rgb[0] + LUMA[1] * rgb[1] + LUMA[2] * rgb[2];
+  return luminance(rgb[0], rgb[1], rgb[2]);
 }
 
 function dot(p, q) {

@@ -11,6 +11,7 @@
 // and the real ground's own shadows are; they are a minority of the ground pixels at a
 // visitor's standpoint. The camera's response is taken as sRGB (phones encode so).
 import * as THREE from 'three';
+import { LINEAR_OF_CODE, luminance } from './colour.js';
 
 /** The metered copy of the picture, pixels (w, h): 1296 rays, some 1 ms of CPU. */
 export const METER_SIZE = [48, 27];
@@ -21,12 +22,6 @@ export const MIN_GROUND_PIXELS = 40;
 /** The ground plane counts from this far below the horizon, degrees, and out to MAX_GROUND_M. */
 const MIN_DOWN_DEG = 2;
 const MAX_GROUND_M = 300;
-const LUMA = [0.2126, 0.7152, 0.0722];
-
-/** An sRGB-encoded value in 0..1 to linear (IEC 61966-2-1). */
-export function srgbToLinear(v) {
-  return v <= 0.04045 ? v / 12.92 : ((v + 0.055) / 1.055) ** 2.4;
-}
 
 /**
  * The picture's ground level.
@@ -48,7 +43,7 @@ export function groundLevel(rgba, w, h, camera) {
       ray.set((x + 0.5) / w * 2 - 1, 1 - (y + 0.5) / h * 2, 0.5).unproject(camera).sub(origin).normalize();
       if (ray.y > -minDown || origin.y / -ray.y > MAX_GROUND_M) continue;
       const i = 4 * (y * w + x);
-      values.push(LUMA.reduce((s, wt, c) => s + wt * srgbToLinear(rgba[i + c] / 255), 0));
+      values.push(luminance(LINEAR_OF_CODE[rgba[i]], LINEAR_OF_CODE[rgba[i + 1]], LINEAR_OF_CODE[rgba[i + 2]]));
     }
   }
   if (values.length < MIN_GROUND_PIXELS) return null;

@@ -7,7 +7,7 @@
 // log(luminance / albedo), is taken: Fisher's ratio of the two groups, (m1 - m2)^2 / (v1 + v2),
 // was 56-79 at the true pose and at most 14 three or more degrees off, on Radiance frames of
 // the test site. Where no shift splits them clearly (an overcast sky, no sun) none is taken.
-import { srgbToLinear } from './picturemeter.js';
+import { LINEAR_OF_CODE as LINEAR, luminance } from './colour.js';
 
 /** The widest turns searched, degrees each way: a phone's compass is often 5-15 degrees off,
  * its tilt (from gravity) a degree or two. */
@@ -17,7 +17,6 @@ export const REGISTER_TILT_DEG = 5;
 const MIN_FISHER = 8;
 /** Fewer pixels than this in either group: no ratio at that shift. */
 const MIN_GROUP = 10;
-const LINEAR = Float64Array.from({ length: 256 }, (_, v) => srgbToLinear(v / 255));
 
 /**
  * The picture's shift that registers the pool's sun/shade split on it.
@@ -29,8 +28,11 @@ const LINEAR = Float64Array.from({ length: 256 }, (_, v) => srgbToLinear(v / 255
  * @param {boolean[]} lit per pool pixel, in sun by the model
  * @param {number} fovDeg the camera's vertical field of view; the copy spans its frustum
  * @param {{clipCode: number, darkCode: number}} usable codes a pixel must stay within
- * @returns {{dx: number, dy: number, fisher: number, fisherAtZero: number}} the shift, pixels
- *   (read the pool's pixel (x, y) at (x + dx, y + dy)), the split's ratio there and unshifted
+ * @returns {{dx: number, dy: number, fisher: number, fisherAtZero: number, turnDeg: number[]}}
+ *   the shift, whole pixels (read the pool's pixel (x, y) at (x + dx, y + dy)), the split's
+ *   ratio there and unshifted, and the turn of the camera that puts the model where the
+ *   picture shows it: [to the left, up], degrees, from the shift between pixels ([0, 0]
+ *   when none is taken)
  */
 export function registerShift(rgba, w, h, pool, lit, fovDeg, { clipCode, darkCode }) {
   const logL = new Float64Array(w * h);
@@ -39,24 +41,43 @@ export function registerShift(rgba, w, h, pool, lit, fovDeg, { clipCode, darkCod
     const g = rgba[4 * i + 1];
     const b = rgba[4 * i + 2];
     logL[i] = Math.max(r, g, b) >= clipCode || Math.min(r, g, b) < darkCode ? NaN
-      : Math.log(0.2126 * LINEAR[r] + 0.7152 * LINEAR[g] + 0.0722 * LINEAR[b]);
+      : Math.log(luminance(LINEAR[r], LINEAR[g], LINEAR[b]));
   }
-  const logAlbedo = pool.map((p) => Math.log(0.2126 * p.albedo[0] + 0.7152 * p.albedo[1] + 0.0722 * p.albedo[2]));
+  const logAlbedo = pool.map((p) => Math.log(luminance(...p.albedo)));
   // The turns in pixels (the vertical focal length; the copy has the picture's aspect).
   const f = (h / 2) / Math.tan((fovDeg * Math.PI) / 360);
   const reachX = Math.ceil(f * Math.tan((REGISTER_HEADING_DEG * Math.PI) / 180));
   const reachY = Math.ceil(f * Math.tan((REGISTER_TILT_DEG * Math.PI) / 180));
+  const nx = 2 * reachX + 1;
+  const scores = new Float64Array(nx * (2 * reachY + 1));
   let best = { dx: 0, dy: 0, fisher: -Infinity };
-  let fisherAtZero = NaN;
   for (let dy = -reachY; dy <= reachY; dy++) {
     for (let dx = -reachX; dx <= reachX; dx++) {
       const fisher = splitRatio(logL, w, h, pool, lit, logAlbedo, dx, dy);
-      if (dx === 0 && dy === 0) fisherAtZero = fisher;
+      scores[(dy + reachY) * nx + dx + reachX] = fisher;
       if (fisher > best.fisher) best = { dx, dy, fisher };
     }
   }
-  if (!(best.fisher >= MIN_FISHER)) best = { dx: 0, dy: 0, fisher: best.fisher };
-  return { ...best, fisherAtZero };
+  const fisherAtZero = scores[reachY * nx + reachX];
+  if (!(best.fisher >= MIN_FISHER)) {
+    return { dx: 0, dy: 0, fisher: best.fisher, fisherAtZero, turnDeg: [0, 0] };
+  }
+  // The peak between pixels (a parabola through the best score and its neighbours), so that
+  // the view turned by it lands within a fraction of a pixel and the next search finds 0.
+  const at = (dx, dy) => (Math.abs(dx) > reachX || Math.abs(dy) > reachY ? NaN
+    : scores[(dy + reachY) * nx + dx + reachX]);
+  const x = best.dx + peakOffset(at(best.dx - 1, best.dy), best.fisher, at(best.dx + 1, best.dy));
+  const y = best.dy + peakOffset(at(best.dx, best.dy - 1), best.fisher, at(best.dx, best.dy + 1));
+  const deg = (px) => (Math.atan(px / f) * 180) / Math.PI;
+  return { ...best, fisherAtZero, turnDeg: [deg(x), deg(y)] };
+}
+
+/** Where a parabola through (-1, a), (0, b), (1, c) peaks, within [-0.5, 0.5]; 0 where a
+ * neighbour is missing or the three make no peak. */
+function peakOffset(a, b, c) {
+  const curvature = a - 2 * b + c;
+  if (!Number.isFinite(curvature) || curvature >= 0) return 0;
+  return Math.max(-0.5, Math.min(0.5, (0.5 * (a - c)) / curvature));
 }
 
 /** Fisher's ratio of log(luminance / albedo) between the pool's sunlit and shaded pixels read
