@@ -222,6 +222,10 @@ SCHEMA: dict = {
                               minimum=0),
         "foot_min_px": _int(2, "the foot line is the lowest row with at least this many "
                             "pixels of the region", minimum=1),
+        "min_person_height_m": _num(0.1, "person regions lower than this, metres, if "
+                                    "they stood on their foot line are dropped as pieces of "
+                                    "shadow lying on the ground (0: off; pinhole cameras only)",
+                                    minimum=0),
     },
 }
 
@@ -306,6 +310,7 @@ class OcclusionSettings:
 
     min_person_px: int = _default("min_person_px")
     foot_min_px: int = _default("foot_min_px")
+    min_person_height_m: float = _default("min_person_height_m")
 
     def __post_init__(self) -> None:
         values = {f.name: _plain(getattr(self, f.name)) for f in fields(self)}
