@@ -6,7 +6,7 @@ This is the one class the light server calls. Per frame::
           background's pixel grid --difference--> regions
           --graph cut (segment.py, shadows inside)--> people
           --outlines onto luminance edges (outline.py; block-coded frames)-->
-          --foot line (depth.py)-->
+          --foot line (depth.py; regions lying flat on the ground dropped)-->
           depth per person --vs virtual depth--> occlusion mask (+ slow background update)
 
 Usage::
