@@ -31,9 +31,11 @@ frames with people, shadow kept, phantom regions in the empty frames after learn
 time to draw a frame (the demo's and the replays' cost) and to process it.
 
 With ``--codecs`` it runs the broadband sequence raw, through JPEG 75 and through H.264 at
-480x270 and 1024x512 with the detector before issue 18's codec work (those parts switched off
-by settings, :data:`BEFORE_CODEC_WORK`), after it but before the outline work
-(:data:`BEFORE_OUTLINES`) and as it is now, frame by frame on the same frames.
+480x270 and 1024x512 with the detector after issue 18's codec work but before the outline
+work (those parts switched off by settings, :data:`BEFORE_OUTLINES` and
+:data:`BEFORE_STANDING`), after the outline work but before the standing-height and
+shadow-deviation limits (:data:`BEFORE_STANDING`) and as it is now, frame by frame on the
+same frames.
 
 With ``--refit`` it times only the person colour mixture's warm refit, this code's numpy EM
 against OpenCV's ``EM.trainM`` from the same posteriors (the frames that set the p95 before
@@ -326,23 +328,27 @@ BEFORE_CODEC_WORK = {"shadow_learn_spread": False, "codec_chroma_px": 1,
 # The outline work of 2026-11-25 (outline.py, shadowpieces.py's islands) switched off: the
 # detector as the codec work left it, the same-run baseline of the outlines.
 BEFORE_OUTLINES = {"outline_radius_px": 0, "shadow_island_share": 0.0}
+# The standing-height rule (depth.drop_flat_regions) and the shadow-deviation limit of
+# 2026-11-25 (branch s25-h264) switched off: the detector as the outline work left it.
+BEFORE_STANDING = {"min_person_height_m": 0.0, "shadow_max_deviation": 0.0}
 
 
 def codecs(sizes=((480, 270), (1024, 512))) -> None:
-    """Issue 18's figures through the codecs, the detector before and after its codec work,
-    interleaved frame by frame on the same frames (same run, same load)."""
+    """Issue 18's figures through the codecs, the detector after its codec work, after its
+    outline work and now, interleaved frame by frame on the same frames (same run, same
+    load)."""
     from server.occlusion.settings import OcclusionSettings
     from tests.server.occlusion.conftest import CODEC_EMPTY_S, CODECS, coded_truths
 
     print("\nStandard sequence (broadband), 12 s at 10 frames/s, 1.6 s empty (1 s learned), "
-          "raw and coded: the detector before issue 18's codec work (settings "
-          f"{BEFORE_CODEC_WORK}), after it but before the outline work ({BEFORE_OUTLINES}) "
+          "raw and coded: the detector after issue 18's codec work (settings "
+          f"{BEFORE_OUTLINES | BEFORE_STANDING}), after the outline work ({BEFORE_STANDING}) "
           "and now\n")
     print("| size | frames as | detector | person IoU (median) | worst frame IoU | "
           "shadow kept | phantom regions (empty frames) | CPU ms median | CPU ms p95 | load |")
     print("|---|---|---|---:|---:|---:|---:|---:|---:|---:|")
-    variants = {"before": OcclusionSettings(**BEFORE_CODEC_WORK),
-                "codec work": OcclusionSettings(**BEFORE_OUTLINES), "now": OcclusionSettings()}
+    variants = {"codec work": OcclusionSettings(**BEFORE_OUTLINES, **BEFORE_STANDING),
+                "outline work": OcclusionSettings(**BEFORE_STANDING), "now": OcclusionSettings()}
     for width, height in sizes:
         site = default_site(width, height, empty_s=CODEC_EMPTY_S)
         virtual = box_depth_image(site.camera, *VIRTUAL_BOX)

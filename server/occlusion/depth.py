@@ -188,6 +188,41 @@ def find_people(
     return labels, people
 
 
+def standing_height_m(person: Person, camera) -> float:
+    """How tall, metres, ``person``'s region would be if it stood upright on its foot line:
+    its bounding box's rows times its depth over the focal length (pixels). NaN when the
+    camera has no pinhole intrinsics ``K`` (a panorama) or the depth is unknown."""
+    K = getattr(camera, "K", None)
+    if K is None or not np.isfinite(person.depth_m):
+        return float("nan")
+    return (person.bbox_px[3] - person.bbox_px[1]) * person.depth_m / float(K[1, 1])
+
+
+def drop_flat_regions(labels: np.ndarray, people: list[Person], camera,
+                      min_height_m: float) -> list[Person]:
+    """The people who could stand: regions lower than ``min_height_m`` at their own depth
+    (:func:`standing_height_m`) are taken out of ``labels`` (in place) and the list.
+
+    A piece of a cast shadow that the cut kept as person lies on the ground, so from a camera
+    above the ground it is a few rows high however long it is: at its foot line's depth it
+    is centimetres tall, where a standing person (even a cut-off part of one, such as a shoe
+    or a head) is a decimetre or more. Regions touching the frame's bottom edge (their foot
+    may be below it) and regions without a depth are kept.
+    """
+    if min_height_m <= 0:
+        return people
+    kept = []
+    for p in people:
+        h = standing_height_m(p, camera)
+        if not p.at_bottom_edge and np.isfinite(h) and h < min_height_m:
+            x0, y0, x1, y1 = p.bbox_px
+            sub = labels[y0:y1, x0:x1]
+            sub[sub == p.label] = 0
+        else:
+            kept.append(p)
+    return kept
+
+
 def occlusion_mask(
     labels: np.ndarray, people: list[Person], virtual_depth_m: np.ndarray | None
 ) -> np.ndarray:

@@ -6,7 +6,7 @@ This is the one class the light server calls. Per frame::
           background's pixel grid --difference--> regions
           --graph cut (segment.py, shadows inside)--> people
           --outlines onto luminance edges (outline.py; block-coded frames)-->
-          --foot line (depth.py)-->
+          --foot line (depth.py; regions lying flat on the ground dropped)-->
           depth per person --vs virtual depth--> occlusion mask (+ slow background update)
 
 Usage::
@@ -37,7 +37,13 @@ import numpy as np
 
 from server.occlusion.background import BackgroundModel, shrink
 from server.occlusion.colour import Transfer, apply_table
-from server.occlusion.depth import Person, PerspectiveCamera, find_people, occlusion_mask
+from server.occlusion.depth import (
+    Person,
+    PerspectiveCamera,
+    drop_flat_regions,
+    find_people,
+    occlusion_mask,
+)
 from server.occlusion.outline import refine_outline
 from server.occlusion.register import Registration, shift_image
 from server.occlusion.segment import Segmenter, regions_of_interest
@@ -364,6 +370,9 @@ class OcclusionProcessor:
             if isinstance(self.camera, PerspectiveCamera) and np.isfinite(p.depth_m):
                 point = self.camera.ground_hit(u, v)[0][0]
                 p.foot_world_m = (float(point[0]), float(point[1]), float(point[2]))
+        # Pieces of cast shadow kept as person lie flat on the ground: not people.
+        people = drop_flat_regions(labels, people, self.camera, s.min_person_height_m)
+        person = labels > 0
         mask = occlusion_mask(labels, people, self.virtual_depth_m)
         lap("depth")
         # 5. Memory: label history, person colours, slow background update, gain exclusion.

@@ -215,6 +215,9 @@ SCHEMA: dict = {
                             minimum=0),
         "shadow_slope": _num(4.0, "added cost, nats, per squared tolerance of deviation from "
                              "a perfect shadow", minimum=0),
+        "shadow_max_deviation": _num(3.0, "a candidate further than this many tolerances "
+                                     "(root of the summed squared deviations) from a perfect "
+                                     "shadow is never shadow (0: no limit)", minimum=0),
         "dark_floor": _num(0.004, "linear values below this (on any channel) make the "
                            "chromaticity meaningless; such pixels are never shadow", minimum=0),
         # People and depth (depth.py, Kakuta Eq. 13)
@@ -222,6 +225,10 @@ SCHEMA: dict = {
                               minimum=0),
         "foot_min_px": _int(2, "the foot line is the lowest row with at least this many "
                             "pixels of the region", minimum=1),
+        "min_person_height_m": _num(0.1, "person regions lower than this, metres, if "
+                                    "they stood on their foot line are dropped as pieces of "
+                                    "shadow lying on the ground (0: off; pinhole cameras only)",
+                                    minimum=0),
     },
 }
 
@@ -302,10 +309,12 @@ class OcclusionSettings:
     shadow_island_share: float = _default("shadow_island_share")
     shadow_cost: float = _default("shadow_cost")
     shadow_slope: float = _default("shadow_slope")
+    shadow_max_deviation: float = _default("shadow_max_deviation")
     dark_floor: float = _default("dark_floor")
 
     min_person_px: int = _default("min_person_px")
     foot_min_px: int = _default("foot_min_px")
+    min_person_height_m: float = _default("min_person_height_m")
 
     def __post_init__(self) -> None:
         values = {f.name: _plain(getattr(self, f.name)) for f in fields(self)}

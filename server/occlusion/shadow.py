@@ -261,7 +261,8 @@ class ShadowSignature:
         soft cost rather than a yes/no test, so that a shadow pixel just outside a tolerance is
         still cheaper as background than as a person. +inf where the hard
         conditions fail (not darker within ``shadow_ratio``, not bluer by
-        ``shadow_min_blue_shift``, ``|ln F|`` change beyond ``2 t_f``, unusably dark).
+        ``shadow_min_blue_shift``, ``|ln F|`` change beyond ``2 t_f``, unusably dark) and
+        where ``m`` exceeds ``shadow_max_deviation``.
         """
         s = self.settings
         f = ShadowFeatures(*features)
@@ -302,6 +303,11 @@ class ShadowSignature:
                 blue_noise = np.sqrt(np.square(blue_noise)
                                      + np.square(per_dark * np.asarray(f.dark_local)))
             m2 += ((f.blue - blue) / _tolerance(tol_b, blue_noise)) ** 2
+        if s.shadow_max_deviation > 0:
+            # Beyond a few tolerances from a perfect shadow a pixel is something else (dark
+            # shoes on their own shadow, dark hair: not bluer by the shadows' shift); as a
+            # merely expensive shadow the cut's smoothing still joined it to the shadow.
+            gate &= m2 <= s.shadow_max_deviation ** 2
         cost = s.shadow_cost + s.shadow_slope * m2
         return np.where(gate, cost, np.inf).astype(np.float32)
 

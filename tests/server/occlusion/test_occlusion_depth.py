@@ -121,3 +121,77 @@ def test_people_are_in_front_exactly_where_they_are_nearer_than_the_virtual_surf
     assert (occlusion_mask(labels, people, virtual)[labels == 1] == 255).all()
     # No virtual depth at all: every person is in the mask.
     assert np.array_equal(occlusion_mask(labels, people, None) > 0, labels > 0)
+
+
+def _silhouette(camera, corners_m: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the convex hull of 3-D points (N, 3) projected by ``camera``."""
+    import cv2
+
+    uv, z = camera.project(corners_m)
+    assert np.all(z > 0)
+    mask = np.zeros((camera.height, camera.width), np.uint8)
+    cv2.fillConvexPoly(mask, np.round(cv2.convexHull(uv.astype(np.float32))).astype(np.int32)
+                       .reshape(-1, 2), 1)
+    return mask > 0
+
+
+def _box(centre_m, size_m) -> np.ndarray:
+    """The 8 corners (8, 3) of an axis-aligned box standing on the ground at ``centre_m``
+    (x, z), ``size_m`` (width x, height y, depth z), metres."""
+    (x, z), (w, h, d) = centre_m, size_m
+    return np.array([[x + sx * w / 2, sy * h, z + sz * d / 2]
+                     for sx in (-1, 1) for sy in (0, 1) for sz in (-1, 1)], dtype=np.float64)
+
+
+@pytest.mark.parametrize("distance_m", [8.0, 14.0, 22.0])
+def test_flat_pieces_on_the_ground_are_dropped_and_standing_ones_kept(distance_m):
+    """Regions drawn by projecting 3-D boxes through the camera (not by the rule's formula):
+    a piece of shadow lying on the ground across the view (1.5 m wide, 15 cm along the line
+    of sight, 2 cm thick) is dropped; a walker (1.7 m) and a shoe cut off from its walker
+    (12 cm) are kept, and so is the strip where the rule is off or the region may go on
+    below the frame's bottom edge.
+
+    What a silhouette cannot tell: a strip ``L`` long along the line of sight at ``D`` looks
+    like a post about ``camera height x L / D`` tall (1.5 m at 8 m from 3 m up: 17 cm), and
+    is kept.
+    """
+    from server.occlusion.depth import drop_flat_regions, standing_height_m
+
+    camera = make_camera(1024, 512, hfov_deg=60.0, height_m=3.0, pitch_deg=-12.0)
+    forward = camera.R[:, 2]
+    heading = np.array([forward[0], 0.0, forward[2]]) / math.hypot(forward[0], forward[2])
+    side = np.array([heading[2], 0.0, -heading[0]])
+
+    def at(along_m: float, across_m: float) -> tuple[float, float]:
+        p = camera.origin_m * [1, 0, 1] + heading * along_m + side * across_m
+        return float(p[0]), float(p[2])
+
+    shapes = {
+        "walker": _box(at(distance_m, -2.0), (0.5, 1.7, 0.3)),
+        "shoe": _box(at(distance_m, 0.0), (0.1, 0.12, 0.28)),
+        "strip": _box(at(distance_m, 2.0), (1.5, 0.02, 0.15)),
+    }
+    mask = np.zeros((camera.height, camera.width), bool)
+    for corners in shapes.values():
+        mask |= _silhouette(camera, corners)
+    labels, people = find_people(mask, min_px=1)
+    assert len(people) == 3
+    for p in people:
+        p.depth_m = camera.foot_depth_m(*p.foot_px)
+    heights = sorted(standing_height_m(p, camera) for p in people)
+    # The rule's height is the bounding box's at the foot's depth: about the true height
+    # (plus the box's own depth and a pixel or two), the strip's a few centimetres.
+    assert heights[0] < 0.09 and 0.1 < heights[1] < 0.25 and 1.5 < heights[2] < 1.9, heights
+    kept = drop_flat_regions(labels, people, camera, 0.1)
+    assert len(kept) == 2
+    assert not np.any(labels[_silhouette(camera, shapes["strip"])])
+    assert np.all(labels[_silhouette(camera, shapes["walker"])] > 0)
+    assert np.all(labels[_silhouette(camera, shapes["shoe"])] > 0)
+    # Off, or a region that may go on below the frame's bottom edge: kept.
+    labels, people = find_people(mask, min_px=1)
+    for p in people:
+        p.depth_m = camera.foot_depth_m(*p.foot_px)
+    assert len(drop_flat_regions(labels, people, camera, 0.0)) == 3
+    for p in people:
+        p.at_bottom_edge = True
+    assert len(drop_flat_regions(labels, people, camera, 0.1)) == 3

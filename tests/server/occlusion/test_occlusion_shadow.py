@@ -104,6 +104,34 @@ def test_a_grey_coat_passes_the_papers_test_but_not_the_shadow_signature():
     assert signature.cost(coats).min() > unseen_person
 
 
+def test_far_from_the_signature_is_never_shadow():
+    """``shadow_max_deviation``: a candidate more than 3 tolerances from a perfect shadow gets
+    no shadow cost at all, so the cut's smoothing cannot join it to a shadow beside it.
+    Shoes on paving under the sun (Wien light): a black one (reflectance 0.03) is too dark for
+    the shadows' darkening, a brown one not bluer by their shift; the shadows keep their cost,
+    and the grey coat of the test above (2.2 tolerances off) stays an expensive shadow, for
+    the person colour model to outbid. Off (0), every one of them is a shadow candidate."""
+    s = OcclusionSettings()
+    rng = np.random.default_rng(3)
+    paving = np.array([0.36, 0.33, 0.28]) * rng.uniform(0.8, 1.2, (400, 1))
+    lit, shade = sunlit_and_shadowed(paving)
+
+    def surface(reflectance):
+        bgr = (np.array(reflectance) * wien_rgb(5600.0))[::-1]
+        return shadow_features(np.broadcast_to(bgr, lit.shape).astype(np.float32), lit, s)
+
+    shadows = shadow_features(shade, lit, s)
+    others = {"black shoe": surface([0.03] * 3), "brown shoe": surface([0.10, 0.07, 0.05]),
+              "grey coat": surface([0.12] * 3)}
+    for limit, far in ((3.0, False), (0.0, True)):
+        signature = ShadowSignature(s.with_(shadow_max_deviation=limit))
+        signature.update(shadows)
+        assert np.isfinite(signature.cost(shadows)).all()
+        assert np.isfinite(signature.cost(others["grey coat"])).all()
+        for name in ("black shoe", "brown shoe"):
+            assert np.isfinite(signature.cost(others[name])).all() == far, (limit, name)
+
+
 def test_the_expected_blue_shift_is_wiens():
     s = OcclusionSettings()
     lit, sky = wien_rgb(5600.0), wien_rgb(11000.0)

@@ -10,11 +10,13 @@ in the empty frames after learning.
 Since the detector's codec work (2026-11-25: the blue-shift tolerance learned from the frame's
 shadows, the codec's chroma and luminance blur at a shadow's edge in its noise model, thin
 shadow slivers given back) and its outline work (the same day: outlines moved onto the
-luminance edges, person regions ringed by shadow given back), JPEG 75 meets the shadow goal
-at this size; person IoU through either codec and H.264's shadow goal are not met at 480x270
-(figures here and at 1024x512 in docs/benchmarks.md; docs/occlusion.md, Limitations): what
-is left is mostly the people's rims, one or two pixels wide, which at this size are a tenth
-of a walker's area. Those tests are strict xfails, so that a fix shows as a pass to be taken
+luminance edges, person regions ringed by shadow given back) and the standing-height and
+shadow-deviation limits (regions lying flat on the ground dropped, candidates far from the
+shadow signature never shadow), both codecs meet the shadow goal at this size, and H.264
+meets every goal at 1024x512 (the last test); person IoU through either codec is not met at
+480x270 (figures here and in docs/benchmarks.md; docs/occlusion.md, Limitations): what is
+left is mostly the people's rims, one or two pixels wide, which at this size are a tenth of
+a walker's area. Those tests are strict xfails, so that a fix shows as a pass to be taken
 out of :data:`NOT_MET`.
 """
 
@@ -27,12 +29,12 @@ from server.occlusion.settings import OcclusionSettings
 from server.occlusion.synthetic import VIRTUAL_BOX, box_depth_image
 from tests.server.occlusion.conftest import CODECS, run_sequence
 
-# (test, codec) -> what was measured, 480x270 (2026-11-25, after the outline work)
+# (test, codec) -> what was measured, 480x270 (2026-11-25, after the standing-height and
+# shadow-deviation limits; H.264's shadow goal is met since: 7.9 % kept, was 13.5 %)
 NOT_MET = {
-    ("iou", "JPEG 75"): "person IoU 0.875 median (goal 0.9): people's rims lost and gained",
-    ("iou", "H.264 crf 28"): "person IoU 0.81 median (goal 0.9): rims, camouflaged legs, "
+    ("iou", "JPEG 75"): "person IoU 0.883 median (goal 0.9): people's rims lost",
+    ("iou", "H.264 crf 28"): "person IoU 0.834 median (goal 0.9): rims, camouflaged legs, "
                              "shadow edges kept",
-    ("shadow", "H.264 crf 28"): "13.5 % of the shadow area kept (goal 10 %): its edges",
 }
 
 
@@ -70,3 +72,21 @@ def test_the_sequence_fails_without_shadow_handling(codec_site, codec):
     _, stats = run_sequence(codec_site, virtual, off, codec=CODECS[codec])
     assert stats.shadow_kept_fraction > 0.5, stats.shadow_kept_fraction
     assert np.median(stats.people_frame_iou) < 0.9, np.median(stats.people_frame_iou)
+
+
+def test_h264_at_1024x512_meets_issue_18s_goals():
+    """Issue 18's goals at the size they are asked at, through H.264 (libx264 crf 28): person
+    IoU 0.902 median (measured 2026-11-25; 0.882 before the standing-height and
+    shadow-deviation limits), 2.8 % of the shadow kept, no phantom. The IoU is within 0.002
+    of the goal; x264 on one thread (other frames) gave 0.906 (0.884 before), but another
+    x264 build may land on either side."""
+    from server.occlusion.synthetic import default_site
+    from tests.server.occlusion.conftest import CODEC_EMPTY_S
+
+    site = default_site(1024, 512, empty_s=CODEC_EMPTY_S)
+    virtual = box_depth_image(site.camera, *VIRTUAL_BOX)
+    _, stats = run_sequence(site, virtual, codec=CODECS["H.264 crf 28"])
+    assert len(stats.people_frame_iou) >= 100 and len(stats.phantoms) >= 5
+    assert np.median(stats.people_frame_iou) >= 0.9, np.median(stats.people_frame_iou)
+    assert stats.shadow_kept_fraction <= 0.10, stats.shadow_kept_fraction
+    assert sum(stats.phantoms) == 0, stats.phantoms
