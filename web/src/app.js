@@ -10,29 +10,23 @@ import { Hud, insecureReason } from './hud.js';
 import { IrradianceTargets } from './irradiance.js';
 import { Kiosk } from './kiosk.js';
 import { KioskSun } from './kiosksun.js';
-import { LightSmoother, openSkyIrradiance, skySH9 } from './lightmath.js';
+import { openSkyIrradiance, skySH9 } from './lightmath.js';
+import { LightFeed } from './lightfeed.js';
 import { LightStream } from './lightstream.js';
-import { KeptLight, keepForOffline, registerOffline } from './offline.js';
-import { ESTIMATE_PERIOD_S, PhoneEstimator, PhoneLight } from './phoneestimate.js';
+import { keepForOffline, registerOffline } from './offline.js';
 import { Relighter } from './relight.js';
 import { Site } from './site.js';
 import { makeStatus } from './status.js';
 import { chooseStart, firstBytes, measuredRate } from './startmode.js';
 import { mapSizeFor, SunShadows } from './sun.js';
-import { sunPosition } from './sunposition.js';
 import { SunBounce } from './sunbounce.js';
 import { VisitView } from './visit.js';
 import { arSupported, rendererWithXrAntialias, XRView } from './xr.js';
 
 const RELIGHT_MIN_INTERVAL_S = 0.1; // while the smoothed light glides, relight at most 10 Hz
 const RELIGHT_THRESHOLD = 1e-3;     // ... until it is within 0.1 % of the measured one
-const STALE_AFTER_MS = 16000;       // three missed keep-alives (the server sends every 5 s)
 const RETRY_BOOT_MS = 10000;
 const EXPOSURE_TAU_S = 1.5;
-// Camera mode draws with the phone's own estimate when no server sky came this long after the
-// start (offline, a server without cameras): a server's first vector usually takes < 1 s.
-const NO_SERVER_SKY_AFTER_S = 5;
-const MIN_TURN_DEG = 0.1; // a smaller registration turn leaves the view as it is
 
 export class App {
   constructor({ canvas, hudRoot, params }) {
@@ -65,34 +59,20 @@ export class App {
     this.exactRelitMs = null; // the first exactly relit frame (every layer, every light image)
     this.firstRelitBytes = null;
     this.readyBytes = null;
-    this.smoother = new LightSmoother(this.smoothingS);
-    this.light = null; // the newest message
-    this.saturated = null;
+    // The light drawn: the server's, the phone's own estimate, or the kept one (lightfeed.js).
+    this.feed = new LightFeed(this, params, () => { this._needRelight = true; });
     this.exposure = 1;
     this.exposureMeter = 'scene'; // what set it (status.exposureMeter)
     this.pictureReading = null; // camera mode's last picture meter reading (picturemeter.js)
-    // The light's source in camera mode: the server's sky, or the phone's own estimate from its
-    // picture (phoneestimate.js) when there is no server sky or ?sky=phone asks for it.
-    this.phoneForced = params.get('sky') === 'phone';
-    this.phoneLight = null;
-    this.phoneEstimate = null; // the last estimate (status.phoneEstimate)
-    this.serverLights = 0;
-    // The offline visit (offline.js): the service worker's state, what it has kept, and the
-    // last live light kept on the phone (shown when a visit opens without any).
+    // The offline visit (offline.js): the service worker's state and what it has kept (the
+    // last live light is the feed's).
     this.offlineWorker = 'none';
     this.offlineKept = null;
-    this.keptLight = null;
-    this._keptLightTried = false; // the kept light is looked for once a visit (_useKeptLight)
-    // ?time= (ISO 8601 or Unix seconds): the client's clock starts there (the phone's sun
-    // without a server; tests and demos). Only the phone's estimate reads it.
-    const start = params.get('time');
-    const startMs = start === null ? NaN : (/^[0-9.]+$/.test(start) ? Number(start) * 1000 : Date.parse(start));
-    this.clockOffsetMs = Number.isFinite(startMs) ? startMs - Date.now() : 0;
     this.status = makeStatus(this);
   }
 
   async start() {
-    this._startS = performance.now() / 1000;
+    this.startS = performance.now() / 1000;
     this.hud = new Hud(this.hudRoot, this);
     this._createRenderer();
     const params = this.params;
@@ -102,7 +82,7 @@ export class App {
       // The kiosk URL's ?token= (docs/server.md, "Who can see what") opens the site camera.
       token: this.mode === 'kiosk' ? params.get('token') : null,
       onHello: () => this._onHello(),
-      onLight: (m) => this._onLight(m),
+      onLight: (m) => this.feed.push(m),
       onFrame: (f) => this.kiosk?.addFrame(f),
       onMask: (m) => this.kiosk?.addMask(m),
     });
@@ -220,14 +200,13 @@ export class App {
         this.sunShadows.setMaterials(this.site.sunMaterials());
         await this._enterMode(this.mode);
       }
-      this.keptLight = new KeptLight(manifest.scene.id);
-      if (this.light && !this.light.phone && !this.light.kept) this.keptLight.save(this.light);
+      this.feed.keepFor(manifest.scene.id);
       this.ready = true;
       this.error = null;
       // What this visit loaded, kept for the next one without a network (offline.js).
       this._offlineRegistered.then(() => (this.offlineWorker === 'registered' ? keepForOffline() : null))
         .then((answer) => { this.offlineKept = answer; }, () => {});
-      if (this.smoother.value) this._needRelight = true;
+      if (this.feed.smoother.value) this._needRelight = true;
       const ar = !kiosk && await arSupported();
       this.hud.showModes({ ar, camera: !kiosk && !!navigator.mediaDevices?.getUserMedia, align: this.mode === 'camera' || this.mode === 'ar' });
     } catch (err) {
@@ -257,8 +236,7 @@ export class App {
       if (this.site.sky) this.scene.remove(this.site.sky);
     }
     this.site = null;
-    this.phoneEstimator = null; // its proxies were the old site's meshes
-    this.phoneLight = null;
+    this.feed.forgetSite(); // the phone's estimator's proxies were the old site's meshes
     this.sunShadows?.dispose();
     this.sunShadows = null;
     this.sunBounce?.dispose();
@@ -337,7 +315,7 @@ export class App {
 
   setSmoothing(tauS) {
     this.smoothingS = Math.max(0, tauS);
-    this.smoother.tauS = this.smoothingS;
+    this.feed.smoother.tauS = this.smoothingS;
   }
 
   resetAlignment() {
@@ -346,121 +324,21 @@ export class App {
 
   // ---------------------------------------------------------------------------- light
 
-  _onLight(m) {
-    if (!m.phone && !m.kept) {
-      this.serverLights += 1;
-      this.keptLight?.save(m);
-      if (this.light?.kept) this.hud.setMessage(null); // live again: the kept light's note goes
-      if (this.phoneForced) return; // ?sky=phone: the phone's own estimate only
-    }
-    this.light = m;
-    this.saturated = m.saturated;
-    // The sun's irradiance glides with the sky: smoothed as three more numbers after r.
-    const sun = m.sun?.normalIrradiance ?? [0, 0, 0];
-    const v = new Float64Array(m.rgb.length + 3);
-    v.set(m.rgb);
-    v.set(sun, m.rgb.length);
-    this.smoother.push(v, performance.now() / 1000);
-    this._needRelight = true;
-  }
-
-  /** The smoothed sky (n x 3) and the sun to draw with it (null: none, as from a version-1
-   * server, whose sky vector still holds the sun in its patch). */
-  _smoothedLight() {
-    const v = this.smoother.value;
-    const n3 = v.length - 3;
-    const direction = this.light?.sun?.direction; // (0, 0, 0) from a server with no sun now
-    const known = direction && direction.some((x) => x !== 0);
-    const sun = known ? { direction, normalIrradiance: Array.from(v.subarray(n3)) } : null;
-    return { r: v.slice(0, n3), sun };
-  }
-
-  isStale() {
-    if (!this.light) return true;
-    if (this.light.phone) return Date.now() / 1000 - this.light.captureTime > 3 * ESTIMATE_PERIOD_S; // three missed estimates
-    if (this.light.kept) return true;
-    if (this.stream?.state !== 'open' || this.light.stale) return true;
-    return performance.now() - this.stream.lastMessageMs > STALE_AFTER_MS;
-  }
-
-  lightAgeMs() {
-    if (!this.light) return null;
-    if (this.light.phone || this.light.kept) return Math.max(0, Math.round(Date.now() - this.light.captureTime * 1000));
-    return Math.max(0, Math.round(this.stream.ageS(this.light.captureTime) * 1000));
-  }
-
   _maybeRelight(tS) {
-    if (!this.ready || !this.smoother.value) return;
-    this.smoother.step(tS);
-    const gliding = this.smoother.remaining() > RELIGHT_THRESHOLD;
+    const smoother = this.feed.smoother;
+    if (!this.ready || !smoother.value) return;
+    smoother.step(tS);
+    const gliding = smoother.remaining() > RELIGHT_THRESHOLD;
     const due = this._needRelight || (gliding && tS - (this._lastRelightS ?? 0) > RELIGHT_MIN_INTERVAL_S);
     if (!due) return;
     this._needRelight = false;
     this._lastRelightS = tS;
-    const { r, sun } = this._smoothedLight();
+    const { r, sun } = this.feed.smoothed();
     this._pendingSun = sun;
-    this.relighter.update(r, this.light?.sequence ?? 0).catch((err) => {
+    this.relighter.update(r, this.feed.light?.sequence ?? 0).catch((err) => {
       this.hud.setMessage(`${err.message}. Keeping the last light.`, 'warn');
       this._needRelight = true; // try the images again with the next vector
     });
-  }
-
-  /** The phone's sun (sunposition.js) at the client's clock (?time= moves it). */
-  sunNow() {
-    const s = this.assets.manifest.scene;
-    return sunPosition(s.latitude_deg, s.longitude_deg, (Date.now() + this.clockOffsetMs) / 1000).direction;
-  }
-
-  /** Whether camera mode lights the hall with the phone's own estimate: asked for, or no
-   * server sky has come (an offline visit, a site without cameras). */
-  phoneLightWanted(nowS = performance.now() / 1000) {
-    return this.mode === 'camera' && !!this.view?.video && !!this.site
-      && (this.phoneForced || (this.serverLights === 0 && nowS - this._startS > NO_SERVER_SKY_AFTER_S));
-  }
-
-  /** No live light NO_SERVER_SKY_AFTER_S after the start and none of the phone's own: draw the
-   * last live light kept on this phone (offline.js), once, and say how old it is. */
-  _useKeptLight(nowS) {
-    if (!this.ready || this.light || this.serverLights > 0 || this._keptLightTried
-      || nowS - this._startS <= NO_SERVER_SKY_AFTER_S || this.phoneLightWanted(nowS)) return;
-    this._keptLightTried = true;
-    const kept = this.keptLight.load();
-    if (!kept || kept.rgb.length !== 3 * this.assets.manifest.dome.count) return;
-    this._onLight({ ...kept, saturated: null, sequence: 0, stale: true, flags: 0, kept: true });
-    const when = new Date(kept.captureTime * 1000).toLocaleString([], { dateStyle: 'medium', timeStyle: 'short' });
-    this.hud.setMessage(`No live sky (offline?): the light of ${when}, kept from the last visit.`, 'warn');
-  }
-
-  /** The phone's light reader for the camera's video, or null where it is not wanted. */
-  _phoneLightNow(nowS) {
-    if (!this.ready || !this.phoneLightWanted(nowS)) return null;
-    if (!this.phoneLight || this.phoneLight.video !== this.view.video) {
-      this.phoneEstimator ??= new PhoneEstimator([...this.site.nodes.real, ...this.site.nodes.ground], this.assets.manifest.ground.albedo);
-      this.phoneLight = new PhoneLight(this.view.video, this.phoneEstimator, this.phoneLight?.held);
-    }
-    return this.phoneLight;
-  }
-
-  /** Camera mode without a server sky: estimate the light from the picture, at most every
-   * ESTIMATE_PERIOD_S, and draw with it as with a server's vector (phoneestimate.js). */
-  _estimateLight(nowS, force = false) {
-    if (!this._phoneLightNow(nowS)?.due(nowS, force)) return null; // the pose and sun only when it reads
-    this.view.update(); // the pose the picture is read with
-    const sun = this.sunNow();
-    if (sun[1] <= 0) return null; // night: nothing to estimate (the last light stays)
-    const estimate = this.phoneLight.read(this.camera, sun, nowS, force);
-    if (!estimate) return null;
-    this.phoneEstimate = estimate;
-    // The registration's turn, past a tenth of a degree, puts the drawn model on the picture;
-    // a one-pixel shift only half (under a soft-shadowed sky the best shift wanders a pixel
-    // from estimate to estimate: the view settles instead of stepping back and forth).
-    const [dx, dy] = estimate.shiftPx;
-    const gain = Math.max(Math.abs(dx), Math.abs(dy)) <= 1 ? 0.5 : 1;
-    if (Math.hypot(...estimate.turnDeg) > MIN_TURN_DEG) this.view.turnBy(...estimate.turnDeg.map((t) => gain * t));
-    const v = this.phoneEstimator.lightVector(estimate, this.assets.manifest.dome.lights, sun);
-    this._phoneSequence = (this._phoneSequence ?? 0) + 1;
-    this._onLight({ rgb: v.rgb, saturated: null, sequence: this._phoneSequence, captureTime: Date.now() / 1000, stale: false, flags: 0, sun: v.sun, phone: true });
-    return estimate;
   }
 
   _onApplied(applied) {
@@ -527,8 +405,7 @@ export class App {
     this.fps = this.fps ? this.fps + 0.1 * (1 / dt - this.fps) : 1 / dt;
     if (this.contextLost) return;
     const t0 = performance.now();
-    this._estimateLight(now / 1000);
-    this._useKeptLight(now / 1000);
+    this.feed.tick(now / 1000);
     this._maybeRelight(now / 1000);
     this._updateExposure(dt, now / 1000);
     this.renderFrame(xrFrame);

@@ -77,12 +77,12 @@ export function debugApi(app) {
      */
     async relight(r, sequence = 0, sun = null) {
       app.stream?.stop(); // the test's vector, not the server's
-      app.serverLights += 1; // (nor the phone's own estimate: it stays off unless ?sky=phone)
-      app.light = { rgb: Float32Array.from(r), sequence, captureTime: Date.now() / 1000, stale: false, sun };
+      app.feed.serverLights += 1; // (nor the phone's own estimate: it stays off unless ?sky=phone)
+      app.feed.light = { rgb: Float32Array.from(r), sequence, captureTime: Date.now() / 1000, stale: false, sun };
       const v = Float64Array.from([...r, ...(sun?.normalIrradiance ?? [0, 0, 0])]);
-      app.smoother.push(v, performance.now() / 1000);
-      app.smoother.value = Float64Array.from(v);
-      const { r: sky, sun: drawn } = app._smoothedLight();
+      app.feed.smoother.push(v, performance.now() / 1000);
+      app.feed.smoother.value = Float64Array.from(v);
+      const { r: sky, sun: drawn } = app.feed.smoothed();
       app._pendingSun = drawn;
       let applied = await app.relighter.update(sky, sequence);
       if (!applied.exact) applied = await app.relighter.update(sky, sequence);
@@ -244,21 +244,21 @@ export function debugApi(app) {
     phoneEstimate: () => {
       app.view?.update?.();
       const read = drawnPose();
-      const estimate = app._estimateLight(performance.now() / 1000, true);
-      return estimate && { ...estimate, sun: app.sunNow(), ...read, turned: drawnPose() };
+      const estimate = app.feed.estimate(performance.now() / 1000, true);
+      return estimate && { ...estimate, sun: app.feed.sunNow(), ...read, turned: drawnPose() };
     },
     /** The frame loop's phone estimates held (true) or let go: only phoneEstimate()'s are made,
      * so that a test knows the pose each was read with. False where no estimate is wanted. */
     holdPhoneEstimates: (held) => {
-      const reader = app._phoneLightNow(performance.now() / 1000);
+      const reader = app.feed.phoneReader(performance.now() / 1000);
       if (reader) reader.held = !!held;
       return !!reader;
     },
     /** The phone estimate's pose registration (poseregister.js) on or off: the benchmark's
      * baseline. Takes effect from the next estimate. */
     registerPose: (on) => {
-      app._estimateLight(performance.now() / 1000, true); // the estimator exists
-      app.phoneEstimator.registerPose = !!on;
+      app.feed.estimate(performance.now() / 1000, true); // the estimator exists
+      app.feed.phoneEstimator.registerPose = !!on;
     },
     /** Mean milliseconds of n phone estimates (the pose held: the pose's registration, pixels
      * and the fit), of n without the registration, and of one with the pool of the pose made
@@ -266,22 +266,22 @@ export function debugApi(app) {
      * their copy). */
     timePhoneEstimate(n = 5) {
       const now = performance.now() / 1000;
-      app._estimateLight(now, true);
+      app.feed.estimate(now, true);
       const time = (f) => {
         const t0 = performance.now();
         for (let i = 0; i < n; i++) f();
         return (performance.now() - t0) / n;
       };
-      const estimateMs = time(() => app.phoneLight.read(app.camera, app.sunNow(), now, true));
-      app.phoneEstimator.registerPose = false; // the pose registration's share (poseregister.js)
-      const unregisteredMs = time(() => app.phoneLight.read(app.camera, app.sunNow(), now, true));
-      app.phoneEstimator.registerPose = true;
+      const estimateMs = time(() => app.feed.phoneLight.read(app.camera, app.feed.sunNow(), now, true));
+      app.feed.phoneEstimator.registerPose = false; // the pose registration's share (poseregister.js)
+      const unregisteredMs = time(() => app.feed.phoneLight.read(app.camera, app.feed.sunNow(), now, true));
+      app.feed.phoneEstimator.registerPose = true;
       const t0 = performance.now();
-      app.phoneEstimator._pose = null;
-      app.phoneLight.read(app.camera, app.sunNow(), now, true);
+      app.feed.phoneEstimator._pose = null;
+      app.feed.phoneLight.read(app.camera, app.feed.sunNow(), now, true);
       const newPoseMs = performance.now() - t0;
       const meterMs = time(() => app.view.meter.read(app.camera, now, true));
-      return { estimateMs, unregisteredMs, newPoseMs, meterMs, pool: app.phoneEstimator.pool.length };
+      return { estimateMs, unregisteredMs, newPoseMs, meterMs, pool: app.feed.phoneEstimator.pool.length };
     },
     /** The camera mode's last device orientation read ({alpha, beta, gamma} degrees; null
      * before the first event or outside the camera mode). */

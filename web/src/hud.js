@@ -118,7 +118,7 @@ export class Hud {
     const applied = this.app.relighter?.applied;
     if (!this.panel.hidden && applied && applied.sequence !== this._lastDomeSeq) {
       this._lastDomeSeq = applied.sequence;
-      this.drawDome(applied.r, this.app.saturated);
+      this.drawDome(applied.r, this.app.feed.saturated);
     }
   }
 

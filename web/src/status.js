@@ -5,9 +5,9 @@ export function makeStatus(source) {
   const fields = {
     connected: () => source.stream?.state === 'open',
     connection: () => source.stream?.state ?? 'closed',
-    stale: () => source.isStale(),
+    stale: () => source.feed.isStale(),
     lightSeq: () => source.relighter?.applied?.sequence ?? null,
-    lightAgeMs: () => source.lightAgeMs(),
+    lightAgeMs: () => source.feed.ageMs(),
     lightsExact: () => source.relighter?.applied?.exact ?? false,
     relights: () => source.relighter?.relights ?? 0,
     fps: () => Math.round(source.fps * 10) / 10,
@@ -66,15 +66,15 @@ export function makeStatus(source) {
     // the last one this phone kept, offline.js), null (none yet); the
     // last estimate ({ratio, skyType, sunNormal, skyHorizontal (the picture's units), used,
     // sunlit, inlierFraction, pool}), how many were made and the last one's milliseconds.
-    lightSource: () => (source.light ? (source.light.phone ? 'phone' : source.light.kept ? 'kept' : 'server') : null),
-    phoneEstimate: () => source.phoneEstimate,
+    lightSource: () => { const l = source.feed.light; return l ? (l.phone ? 'phone' : l.kept ? 'kept' : 'server') : null; },
+    phoneEstimate: () => source.feed.phoneEstimate,
     // The offline visit (offline.js): the service worker ('registered', or why not: 'insecure',
     // 'test', 'unsupported', 'failed: ...'; 'none' before it is asked) and its answer to
     // keeping this visit's files ({kept, failed}; null until it answered).
     offlineWorker: () => source.offlineWorker,
     offlineKept: () => source.offlineKept,
-    phoneEstimates: () => source.phoneLight?.estimates ?? 0,
-    phoneEstimateMs: () => source.phoneLight?.ms ?? null,
+    phoneEstimates: () => source.feed.phoneLight?.estimates ?? 0,
+    phoneEstimateMs: () => source.feed.phoneLight?.ms ?? null,
   };
   const status = {};
   for (const [name, get] of Object.entries(fields)) {

@@ -1,0 +1,174 @@
+// The light the hall is drawn with (docs/web.md, "The phone's own light" and "Offline"): the
+// server's stream; in camera mode the phone's own estimate from its picture
+// (phoneestimate.js) when no server sky came NO_SERVER_SKY_AFTER_S after the start, or
+// ?sky=phone asks for it; else the last live light kept on this phone (offline.js). Each new
+// vector goes into the smoother, the sun's normal irradiance as three more numbers after the
+// sky's, so that the sun glides with the sky; the app relights from `smoothed()`.
+import { LightSmoother } from './lightmath.js';
+import { KeptLight } from './offline.js';
+import { ESTIMATE_PERIOD_S, PhoneEstimator, PhoneLight } from './phoneestimate.js';
+import { sunPosition } from './sunposition.js';
+
+const STALE_AFTER_MS = 16000; // three missed keep-alives (the server sends every 5 s)
+// Camera mode draws with the phone's own estimate when no server sky came this long after the
+// start (offline, a server without cameras): a server's first vector usually takes < 1 s.
+const NO_SERVER_SKY_AFTER_S = 5;
+const MIN_TURN_DEG = 0.1; // a smaller registration turn leaves the view as it is
+
+export class LightFeed {
+  /**
+   * @param {object} app the App it feeds: its mode, view, site, assets, camera, stream, hud,
+   *   ready and start time are read as they are now
+   * @param {URLSearchParams} params the page's (?smoothing=, ?sky=phone, ?time=)
+   * @param {() => void} onNew called when a new vector came (the app relights)
+   */
+  constructor(app, params, onNew) {
+    this.app = app;
+    this.onNew = onNew;
+    this.smoother = new LightSmoother(Number(params.get('smoothing') ?? 0));
+    this.light = null; // the newest message
+    this.saturated = null;
+    this.serverLights = 0;
+    this.phoneForced = params.get('sky') === 'phone';
+    this.phoneLight = null; // PhoneLight: the camera's video read into a copy
+    this.phoneEstimator = null;
+    this.phoneEstimate = null; // the last estimate (status.phoneEstimate)
+    this._phoneSequence = 0;
+    this.keptLight = null; // the scene's KeptLight, once the manifest is known (keepFor)
+    this._keptLightTried = false; // the kept light is looked for once a visit (useKept)
+    // ?time= (ISO 8601 or Unix seconds): the client's clock starts there (the phone's sun
+    // without a server; tests and demos). Only the phone's estimate reads it.
+    const start = params.get('time');
+    const startMs = start === null ? NaN : (/^[0-9.]+$/.test(start) ? Number(start) * 1000 : Date.parse(start));
+    this.clockOffsetMs = Number.isFinite(startMs) ? startMs - Date.now() : 0;
+  }
+
+  /** A light vector message: the server's, the phone's estimate (m.phone) or the kept one
+   * (m.kept). */
+  push(m) {
+    if (!m.phone && !m.kept) {
+      this.serverLights += 1;
+      this.keptLight?.save(m);
+      if (this.light?.kept) this.app.hud.setMessage(null); // live again: the kept light's note goes
+      if (this.phoneForced) return; // ?sky=phone: the phone's own estimate only
+    }
+    this.light = m;
+    this.saturated = m.saturated;
+    const sun = m.sun?.normalIrradiance ?? [0, 0, 0];
+    const v = new Float64Array(m.rgb.length + 3);
+    v.set(m.rgb);
+    v.set(sun, m.rgb.length);
+    this.smoother.push(v, performance.now() / 1000);
+    this.onNew();
+  }
+
+  /** The site is known: its last live light is kept on this phone from now on (and the one
+   * already drawn, if live). */
+  keepFor(sceneId) {
+    this.keptLight = new KeptLight(sceneId);
+    if (this.light && !this.light.phone && !this.light.kept) this.keptLight.save(this.light);
+  }
+
+  /** The smoothed sky (n x 3) and the sun to draw with it (null: none, as from a version-1
+   * server, whose sky vector still holds the sun in its patch). */
+  smoothed() {
+    const v = this.smoother.value;
+    const n3 = v.length - 3;
+    const direction = this.light?.sun?.direction; // (0, 0, 0) from a server with no sun now
+    const known = direction && direction.some((x) => x !== 0);
+    const sun = known ? { direction, normalIrradiance: Array.from(v.subarray(n3)) } : null;
+    return { r: v.slice(0, n3), sun };
+  }
+
+  isStale() {
+    const light = this.light;
+    const stream = this.app.stream;
+    if (!light) return true;
+    if (light.phone) return Date.now() / 1000 - light.captureTime > 3 * ESTIMATE_PERIOD_S; // three missed estimates
+    if (light.kept) return true;
+    if (stream?.state !== 'open' || light.stale) return true;
+    return performance.now() - stream.lastMessageMs > STALE_AFTER_MS;
+  }
+
+  ageMs() {
+    const light = this.light;
+    if (!light) return null;
+    if (light.phone || light.kept) return Math.max(0, Math.round(Date.now() - light.captureTime * 1000));
+    return Math.max(0, Math.round(this.app.stream.ageS(light.captureTime) * 1000));
+  }
+
+  /** The phone's sun (sunposition.js) at the client's clock (?time= moves it). */
+  sunNow() {
+    const s = this.app.assets.manifest.scene;
+    return sunPosition(s.latitude_deg, s.longitude_deg, (Date.now() + this.clockOffsetMs) / 1000).direction;
+  }
+
+  /** Whether camera mode lights the hall with the phone's own estimate: asked for, or no
+   * server sky has come (an offline visit, a site without cameras). */
+  phoneWanted(nowS = performance.now() / 1000) {
+    const app = this.app;
+    return app.mode === 'camera' && !!app.view?.video && !!app.site
+      && (this.phoneForced || (this.serverLights === 0 && nowS - app.startS > NO_SERVER_SKY_AFTER_S));
+  }
+
+  /** Each frame: the phone's estimate when due, or the kept light when nothing else came. */
+  tick(nowS) {
+    this.estimate(nowS);
+    this.useKept(nowS);
+  }
+
+  /** No live light NO_SERVER_SKY_AFTER_S after the start and none of the phone's own: draw the
+   * last live light kept on this phone (offline.js), once, and say how old it is. */
+  useKept(nowS) {
+    const app = this.app;
+    if (!app.ready || this.light || this.serverLights > 0 || this._keptLightTried
+      || nowS - app.startS <= NO_SERVER_SKY_AFTER_S || this.phoneWanted(nowS)) return;
+    this._keptLightTried = true;
+    const kept = this.keptLight.load();
+    if (!kept || kept.rgb.length !== 3 * app.assets.manifest.dome.count) return;
+    this.push({ ...kept, saturated: null, sequence: 0, stale: true, flags: 0, kept: true });
+    const when = new Date(kept.captureTime * 1000).toLocaleString([], { dateStyle: 'medium', timeStyle: 'short' });
+    app.hud.setMessage(`No live sky (offline?): the light of ${when}, kept from the last visit.`, 'warn');
+  }
+
+  /** The phone's light reader for the camera's video, or null where it is not wanted. */
+  phoneReader(nowS) {
+    const app = this.app;
+    if (!app.ready || !this.phoneWanted(nowS)) return null;
+    if (!this.phoneLight || this.phoneLight.video !== app.view.video) {
+      this.phoneEstimator ??= new PhoneEstimator([...app.site.nodes.real, ...app.site.nodes.ground], app.assets.manifest.ground.albedo);
+      this.phoneLight = new PhoneLight(app.view.video, this.phoneEstimator, this.phoneLight?.held);
+    }
+    return this.phoneLight;
+  }
+
+  /** The site went (its meshes are the estimator's proxies): the phone's reader goes with it. */
+  forgetSite() {
+    this.phoneEstimator = null;
+    this.phoneLight = null;
+  }
+
+  /** Camera mode without a server sky: estimate the light from the picture, at most every
+   * ESTIMATE_PERIOD_S (force: now), and draw with it as with a server's vector
+   * (phoneestimate.js). Returns the estimate, or null when none was made. */
+  estimate(nowS, force = false) {
+    if (!this.phoneReader(nowS)?.due(nowS, force)) return null; // the pose and sun only when it reads
+    const app = this.app;
+    app.view.update(); // the pose the picture is read with
+    const sun = this.sunNow();
+    if (sun[1] <= 0) return null; // night: nothing to estimate (the last light stays)
+    const estimate = this.phoneLight.read(app.camera, sun, nowS, force);
+    if (!estimate) return null;
+    this.phoneEstimate = estimate;
+    // The registration's turn, past a tenth of a degree, puts the drawn model on the picture;
+    // a one-pixel shift only half (under a soft-shadowed sky the best shift wanders a pixel
+    // from estimate to estimate: the view settles instead of stepping back and forth).
+    const [dx, dy] = estimate.shiftPx;
+    const gain = Math.max(Math.abs(dx), Math.abs(dy)) <= 1 ? 0.5 : 1;
+    if (Math.hypot(...estimate.turnDeg) > MIN_TURN_DEG) app.view.turnBy(...estimate.turnDeg.map((t) => gain * t));
+    const v = this.phoneEstimator.lightVector(estimate, app.assets.manifest.dome.lights, sun);
+    this._phoneSequence += 1;
+    this.push({ rgb: v.rgb, saturated: null, sequence: this._phoneSequence, captureTime: Date.now() / 1000, stale: false, flags: 0, sun: v.sun, phone: true });
+    return estimate;
+  }
+}
