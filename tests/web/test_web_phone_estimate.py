@@ -218,6 +218,33 @@ def test_phone_estimate_registers_a_wrong_pose(browser, phone_build, renders):
         assert abs(sun_err) < 0.25 and abs(sky_err) < 0.25, (name, sun_err, sky_err)
 
 
+def test_the_view_follows_the_picture_under_a_server_sky(browser, phone_build, renders):
+    """A server sky lights the hall (no estimate), the phone told a pose 6 degrees off in
+    heading and 3 in tilt: the pose registered on the picture alone turns the view until the
+    drawn model lies within a pixel of the copy of where the Radiance frame shows the site."""
+    standpoint, (alpha, beta, gamma) = POSES["eye"]
+    sky = renders("eye")["clear"]
+    with _open(browser, phone_build, sky["y4m"],
+               f"&time={sky['rendered'].when_unix_s}") as (page, _, errors):
+        page.wait_for_function("window.daylit.status.lightSource === 'server'", timeout=30000)
+        assert page.evaluate("window.daylit.debug.holdPhoneEstimates(true)")
+        page.evaluate("window.daylit.debug.resetAlignment()")
+        page.evaluate("(p) => window.daylit.debug.standAt(p)", standpoint)
+        orient(page, alpha + 6.0, beta + 3.0, gamma)
+        shifts = [page.evaluate("window.daylit.debug.phoneRegister()") for _ in range(4)]
+        final_pose = page.evaluate("window.daylit.debug.cameraPose()")
+        status = page.evaluate("""() => ({ source: window.daylit.status.lightSource,
+          n: window.daylit.status.phoneEstimates })""")
+        assert not errors, errors
+    assert status == {"source": "server", "n": 0}, status  # registered, not estimated
+    assert np.hypot(*copy_shift_px(sky["pose"], shifts[0])) > 8  # a precondition: it was off
+    for r in shifts:
+        np.testing.assert_allclose(r["shiftPx"], copy_shift_px(sky["pose"], r), atol=1.5)
+    residual = copy_shift_px(sky["pose"], final_pose)
+    print("server sky: shifts", [r["shiftPx"] for r in shifts], "residual", np.round(residual, 2))
+    assert np.hypot(*residual) < 1.0, residual
+
+
 def test_camera_mode_takes_the_server_sky_when_there_is_one(browser, phone_build, tmp_path):
     """With a server sky the phone does not estimate; with none (a server without cameras, or
     offline) it does, without ?sky=phone."""

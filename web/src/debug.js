@@ -247,10 +247,20 @@ export function debugApi(app) {
       const estimate = app.feed.estimate(performance.now() / 1000, true);
       return estimate && { ...estimate, sun: app.feed.sunNow(), ...read, turned: drawnPose() };
     },
-    /** The frame loop's phone estimates held (true) or let go: only phoneEstimate()'s are made,
-     * so that a test knows the pose each was read with. False where no estimate is wanted. */
+    /** Camera mode under a server sky: the pose's registration on the picture now (lightfeed.js
+     * register: {shiftPx, turnDeg, fisher}; null: none made), the pose it read with and
+     * `turned`, the pose after the view followed it. */
+    phoneRegister: () => {
+      app.view?.update?.();
+      const read = drawnPose();
+      const shift = app.feed.register(performance.now() / 1000, true);
+      return shift && { ...shift, ...read, turned: drawnPose() };
+    },
+    /** The frame loop's phone estimates and registrations held (true) or let go: only
+     * phoneEstimate()'s and phoneRegister()'s are made, so that a test knows the pose each was
+     * read with. False outside camera mode. */
     holdPhoneEstimates: (held) => {
-      const reader = app.feed.phoneReader(performance.now() / 1000);
+      const reader = app.feed.phoneReader();
       if (reader) reader.held = !!held;
       return !!reader;
     },

@@ -1,7 +1,8 @@
 // The light the hall is drawn with (docs/web.md, "The phone's own light" and "Offline"): the
 // server's stream; in camera mode the phone's own estimate from its picture
 // (phoneestimate.js) when no server sky came NO_SERVER_SKY_AFTER_S after the start, or
-// ?sky=phone asks for it; else the last live light kept on this phone (offline.js). Each new
+// ?sky=phone asks for it; else the last live light kept on this phone (offline.js). In camera
+// mode the view follows the picture's registration of the pose whichever lights it. Each new
 // vector goes into the smoother, the sun's normal irradiance as three more numbers after the
 // sky's, so that the sun glides with the sky; the app relights from `smoothed()`.
 import { LightSmoother } from './lightmath.js';
@@ -33,6 +34,7 @@ export class LightFeed {
     this.phoneLight = null; // PhoneLight: the camera's video read into a copy
     this.phoneEstimator = null;
     this.phoneEstimate = null; // the last estimate (status.phoneEstimate)
+    this.registration = null; // the last registration alone, under a server sky (status)
     this._phoneSequence = 0;
     this.keptLight = null; // the scene's KeptLight, once the manifest is known (keepFor)
     this._keptLightTried = false; // the kept light is looked for once a visit (useKept)
@@ -111,9 +113,11 @@ export class LightFeed {
       && (this.phoneForced || (this.serverLights === 0 && nowS - app.startS > NO_SERVER_SKY_AFTER_S));
   }
 
-  /** Each frame: the phone's estimate when due, or the kept light when nothing else came. */
+  /** Each frame: the phone's estimate when due (or, under a server sky, only its pose's
+   * registration, which the view follows), or the kept light when nothing else came. */
   tick(nowS) {
     this.estimate(nowS);
+    this.register(nowS);
     this.useKept(nowS);
   }
 
@@ -131,10 +135,10 @@ export class LightFeed {
     app.hud.setMessage(`No live sky (offline?): the light of ${when}, kept from the last visit.`, 'warn');
   }
 
-  /** The phone's light reader for the camera's video, or null where it is not wanted. */
-  phoneReader(nowS) {
+  /** The reader of camera mode's video (estimates, registrations), or null outside it. */
+  phoneReader() {
     const app = this.app;
-    if (!app.ready || !this.phoneWanted(nowS)) return null;
+    if (!app.ready || app.mode !== 'camera' || !app.view?.video || !app.site) return null;
     if (!this.phoneLight || this.phoneLight.video !== app.view.video) {
       this.phoneEstimator ??= new PhoneEstimator([...app.site.nodes.real, ...app.site.nodes.ground], app.assets.manifest.ground.albedo);
       this.phoneLight = new PhoneLight(app.view.video, this.phoneEstimator, this.phoneLight?.held);
@@ -152,7 +156,7 @@ export class LightFeed {
    * ESTIMATE_PERIOD_S (force: now), and draw with it as with a server's vector
    * (phoneestimate.js). Returns the estimate, or null when none was made. */
   estimate(nowS, force = false) {
-    if (!this.phoneReader(nowS)?.due(nowS, force)) return null; // the pose and sun only when it reads
+    if (!this.phoneWanted(nowS) || !this.phoneReader()?.due(nowS, force)) return null; // the pose and sun only when it reads
     const app = this.app;
     app.view.update(); // the pose the picture is read with
     const sun = this.sunNow();
@@ -160,15 +164,35 @@ export class LightFeed {
     const estimate = this.phoneLight.read(app.camera, sun, nowS, force);
     if (!estimate) return null;
     this.phoneEstimate = estimate;
-    // The registration's turn, past a tenth of a degree, puts the drawn model on the picture;
-    // a one-pixel shift only half (under a soft-shadowed sky the best shift wanders a pixel
-    // from estimate to estimate: the view settles instead of stepping back and forth).
-    const [dx, dy] = estimate.shiftPx;
-    const gain = Math.max(Math.abs(dx), Math.abs(dy)) <= 1 ? 0.5 : 1;
-    if (Math.hypot(...estimate.turnDeg) > MIN_TURN_DEG) app.view.turnBy(...estimate.turnDeg.map((t) => gain * t));
+    this._follow(estimate.shiftPx, estimate.turnDeg);
     const v = this.phoneEstimator.lightVector(estimate, app.assets.manifest.dome.lights, sun);
     this._phoneSequence += 1;
     this.push({ rgb: v.rgb, saturated: null, sequence: this._phoneSequence, captureTime: Date.now() / 1000, stale: false, flags: 0, sun: v.sun, phone: true });
     return estimate;
+  }
+
+  /** Camera mode under a server sky: the pose registered on the picture (at the estimates'
+   * pace; force: now), the view turned by it. Returns the registration ({shiftPx, turnDeg,
+   * fisher}), or null when none was made (not camera mode, the phone's own light, not due,
+   * the sun down). */
+  register(nowS, force = false) {
+    if (this.phoneWanted(nowS) || !this.phoneReader()?.due(nowS, force)) return null;
+    const app = this.app;
+    app.view.update();
+    const sun = this.sunNow();
+    if (sun[1] <= 0) return null; // no sun, no shadows to register on
+    const shift = this.phoneLight.readShift(app.camera, sun, nowS, force);
+    if (!shift) return null;
+    this.registration = { shiftPx: [shift.dx, shift.dy], turnDeg: shift.turnDeg, fisher: shift.fisher };
+    this._follow(this.registration.shiftPx, shift.turnDeg);
+    return this.registration;
+  }
+
+  /** The registration's turn, past a tenth of a degree, puts the drawn model on the picture; a
+   * one-pixel shift only half (under a soft-shadowed sky the best shift wanders a pixel from
+   * estimate to estimate: the view settles instead of stepping back and forth). */
+  _follow([dx, dy], turnDeg) {
+    const gain = Math.max(Math.abs(dx), Math.abs(dy)) <= 1 ? 0.5 : 1;
+    if (Math.hypot(...turnDeg) > MIN_TURN_DEG) this.app.view.turnBy(...turnDeg.map((t) => gain * t));
   }
 }

@@ -268,6 +268,24 @@ export class PhoneEstimator {
   }
 
   /**
+   * The pose registered on the picture (poseregister.js): the shift that puts the model's sun
+   * and shade on the picture's, and the camera's turn that would put the model there. Alone
+   * where a server sky lights the hall (the view still follows the picture); the estimate's
+   * first step otherwise, which reads the pool's pixels at the shift. Arguments as
+   * estimate()'s.
+   * @returns {{dx, dy, fisher, fisherAtZero, turnDeg}} (registerShift; no shift when
+   *   registerPose is off)
+   */
+  register(rgba, w, h, camera, sun) {
+    const pool = this._poolFor(camera, w, h);
+    const terms = this._termsFor(sun);
+    return this.registerPose
+      ? registerShift(rgba, w, h, pool, terms.map((t) => t.cosI > 0), camera.fov,
+        { clipCode: CLIP_CODE, darkCode: DARK_CODE })
+      : { dx: 0, dy: 0, fisher: NaN, fisherAtZero: NaN, turnDeg: [0, 0] };
+  }
+
+  /**
    * One estimate.
    * @param {Uint8ClampedArray} rgba (h, w, 4) sRGB codes of the picture, rows from the top
    * @param {number} w
@@ -281,14 +299,9 @@ export class PhoneEstimator {
    *   picture has too few usable pixels of known surfaces
    */
   estimate(rgba, w, h, camera, sun) {
-    const pool = this._poolFor(camera, w, h);
-    const terms = this._termsFor(sun);
-    // The pose registered on the picture: the shift that puts the model's sun and shade on
-    // the picture's (poseregister.js); the pool's pixels are read there.
-    const shift = this.registerPose
-      ? registerShift(rgba, w, h, pool, terms.map((t) => t.cosI > 0), camera.fov,
-        { clipCode: CLIP_CODE, darkCode: DARK_CODE })
-      : { dx: 0, dy: 0, fisher: NaN, fisherAtZero: NaN, turnDeg: [0, 0] };
+    const shift = this.register(rgba, w, h, camera, sun);
+    const pool = this.pool;
+    const terms = this._sunTerms;
     const values = [];
     const rows = [];
     for (const i of this._balanced(terms)) {
@@ -361,7 +374,8 @@ export class PhoneEstimator {
   }
 }
 
-/** Reads the camera's video into a small copy and estimates, at most every ESTIMATE_PERIOD_S. */
+/** Reads the camera's video into a small copy and estimates (or only registers the pose), at
+ * most every ESTIMATE_PERIOD_S. */
 export class PhoneLight {
   /**
    * @param {HTMLVideoElement} video
@@ -388,15 +402,28 @@ export class PhoneLight {
 
   /** @returns {object|null} a new estimate, or null (not due, no frame, nothing to read) */
   read(camera, sun, nowS, force = false) {
+    return this._withCopy(nowS, force, (rgba, w, h) => {
+      const estimate = this.estimator.estimate(rgba, w, h, camera, sun);
+      if (estimate) this.estimates += 1;
+      return estimate;
+    });
+  }
+
+  /** @returns {object|null} the pose's registration on the picture now (PhoneEstimator
+   * register), or null (not due, no frame) */
+  readShift(camera, sun, nowS, force = false) {
+    return this._withCopy(nowS, force, (rgba, w, h) => this.estimator.register(rgba, w, h, camera, sun));
+  }
+
+  _withCopy(nowS, force, use) {
     if (!this.due(nowS, force)) return null;
     this.lastS = nowS;
     const t0 = performance.now();
     const [w, h] = ESTIMATE_SIZE;
     this.context.drawImage(this.video, 0, 0, w, h);
-    const estimate = this.estimator.estimate(this.context.getImageData(0, 0, w, h).data, w, h, camera, sun);
+    const result = use(this.context.getImageData(0, 0, w, h).data, w, h);
     this.ms = performance.now() - t0;
-    if (estimate) this.estimates += 1;
-    return estimate;
+    return result;
   }
 }
 

@@ -68,6 +68,9 @@ export function makeStatus(source) {
     // sunlit, inlierFraction, pool}), how many were made and the last one's milliseconds.
     lightSource: () => { const l = source.feed.light; return l ? (l.phone ? 'phone' : l.kept ? 'kept' : 'server') : null; },
     phoneEstimate: () => source.feed.phoneEstimate,
+    // Camera mode under a server sky: the last registration of the pose alone ({shiftPx,
+    // turnDeg, fisher}; the view follows it), null before one.
+    phoneRegistration: () => source.feed.registration,
     // The offline visit (offline.js): the service worker ('registered', or why not: 'insecure',
     // 'test', 'unsupported', 'failed: ...'; 'none' before it is asked) and its answer to
     // keeping this visit's files ({kept, failed}; null until it answered).
