@@ -287,7 +287,7 @@ export function debugApi(app) {
       const unregisteredMs = time(() => app.feed.phoneLight.read(app.camera, app.feed.sunNow(), now, true));
       app.feed.phoneEstimator.registerPose = true;
       const t0 = performance.now();
-      app.feed.phoneEstimator._pose = null;
+      app.feed.phoneEstimator.forgetPose();
       app.feed.phoneLight.read(app.camera, app.feed.sunNow(), now, true);
       const newPoseMs = performance.now() - t0;
       const meterMs = time(() => app.view.meter.read(app.camera, now, true));

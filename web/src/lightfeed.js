@@ -193,6 +193,8 @@ export class LightFeed {
    * estimate to estimate: the view settles instead of stepping back and forth). */
   _follow([dx, dy], turnDeg) {
     const gain = Math.max(Math.abs(dx), Math.abs(dy)) <= 1 ? 0.5 : 1;
-    if (Math.hypot(...turnDeg) > MIN_TURN_DEG) this.app.view.turnBy(...turnDeg.map((t) => gain * t));
+    if (Math.hypot(...turnDeg) <= MIN_TURN_DEG) return;
+    this.app.view.turnBy(...turnDeg.map((t) => gain * t));
+    this.phoneEstimator.forgetPose();
   }
 }

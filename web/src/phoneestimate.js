@@ -214,6 +214,13 @@ export class PhoneEstimator {
     this.registerPose = true; // poseregister.js (benchmarks switch it off for a baseline)
   }
 
+  /** The view was turned (its registration): the next estimate makes the pool of the new pose,
+   * however small the turn (a pool kept from the pose before would register the picture
+   * against that pose, and the turn would be counted twice). */
+  forgetPose() {
+    this._pose = null;
+  }
+
   _poolFor(camera, w, h) {
     camera.updateMatrixWorld();
     const m = camera.matrixWorld.clone();
