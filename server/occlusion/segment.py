@@ -37,11 +37,11 @@ import math
 import time
 
 import cv2
-import maxflow
 import numpy as np
 
 from server.occlusion.background import BackgroundModel
 from server.occlusion.colour import Transfer, colour_index
+from server.occlusion.graphcut import graph_cut
 from server.occlusion.mixture import ColourMixture
 from server.occlusion.settings import OcclusionSettings, log_prior_table
 from server.occlusion.shadow import (
@@ -93,56 +93,6 @@ def regions_of_interest(
             if merged:
                 break
     return [tuple(b) for b in boxes]
-
-
-def graph_cut(
-    cost_person: np.ndarray,
-    cost_background: np.ndarray,
-    w_right: np.ndarray,
-    w_down: np.ndarray,
-    free: np.ndarray | None = None,
-) -> np.ndarray:
-    """Exact minimum of a binary grid energy by one s-t min cut (PyMaxflow, Boykov-Kolmogorov).
-
-    ``cost_*`` (h, w) unary costs of each label; ``w_right``/``w_down`` (h, w) costs of a label
-    change to the right / lower neighbour (last column / row ignored). ``free`` (h, w) bool:
-    only these pixels get graph nodes, all others are background (their edges to free pixels
-    become unary costs); None: all. Returns (h, w) bool, True where the person label is chosen.
-    """
-    h, w = cost_person.shape
-    if free is None:
-        free = np.ones((h, w), dtype=bool)
-    cost_person = cost_person.copy()
-    # Edges from a free pixel to a fixed background neighbour: cut if the pixel is a person.
-    # Added wherever the neighbour is fixed: only the free pixels' costs are read below.
-    fixed = ~free
-    cr = w_right[:, :-1]
-    cost_person[:, :-1] += np.where(fixed[:, 1:], cr, 0.0)
-    cost_person[:, 1:] += np.where(fixed[:, :-1], cr, 0.0)
-    cd = w_down[:-1]
-    cost_person[:-1] += np.where(fixed[1:], cd, 0.0)
-    cost_person[1:] += np.where(fixed[:-1], cd, 0.0)
-    n = int(np.count_nonzero(free))
-    out = np.zeros((h, w), dtype=bool)
-    if n == 0:
-        return out
-    index = np.full((h, w), -1, dtype=np.int32)
-    index[free] = np.arange(n, dtype=np.int32)
-    pairs_r = free[:, :-1] & free[:, 1:]
-    pairs_d = free[:-1] & free[1:]
-    i = np.concatenate([index[:, :-1][pairs_r], index[:-1][pairs_d]])
-    j = np.concatenate([index[:, 1:][pairs_r], index[1:][pairs_d]])
-    cap = np.concatenate([cr[pairs_r], cd[pairs_d]]).astype(np.float64)
-    g = maxflow.GraphFloat(n, len(i))
-    nodes = g.add_nodes(n)
-    g.add_edges(i, j, cap, cap)
-    a, b = cost_person[free], cost_background[free]
-    low = np.minimum(a, b)
-    # A node in the sink segment pays its source capacity: sink = person.
-    g.add_grid_tedges(nodes, a - low, b - low)
-    g.maxflow()
-    out[free] = g.get_grid_segments(nodes)
-    return out
 
 
 _SUM3 = np.ones((1, 3), dtype=np.float32)  # cv2.transform: sum of the three channels
