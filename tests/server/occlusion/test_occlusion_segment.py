@@ -53,15 +53,15 @@ def test_graph_cut_finds_the_minimum_energy_labelling(seed):
 def test_deciding_nodes_before_the_cut_keeps_the_minimum(seed):
     """Nodes decided by their own costs (graphcut._decide) take the label of the plain cut
     over every node: a blob that prefers person on a field that prefers background, noisy
-    costs, a random free set; same energy, same labels."""
+    costs, strong edges, a random free set; same energy, same labels."""
     rng = np.random.default_rng(100 + seed)
     h, w = 60, 80
     yy, xx = np.mgrid[0:h, 0:w]
     blob = (yy - 30) ** 2 / 300 + (xx - 40) ** 2 / 500 < 1
     cost_fg = np.where(blob, 2.0, 14.0) + rng.normal(0, 6, (h, w))
     cost_bg = np.where(blob, 20.0, 3.0) + rng.normal(0, 6, (h, w))
-    w_right = rng.uniform(0, 6, (h, w))
-    w_down = rng.uniform(0, 6, (h, w))
+    w_right = rng.uniform(0, 16, (h, w))  # strong edges: a quarter to a third undecided
+    w_down = rng.uniform(0, 16, (h, w))
     free = rng.random((h, w)) < 0.95
     terms = (cost_fg, cost_bg, w_right, w_down)
     decided = graph_cut(*terms, free)
