@@ -19,6 +19,8 @@ Arrays (H, W full resolution; h, w = H // s, W // s at the detection scale s):
   ``log_norm`` (H, W) float32, ``0.5 sum_c ln(2 pi total_var_c)``;
 - ``mean_u8`` (H, W, 3) uint8, the mean rounded to codes; ``linear`` (H, W, 3) float32 its
   linear light (for the shadow test; rounding changes it by under 1 % above code 50);
+  ``log_green`` (H, W) float32, ln of its green channel's linear light (the codec's local
+  spread, segment.Segmenter._dark_spread);
 - ``coarse_mean``, ``coarse_linear`` (h, w, 3) float32, block means of the above.
 """
 
@@ -82,6 +84,7 @@ class BackgroundModel:
         self.total_var: np.ndarray | None = None
         self.log_norm: np.ndarray | None = None
         self.linear: np.ndarray | None = None
+        self.log_green: np.ndarray | None = None
         self.coarse_mean: np.ndarray | None = None
         self.coarse_linear: np.ndarray | None = None
         self.global_mixture = ColourMixture(settings.bg_global_components, max_iter=30)
@@ -161,6 +164,7 @@ class BackgroundModel:
             self.log_norm = np.empty(self.var.shape[:2], dtype=np.float32)
             self.mean_u8 = np.empty(self.mean.shape, dtype=np.uint8)
             self.linear = np.empty_like(self.mean)
+            self.log_green = np.empty(self.var.shape[:2], dtype=np.float32)
             h, w = self.height // self.scale, self.width // self.scale
             self.coarse_mean = np.empty((h, w, 3), dtype=np.float32)
             self.coarse_linear = np.empty((h, w, 3), dtype=np.float32)
@@ -174,6 +178,8 @@ class BackgroundModel:
         self.log_norm[y0:y1] = 0.5 * np.log((2.0 * np.pi) ** 3 * prod)
         self.mean_u8[y0:y1] = cv2.convertScaleAbs(self.mean[y0:y1])  # round, saturate
         self.linear[y0:y1] = self.transfer.image_to_linear(self.mean_u8[y0:y1])
+        self.log_green[y0:y1] = cv2.LUT(cv2.extractChannel(self.mean_u8[y0:y1], 1),
+                                        self.transfer.log_table[:, :, 1].copy())
         s = self.scale
         c0, c1 = y0 // s, min(y1 // s, self.coarse_mean.shape[0])
         if c1 > c0:

@@ -189,10 +189,9 @@ def graph_cut(
     state = np.empty((h, w), dtype=np.int8)
     a = np.zeros((h, w))
     b = np.zeros((h, w))
-    cp = np.ascontiguousarray(cost_person, dtype=np.float64)
-    cb = np.ascontiguousarray(cost_background, dtype=np.float64)
-    wr = np.ascontiguousarray(w_right, dtype=np.float64)
-    wd = np.ascontiguousarray(w_down, dtype=np.float64)
+    # Any float type (the occlusion's float32 as it comes; sums are float64 inside).
+    cp, cb, wr, wd = (np.ascontiguousarray(v) for v in (cost_person, cost_background,
+                                                         w_right, w_down))
     free = np.ascontiguousarray(free, dtype=bool)
     n = _decide(cp, cb, wr, wd, free, state, a, b, decide)
     out = state == _PERSON
