@@ -35,7 +35,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from server.occlusion.background import BackgroundModel, shrink
+from server.occlusion.background import BackgroundModel, block_any, shrink
 from server.occlusion.colour import Transfer, apply_table
 from server.occlusion.depth import (
     Person,
@@ -386,11 +386,10 @@ class OcclusionProcessor:
         busy = person | cut_person | shadow
         near = cv2.dilate(busy.view(np.uint8), np.ones((2 * s.bg_protect_px + 1,) * 2, np.uint8))
         bg.update(corrected, near == 0)
-        self._previous_exclude = shrink(near * np.uint8(255), s.detect_scale) > 0
+        self._previous_exclude = block_any(near, s.detect_scale)
         # Regions follow last frame's people, not its shadow labels: a codec's scattered
         # specks taken as shadow would otherwise keep the regions as large as the frame.
-        self._previous_people = shrink(cut_person.view(np.uint8) * np.uint8(255),
-                                       s.detect_scale) > 0
+        self._previous_people = block_any(cut_person, s.detect_scale)
         u8 = np.uint8(255)
         masks = (mask, person.view(np.uint8) * u8, shadow.view(np.uint8) * u8,
                  foreground.view(np.uint8) * u8)

@@ -7,8 +7,9 @@ import itertools
 import numpy as np
 import pytest
 
-from server.occlusion.pipeline import OcclusionProcessor
+from server.occlusion.background import block_any
 from server.occlusion.graphcut import graph_cut
+from server.occlusion.pipeline import OcclusionProcessor
 from server.occlusion.segment import regions_of_interest
 from server.occlusion.settings import OcclusionSettings
 
@@ -97,3 +98,15 @@ def test_regions_and_band_give_the_labels_of_the_whole_frame_cut(standard_site,
         differ += np.count_nonzero(a.person_mask != b.person_mask)
     assert total > 10_000
     assert differ / total < 0.002, differ / total
+
+
+@pytest.mark.parametrize("scale", [2, 3, 4, 8])
+def test_block_any_is_any_pixel_of_each_block(scale):
+    """The word-wide block test against numpy's any over each block (remainders dropped)."""
+    rng = np.random.default_rng(scale)
+    mask = rng.random((67, 133)) < 0.01
+    h, w = 67 // scale, 133 // scale
+    expected = mask[: h * scale, : w * scale].reshape(h, scale, w, scale).any(axis=(1, 3))
+    assert expected.any() and not expected.all()
+    assert np.array_equal(block_any(mask, scale), expected)
+    assert np.array_equal(block_any(mask.view(np.uint8) * np.uint8(255), scale), expected)
