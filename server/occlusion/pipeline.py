@@ -45,6 +45,7 @@ from server.occlusion.depth import (
     occlusion_mask,
 )
 from server.occlusion.outline import refine_outline
+from server.occlusion.regiongain import RegionGain
 from server.occlusion.register import Registration, shift_image
 from server.occlusion.segment import Segmenter, regions_of_interest
 from server.occlusion.settings import OcclusionSettings
@@ -139,6 +140,9 @@ class OcclusionProcessor:
         self.background = BackgroundModel(self.width, self.height, self.settings, self.transfer)
         self.segmenter = Segmenter(self.settings, self.background, self.transfer)
         self.registration = Registration(self.settings)
+        s = self.settings
+        self.region_gain = RegionGain(self.transfer, s.detect_scale, s.region_gain_min_share,
+                                      s.region_gain_step_codes)
         self.frame_index = 0
         self._learning: list[np.ndarray] = []
         self._previous_exclude: np.ndarray | None = None  # coarse people + shadows, last frame
@@ -280,10 +284,24 @@ class OcclusionProcessor:
                 aligned.append(self.registration.align(frame))
             frames = aligned
         n = self.background.learn(frames)
+        self.region_gain.learn(self.background.coarse_mean,
+                               self._above_horizon(self.settings.detect_scale),
+                               self.background.mean_u8, self._above_horizon(1))
         self.registration.shift_px[:] = 0.0
         if self.settings.register:
             self.registration.set_reference(self.background.mean)
         return n
+
+    def _above_horizon(self, scale: int) -> np.ndarray | None:
+        """(H // scale, W // scale) bool: the pixels (blocks of ``scale``) whose centre's ray
+        does not meet the ground plane (the sky, far buildings); None for a camera that
+        cannot say."""
+        if not isinstance(self.camera, PerspectiveCamera):
+            return None
+        h, w = self.height // scale, self.width // scale
+        v, u = np.mgrid[0:h, 0:w]
+        d = self.camera.ray_directions((u.ravel() + 0.5) * scale, (v.ravel() + 0.5) * scale)
+        return (d[:, 1] >= 0.0).reshape(h, w)
 
     def _segment(self, image: np.ndarray, index: int, t: float | None) -> OcclusionResult:
         s = self.settings
@@ -325,6 +343,14 @@ class OcclusionProcessor:
                 coarse_corrected = shrink(reg.align_rects(image, [(0, self.height, 0,
                                                                    self.width)], table),
                                           s.detect_scale)
+        # 1c. The sky and other large smooth regions above the horizon: gains of their own.
+        regional = self.region_gain.count > 0
+        if regional:
+            self.region_gain.estimate(coarse, coarse_corrected, bg.coarse_linear,
+                                      bg.coarse_mean, gain)
+            h, w = coarse_corrected.shape[:2]
+            self.region_gain.apply(coarse_corrected, coarse, [(0, h, 0, w)], bg.coarse_mean,
+                                   bg.coarse_linear, gain, self.region_gain.coarse_labels)
         lap("register")
         # 2. Regions of interest: coarse background difference plus last frame's people.
         if s.full_frame:
@@ -340,7 +366,10 @@ class OcclusionProcessor:
         # The frame in reference illumination and the background's grid, computed only where
         # it is read: the regions and the band of rows the slow update visits next.
         y0, y1 = bg.next_band()
-        corrected = reg.align_rects(image, [*boxes, (y0, y1, 0, self.width)], table)
+        rects = [*boxes, (y0, y1, 0, self.width)]
+        corrected = reg.align_rects(image, rects, table)
+        if regional:
+            self.region_gain.apply(corrected, image, rects, bg.mean_u8, bg.linear, gain)
         lap("regions")
         # 3. Graph cut of Eq. 6 inside the regions, shadows joining the background.
         person, shadow, foreground = self.segmenter.segment(corrected, boxes)
