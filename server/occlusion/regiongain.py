@@ -22,9 +22,12 @@ the ratio is only known from below: the median counts those pixels as above ever
 measured). A channel clipped over more than half of the region keeps its last gain, and
 all its clipped pixels are explained.
 
-The residual is applied by a look-up table per region (``Transfer.gain_table``) on the
-frame already in the reference illumination, only where the pipeline reads it: the coarse
-copy and the regions of interest and update band (``apply``). The sky's pixels within a
+The region's pixels are mapped into the reference illumination by one look-up table of the
+global and the region's gain together (``Transfer.gain_table``; the global table alone
+clips a bright sky that it dims by less than the sky brightens), from the frame's own codes
+(its grid: a smooth region's codes do not change with a shift of a pixel), only where the
+pipeline reads them: the coarse copy and the regions of interest and update band
+(``apply``). The sky's pixels within a
 coarse pixel of its outline (the skyline, where the coarse pixels are not smooth) are
 outside every region and keep the global gain; the registration's edge variance
 (gradient x ``register_tolerance_px``) covers them.
@@ -65,7 +68,7 @@ class RegionGain:
         self.gains = np.ones((0, 3), dtype=np.float32)
         self.clip_mode = np.zeros((0, 3), dtype=bool)  # channels known only from below
         self._samples: list[np.ndarray] = []  # flat coarse indices of each region
-        self._tables: list[np.ndarray | None] = []  # (256, 1, 3) uint8 per region, None: unit
+        self._applied: list[bool] = []  # per region: its gain differs from 1 (is applied)
         self._boxes: dict = {}  # bounding boxes of the regions in each label map
 
     @property
@@ -81,7 +84,7 @@ class RegionGain:
         Returns how many regions there are."""
         h, w = coarse_mean.shape[:2]
         self.gains = np.ones((0, 3), dtype=np.float32)
-        self._samples, self._tables, self._boxes = [], [], {}
+        self._samples, self._applied, self._boxes = [], [], {}
         self.coarse_labels = np.zeros((h, w), dtype=np.int32)
         self.labels = np.zeros(mean_u8.shape[:2], dtype=np.uint8)
         if self.min_share <= 0 or h < 2 or w < 2:
@@ -126,7 +129,7 @@ class RegionGain:
             if len(flat) > _SAMPLES:
                 flat = np.sort(rng.choice(flat, _SAMPLES, replace=False))
             self._samples.append(flat)
-            self._tables.append(None)
+            self._applied.append(False)
             self.coarse_labels[member] = self.count
             boxes.append((low - self.step_codes, high + self.step_codes))
         self.gains = np.ones((self.count, 3), dtype=np.float32)
@@ -198,7 +201,7 @@ class RegionGain:
             self.gains[k] = gain
             self.clip_mode[k] = mode
             unit = np.all(np.abs(np.log(gain)) < _UNIT_LOG)
-            self._tables[k] = None if unit else tr.gain_table(gain)
+            self._applied[k] = not unit
 
     def apply(self, corrected: np.ndarray, frame: np.ndarray, rects, mean_u8: np.ndarray,
               linear: np.ndarray, global_gain: np.ndarray, labels: np.ndarray | None = None
@@ -207,17 +210,17 @@ class RegionGain:
         ``corrected``).
 
         ``corrected`` (H, W, 3) uint8, the frame in the reference illumination (global gain)
-        and the background's grid; ``frame`` the frame as it came (its clipped codes);
+        and the background's grid; ``frame`` the frame as it came (the codes corrected, and which are clipped);
         ``mean_u8``, ``linear`` the background's codes and linear light; ``labels`` the
         region map of this resolution (default: the full-resolution one).
         """
-        if not any(t is not None for t in self._tables):
+        if not any(self._applied):
             return
         labels = self.labels if labels is None else labels
         clip_linear = (self.transfer.decode_bgr[_CLIP_CODE]
                        / np.asarray(global_gain, dtype=np.float32))
-        for k, table in enumerate(self._tables):
-            if table is None:
+        for k, applied in enumerate(self._applied):
+            if not applied:
                 continue
             # The region's pixels inside the union of the rects (which may overlap: each
             # pixel is corrected once), searched in the region's bounding box only.
@@ -231,7 +234,10 @@ class RegionGain:
                 continue
             ys += by0
             xs += bx0
-            codes = cv2.LUT(corrected[ys, xs].reshape(-1, 1, 3), table).reshape(-1, 3)
+            # From the frame's own codes, by the global and the region's gain together (the
+            # global table alone clips a bright sky it dims by less than the sky brightens).
+            table = self.transfer.gain_table(np.asarray(global_gain) * self.gains[k])
+            codes = cv2.LUT(frame[ys, xs].reshape(-1, 1, 3), table).reshape(-1, 3)
             # Clipped in the frame, and clipped too if the background brightened by the
             # region's gain: explained, the background's own code.
             explained = (frame[ys, xs] >= _CLIP_CODE) & (
