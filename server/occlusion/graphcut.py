@@ -123,6 +123,18 @@ def _decide(cost_person, cost_background, w_right, w_down, free, state, a, b, se
 
 
 @_jit
+def _labels(state, index, cut):
+    """(h, w) bool: person where decided so, or where the cut (n,) put an undecided node."""
+    h, w = state.shape
+    out = np.zeros((h, w), dtype=np.bool_)
+    for y in range(h):
+        for x in range(w):
+            i = index[y, x]
+            out[y, x] = cut[i] if i >= 0 else state[y, x] == _PERSON
+    return out
+
+
+@_jit
 def _graph(state, a, b, w_right, w_down, n):
     """The undecided nodes' graph: ``(index (h, w) int32, -1 if decided; source and sink
     capacities (n,); edge ends i, j (m,) and capacities (m,))``. Edges to decided
@@ -186,24 +198,19 @@ def graph_cut(
     h, w = cost_person.shape
     if free is None:
         free = np.ones((h, w), dtype=bool)
+    # Any float type and layout (the occlusion's float32 views as they come; the sums are
+    # float64 inside).
     state = np.empty((h, w), dtype=np.int8)
-    a = np.zeros((h, w))
-    b = np.zeros((h, w))
-    # Any float type (the occlusion's float32 as it comes; sums are float64 inside).
-    cp, cb, wr, wd = (np.ascontiguousarray(v) for v in (cost_person, cost_background,
-                                                         w_right, w_down))
-    free = np.ascontiguousarray(free, dtype=bool)
-    n = _decide(cp, cb, wr, wd, free, state, a, b, decide)
-    out = state == _PERSON
+    a = np.empty((h, w))
+    b = np.empty((h, w))
+    n = _decide(cost_person, cost_background, w_right, w_down, np.asarray(free, dtype=bool),
+                state, a, b, decide)
     if n == 0:
-        return out
-    index, source, sink, ei, ej, cap = _graph(state, a, b, wr, wd, n)
+        return state == _PERSON
+    index, source, sink, ei, ej, cap = _graph(state, a, b, w_right, w_down, n)
     g = maxflow.GraphFloat(n, len(ei))
     nodes = g.add_nodes(n)
     g.add_edges(ei, ej, cap, cap)
     g.add_grid_tedges(nodes, source, sink)
     g.maxflow()
-    cut = g.get_grid_segments(nodes)
-    live = index >= 0
-    out[live] = cut[index[live]]
-    return out
+    return _labels(state, index, g.get_grid_segments(nodes))

@@ -210,7 +210,8 @@ class RegionGain:
         ``corrected``).
 
         ``corrected`` (H, W, 3) uint8, the frame in the reference illumination (global gain)
-        and the background's grid; ``frame`` the frame as it came (the codes corrected, and which are clipped);
+        and the background's grid; ``frame`` the frame as it came (the codes corrected
+        here, and which are clipped);
         ``mean_u8``, ``linear`` the background's codes and linear light; ``labels`` the
         region map of this resolution (default: the full-resolution one).
         """
