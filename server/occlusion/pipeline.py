@@ -393,12 +393,17 @@ class OcclusionProcessor:
         labels, people = find_people(person, s.min_person_px, s.foot_min_px, boxes)
         person = labels > 0
         for p in people:
-            u, v = p.foot_px[0] + shift[0], p.foot_px[1] + shift[1]  # in the frame's grid
-            p.foot_px = (u, v)
-            p.depth_m = self.camera.foot_depth_m(u, v)
-            if isinstance(self.camera, PerspectiveCamera) and np.isfinite(p.depth_m):
-                point = self.camera.ground_hit(u, v)[0][0]
-                p.foot_world_m = (float(point[0]), float(point[1]), float(point[2]))
+            p.foot_px = (p.foot_px[0] + shift[0], p.foot_px[1] + shift[1])  # frame's grid
+        if isinstance(self.camera, PerspectiveCamera) and people:
+            # All foot points' rays at once (a call per person cost 0.1 ms each).
+            points, depths = self.camera.ground_hit(*np.array([p.foot_px for p in people]).T)
+            for p, point, depth in zip(people, points, depths, strict=True):
+                p.depth_m = float(depth)
+                if np.isfinite(depth):
+                    p.foot_world_m = (float(point[0]), float(point[1]), float(point[2]))
+        else:
+            for p in people:
+                p.depth_m = self.camera.foot_depth_m(*p.foot_px)
         # Pieces of cast shadow kept as person lie flat on the ground: not people.
         people = drop_flat_regions(labels, people, self.camera, s.min_person_height_m)
         person = labels > 0
