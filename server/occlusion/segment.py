@@ -161,6 +161,12 @@ class Segmenter:
         # ln(linear green) of each code, for the codec's local spread (_dark_spread)
         self._log_green = np.ascontiguousarray(transfer.log_table[:, 0, 1]).reshape(256, 1)
         self.timings_ms: dict[str, float] = {}
+        # The compiled graph code is loaded (or compiled, the first time after a change of
+        # graphcut.py) now, not in the first frame, for the types and memory layouts cut()
+        # passes (each has its own compiled code): views for the costs and the free mask.
+        view = np.ones((3, 3), dtype=np.float32)[:2, :2]
+        weights = np.ones((2, 2), dtype=np.float32)
+        graph_cut(view, view, weights, weights, np.ones((3, 3), dtype=bool)[:2, :2])
 
     def reset(self) -> None:
         self.history[:] = 0
