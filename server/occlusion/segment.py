@@ -40,7 +40,7 @@ import cv2
 import numpy as np
 
 from server.occlusion.background import BackgroundModel
-from server.occlusion.colour import Transfer, colour_index
+from server.occlusion.colour import Transfer, colour_index, table_costs
 from server.occlusion.graphcut import graph_cut
 from server.occlusion.mixture import ColourMixture
 from server.occlusion.settings import OcclusionSettings, log_prior_table
@@ -161,12 +161,14 @@ class Segmenter:
         # ln(linear green) of each code, for the codec's local spread (_dark_spread)
         self._log_green = np.ascontiguousarray(transfer.log_table[:, 0, 1]).reshape(256, 1)
         self.timings_ms: dict[str, float] = {}
-        # The compiled graph code is loaded (or compiled, the first time after a change of
+        # The compiled code is loaded (or compiled, the first time after a change of
         # graphcut.py) now, not in the first frame, for the types and memory layouts cut()
         # passes (each has its own compiled code): views for the costs and the free mask.
         view = np.ones((3, 3), dtype=np.float32)[:2, :2]
         weights = np.ones((2, 2), dtype=np.float32)
         graph_cut(view, view, weights, weights, np.ones((3, 3), dtype=bool)[:2, :2])
+        table_costs(np.zeros((3, 3, 3), dtype=np.uint8)[:2, :2], self.person_table,
+                    settings.lut_bits)
 
     def reset(self) -> None:
         self.history[:] = 0
@@ -255,14 +257,14 @@ class Segmenter:
             log_norm = bg.log_norm[y0:y1, x0:x1]
         d2 = d2.reshape(h, w)
         log_pixel = -0.5 * d2 - log_norm
-        idx = colour_index(codes.reshape(-1, 3), s.lut_bits).reshape(h, w)
         if self._log_global_w is not None:
+            idx = colour_index(codes.reshape(-1, 3), s.lut_bits).reshape(h, w)
             log_bg = np.logaddexp(self._log_global_w + bg.global_table[idx],
                                   self._log_pixel_w + log_pixel)
         else:
             log_bg = log_pixel
         cost_bg = -log_bg
-        cost_fg = -self.person_table[idx]
+        cost_fg = table_costs(codes, self.person_table, s.lut_bits)  # -ln p(I | person)
         different = cost_bg > cost_fg
         # Shadow candidates: the pixels that differ and are darker than their background within
         # shadow_ratio (a cheap luminance test first; the chromaticity only for those).

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from server.occlusion.background import block_any
+from server.occlusion.colour import colour_index, table_costs
 from server.occlusion.graphcut import graph_cut
 from server.occlusion.pipeline import OcclusionProcessor
 from server.occlusion.segment import regions_of_interest
@@ -110,3 +111,14 @@ def test_block_any_is_any_pixel_of_each_block(scale):
     assert expected.any() and not expected.all()
     assert np.array_equal(block_any(mask, scale), expected)
     assert np.array_equal(block_any(mask.view(np.uint8) * np.uint8(255), scale), expected)
+
+
+@pytest.mark.parametrize("bits", [4, 5, 6])
+def test_table_costs_read_the_table_at_each_colour_bin(bits):
+    """The compiled look-up against colour_index and numpy's gather, on a box view."""
+    rng = np.random.default_rng(bits)
+    frame = rng.integers(0, 256, (40, 50, 3), dtype=np.uint8)
+    table = rng.normal(size=1 << (3 * bits)).astype(np.float32)
+    box = frame[5:31, 7:43]
+    expected = -table[colour_index(box.reshape(-1, 3), bits)].reshape(box.shape[:2])
+    assert np.array_equal(table_costs(box, table, bits), expected)
