@@ -37,6 +37,11 @@ work (those parts switched off by settings, :data:`BEFORE_OUTLINES` and
 shadow-deviation limits (:data:`BEFORE_STANDING`) and as it is now, frame by frame on the
 same frames.
 
+With ``--baseline REV`` (``--codecs`` or ``--heldout``) the detector of git revision REV of
+this repository (its ``server`` package extracted by ``git archive`` under another name) runs
+beside this one, interleaved frame by frame on the same frames, each first in turn: the
+same-run baseline of the time per frame (with ``--codecs`` in place of the settings variants).
+
 With ``--refit`` it times only the person colour mixture's warm refit, this code's numpy EM
 against OpenCV's ``EM.trainM`` from the same posteriors (the frames that set the p95 before
 2026-11-25).
@@ -50,7 +55,7 @@ regions (connected person regions of at least 25 px) in the empty frames after l
 ms per frame (median, p95).
 
 Run: ``.venv/bin/python benchmarks/bench_occlusion.py [--ablation] [--refit] [--synthetic]
-[--codecs] [--heldout [CONDITION ...]]``
+[--codecs] [--heldout [CONDITION ...]] [--baseline REV]``
 (about a minute, two with the ablation; the held-out conditions about 15 minutes; ``--help``
 lists the conditions).
 """
@@ -373,25 +378,27 @@ BEFORE_STANDING = {"min_person_height_m": 0.0, "shadow_max_deviation": 0.0}
 
 def codecs(sizes=((480, 270), (1024, 512)), baseline: str | None = None) -> None:
     """Issue 18's figures through the codecs, the detector after its codec work, after its
-    outline work and now, interleaved frame by frame on the same frames (same run, same
-    load)."""
+    outline work and now (or, with ``baseline``, that revision's detector and now),
+    interleaved frame by frame on the same frames (same run, same load)."""
     from server.occlusion.settings import OcclusionSettings
     from tests.server.occlusion.conftest import CODEC_EMPTY_S, CODECS, coded_truths
 
-    print("\nStandard sequence (broadband), 12 s at 10 frames/s, 1.6 s empty (1 s learned), "
-          "raw and coded: the detector after issue 18's codec work (settings "
-          f"{BEFORE_OUTLINES | BEFORE_STANDING}), after the outline work ({BEFORE_STANDING}) "
-          "and now\n")
-    print("| size | frames as | detector | person IoU (median) | worst frame IoU | "
-          "shadow kept | phantom regions (empty frames) | CPU ms median | CPU ms p95 | load |")
-    print("|---|---|---|---:|---:|---:|---:|---:|---:|---:|")
     variants = {"codec work": OcclusionSettings(**BEFORE_OUTLINES, **BEFORE_STANDING),
                 "outline work": OcclusionSettings(**BEFORE_STANDING), "now": OcclusionSettings()}
+    compared = (f"the detector after issue 18's codec work (settings "
+                f"{BEFORE_OUTLINES | BEFORE_STANDING}), after the outline work "
+                f"({BEFORE_STANDING}) and now")
     before = None
     if baseline:  # the detector of another revision instead of the settings variants
         before, sha = baseline_processor(baseline)
         variants = {f"at {sha}": None, "now": OcclusionSettings()}
-        print(f"(with --baseline: the detector at {sha} and now, interleaved, in turn first)\n")
+        compared = (f"the detector at {sha} and now, interleaved frame by frame, each first "
+                    "in turn")
+    print("\nStandard sequence (broadband), 12 s at 10 frames/s, 1.6 s empty (1 s learned), "
+          f"raw and coded: {compared}\n")
+    print("| size | frames as | detector | person IoU (median) | worst frame IoU | "
+          "shadow kept | phantom regions (empty frames) | CPU ms median | CPU ms p95 | load |")
+    print("|---|---|---|---:|---:|---:|---:|---:|---:|---:|")
     for width, height in sizes:
         site = default_site(width, height, empty_s=CODEC_EMPTY_S)
         virtual = box_depth_image(site.camera, *VIRTUAL_BOX)
