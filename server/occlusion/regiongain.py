@@ -165,30 +165,33 @@ class RegionGain:
         clip_linear = tr.decode_bgr[_CLIP_CODE] / np.asarray(global_gain, dtype=np.float32)
         for k, flat in enumerate(self._samples):
             raw = coarse_frame.reshape(-1, 3).take(flat, axis=0)
-            lin = tr.to_linear(coarse_corrected.reshape(-1, 3).take(flat, axis=0))
+            at = tr.channel_index(coarse_corrected.reshape(-1, 3).take(flat, axis=0))
+            lin = tr.decode_flat.take(at)
             lin_bg = coarse_linear.reshape(-1, 3).take(flat, axis=0)
             bg_codes = coarse_mean.reshape(-1, 3).take(flat, axis=0)
-            gain = np.full(3, np.nan)
-            agreed = True
-            n = len(flat)
-            for c in range(3):
-                # Pixels whose background is measured; where the frame clipped, the ratio
-                # is only known to be above the clip's (censored): the median stands as
-                # long as fewer than half are.
-                valid = (bg_codes[:, c] < _CLIP_CODE) & (lin_bg[:, c] > 0.01) & (raw[:, c] > 8)
-                if np.count_nonzero(valid) < 0.3 * n:
-                    gain[c] = 1.0  # the background is clipped too: nothing to follow
-                    continue
-                clipped = raw[valid, c] >= _CLIP_CODE
-                bound = clip_linear[c] / lin_bg[valid, c]
-                ratio = np.where(clipped, np.inf, lin[valid, c] / lin_bg[valid, c])
-                g = float(np.median(ratio))
-                if not np.isfinite(g):  # mostly clipped: only known from below
-                    continue
-                near = np.abs(np.log(ratio / g)) < _AGREE_LOG
-                near |= clipped & (bound <= g * np.exp(_AGREE_LOG))  # consistent with g
-                agreed &= np.count_nonzero(near) >= 0.5 * len(ratio)
-                gain[c] = g
+            # Per channel (columns): pixels whose background is measured; where the frame
+            # clipped, the ratio is only known to be above the clip's (censored, +inf here):
+            # the median stands as long as fewer than half are. NaN: not measured.
+            valid = (bg_codes < _CLIP_CODE) & (lin_bg > 0.01) & (raw > 8)
+            clipped = raw >= _CLIP_CODE
+            with np.errstate(divide="ignore", invalid="ignore"):
+                ratio = np.where(valid, np.where(clipped, np.inf, lin / lin_bg), np.nan)
+                bound = clip_linear / lin_bg
+            count = np.count_nonzero(valid, axis=0)
+            ordered = np.sort(ratio, axis=0)  # NaN last, +inf before it
+            cols = np.arange(3)
+            median = np.where(count % 2 == 1, ordered[np.maximum(count - 1, 0) // 2, cols],
+                              0.5 * (ordered[np.maximum(count // 2 - 1, 0), cols]
+                                     + ordered[count // 2, cols]))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                near = np.abs(np.log(ratio / median)) < _AGREE_LOG
+            near |= valid & clipped & (bound <= median * np.exp(_AGREE_LOG))  # consistent
+            measured = np.isfinite(median) & (count >= 0.3 * len(flat))
+            agreed = bool(np.all(np.count_nonzero(near, axis=0)[measured]
+                                 >= 0.5 * count[measured]))
+            # Background clipped over most of the region: nothing to follow (gain 1);
+            # frame clipped over most of it: NaN, only known from below.
+            gain = np.where(count < 0.3 * len(flat), 1.0, np.where(measured, median, np.nan))
             if not agreed or np.all(np.isnan(gain)):
                 continue  # a person in front, or nothing measured: keep the last gain
             # A channel clipped over most of the region keeps its last measured gain for
