@@ -2,7 +2,8 @@
 
 This is the one class the light server calls. Per frame::
 
-    frame --check--> coarse copy --gain--> reference illumination --shift (register.py)-->
+    frame --check--> coarse copy --gain (the sky's own: regiongain.py)--> reference
+          illumination --shift (register.py)-->
           background's pixel grid --difference--> regions
           --graph cut (segment.py, shadows inside)--> people
           --outlines onto luminance edges (outline.py; block-coded frames)-->

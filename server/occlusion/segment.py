@@ -23,7 +23,8 @@ For the labels ``X^t`` of frame ``I^t`` (1: person, 0: background or shadow)::
   ``exp(-|I_m - I_n|^2 / (2 <|I_m - I_n|^2>))`` (contrast-sensitive, Boykov-Jolly / GrabCut).
 
 Eq. 7 takes the previous labels as fixed, so the energy is submodular in ``X^t`` and one s-t
-min cut (PyMaxflow, Boykov-Kolmogorov) gives the exact minimum. The cut runs at full
+min cut (PyMaxflow, Boykov-Kolmogorov) gives the exact minimum (graphcut.py: over the nodes
+their own costs leave undecided). The cut runs at full
 resolution, but only inside regions of interest: boxes around the coarse background difference
 and last frame's people, and inside those only for the pixels within ``band_px`` of a pixel
 that may be a person (its colour, or last frame's label). Everything else is background; the
