@@ -39,6 +39,7 @@ import numpy as np
 from server.occlusion.background import BackgroundModel, block_any, shrink
 from server.occlusion.colour import Transfer, apply_table
 from server.occlusion.depth import (
+    EquidistantPanorama,
     Person,
     PerspectiveCamera,
     drop_flat_regions,
@@ -296,13 +297,15 @@ class OcclusionProcessor:
     def _above_horizon(self, scale: int) -> np.ndarray | None:
         """(H // scale, W // scale) bool: the pixels (blocks of ``scale``) whose centre's ray
         does not meet the ground plane (the sky, far buildings); None for a camera that
-        cannot say."""
-        if not isinstance(self.camera, PerspectiveCamera):
-            return None
+        cannot say (then no region gets a gain of its own)."""
         h, w = self.height // scale, self.width // scale
         v, u = np.mgrid[0:h, 0:w]
-        d = self.camera.ray_directions((u.ravel() + 0.5) * scale, (v.ravel() + 0.5) * scale)
-        return (d[:, 1] >= 0.0).reshape(h, w)
+        u, v = (u.ravel() + 0.5) * scale, (v.ravel() + 0.5) * scale
+        if isinstance(self.camera, PerspectiveCamera):
+            return (self.camera.ray_directions(u, v)[:, 1] >= 0.0).reshape(h, w)
+        if isinstance(self.camera, EquidistantPanorama):  # a level axis: the upper half
+            return (v <= 0.5 * self.camera.height).reshape(h, w)
+        return None
 
     def _segment(self, image: np.ndarray, index: int, t: float | None) -> OcclusionResult:
         s = self.settings

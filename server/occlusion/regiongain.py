@@ -78,9 +78,10 @@ class RegionGain:
     def learn(self, coarse_mean: np.ndarray, above: np.ndarray | None,
               mean_u8: np.ndarray, above_full: np.ndarray | None = None) -> int:
         """Find the regions in the coarse background mean (h, w, 3) float32 codes; ``above``
-        (h, w) bool, the coarse pixels whose rays miss the ground (None: all may be);
-        ``mean_u8`` (H, W, 3) uint8, the full-resolution background (the regions' rims),
-        ``above_full`` (H, W) bool its pixels above the horizon (None: all).
+        (h, w) bool, the coarse pixels whose rays miss the ground (None: the camera cannot
+        say, and no region is found); ``mean_u8`` (H, W, 3) uint8, the full-resolution
+        background (the regions' rims), ``above_full`` (H, W) bool its pixels above the
+        horizon (None: ``above``'s blocks).
         Returns how many regions there are."""
         h, w = coarse_mean.shape[:2]
         self.gains = np.ones((0, 3), dtype=np.float32)
@@ -97,8 +98,9 @@ class RegionGain:
         smooth[:, 1:] &= dx
         smooth[:-1] &= dy
         smooth[1:] &= dy
-        if above is not None:
-            smooth &= above
+        if above is None:  # a camera that cannot tell the sky from the ground: no regions
+            return 0
+        smooth &= above
         count, comp, stats, _ = cv2.connectedComponentsWithStats(
             smooth.view(np.uint8), connectivity=4)
         # Pieces of one surface (the sky between buildings) are one region: pieces whose
@@ -141,7 +143,9 @@ class RegionGain:
         # pixels above the horizon whose background colour is in the region's range,
         # connected to the region through such pixels.
         if above_full is None:
-            above_full = np.ones(self.labels.shape, dtype=bool)
+            above_full = np.repeat(np.repeat(above, s, 0), s, 1)
+            above_full = np.pad(above_full, ((0, self.labels.shape[0] - above_full.shape[0]),
+                                             (0, self.labels.shape[1] - above_full.shape[1])))
         for k, (low, high) in enumerate(boxes, start=1):
             inside = np.all((mean_u8 >= low) & (mean_u8 <= high), axis=2) & above_full
             inside |= self.labels == k

@@ -104,3 +104,28 @@ def test_a_clipped_channel_is_explained_not_measured():
     rg.apply(corrected, frame, [(0, H, 0, W)], bg, bg_linear, GLOBAL, rg.coarse_labels)
     assert np.array_equal(corrected[:SKY, :, 0], bg[:SKY, :, 0])
     assert np.abs(corrected[:SKY].astype(int) - bg[:SKY]).max() <= 2
+
+
+def test_a_camera_that_cannot_tell_the_horizon_gets_no_region():
+    tr, bg, _ = scene((1.0, 1.0, 1.0))
+    rg = RegionGain(tr, SCALE, min_share=0.02, step_codes=4.0)
+    full = np.repeat(np.repeat(bg, SCALE, 0), SCALE, 1)
+    assert rg.learn(bg.astype(np.float32), None, full) == 0
+    assert not rg.labels.any()
+
+
+def test_the_horizon_of_each_camera():
+    """A level panorama's horizon is its middle row; a pinhole camera's where its rays turn
+    from the ground to the sky (the synthetic site's camera looks slightly down)."""
+    from server.occlusion.depth import EquidistantPanorama
+    from server.occlusion.pipeline import OcclusionProcessor
+    from server.occlusion.synthetic import make_camera
+
+    pano = OcclusionProcessor(EquidistantPanorama(64, 32, 1.6))._above_horizon(4)
+    assert pano.shape == (8, 16)
+    assert pano[:4].all() and not pano[4:].any()
+    camera = make_camera(480, 270)
+    above = OcclusionProcessor(camera)._above_horizon(1)
+    _, depth = camera.ground_hit(np.full(270, 240.5), np.arange(270) + 0.5)
+    assert np.array_equal(above[:, 240], np.isnan(depth))
+    assert above[0].all() and not above[-1].any()
