@@ -27,7 +27,8 @@ min cut (PyMaxflow, Boykov-Kolmogorov) gives the exact minimum (graphcut.py: ove
 their own costs leave undecided). The cut runs at full
 resolution, but only inside regions of interest: boxes around the coarse background difference
 and last frame's people, and inside those only for the pixels within ``band_px`` of a pixel
-that may be a person (its colour, or last frame's label). Everything else is background; the
+that may be a person (its unary term, shadow and temporal prior included, or last frame's
+label). Everything else is background; the
 frame-wide cut gives the same labels there (those pixels match their background Gaussian by
 many nats) at many times the cost (benchmarks/bench_occlusion.py measures both).
 """
