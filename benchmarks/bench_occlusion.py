@@ -515,6 +515,8 @@ def parse_args(argv: list[str] | None = None):
                     help="with --heldout, only these conditions (quote names with spaces); "
                          "one of: " + ", ".join(CONDITIONS))
     args = ap.parse_args(argv)
+    if args.baseline and not (args.codecs or args.heldout):
+        ap.error("--baseline needs --codecs or --heldout")
     unknown = [c for c in args.conditions if c not in CONDITIONS]
     if unknown or (args.conditions and not args.heldout):
         ap.error(f"conditions need --heldout and one of {list(CONDITIONS)}; "
