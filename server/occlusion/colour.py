@@ -100,8 +100,9 @@ def bin_centres(bits: int) -> np.ndarray:
 
 @numba.njit(cache=True, nogil=True)
 def table_costs(codes_bgr: np.ndarray, table: np.ndarray, bits: int) -> np.ndarray:
-    """``-table[colour_index(codes)]`` of an (h, w, 3) uint8 image (any layout): (h, w)
-    float32, in one pass (numpy's index arithmetic and gather took ten times as long)."""
+    """``-table[colour_index(codes)]`` of an (h, w, 3) uint8 image (any layout: a view of a
+    box, or a whole frame; each is compiled once): (h, w) float32, in one pass (numpy's index
+    arithmetic and gather took ten times as long)."""
     h, w = codes_bgr.shape[:2]
     shift = 8 - bits
     out = np.empty((h, w), dtype=np.float32)

@@ -199,13 +199,16 @@ def graph_cut(
     h, w = cost_person.shape
     if free is None:
         free = np.ones((h, w), dtype=bool)
-    # Any float type and layout (the occlusion's float32 views as they come; the sums are
-    # float64 inside).
+    # Contiguous copies of views: Numba compiles for each memory layout, and a layout met
+    # for the first time in a frame stalled it by a compile (1.5 s). Any float type (the sums
+    # are float64 inside).
+    cost_person, cost_background, w_right, w_down = (
+        np.ascontiguousarray(v) for v in (cost_person, cost_background, w_right, w_down))
+    free = np.ascontiguousarray(free, dtype=bool)
     state = np.empty((h, w), dtype=np.int8)
     a = np.empty((h, w))
     b = np.empty((h, w))
-    n = _decide(cost_person, cost_background, w_right, w_down, np.asarray(free, dtype=bool),
-                state, a, b, decide)
+    n = _decide(cost_person, cost_background, w_right, w_down, free, state, a, b, decide)
     if n == 0:
         return state == _PERSON
     index, source, sink, ei, ej, cap = _graph(state, a, b, w_right, w_down, n)

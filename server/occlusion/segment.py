@@ -164,13 +164,14 @@ class Segmenter:
         self._log_green = np.ascontiguousarray(transfer.log_table[:, 0, 1]).reshape(256, 1)
         self.timings_ms: dict[str, float] = {}
         # The compiled code is loaded (or compiled, the first time after a change of
-        # graphcut.py) now, not in the first frame, for the types and memory layouts cut()
-        # passes (each has its own compiled code): views for the costs and the free mask.
-        view = np.ones((3, 3), dtype=np.float32)[:2, :2]
-        weights = np.ones((2, 2), dtype=np.float32)
-        graph_cut(view, view, weights, weights, np.ones((3, 3), dtype=bool)[:2, :2])
-        table_costs(np.zeros((3, 3, 3), dtype=np.uint8)[:2, :2], self.person_table,
-                    settings.lut_bits)
+        # graphcut.py or colour.py) now, not in a frame, for the types and memory layouts
+        # the frames bring (each has its own compiled code): contiguous costs (graph_cut
+        # makes them so), a box's view of the frame or the whole frame.
+        ones = np.ones((2, 2), dtype=np.float32)
+        graph_cut(ones, ones, ones, ones, np.ones((2, 2), dtype=bool))
+        for codes in (np.zeros((3, 3, 3), dtype=np.uint8)[:2, :2],
+                      np.zeros((2, 2, 3), dtype=np.uint8)):
+            table_costs(codes, self.person_table, settings.lut_bits)
 
     def reset(self) -> None:
         self.history[:] = 0
