@@ -199,12 +199,11 @@ def graph_cut(
     h, w = cost_person.shape
     if free is None:
         free = np.ones((h, w), dtype=bool)
-    # Contiguous copies of views: Numba compiles for each memory layout, and a layout met
-    # for the first time in a frame stalled it by a compile (1.5 s). Any float type (the sums
-    # are float64 inside).
-    cost_person, cost_background, w_right, w_down = (
-        np.ascontiguousarray(v) for v in (cost_person, cost_background, w_right, w_down))
-    free = np.ascontiguousarray(free, dtype=bool)
+    # Any float type and memory layout (the sums are float64 inside). Numba compiles for each
+    # combination of layouts: the segmenter loads the two its cuts bring when it is made
+    # (segment.Segmenter), since one met first in a frame stalled it by a 1.5 s compile;
+    # contiguous copies instead cost 1-2 ms a frame.
+    free = np.asarray(free, dtype=bool)
     state = np.empty((h, w), dtype=np.int8)
     a = np.empty((h, w))
     b = np.empty((h, w))

@@ -165,10 +165,15 @@ class Segmenter:
         self.timings_ms: dict[str, float] = {}
         # The compiled code is loaded (or compiled, the first time after a change of
         # graphcut.py or colour.py) now, not in a frame, for the types and memory layouts
-        # the frames bring (each has its own compiled code): contiguous costs (graph_cut
-        # makes them so), a box's view of the frame or the whole frame.
-        ones = np.ones((2, 2), dtype=np.float32)
-        graph_cut(ones, ones, ones, ones, np.ones((2, 2), dtype=bool))
+        # the frames bring (each has its own compiled code): cut() passes the costs and the
+        # free mask as views of one part of the box, strided or (a part as wide as the box)
+        # contiguous, the edge weights contiguous; colour_terms() a box of the frame or the
+        # whole frame.
+        weights = np.ones((2, 2), dtype=np.float32)
+        for box_width in (3, 2):  # a part narrower than its box (strided), or as wide
+            costs = np.ones((3, box_width), dtype=np.float32)[:2, :2]
+            free = np.ones((3, box_width), dtype=bool)[:2, :2]
+            graph_cut(costs, costs, weights, weights, free)
         for codes in (np.zeros((3, 3, 3), dtype=np.uint8)[:2, :2],
                       np.zeros((2, 2, 3), dtype=np.uint8)):
             table_costs(codes, self.person_table, settings.lut_bits)
