@@ -10,8 +10,12 @@ of 13 000 px at 480x270 within 3 s.
 At learning, the coarse background (detection scale) is split into *regions*: 4-connected
 areas where neighbouring coarse pixels differ by at most ``region_gain_step_codes`` in every
 channel (smooth: the sky, a plain wall), whose rays do not meet the ground plane (above the
-horizon: no person's cast shadow falls there, and people cover little of it), and which
-hold at least ``region_gain_min_share`` of the frame. Each frame, after the global gain,
+horizon: no person's cast shadow falls there, and people cover little of it; a camera that
+cannot say gets no region); pieces whose colour ranges overlap are one region (the sky
+between buildings), which must hold at least ``region_gain_min_share`` of the frame. The
+full-resolution pixels above the horizon whose background colour is in the region's range
+and that are connected to it join it (the skyline's coarse pixels are not smooth, and a
+strip of sky over a roof is narrower than one). Each frame, after the global gain,
 each region gets a residual gain per channel: the median ratio, in linear light, of the
 frame to the background over the region's coarse pixels, accepted when at least half of
 them agree with it within 10 % (a person in front of a region does not set its gain; the
@@ -27,10 +31,9 @@ global and the region's gain together (``Transfer.gain_table``; the global table
 clips a bright sky that it dims by less than the sky brightens), from the frame's own codes
 (its grid: a smooth region's codes do not change with a shift of a pixel), only where the
 pipeline reads them: the coarse copy and the regions of interest and update band
-(``apply``). The sky's pixels within a
-coarse pixel of its outline (the skyline, where the coarse pixels are not smooth) are
-outside every region and keep the global gain; the registration's edge variance
-(gradient x ``register_tolerance_px``) covers them.
+(``apply``). The mixed pixels along the skyline (part roof, part sky) are in no region and
+keep the global gain; the registration's edge variance (gradient x
+``register_tolerance_px``) covers them.
 """
 
 from __future__ import annotations
