@@ -37,6 +37,11 @@ work (those parts switched off by settings, :data:`BEFORE_OUTLINES` and
 shadow-deviation limits (:data:`BEFORE_STANDING`) and as it is now, frame by frame on the
 same frames.
 
+With ``--baseline REV`` (``--codecs`` or ``--heldout``) the detector of git revision REV of
+this repository (its ``server`` package extracted by ``git archive`` under another name) runs
+beside this one, interleaved frame by frame on the same frames, each first in turn: the
+same-run baseline of the time per frame (with ``--codecs`` in place of the settings variants).
+
 With ``--refit`` it times only the person colour mixture's warm refit, this code's numpy EM
 against OpenCV's ``EM.trainM`` from the same posteriors (the frames that set the p95 before
 2026-11-25).
@@ -50,7 +55,7 @@ regions (connected person regions of at least 25 px) in the empty frames after l
 ms per frame (median, p95).
 
 Run: ``.venv/bin/python benchmarks/bench_occlusion.py [--ablation] [--refit] [--synthetic]
-[--codecs] [--heldout [CONDITION ...]]``
+[--codecs] [--heldout [CONDITION ...]] [--baseline REV]``
 (about a minute, two with the ablation; the held-out conditions about 15 minutes; ``--help``
 lists the conditions).
 """
@@ -62,6 +67,7 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_var] = "1"
 
+import functools  # noqa: E402
 import statistics  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
@@ -216,6 +222,31 @@ def ablation() -> None:
               f"{min(i for _, i in st.standing_iou):.3f} | {right}/{len(st.decisions)} |")
 
 
+def baseline_processor(rev: str):
+    """The ``OcclusionProcessor`` class of git revision ``rev`` of this repository, for a
+    same-run baseline: its ``server`` package extracted (``git archive``) into a temporary
+    folder under another package name, its own imports of ``server.`` renamed to match."""
+    import importlib
+    import subprocess
+    import tempfile
+
+    root = Path(__file__).resolve().parents[1]
+    sha = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", rev], check=True,
+                         capture_output=True, text=True).stdout.strip()
+    name = f"baseline_{sha}"
+    folder = Path(tempfile.mkdtemp(prefix="daylit-bench-"))
+    archive = subprocess.run(["git", "-C", str(root), "archive", rev, "server"], check=True,
+                             capture_output=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(folder)], input=archive, check=True)
+    (folder / "server").rename(folder / name)
+    for py in (folder / name).rglob("*.py"):
+        text = py.read_text("utf-8")
+        py.write_text(text.replace("from server.", f"from {name}.")
+                      .replace("import server.", f"import {name}."), "utf-8")
+    sys.path.insert(0, str(folder))
+    return importlib.import_module(f"{name}.occlusion").OcclusionProcessor, sha
+
+
 def mog2_open_close(mog2, frame: np.ndarray) -> np.ndarray:
     """MOG2's foreground (shadows, marked 127, left out) after a 3x3 open and a 5x5 close."""
     fg = (mog2.apply(frame) == 255).astype(np.uint8)
@@ -230,8 +261,10 @@ def regions(mask: np.ndarray, min_px: int = 25) -> int:
 
 
 def heldout(names: list[str] | None = None, width: int = 1024, height: int = 512,
-            duration_s: float = 6.0) -> None:
+            duration_s: float = 6.0, baseline: str | None = None) -> None:
     from tests.server.occlusion.heldout import CONDITIONS, HeldoutSequence
+
+    before, sha = baseline_processor(baseline) if baseline else (None, None)
 
     print(f"\nHeld-out sequences, {width}x{height}, {duration_s:.0f} s at 10 frames/s "
           f"(10 learned, 6 empty, then three walkers at 8, 14 and 22 m)\n")
@@ -245,19 +278,28 @@ def heldout(names: list[str] | None = None, width: int = 1024, height: int = 512
         ours = OcclusionProcessor(_flat_camera(width, height))
         mog2 = cv2.createBackgroundSubtractorMOG2(history=200, varThreshold=16,
                                                   detectShadows=True)
+        methods = {"ours": ours.process, "mog2": functools.partial(mog2_open_close, mog2)}
+        if before is not None:
+            methods["before"] = before(_flat_camera(width, height)).process
         res = {k: {"iou": [], "shadow": 0, "kept": 0, "phantom": [], "ms": [], "cpu": []}
-               for k in ("ours", "mog2")}
+               for k in methods}
         shadow_all = 0
-        for f in seq.frames():
-            r, ms, cpu = cpu_timed(ours.process, f.image)
-            fg, ms_mog, cpu_mog = cpu_timed(mog2_open_close, mog2, f.image)
-            if r.learning:
+        for i, f in enumerate(seq.frames()):
+            masks, learning = {}, False
+            order = list(methods.items())
+            for k, fn in order if i % 2 else order[::-1]:  # the load hits them alike
+                out, ms, cpu = cpu_timed(fn, f.image)
+                if k == "mog2":
+                    masks[k] = out
+                else:
+                    masks[k] = out.person_mask > 0
+                    learning = out.learning
+                res[k]["ms"].append(ms)
+                res[k]["cpu"].append(cpu)
+            if learning:
+                for t in res.values():
+                    del t["ms"][-1], t["cpu"][-1]
                 continue
-            masks = {"ours": r.person_mask > 0, "mog2": fg}
-            res["ours"]["ms"].append(ms)
-            res["mog2"]["ms"].append(ms_mog)
-            res["ours"]["cpu"].append(cpu)
-            res["mog2"]["cpu"].append(cpu_mog)
             shadow_all += np.count_nonzero(f.shadow)
             for k, m in masks.items():
                 if f.people == 0 and not f.person.any():
@@ -266,8 +308,9 @@ def heldout(names: list[str] | None = None, width: int = 1024, height: int = 512
                 union = np.count_nonzero(m | f.person)
                 res[k]["iou"].append(np.count_nonzero(m & f.person) / max(union, 1))
                 res[k]["shadow"] += np.count_nonzero(m & f.shadow)
-        for k, label in (("ours", "ours"), ("mog2", "MOG2 + open/close")):
-            t = res[k]
+        labels = {"ours": "ours", "mog2": "MOG2 + open/close", "before": f"ours at {sha}"}
+        for k in res:
+            t, label = res[k], labels[k]
             print(f"| {name} | {label} | {statistics.median(t['iou']):.3f} | "
                   f"{min(t['iou']):.3f} | {t['shadow'] / max(shadow_all, 1):.3f} | "
                   f"{sum(t['phantom'])} in {len(t['phantom'])} (max {max(t['phantom'])}) | "
@@ -333,32 +376,42 @@ BEFORE_OUTLINES = {"outline_radius_px": 0, "shadow_island_share": 0.0}
 BEFORE_STANDING = {"min_person_height_m": 0.0, "shadow_max_deviation": 0.0}
 
 
-def codecs(sizes=((480, 270), (1024, 512))) -> None:
+def codecs(sizes=((480, 270), (1024, 512)), baseline: str | None = None) -> None:
     """Issue 18's figures through the codecs, the detector after its codec work, after its
-    outline work and now, interleaved frame by frame on the same frames (same run, same
-    load)."""
+    outline work and now (or, with ``baseline``, that revision's detector and now),
+    interleaved frame by frame on the same frames (same run, same load)."""
     from server.occlusion.settings import OcclusionSettings
     from tests.server.occlusion.conftest import CODEC_EMPTY_S, CODECS, coded_truths
 
+    variants = {"codec work": OcclusionSettings(**BEFORE_OUTLINES, **BEFORE_STANDING),
+                "outline work": OcclusionSettings(**BEFORE_STANDING), "now": OcclusionSettings()}
+    compared = (f"the detector after issue 18's codec work (settings "
+                f"{BEFORE_OUTLINES | BEFORE_STANDING}), after the outline work "
+                f"({BEFORE_STANDING}) and now")
+    before = None
+    if baseline:  # the detector of another revision instead of the settings variants
+        before, sha = baseline_processor(baseline)
+        variants = {f"at {sha}": None, "now": OcclusionSettings()}
+        compared = (f"the detector at {sha} and now, interleaved frame by frame, each first "
+                    "in turn")
     print("\nStandard sequence (broadband), 12 s at 10 frames/s, 1.6 s empty (1 s learned), "
-          "raw and coded: the detector after issue 18's codec work (settings "
-          f"{BEFORE_OUTLINES | BEFORE_STANDING}), after the outline work ({BEFORE_STANDING}) "
-          "and now\n")
+          f"raw and coded: {compared}\n")
     print("| size | frames as | detector | person IoU (median) | worst frame IoU | "
           "shadow kept | phantom regions (empty frames) | CPU ms median | CPU ms p95 | load |")
     print("|---|---|---|---:|---:|---:|---:|---:|---:|---:|")
-    variants = {"codec work": OcclusionSettings(**BEFORE_OUTLINES, **BEFORE_STANDING),
-                "outline work": OcclusionSettings(**BEFORE_STANDING), "now": OcclusionSettings()}
     for width, height in sizes:
         site = default_site(width, height, empty_s=CODEC_EMPTY_S)
         virtual = box_depth_image(site.camera, *VIRTUAL_BOX)
         for name, codec in CODECS.items():
-            procs = {k: OcclusionProcessor(site.camera, virtual, v) for k, v in variants.items()}
+            procs = {k: (before(site.camera, virtual) if v is None
+                         else OcclusionProcessor(site.camera, virtual, v))
+                     for k, v in variants.items()}
             res = {k: {"iou": [], "phantom": [], "cpu": [], "kept": 0} for k in variants}
             shadow = 0
-            for truth in coded_truths(site, codec):
+            for i, truth in enumerate(coded_truths(site, codec)):
                 learning = False
-                for k, proc in procs.items():
+                order = list(procs.items())
+                for k, proc in order if i % 2 or before is None else order[::-1]:
                     r, _, ms = cpu_timed(proc.process, truth.image, truth.time_s)
                     learning = r.learning
                     if learning:
@@ -452,6 +505,9 @@ def parse_args(argv: list[str] | None = None):
     ap.add_argument("--codecs", action="store_true",
                     help="issue 18's figures through JPEG 75 and H.264, the detector before "
                     "and after its codec work, same run")
+    ap.add_argument("--baseline", metavar="REV",
+                    help="with --codecs or --heldout, also run the detector of git revision "
+                         "REV (e.g. main), interleaved frame by frame: a same-run baseline")
     ap.add_argument("--refit", action="store_true",
                     help="only the person colour refit: numpy EM against OpenCV's trainM "
                          "(seconds)")
@@ -459,6 +515,8 @@ def parse_args(argv: list[str] | None = None):
                     help="with --heldout, only these conditions (quote names with spaces); "
                          "one of: " + ", ".join(CONDITIONS))
     args = ap.parse_args(argv)
+    if args.baseline and not (args.codecs or args.heldout):
+        ap.error("--baseline needs --codecs or --heldout")
     unknown = [c for c in args.conditions if c not in CONDITIONS]
     if unknown or (args.conditions and not args.heldout):
         ap.error(f"conditions need --heldout and one of {list(CONDITIONS)}; "
@@ -472,13 +530,13 @@ def main(argv: list[str] | None = None) -> None:
         refit()
         return
     if args.heldout:
-        heldout(args.conditions or None)
+        heldout(args.conditions or None, baseline=args.baseline)
         return
     if args.synthetic:
         synthetic()
         return
     if args.codecs:
-        codecs()
+        codecs(baseline=args.baseline)
         return
     print("Occlusion pipeline, one core (cv2.setNumThreads(1), BLAS/OpenMP threads 1)")
     for width, height in SIZES:

@@ -8,6 +8,7 @@ them with one look-up per pixel.
 from __future__ import annotations
 
 import cv2
+import numba
 import numpy as np
 
 from server.photometry import inverse_response_table
@@ -95,3 +96,19 @@ def bin_centres(bits: int) -> np.ndarray:
     centres = (np.arange(n) + 0.5) * width - 0.5
     b, g, r = np.meshgrid(centres, centres, centres, indexing="ij")
     return np.stack([b.ravel(), g.ravel(), r.ravel()], axis=1)
+
+
+@numba.njit(cache=True, nogil=True)
+def table_costs(codes_bgr: np.ndarray, table: np.ndarray, bits: int) -> np.ndarray:
+    """``-table[colour_index(codes)]`` of an (h, w, 3) uint8 image (any layout: a view of a
+    box, or a whole frame; each is compiled once): (h, w) float32, in one pass (numpy's index
+    arithmetic and gather took ten times as long)."""
+    h, w = codes_bgr.shape[:2]
+    shift = 8 - bits
+    out = np.empty((h, w), dtype=np.float32)
+    for y in range(h):
+        for x in range(w):
+            i = ((codes_bgr[y, x, 0] >> shift) << (2 * bits)) | (
+                (codes_bgr[y, x, 1] >> shift) << bits) | (codes_bgr[y, x, 2] >> shift)
+            out[y, x] = -table[i]
+    return out

@@ -2,7 +2,8 @@
 
 This is the one class the light server calls. Per frame::
 
-    frame --check--> coarse copy --gain--> reference illumination --shift (register.py)-->
+    frame --check--> coarse copy --gain (the sky's own: regiongain.py)--> reference
+          illumination --shift (register.py)-->
           background's pixel grid --difference--> regions
           --graph cut (segment.py, shadows inside)--> people
           --outlines onto luminance edges (outline.py; block-coded frames)-->
@@ -35,9 +36,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from server.occlusion.background import BackgroundModel, shrink
+from server.occlusion.background import BackgroundModel, block_any, shrink
 from server.occlusion.colour import Transfer, apply_table
 from server.occlusion.depth import (
+    EquidistantPanorama,
     Person,
     PerspectiveCamera,
     drop_flat_regions,
@@ -45,6 +47,7 @@ from server.occlusion.depth import (
     occlusion_mask,
 )
 from server.occlusion.outline import refine_outline
+from server.occlusion.regiongain import RegionGain
 from server.occlusion.register import Registration, shift_image
 from server.occlusion.segment import Segmenter, regions_of_interest
 from server.occlusion.settings import OcclusionSettings
@@ -139,6 +142,9 @@ class OcclusionProcessor:
         self.background = BackgroundModel(self.width, self.height, self.settings, self.transfer)
         self.segmenter = Segmenter(self.settings, self.background, self.transfer)
         self.registration = Registration(self.settings)
+        s = self.settings
+        self.region_gain = RegionGain(self.transfer, s.detect_scale, s.region_gain_min_share,
+                                      s.region_gain_step_codes)
         self.frame_index = 0
         self._learning: list[np.ndarray] = []
         self._previous_exclude: np.ndarray | None = None  # coarse people + shadows, last frame
@@ -280,10 +286,26 @@ class OcclusionProcessor:
                 aligned.append(self.registration.align(frame))
             frames = aligned
         n = self.background.learn(frames)
+        self.region_gain.learn(self.background.coarse_mean,
+                               self._above_horizon(self.settings.detect_scale),
+                               self.background.mean_u8, self._above_horizon(1))
         self.registration.shift_px[:] = 0.0
         if self.settings.register:
             self.registration.set_reference(self.background.mean)
         return n
+
+    def _above_horizon(self, scale: int) -> np.ndarray | None:
+        """(H // scale, W // scale) bool: the pixels (blocks of ``scale``) whose centre's ray
+        does not meet the ground plane (the sky, far buildings); None for a camera that
+        cannot say (then no region gets a gain of its own)."""
+        h, w = self.height // scale, self.width // scale
+        v, u = np.mgrid[0:h, 0:w]
+        u, v = (u.ravel() + 0.5) * scale, (v.ravel() + 0.5) * scale
+        if isinstance(self.camera, PerspectiveCamera):
+            return (self.camera.ray_directions(u, v)[:, 1] >= 0.0).reshape(h, w)
+        if isinstance(self.camera, EquidistantPanorama):  # a level axis: the upper half
+            return (v <= 0.5 * self.camera.height).reshape(h, w)
+        return None
 
     def _segment(self, image: np.ndarray, index: int, t: float | None) -> OcclusionResult:
         s = self.settings
@@ -325,6 +347,14 @@ class OcclusionProcessor:
                 coarse_corrected = shrink(reg.align_rects(image, [(0, self.height, 0,
                                                                    self.width)], table),
                                           s.detect_scale)
+        # 1c. The sky and other large smooth regions above the horizon: gains of their own.
+        regional = self.region_gain.count > 0
+        if regional:
+            self.region_gain.estimate(coarse, coarse_corrected, bg.coarse_linear,
+                                      bg.coarse_mean, gain)
+            h, w = coarse_corrected.shape[:2]
+            self.region_gain.apply(coarse_corrected, coarse, [(0, h, 0, w)], bg.coarse_mean,
+                                   bg.coarse_linear, gain, self.region_gain.coarse_labels)
         lap("register")
         # 2. Regions of interest: coarse background difference plus last frame's people.
         if s.full_frame:
@@ -340,7 +370,10 @@ class OcclusionProcessor:
         # The frame in reference illumination and the background's grid, computed only where
         # it is read: the regions and the band of rows the slow update visits next.
         y0, y1 = bg.next_band()
-        corrected = reg.align_rects(image, [*boxes, (y0, y1, 0, self.width)], table)
+        rects = [*boxes, (y0, y1, 0, self.width)]
+        corrected = reg.align_rects(image, rects, table)
+        if regional:
+            self.region_gain.apply(corrected, image, rects, bg.mean_u8, bg.linear, gain)
         lap("regions")
         # 3. Graph cut of Eq. 6 inside the regions, shadows joining the background.
         person, shadow, foreground = self.segmenter.segment(corrected, boxes)
@@ -364,12 +397,17 @@ class OcclusionProcessor:
         labels, people = find_people(person, s.min_person_px, s.foot_min_px, boxes)
         person = labels > 0
         for p in people:
-            u, v = p.foot_px[0] + shift[0], p.foot_px[1] + shift[1]  # in the frame's grid
-            p.foot_px = (u, v)
-            p.depth_m = self.camera.foot_depth_m(u, v)
-            if isinstance(self.camera, PerspectiveCamera) and np.isfinite(p.depth_m):
-                point = self.camera.ground_hit(u, v)[0][0]
-                p.foot_world_m = (float(point[0]), float(point[1]), float(point[2]))
+            p.foot_px = (p.foot_px[0] + shift[0], p.foot_px[1] + shift[1])  # frame's grid
+        if isinstance(self.camera, PerspectiveCamera) and people:
+            # All foot points' rays at once (a call per person cost 0.1 ms each).
+            points, depths = self.camera.ground_hit(*np.array([p.foot_px for p in people]).T)
+            for p, point, depth in zip(people, points, depths, strict=True):
+                p.depth_m = float(depth)
+                if np.isfinite(depth):
+                    p.foot_world_m = (float(point[0]), float(point[1]), float(point[2]))
+        else:
+            for p in people:
+                p.depth_m = self.camera.foot_depth_m(*p.foot_px)
         # Pieces of cast shadow kept as person lie flat on the ground: not people.
         people = drop_flat_regions(labels, people, self.camera, s.min_person_height_m)
         person = labels > 0
@@ -386,11 +424,10 @@ class OcclusionProcessor:
         busy = person | cut_person | shadow
         near = cv2.dilate(busy.view(np.uint8), np.ones((2 * s.bg_protect_px + 1,) * 2, np.uint8))
         bg.update(corrected, near == 0)
-        self._previous_exclude = shrink(near * np.uint8(255), s.detect_scale) > 0
+        self._previous_exclude = block_any(near, s.detect_scale)
         # Regions follow last frame's people, not its shadow labels: a codec's scattered
         # specks taken as shadow would otherwise keep the regions as large as the frame.
-        self._previous_people = shrink(cut_person.view(np.uint8) * np.uint8(255),
-                                       s.detect_scale) > 0
+        self._previous_people = block_any(cut_person, s.detect_scale)
         u8 = np.uint8(255)
         masks = (mask, person.view(np.uint8) * u8, shadow.view(np.uint8) * u8,
                  foreground.view(np.uint8) * u8)

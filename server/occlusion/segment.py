@@ -23,10 +23,12 @@ For the labels ``X^t`` of frame ``I^t`` (1: person, 0: background or shadow)::
   ``exp(-|I_m - I_n|^2 / (2 <|I_m - I_n|^2>))`` (contrast-sensitive, Boykov-Jolly / GrabCut).
 
 Eq. 7 takes the previous labels as fixed, so the energy is submodular in ``X^t`` and one s-t
-min cut (PyMaxflow, Boykov-Kolmogorov) gives the exact minimum. The cut runs at full
+min cut (PyMaxflow, Boykov-Kolmogorov) gives the exact minimum (graphcut.py: over the nodes
+their own costs leave undecided). The cut runs at full
 resolution, but only inside regions of interest: boxes around the coarse background difference
 and last frame's people, and inside those only for the pixels within ``band_px`` of a pixel
-that may be a person (its colour, or last frame's label). Everything else is background; the
+that may be a person (its unary term, shadow and temporal prior included, or last frame's
+label). Everything else is background; the
 frame-wide cut gives the same labels there (those pixels match their background Gaussian by
 many nats) at many times the cost (benchmarks/bench_occlusion.py measures both).
 """
@@ -37,11 +39,11 @@ import math
 import time
 
 import cv2
-import maxflow
 import numpy as np
 
 from server.occlusion.background import BackgroundModel
-from server.occlusion.colour import Transfer, colour_index
+from server.occlusion.colour import Transfer, colour_index, table_costs
+from server.occlusion.graphcut import graph_cut
 from server.occlusion.mixture import ColourMixture
 from server.occlusion.settings import OcclusionSettings, log_prior_table
 from server.occlusion.shadow import (
@@ -95,56 +97,6 @@ def regions_of_interest(
     return [tuple(b) for b in boxes]
 
 
-def graph_cut(
-    cost_person: np.ndarray,
-    cost_background: np.ndarray,
-    w_right: np.ndarray,
-    w_down: np.ndarray,
-    free: np.ndarray | None = None,
-) -> np.ndarray:
-    """Exact minimum of a binary grid energy by one s-t min cut (PyMaxflow, Boykov-Kolmogorov).
-
-    ``cost_*`` (h, w) unary costs of each label; ``w_right``/``w_down`` (h, w) costs of a label
-    change to the right / lower neighbour (last column / row ignored). ``free`` (h, w) bool:
-    only these pixels get graph nodes, all others are background (their edges to free pixels
-    become unary costs); None: all. Returns (h, w) bool, True where the person label is chosen.
-    """
-    h, w = cost_person.shape
-    if free is None:
-        free = np.ones((h, w), dtype=bool)
-    cost_person = cost_person.copy()
-    # Edges from a free pixel to a fixed background neighbour: cut if the pixel is a person.
-    # Added wherever the neighbour is fixed: only the free pixels' costs are read below.
-    fixed = ~free
-    cr = w_right[:, :-1]
-    cost_person[:, :-1] += np.where(fixed[:, 1:], cr, 0.0)
-    cost_person[:, 1:] += np.where(fixed[:, :-1], cr, 0.0)
-    cd = w_down[:-1]
-    cost_person[:-1] += np.where(fixed[1:], cd, 0.0)
-    cost_person[1:] += np.where(fixed[:-1], cd, 0.0)
-    n = int(np.count_nonzero(free))
-    out = np.zeros((h, w), dtype=bool)
-    if n == 0:
-        return out
-    index = np.full((h, w), -1, dtype=np.int32)
-    index[free] = np.arange(n, dtype=np.int32)
-    pairs_r = free[:, :-1] & free[:, 1:]
-    pairs_d = free[:-1] & free[1:]
-    i = np.concatenate([index[:, :-1][pairs_r], index[:-1][pairs_d]])
-    j = np.concatenate([index[:, 1:][pairs_r], index[1:][pairs_d]])
-    cap = np.concatenate([cr[pairs_r], cd[pairs_d]]).astype(np.float64)
-    g = maxflow.GraphFloat(n, len(i))
-    nodes = g.add_nodes(n)
-    g.add_edges(i, j, cap, cap)
-    a, b = cost_person[free], cost_background[free]
-    low = np.minimum(a, b)
-    # A node in the sink segment pays its source capacity: sink = person.
-    g.add_grid_tedges(nodes, a - low, b - low)
-    g.maxflow()
-    out[free] = g.get_grid_segments(nodes)
-    return out
-
-
 _SUM3 = np.ones((1, 3), dtype=np.float32)  # cv2.transform: sum of the three channels
 
 
@@ -195,8 +147,11 @@ class Segmenter:
         h, w = background.height, background.width
         self.history = np.zeros((h, w), dtype=np.uint8)
         cost_fg, cost_bg = log_prior_table(settings.temporal_prior)
-        self.temporal_fg = (settings.temporal_weight * np.asarray(cost_fg)).astype(np.float32)
-        self.temporal_bg = (settings.temporal_weight * np.asarray(cost_bg)).astype(np.float32)
+        # As cv2.LUT tables over the history index (0-3): a quarter of numpy's fancy index.
+        self.temporal_fg = np.zeros((256, 1), dtype=np.float32)
+        self.temporal_bg = np.zeros((256, 1), dtype=np.float32)
+        self.temporal_fg[:4, 0] = settings.temporal_weight * np.asarray(cost_fg)
+        self.temporal_bg[:4, 0] = settings.temporal_weight * np.asarray(cost_bg)
         self.person_mixture = ColourMixture(settings.fg_components, max_iter=5)
         self.person_table = self.person_mixture.table(settings.lut_bits)
         self._frames_since_refit = 0
@@ -208,6 +163,20 @@ class Segmenter:
         # ln(linear green) of each code, for the codec's local spread (_dark_spread)
         self._log_green = np.ascontiguousarray(transfer.log_table[:, 0, 1]).reshape(256, 1)
         self.timings_ms: dict[str, float] = {}
+        # The compiled code is loaded (or compiled, the first time after a change of
+        # graphcut.py or colour.py) now, not in a frame, for the types and memory layouts
+        # the frames bring (each has its own compiled code): cut() passes the costs and the
+        # free mask as views of one part of the box, strided or (a part as wide as the box)
+        # contiguous, the edge weights contiguous; colour_terms() a box of the frame or the
+        # whole frame.
+        weights = np.ones((2, 2), dtype=np.float32)
+        for box_width in (3, 2):  # a part narrower than its box (strided), or as wide
+            costs = np.ones((3, box_width), dtype=np.float32)[:2, :2]
+            free = np.ones((3, box_width), dtype=bool)[:2, :2]
+            graph_cut(costs, costs, weights, weights, free)
+        for codes in (np.zeros((3, 3, 3), dtype=np.uint8)[:2, :2],
+                      np.zeros((2, 2, 3), dtype=np.uint8)):
+            table_costs(codes, self.person_table, settings.lut_bits)
 
     def reset(self) -> None:
         self.history[:] = 0
@@ -238,7 +207,10 @@ class Segmenter:
         # sums as numpy's broadcast, which took 10 times as long here.
         var = cv2.add(bg.total_var[y0:y1, x0:x1], cv2.cvtColor(spread, cv2.COLOR_GRAY2BGR))
         d2 = cv2.transform(cv2.divide(sq, var), _SUM3)
-        log_norm = 0.5 * np.log((2.0 * np.pi) ** 3 * (var[..., 0] * var[..., 1] * var[..., 2]))
+        # 0.5 sum_c ln(2 pi var_c), the logarithms by OpenCV (a product over numpy's
+        # strided channels took three times as long).
+        log_norm = cv2.transform(cv2.log(var), _SUM3 * np.float32(0.5))
+        log_norm += np.float32(1.5 * math.log(2.0 * math.pi))
         return d2, log_norm
 
     def _dark_spread(self, codes: np.ndarray, box: Box, ys: np.ndarray,
@@ -260,11 +232,9 @@ class Segmenter:
         m = k // 2 + 1
         r0, r1 = max(0, int(ys.min()) - m), min(h, int(ys.max()) + m + 1)
         c0, c1 = max(0, int(xs.min()) - m), min(w, int(xs.max()) + m + 1)
-        log_g = self._log_green
         change = cv2.subtract(
-            cv2.LUT(np.ascontiguousarray(codes[r0:r1, c0:c1, 1]), log_g),
-            cv2.LUT(np.ascontiguousarray(
-                self.background.mean_u8[y0 + r0:y0 + r1, x0 + c0:x0 + c1, 1]), log_g))
+            cv2.LUT(cv2.extractChannel(codes[r0:r1, c0:c1], 1), self._log_green),
+            self.background.log_green[y0 + r0:y0 + r1, x0 + c0:x0 + c1])
         mean = cv2.blur(change, (k, k), borderType=cv2.BORDER_REPLICATE)
         mean_sq = cv2.blur(cv2.multiply(change, change), (k, k),
                            borderType=cv2.BORDER_REPLICATE)
@@ -295,40 +265,43 @@ class Segmenter:
             log_norm = bg.log_norm[y0:y1, x0:x1]
         d2 = d2.reshape(h, w)
         log_pixel = -0.5 * d2 - log_norm
-        idx = colour_index(codes.reshape(-1, 3), s.lut_bits).reshape(h, w)
         if self._log_global_w is not None:
+            idx = colour_index(codes.reshape(-1, 3), s.lut_bits).reshape(h, w)
             log_bg = np.logaddexp(self._log_global_w + bg.global_table[idx],
                                   self._log_pixel_w + log_pixel)
         else:
             log_bg = log_pixel
         cost_bg = -log_bg
-        cost_fg = -self.person_table[idx]
+        cost_fg = table_costs(codes, self.person_table, s.lut_bits)  # -ln p(I | person)
         different = cost_bg > cost_fg
         # Shadow candidates: the pixels that differ and are darker than their background within
         # shadow_ratio (a cheap luminance test first; the chromaticity only for those).
         tr = self.transfer
-        # Gathers by flat index into the whole-frame arrays (faster than masking box views).
+        # Gathers by flat index into the whole-frame arrays (faster than masking box views),
+        # as take(axis=0): numpy's fancy index of (N, 3) rows took 5-7 times as long.
         ys, xs = np.nonzero(different)
         flat = (ys + y0) * bg.width + (xs + x0)
         # Table reads as np.take at 3 code + channel (Transfer.channel_index): same values.
-        at = tr.channel_index(corrected.reshape(-1, 3)[flat])  # (n, 3)
+        at = tr.channel_index(corrected.reshape(-1, 3).take(flat, axis=0))  # (n, 3)
         lin = tr.decode_flat.take(at)
-        lin_bg = bg.linear.reshape(-1, 3)[flat]
+        lin_bg = bg.linear.reshape(-1, 3).take(flat, axis=0)
         ratio = luminance(lin) / np.maximum(luminance(lin_bg), 1e-9)
         lo, hi = s.shadow_ratio
-        dark = (ratio > lo) & (ratio < hi)
+        dark = np.flatnonzero((ratio > lo) & (ratio < hi))  # indices into ys, xs
+        ys, xs = ys.take(dark), xs.take(dark)
         candidates = np.zeros((h, w), dtype=bool)
-        candidates[ys[dark], xs[dark]] = True
-        flat, at, lin, lin_bg = flat[dark], at[dark], lin[dark], lin_bg[dark]
-        at_bg = tr.channel_index(bg.mean_u8.reshape(-1, 3)[flat])
+        candidates[ys, xs] = True
+        flat = flat.take(dark)
+        at, lin, lin_bg = (a.take(dark, axis=0) for a in (at, lin, lin_bg))
+        at_bg = tr.channel_index(bg.mean_u8.reshape(-1, 3).take(flat, axis=0))
         # Sensor noise of each channel's ln value: the background's spread (codes) times the
         # slope of ln(linear) at the frame's code.
-        noise = np.sqrt(bg.var.reshape(-1, 3)[flat]) * tr.log_slope_flat.take(at)
+        noise = np.sqrt(bg.var.reshape(-1, 3).take(flat, axis=0)) * tr.log_slope_flat.take(at)
         features = shadow_features(
             lin, lin_bg, s, tr.log_flat.take(at), tr.log_flat.take(at_bg), noise,
         )
-        if coded and s.codec_chroma_px > 1 and np.any(dark):
-            local = self._dark_spread(codes, box, ys[dark], xs[dark])
+        if coded and s.codec_chroma_px > 1 and len(dark):
+            local = self._dark_spread(codes, box, ys, xs)
             features = features._replace(dark_local=local)
         # The candidates the signature is estimated from: the core of the foreground, away
         # from its rim on lit ground. Under heavy sensor noise the outer penumbra (ground lit
@@ -343,7 +316,7 @@ class Segmenter:
         core = candidates
         if k > 0:
             core = cv2.erode(different.view(np.uint8), np.ones((2 * k + 1, 2 * k + 1), np.uint8))
-        core = core.view(bool)[ys[dark], xs[dark]]
+        core = core.view(bool)[ys, xs]
         return {"box": box, "codes": codes, "cost_fg": cost_fg, "cost_bg": cost_bg,
                 "different": different, "candidates": candidates, "features": features,
                 "core": core}
@@ -361,15 +334,15 @@ class Segmenter:
         shadow[cand] = as_shadow < cost_fg[cand]
         cost_bg[cand] = np.minimum(cost_bg[cand], as_shadow)
         hist = self.history[y0:y1, x0:x1]
-        cost_fg += self.temporal_fg[hist]
-        cost_bg += self.temporal_bg[hist]
+        cost_fg += cv2.LUT(hist, self.temporal_fg)
+        cost_bg += cv2.LUT(hist, self.temporal_bg)
         # Nodes only near pixels that may be people (now or last frame); the rest of the region
         # is background whatever its neighbours do (it matches its background Gaussian).
         if s.full_frame:
             free = None  # the unoptimised baseline: every pixel is a node
             part = (slice(None), slice(None))
         else:
-            maybe = (different | (hist >= 2)).view(np.uint8)
+            maybe = ((cost_bg > cost_fg) | (hist >= 2)).view(np.uint8)
             k = 2 * s.band_px + 1
             free = cv2.dilate(maybe, np.ones((k, k), np.uint8))
             # The graph only over the free pixels' bounding rectangle and a 1-pixel rim (the

@@ -123,6 +123,13 @@ SCHEMA: dict = {
                                  "background)", minimum=0, exclusiveMaximum=1),
         "gain_sample_step_px": _int(2, "the daylight gain is a median over every this-many "
                                     "coarse pixels", minimum=1),
+        "region_gain_min_share": _num(0.02, "smooth regions above the horizon (the sky) "
+                                      "holding at least this share of the frame get a "
+                                      "daylight gain of their own (regiongain.py; 0: off)",
+                                      minimum=0, maximum=1),
+        "region_gain_step_codes": _num(4.0, "such a region's neighbouring coarse pixels "
+                                       "differ by at most this, codes, in every channel",
+                                       minimum=0),
         # Region of interest (pipeline.py)
         "detect_scale": _int(4, "the background difference that finds candidate regions is "
                              "taken on frames shrunk by this factor", minimum=1),
@@ -273,6 +280,8 @@ class OcclusionSettings:
     bg_global_components: int = _default("bg_global_components")
     bg_global_weight: float = _default("bg_global_weight")
     gain_sample_step_px: int = _default("gain_sample_step_px")
+    region_gain_min_share: float = _default("region_gain_min_share")
+    region_gain_step_codes: float = _default("region_gain_step_codes")
 
     detect_scale: int = _default("detect_scale")
     detect_threshold: float = _default("detect_threshold")

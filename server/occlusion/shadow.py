@@ -90,7 +90,12 @@ def shadow_features(
     sensor noise (see :meth:`server.occlusion.colour.Transfer.log_slope`).
     """
     floor = settings.dark_floor
-    usable = (frame_linear_bgr.min(axis=-1) > floor) & (background_linear_bgr.min(axis=-1) > floor)
+    # The smallest channel by np.minimum: numpy's min over a last axis of 3 took 10 times as long.
+    lowest = np.minimum(np.minimum(frame_linear_bgr[..., 0], frame_linear_bgr[..., 1]),
+                        np.minimum(frame_linear_bgr[..., 2], background_linear_bgr[..., 0]))
+    lowest = np.minimum(lowest, np.minimum(background_linear_bgr[..., 1],
+                                           background_linear_bgr[..., 2]))
+    usable = lowest > floor
     lf = np.log(np.maximum(frame_linear_bgr, floor)) if frame_log_bgr is None else frame_log_bgr
     lb = (np.log(np.maximum(background_linear_bgr, floor)) if background_log_bgr is None
           else background_log_bgr)

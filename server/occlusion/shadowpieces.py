@@ -47,7 +47,9 @@ def give_back_pieces(person: np.ndarray, shadow: np.ndarray, gated: np.ndarray,
     rows = slice(max(0, y - r - 1), y + h + r + 1)
     cols = slice(max(0, x - r - 1), x + w + r + 1)
     sub = np.ascontiguousarray(person[rows, cols]).view(np.uint8)
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(sub, connectivity=8)
+    # Grana's labelling: a third of the time of the default with stats here (depth.py's note)
+    count, labels, stats, _ = cv2.connectedComponentsWithStatsWithAlgorithm(
+        sub, 8, cv2.CV_32S, cv2.CCL_GRANA)
     if count < 2:
         return person, shadow
     area = stats[:, cv2.CC_STAT_AREA]

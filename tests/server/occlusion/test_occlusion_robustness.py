@@ -28,16 +28,11 @@ VARIANTS = {
 
 
 # Not met since the sequence is drawn with daylight spectra (2026-11-25; docs/occlusion.md,
-# Limitations): strict, so that a fix shows as a pass to be taken out of this list. ("Sun high
-# in the south", clear-sky shadows 0.13-0.14 of the sunlit ground, passes since shadow_ratio's
-# floor is 0.05.)
-NOT_MET = {
-    # the sky brightens against the ground as the thin cloud veils the sun (the diffuse light
-    # grows, the direct falls): the per-channel daylight gain follows the ground, the gated
-    # background update never learns the sky, which becomes person regions (no depth) of
-    # 13 000 px by 3 s (person IoU 0.25)
-    "hazy to thin cloud": "the sky brightening against the ground: phantom regions in the sky",
-}
+# Limitations): strict, so that a fix shows as a pass to be taken out of this list. Empty
+# since 2026-12-04: "hazy to thin cloud" (the sky brightening against the ground as the
+# cloud veils the sun, person IoU 0.25) passes with the sky's gain of its own
+# (regiongain.py); "sun high in the south" since shadow_ratio's floor is 0.05.
+NOT_MET: dict[str, str] = {}
 
 
 @pytest.mark.parametrize("name", [
