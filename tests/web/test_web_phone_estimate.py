@@ -178,6 +178,16 @@ def test_phone_estimate_against_radiance_and_the_server(browser, phone_build, re
     assert overcast["type"] == 2, got
 
 
+def _tell_a_wrong_pose(page, standpoint, alpha, beta, gamma):
+    """Only the test's estimates and registrations from here (the page's own may have turned
+    the view already, at its first pose: that turn goes); the phone at the standpoint tells a
+    heading 6 degrees off and a tilt 3 degrees off."""
+    assert page.evaluate("window.daylit.debug.holdPhoneEstimates(true)")
+    page.evaluate("window.daylit.debug.resetAlignment()")
+    page.evaluate("(p) => window.daylit.debug.standAt(p)", standpoint)
+    orient(page, alpha + 6.0, beta + 3.0, gamma)
+
+
 def test_phone_estimate_registers_a_wrong_pose(browser, phone_build, renders):
     """A compass 6 degrees off and a tilt 3 degrees off (the phone told a wrong pose): each
     estimate finds the picture's shift that puts the model's sun and shade on the picture's
@@ -193,12 +203,7 @@ def test_phone_estimate_registers_a_wrong_pose(browser, phone_build, renders):
         true_pose = sky["pose"]  # the one the Radiance frame was rendered from
         with _open(browser, phone_build, sky["y4m"],
                    f"&sky=phone&time={rendered.when_unix_s}") as (page, _, errors):
-            # Only the test's estimates (the page's own may have turned the view already,
-            # at its first pose: that turn goes).
-            assert page.evaluate("window.daylit.debug.holdPhoneEstimates(true)")
-            page.evaluate("window.daylit.debug.resetAlignment()")
-            page.evaluate("(p) => window.daylit.debug.standAt(p)", standpoint)
-            orient(page, alpha + 6.0, beta + 3.0, gamma)
+            _tell_a_wrong_pose(page, standpoint, alpha, beta, gamma)
             ests = [page.evaluate("window.daylit.debug.phoneEstimate()") for _ in range(5)]
             final_pose = page.evaluate("window.daylit.debug.cameraPose()")
             assert not errors, errors
@@ -229,10 +234,7 @@ def test_the_view_follows_the_picture_under_a_server_sky(browser, phone_build, r
     with _open(browser, phone_build, sky["y4m"],
                f"&time={sky['rendered'].when_unix_s}") as (page, _, errors):
         page.wait_for_function("window.daylit.status.lightSource === 'server'", timeout=30000)
-        assert page.evaluate("window.daylit.debug.holdPhoneEstimates(true)")
-        page.evaluate("window.daylit.debug.resetAlignment()")
-        page.evaluate("(p) => window.daylit.debug.standAt(p)", standpoint)
-        orient(page, alpha + 6.0, beta + 3.0, gamma)
+        _tell_a_wrong_pose(page, standpoint, alpha, beta, gamma)
         shifts = [page.evaluate("window.daylit.debug.phoneRegister()") for _ in range(4)]
         final_pose = page.evaluate("window.daylit.debug.cameraPose()")
         status = page.evaluate("""() => ({ source: window.daylit.status.lightSource,
