@@ -178,6 +178,12 @@ def test_phone_estimate_against_radiance_and_the_server(browser, phone_build, re
     assert overcast["type"] == 2, got
 
 
+# A registration's whole-pixel shift against the geometry's: within 2 px. Once the view has
+# turned onto the picture the search's landscape is flat over a pixel or two (a soft-shadowed
+# sky): on the clear sky's frames a settled view read +1 px where the geometry gave -0.65
+# (2026-12-04). A wrong pose reads 12 px and more.
+REGISTRATION_ATOL_PX = 2.0
+
 def _tell_a_wrong_pose(page, standpoint, alpha, beta, gamma):
     """Only the test's estimates and registrations from here (the page's own may have turned
     the view already, at its first pose: that turn goes); the phone at the standpoint tells a
@@ -210,7 +216,8 @@ def test_phone_estimate_registers_a_wrong_pose(browser, phone_build, renders):
         assert np.hypot(*copy_shift_px(true_pose, ests[0])) > 8  # a precondition: it was off
         # Each estimate against the pose it read with.
         for e in ests:
-            np.testing.assert_allclose(e["shiftPx"], copy_shift_px(true_pose, e), atol=1.5,
+            np.testing.assert_allclose(e["shiftPx"], copy_shift_px(true_pose, e),
+                                       atol=REGISTRATION_ATOL_PX,
                                        err_msg=name)
         # Within the registration's own accuracy (its shifts against the geometry: 1.5 px)
         residual = copy_shift_px(true_pose, final_pose)
@@ -243,7 +250,8 @@ def test_the_view_follows_the_picture_under_a_server_sky(browser, phone_build, r
     assert status == {"source": "server", "n": 0}, status  # registered, not estimated
     assert np.hypot(*copy_shift_px(sky["pose"], shifts[0])) > 8  # a precondition: it was off
     for r in shifts:
-        np.testing.assert_allclose(r["shiftPx"], copy_shift_px(sky["pose"], r), atol=1.5)
+        np.testing.assert_allclose(r["shiftPx"], copy_shift_px(sky["pose"], r),
+                                   atol=REGISTRATION_ATOL_PX)
     residual = copy_shift_px(sky["pose"], final_pose)
     print("server sky: shifts", [r["shiftPx"] for r in shifts], "residual", np.round(residual, 2))
     assert np.hypot(*residual) < 1.5, residual
