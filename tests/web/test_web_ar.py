@@ -9,6 +9,7 @@ to the placed site) with the same light and exposure (issue 17)."""
 from __future__ import annotations
 
 import base64
+import json
 
 import cv2
 import numpy as np
@@ -215,6 +216,58 @@ def test_ar_sun_matches_the_visit(new_page, web_build, sky):
         assert diff.mean() < 1.0 and np.percentile(diff, 99) <= 12, (
             diff.mean(), np.percentile(diff, 99))
 
+
+
+# AR's exposure from the passthrough's picture (issue 17: "in camera and AR modes match the real
+# camera's image"), the bands of test_web_camera_exposure.py: sky above the middle row (a level
+# view's horizon), a dark ground band to row 290, a bright one below it. Looking up 35 degrees
+# (IWER's 90-degree view: the horizon at row 180 + 180 tan 35 = 306) only the bright band is
+# ground.
+PASSTHROUGH_BANDS = [(0, (150, 180, 230)), (180, (90,) * 3), (290, (170,) * 3)]
+UNIFORM_SKY_RADIANCE = 40.0  # W/(m^2 sr) in every patch: the open ground gets pi x 40 W/m^2
+LUMA = np.array([0.2126, 0.7152, 0.0722])
+
+
+def test_ar_exposes_the_hall_as_the_passthrough_shows_its_ground(new_page, web_build):
+    """Where the session gives the page the passthrough camera's images (WebXR raw camera
+    access, a stand-in here: xremu.camera_access_script), AR meters the picture's ground from
+    the view's pose (xrmeter.js) and draws the modelled ground at that level, as camera mode
+    does with its video: exposure x (albedo / pi x pi L) = the picture's ground level, the
+    band the pose puts below the horizon; looking at the sky, the camera meter's middle grey."""
+    from tests.web.harness import srgb_to_linear
+
+    manifest = json.loads((web_build / "manifest.json").read_text())
+    uniform = np.full((manifest["dome"]["count"], 3), UNIFORM_SKY_RADIANCE)
+    ground_radiance = LUMA @ (np.asarray(manifest["ground"]["albedo"]) * UNIFORM_SKY_RADIANCE)
+    with StubServer(web_build) as server:
+        ar = new_page(*SIZE)
+        ar.page.add_init_script(xremu.init_script()
+                                + xremu.camera_access_script(SIZE, PASSTHROUGH_BANDS))
+        ar.open(server.url + "/?mode=visit&test&frame=direct", READY)  # automatic exposure
+        relight(ar.page, uniform)
+        ar.page.locator('[data-mode="ar"]').click()
+        ar.wait("window.daylit.status.mode === 'ar' && window.daylit.debug.xrState().frames > 2")
+        assert ar.page.evaluate("window.daylit.debug.xrState().cameraAccess")
+        readings = {}
+        for name, pitch_deg in [("level", 0.0), ("up 35", 35.0), ("sky", 80.0)]:
+            set_pose(ar.page, ((0.0, 1.6, 0.0), 0.0, pitch_deg, 0.0))
+            reads = ar.page.evaluate("window.daylit.debug.xrState().meterReads")
+            # two readings in XR frames drawn with this pose (at most one every 0.5 s)
+            ar.wait(f"window.daylit.debug.xrState().meterReads >= {reads + 2}")
+            exposure = ar.page.evaluate("window.daylit.debug.settleExposure()")
+            readings[name] = (exposure, *ar.page.evaluate("""() => [
+                window.daylit.status.exposureMeter, window.daylit.status.pictureGroundLevel]"""))
+        assert ar.page.evaluate("window.__cameraImages") > 0
+        assert not ar.errors, ar.errors
+    for name, code in [("level", 90), ("up 35", 170)]:
+        exposure, meter, level = readings[name]
+        assert meter == "picture", (name, readings)
+        truth = float(srgb_to_linear(code))
+        assert level == pytest.approx(truth, rel=0.06), (name, level, truth)
+        assert exposure * ground_radiance == pytest.approx(level, rel=1e-3), name
+    exposure, meter, level = readings["sky"]
+    assert meter == "camera" and level is None, readings
+    assert exposure * ground_radiance == pytest.approx(0.18, rel=1e-3)
 
 def alignment(page) -> tuple[np.ndarray, float]:
     """The AR alignment as drawn: the site's world position (3,) m and its turn about +y,

@@ -123,6 +123,51 @@ def test_displayed_ground_in_sun_shadow_and_overlap(new_page, sun_build, sun_ref
         assert not page.errors, page.errors
 
 
+def _open_sky_irradiance(sky, samples: int = 400) -> np.ndarray:
+    """RGB irradiance on an open horizontal surface from a sky's radiance (no disc), by a
+    midpoint grid in (azimuth, cos^2 of the zenith angle): cos dω = dφ d(cos²θ)/2."""
+    from daylit import sky as skies
+
+    u = (np.arange(samples) + 0.5) / samples  # cos^2 theta
+    phi = (np.arange(2 * samples) + 0.5) / (2 * samples) * 2.0 * math.pi
+    cos_t = np.sqrt(u)[:, None].repeat(len(phi), axis=1).ravel()
+    el_deg = np.degrees(np.arcsin(cos_t))
+    az_deg = np.degrees(np.tile(phi, samples))
+    dirs = skies.direction_from_azimuth_elevation(az_deg, el_deg)
+    weight = (1.0 / samples) * (2.0 * math.pi / len(phi)) / 2.0
+    return sky.radiance(np.asarray(dirs).reshape(-1, 3)).sum(axis=0) * weight
+
+
+def test_ground_past_the_site_reaches_the_horizon_in_the_sun(new_page, sun_build,
+                                                               sun_reference):
+    """Looking out over the site, the ground past its mesh (200-300 m away, drawn by the sky
+    dome below the horizon) is displayed as open ground in full sun: ground albedo / pi x
+    (the sky's irradiance, integrated here from the sky's own radiance, + DNI sin(elevation)).
+    Before 2026-12-04 it was drawn without the sun: a dark band between the site's ground and
+    the horizon on a sunny day."""
+    from daylit import sky as skies
+
+    build, _ = sun_reference
+    s, r = sun_and_sky(build)
+    with StubServer(sun_build) as server:
+        page = open_page(new_page, server)
+        sp = SunPage(page, build, s, r)
+        sp.look([0.0, 6.0, 15.0], [0.0, 0.0, -300.0])  # looking north, the sun on the right
+        far = [[x, 0.0, -z] for x in (-60.0, 0.0, 60.0) for z in (200.0, 300.0)]
+        _, hits, shown = sp.at(far)
+        assert all(h is None for h in hits), hits  # past every mesh: the dome draws them
+        assert not page.errors, page.errors
+    clear = skies.clear_sky(SUN_AZIMUTH_DEG, SUN_ELEVATION_DEG)
+    sky_e = _open_sky_irradiance(clear)
+    sun_e = SUN_DNI * math.sin(math.radians(SUN_ELEVATION_DEG))
+    albedo = np.asarray(build.manifest["ground"]["albedo"])
+    want = srgb_codes(neutral_tone_map(albedo / math.pi * (sky_e + sun_e) * EXPOSURE))
+    no_sun = srgb_codes(neutral_tone_map(albedo / math.pi * sky_e * EXPOSURE))
+    assert (want - no_sun).min() > 40.0, (want, no_sun)  # the test tells the sun apart
+    print("shown", shown, "want", np.round(want, 1), "without the sun", np.round(no_sun, 1))
+    assert np.abs(shown - want).max() <= 2.5, (shown, want)
+
+
 def _profile(sp, build, casters, s, r, start, end, count):
     points = np.linspace(start, end, count)
     px, hits, shown = sp.at(points)

@@ -112,3 +112,68 @@ def column_major(m: np.ndarray) -> list[float]:
 
 def from_column_major(values) -> np.ndarray:
     return np.asarray(values, dtype=float).reshape(4, 4).T
+
+
+def camera_access_script(size_px: tuple[int, int], bands) -> str:
+    """A stand-in for WebXR raw camera access (IWER has none; Chrome on Android has it since
+    107), run after :func:`init_script`: a session that asks for 'camera-access' has it, every
+    view has a camera of ``size_px`` (the canvas's: the picture aligned with the view), and
+    ``getCameraImage`` gives a texture of a picture of horizontal ``bands`` [(first row from
+    the top, (r, g, b) sRGB codes), ...], stored as a GL texture whose first row is the
+    picture's bottom (the convention a quad drawn with it shows upright). The GL state the
+    upload touches is put back as it was: three.js keeps its own copy of it."""
+    w, h = size_px
+    fills = "".join(f"c.fillStyle = 'rgb({r},{g},{b})'; c.fillRect(0, {row}, {w}, {h - row});\n"
+                    for row, (r, g, b) in bands)
+    return f"""
+(() => {{
+  const picture = document.createElement('canvas');
+  picture.width = {w}; picture.height = {h};
+  const c = picture.getContext('2d');
+  {fills}
+  const request = navigator.xr.requestSession.bind(navigator.xr);
+  navigator.xr.requestSession = async (mode, init = {{}}) => {{
+    const session = await request(mode, init);
+    const asked = [...(init.requiredFeatures ?? []), ...(init.optionalFeatures ?? [])];
+    if (asked.includes('camera-access')) {{
+      const features = [...session.enabledFeatures, 'camera-access'];
+      Object.defineProperty(session, 'enabledFeatures', {{ get: () => features }});
+    }}
+    return session;
+  }};
+  const camera = {{ width: {w}, height: {h} }};
+  const View = window.XRView ?? IWER.XRView;
+  Object.defineProperty(View.prototype, 'camera', {{ get: () => camera, configurable: true }});
+  let texture = null;
+  window.__cameraImages = 0;
+  // The binding remembers its context (three.js makes one with the renderer's).
+  class Binding extends window.XRWebGLBinding {{
+    constructor(session, gl) {{
+      super(session, gl);
+      this.gl = gl;
+    }}
+  }}
+  window.XRWebGLBinding = Binding;
+  Binding.prototype.getCameraImage = function () {{
+    window.__cameraImages += 1;
+    if (texture) return texture;
+    const gl = this.gl;
+    const flip = gl.getParameter(gl.UNPACK_FLIP_Y_WEBGL);
+    const premultiply = gl.getParameter(gl.UNPACK_PREMULTIPLY_ALPHA_WEBGL);
+    const bound = gl.getParameter(gl.TEXTURE_BINDING_2D);
+    texture = gl.createTexture();
+    gl.bindTexture(gl.TEXTURE_2D, texture);
+    gl.pixelStorei(gl.UNPACK_FLIP_Y_WEBGL, true);
+    gl.pixelStorei(gl.UNPACK_PREMULTIPLY_ALPHA_WEBGL, false);
+    gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGBA, gl.RGBA, gl.UNSIGNED_BYTE, picture);
+    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.LINEAR);
+    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.LINEAR);
+    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE);
+    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE);
+    gl.pixelStorei(gl.UNPACK_FLIP_Y_WEBGL, flip);
+    gl.pixelStorei(gl.UNPACK_PREMULTIPLY_ALPHA_WEBGL, premultiply);
+    gl.bindTexture(gl.TEXTURE_2D, bound);
+    return texture;
+  }};
+}})();
+"""

@@ -383,7 +383,8 @@ export class App {
       // synthesized picture, a camera's auto exposure over a camera picture.
       const meter = this.site?.view === 'overlay' || this.site?.view === 'passthrough' ? 'camera' : 'scene';
       const albedo = this.assets.manifest.ground.albedo;
-      // Camera mode meters its own picture (picturemeter.js); AR's passthrough is not readable.
+      // Camera mode meters its own picture (picturemeter.js), AR its passthrough's where the
+      // session gives the page the camera's images (xrmeter.js).
       this.pictureReading = this.view?.meter?.read(this.camera, nowS, !this._exposureSet) ?? null;
       const fromPicture = this.pictureReading
         ? exposureFromPicture(this.pictureReading.level, this._groundIrradiance, albedo) : null;

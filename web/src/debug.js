@@ -346,6 +346,8 @@ export function debugApi(app) {
         reticle: new THREE.Vector3().setFromMatrixPosition(view.reticle.matrix).toArray(),
         site: app.site.root.matrixWorld.toArray(),
         alignment: view.alignment,
+        cameraAccess: view.meter.available, // the passthrough's picture metered (xrmeter.js)
+        meterReads: view.meter.reads,
         // The XR layer's MSAA (an XRWebGLLayer's own; xr.js rendererWithXrAntialias) and the
         // canvas's, which the visit's linear frame leaves off.
         layerAntialias: app.renderer.xr.getBaseLayer()?.antialias ?? null,

@@ -39,6 +39,7 @@ export class LightFeed {
     this.phoneEstimator = null;
     this.phoneEstimate = null; // the last estimate (status.phoneEstimate)
     this.registration = null; // the last registration alone, under a server sky (status)
+    this._heldShift = undefined; // the last registration's shift the view did not follow (_follow)
     this._phoneSequence = 0;
     this.keptLight = null; // the scene's KeptLight, once the manifest is known (keepFor)
     this._keptLightTried = false; // the kept light is looked for once a visit (useKept)
@@ -193,11 +194,19 @@ export class LightFeed {
   }
 
   /** The registration's turn puts the drawn model on the picture where the shifted reading
-   * splits sun from shade better than the pose as it is by MIN_FISHER_GAIN (a smaller gain is
-   * the picture's noise: under a soft-shadowed sky the best shift wanders a pixel from one
-   * estimate to the next) and the turn passes a tenth of a degree. */
-  _follow({ turnDeg, fisher, fisherAtZero }) {
-    if (fisherAtZero * (1 + MIN_FISHER_GAIN) >= fisher || Math.hypot(...turnDeg) <= MIN_TURN_DEG) return;
+   * splits sun from shade better than the pose as it is by MIN_FISHER_GAIN, or where the last
+   * registration that left the view found the same shift (a smaller gain once is the
+   * picture's noise: under a soft-shadowed sky the best shift wanders a pixel from one
+   * estimate to the next; the same shift twice is not), and the turn passes a tenth of a
+   * degree. */
+  _follow({ shiftPx, turnDeg, fisher, fisherAtZero }) {
+    const gains = fisher > fisherAtZero * (1 + MIN_FISHER_GAIN);
+    const again = (shiftPx[0] !== 0 || shiftPx[1] !== 0) && this._heldShift?.[0] === shiftPx[0] && this._heldShift?.[1] === shiftPx[1];
+    if (!(gains || again) || Math.hypot(...turnDeg) <= MIN_TURN_DEG) {
+      this._heldShift = shiftPx; // not followed: the next registration may confirm it
+      return;
+    }
+    this._heldShift = undefined;
     this.app.view.turnBy(...turnDeg);
     this.phoneEstimator.forgetPose();
   }

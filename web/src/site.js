@@ -244,7 +244,10 @@ export class Site {
     this.shared.openIrradiance.value.set(...openIrradiance);
     this.shared.flatIrradiance.value.set(...flatIrradiance);
     if (this.sky) {
-      const h = openIrradiance.map((e) => e / Math.PI); // a uniform sky of the same irradiance
+      // Below the horizon the dome shows the open ground past the site's ground mesh as it
+      // looks in the sun (Lambertian: albedo E / pi); without the sun it drew a dark band
+      // between the mesh's edge and the horizon on a sunny day.
+      const h = groundIrradiance.map((e) => e / Math.PI);
       this.sky.material.uniforms.horizon.value.set(...h.map((v, c) => v * this.groundAlbedo.getComponent(c)));
     }
   }

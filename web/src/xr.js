@@ -5,6 +5,7 @@
 // origin, where the visitor started the session) is kept in localStorage and applied at the
 // next start, so a visitor who starts from the same marked spot finds it in place.
 import * as THREE from 'three';
+import { XRPictureMeter } from './xrmeter.js';
 
 const STORAGE_KEY = 'daylit.alignment.xr';
 /** The overlay's class while a session runs: it takes every touch on the screen (style.css). */
@@ -55,7 +56,8 @@ export class XRView {
   static async open(renderer, scene, siteRoot, overlay, onEnd) {
     const session = await navigator.xr.requestSession('immersive-ar', {
       requiredFeatures: ['local-floor'],
-      optionalFeatures: ['hit-test', 'dom-overlay'],
+      // camera-access: the passthrough's picture, for the exposure (xrmeter.js)
+      optionalFeatures: ['hit-test', 'dom-overlay', 'camera-access'],
       domOverlay: { root: overlay },
     });
     const view = new XRView(renderer, scene, siteRoot, overlay, session, onEnd);
@@ -82,6 +84,7 @@ export class XRView {
     scene.background = null; // the passthrough camera shows through
     this._touches = new Map();
     this.frames = 0;
+    this.meter = new XRPictureMeter(renderer); // the exposure from the passthrough (app.js)
   }
 
   async init() {
@@ -206,6 +209,7 @@ export class XRView {
     this.overlay.removeEventListener('pointercancel', this._up);
     this.overlay.removeEventListener('pointermove', this._move);
     this.scene.remove(this.reticle);
+    this.meter.dispose();
     this.scene.background = this.previousBackground;
     this.siteRoot.position.set(0, 0, 0);
     this.siteRoot.rotation.set(0, 0, 0);
