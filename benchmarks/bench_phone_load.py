@@ -41,9 +41,14 @@ def replay_dir() -> Path:
 
 
 def first_relit(browser, url: str, size, throttle: bool, query: str = "") -> dict:
-    """One fresh page (its own context: an empty cache) until its first relit frame."""
+    """One fresh page (its own context: an empty cache) until its first relit frame. Service
+    workers blocked: the offline visit's worker (web/sw.js) takes the page's requests once it
+    claims it, and its own fetches are neither throttled nor seen by the page's CDP session
+    (runs before 2026-12-04 read 0 bytes on the wire for the build's files and no link for
+    them); on a first visit a phone's worker fetches over the same slow link."""
     ctx = browser.new_context(viewport={"width": size[0], "height": size[1]},
-                              device_scale_factor=2, is_mobile=True, has_touch=True)
+                              device_scale_factor=2, is_mobile=True, has_touch=True,
+                              service_workers="block")
     page = ctx.new_page()
     cdp = ctx.new_cdp_session(page)
     cdp.send("Network.enable")

@@ -25,9 +25,10 @@ def browser():
 class Page:
     """A Playwright page plus the console errors and page errors it produced."""
 
-    def __init__(self, browser, width=640, height=360, has_touch=False):
+    def __init__(self, browser, width=640, height=360, has_touch=False,
+                 service_workers="allow"):
         self.context = browser.new_context(viewport={"width": width, "height": height},
-                                           has_touch=has_touch)
+                                           has_touch=has_touch, service_workers=service_workers)
         self.page = self.context.new_page()
         self.errors: list[str] = []
         self.page.on("console", lambda m: self.errors.append(f"console.{m.type}: {m.text}")
@@ -58,8 +59,8 @@ class Page:
 def new_page(browser):
     pages = []
 
-    def make(width=640, height=360, has_touch=False):
-        p = Page(browser, width, height, has_touch)
+    def make(width=640, height=360, has_touch=False, service_workers="allow"):
+        p = Page(browser, width, height, has_touch, service_workers)
         pages.append(p)
         return p
 

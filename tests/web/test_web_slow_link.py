@@ -82,7 +82,9 @@ def test_first_picture_from_the_coarse_start_then_exact(new_page, coarse_build, 
             full |= {c["ktx2"], c["v"]["path"]} | ({c["etc1s"]["ktx2"]} if "etc1s" in c else set())
     manifest_chars = len((coarse_build / "manifest.json").read_text())
     with DaylitServer(coarse_build, "--sky", f"replay:{sky_dir}") as server:
-        page = new_page(390, 780)
+        # The offline visit's service worker blocked: its fetches, once it claims the page,
+        # would go past the page's throttle (a phone's go over the same slow link).
+        page = new_page(390, 780, service_workers="block")
         page.page.add_init_script(RECORD)
         cdp = page.context.new_cdp_session(page.page)
         cdp.send("Network.enable")

@@ -132,7 +132,8 @@ def test_loading_counts_the_bytes(new_page, web_build, sky):
     arrive, rising, up to what the client downloaded."""
     with StubServer(web_build) as server:
         server.push(light_message(sky, 1), remember=True)
-        page = new_page()
+        # The service worker blocked: its fetches would go past the page's throttle.
+        page = new_page(service_workers="block")
         page.page.add_init_script(RECORD_MESSAGES)
         cdp = page.context.new_cdp_session(page.page)
         cdp.send("Network.enable")
