@@ -75,3 +75,22 @@ def camera_page(browser, web_build, y4m, sky, query="", size=(640, 360), has_tou
             yield page, server, errors
         finally:
             camera_browser.close()
+
+
+def assert_metered_the_ground(readings: dict, ground_codes: dict, ground_radiance: float):
+    """A picture meter's readings ``{name: (exposure, meter, level)}`` against the band each
+    pose put below the horizon (``ground_codes``: name -> its sRGB code): the level read is
+    the band's linear value (6 %: the browser's decoding and scaling of the picture, a few
+    codes), and the exposure draws the modelled ground (luminance ``ground_radiance``) at that
+    level; ``readings["sky"]``, a view with no ground, is the camera meter's middle grey."""
+    from tests.web.harness import srgb_to_linear
+
+    for name, code in ground_codes.items():
+        exposure, meter, level = readings[name]
+        assert meter == "picture", (name, readings)
+        truth = float(srgb_to_linear(code))
+        assert abs(level / truth - 1.0) <= 0.06, (name, level, truth)
+        assert abs(exposure * ground_radiance / level - 1.0) <= 1e-3, (name, exposure, level)
+    exposure, meter, level = readings["sky"]
+    assert meter == "camera" and level is None, readings
+    assert abs(exposure * ground_radiance / 0.18 - 1.0) <= 1e-3, exposure

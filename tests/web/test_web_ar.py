@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from tests.web import xremu
+from tests.web.fakecamera import assert_metered_the_ground
 from tests.web.harness import SCREENSHOTS, StubServer
 from tests.web.kioskref import light_message
 from tests.web.touch import tap, touch_drag, touch_moves
@@ -234,8 +235,6 @@ def test_ar_exposes_the_hall_as_the_passthrough_shows_its_ground(new_page, web_b
     the view's pose (xrmeter.js) and draws the modelled ground at that level, as camera mode
     does with its video: exposure x (albedo / pi x pi L) = the picture's ground level, the
     band the pose puts below the horizon; looking at the sky, the camera meter's middle grey."""
-    from tests.web.harness import srgb_to_linear
-
     manifest = json.loads((web_build / "manifest.json").read_text())
     uniform = np.full((manifest["dome"]["count"], 3), UNIFORM_SKY_RADIANCE)
     ground_radiance = LUMA @ (np.asarray(manifest["ground"]["albedo"]) * UNIFORM_SKY_RADIANCE)
@@ -259,15 +258,8 @@ def test_ar_exposes_the_hall_as_the_passthrough_shows_its_ground(new_page, web_b
                 window.daylit.status.exposureMeter, window.daylit.status.pictureGroundLevel]"""))
         assert ar.page.evaluate("window.__cameraImages") > 0
         assert not ar.errors, ar.errors
-    for name, code in [("level", 90), ("up 35", 170)]:
-        exposure, meter, level = readings[name]
-        assert meter == "picture", (name, readings)
-        truth = float(srgb_to_linear(code))
-        assert level == pytest.approx(truth, rel=0.06), (name, level, truth)
-        assert exposure * ground_radiance == pytest.approx(level, rel=1e-3), name
-    exposure, meter, level = readings["sky"]
-    assert meter == "camera" and level is None, readings
-    assert exposure * ground_radiance == pytest.approx(0.18, rel=1e-3)
+    assert_metered_the_ground(readings, {"level": 90, "up 35": 170}, ground_radiance)
+
 
 def alignment(page) -> tuple[np.ndarray, float]:
     """The AR alignment as drawn: the site's world position (3,) m and its turn about +y,
