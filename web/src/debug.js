@@ -224,10 +224,10 @@ export function debugApi(app) {
     /** Force the kiosk to pick a frame now (tests step it without waiting for rAF). */
     kioskTick: () => app.kiosk.render({ exposure: app.exposure, strength: 1 }),
     setExposure: (e) => { app.fixedExposure = e; },
-    /** Camera mode: stand at a site point (metres; the two-finger walk's standpoint, and its
-     * height, a phone held up on a balcony or at eye height). */
     /** The HUD's alignment reset: the visitor's and the registration's turns go. */
     resetAlignment: () => app.resetAlignment(),
+    /** Camera mode: stand at a site point (metres; the two-finger walk's standpoint, and its
+     * height, a phone held up on a balcony or at eye height). */
     standAt: (position) => {
       app.view.alignment.position = position.slice();
       app.view.update();
@@ -283,9 +283,10 @@ export function debugApi(app) {
         return (performance.now() - t0) / n;
       };
       const estimateMs = time(() => app.feed.phoneLight.read(app.camera, app.feed.sunNow(), now, true));
+      const registering = app.feed.phoneEstimator.registerPose;
       app.feed.phoneEstimator.registerPose = false; // the pose registration's share (poseregister.js)
       const unregisteredMs = time(() => app.feed.phoneLight.read(app.camera, app.feed.sunNow(), now, true));
-      app.feed.phoneEstimator.registerPose = true;
+      app.feed.phoneEstimator.registerPose = registering;
       const t0 = performance.now();
       app.feed.phoneEstimator.forgetPose();
       app.feed.phoneLight.read(app.camera, app.feed.sunNow(), now, true);

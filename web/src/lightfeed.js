@@ -19,6 +19,11 @@ const MIN_TURN_DEG = 0.1; // a smaller registration turn leaves the view as it i
 // this much better than the pose as it is (Fisher's ratio; the one-pixel steps of a settled
 // view gained 0.4-1.2 %, the real corrections 7-23 %, on Radiance frames of the test site).
 const MIN_FISHER_GAIN = 0.02;
+// A shift found twice in a row is followed without that gain only this close to the pose (a
+// settled view's last pixel): a picture whose brightness the model's shadows do not explain
+// (no shadows, a wall of two colours) found the same far shift on every registration and
+// walked the view 10 degrees away.
+const SETTLE_SHIFT_PX = 1;
 
 export class LightFeed {
   /**
@@ -35,6 +40,9 @@ export class LightFeed {
     this.saturated = null;
     this.serverLights = 0;
     this.phoneForced = params.get('sky') === 'phone';
+    // ?register=off: the view follows the device's sensors and the visitor's fingers only
+    // (a picture that is not of the site; the camera mode's orientation tests).
+    this.registerPose = params.get('register') !== 'off';
     this.phoneLight = null; // PhoneLight: the camera's video read into a copy
     this.phoneEstimator = null;
     this.phoneEstimate = null; // the last estimate (status.phoneEstimate)
@@ -145,7 +153,10 @@ export class LightFeed {
     const app = this.app;
     if (!app.ready || app.mode !== 'camera' || !app.view?.video || !app.site) return null;
     if (!this.phoneLight || this.phoneLight.video !== app.view.video) {
-      this.phoneEstimator ??= new PhoneEstimator([...app.site.nodes.real, ...app.site.nodes.ground], app.assets.manifest.ground.albedo);
+      if (!this.phoneEstimator) {
+        this.phoneEstimator = new PhoneEstimator([...app.site.nodes.real, ...app.site.nodes.ground], app.assets.manifest.ground.albedo);
+        this.phoneEstimator.registerPose = this.registerPose;
+      }
       this.phoneLight = new PhoneLight(app.view.video, this.phoneEstimator, this.phoneLight?.held);
     }
     return this.phoneLight;
@@ -195,13 +206,15 @@ export class LightFeed {
 
   /** The registration's turn puts the drawn model on the picture where the shifted reading
    * splits sun from shade better than the pose as it is by MIN_FISHER_GAIN, or where the last
-   * registration that left the view found the same shift (a smaller gain once is the
+   * registration that left the view found the same shift of a pixel (a smaller gain once is the
    * picture's noise: under a soft-shadowed sky the best shift wanders a pixel from one
    * estimate to the next; the same shift twice is not), and the turn passes a tenth of a
    * degree. */
   _follow({ shiftPx, turnDeg, fisher, fisherAtZero }) {
     const gains = fisher > fisherAtZero * (1 + MIN_FISHER_GAIN);
-    const again = (shiftPx[0] !== 0 || shiftPx[1] !== 0) && this._heldShift?.[0] === shiftPx[0] && this._heldShift?.[1] === shiftPx[1];
+    const settling = Math.max(Math.abs(shiftPx[0]), Math.abs(shiftPx[1])) <= SETTLE_SHIFT_PX;
+    const again = settling && (shiftPx[0] !== 0 || shiftPx[1] !== 0)
+      && this._heldShift?.[0] === shiftPx[0] && this._heldShift?.[1] === shiftPx[1];
     if (!(gains || again) || Math.hypot(...turnDeg) <= MIN_TURN_DEG) {
       this._heldShift = shiftPx; // not followed: the next registration may confirm it
       return;
