@@ -161,8 +161,10 @@ def _bake(
         compressor.start(site, dome, work.stack_names + sun_bounce.stack_names, progress=progress)
         sun_bounce.lights = compressor.selection.selectable
         staging = partial / "build"
-        if staging.exists():
-            shutil.rmtree(staging)
+        # The atlases' stacks as they are written and read back (bake.rowstore), per unit.
+        for folder in (staging, partial / "work"):
+            if folder.exists():
+                shutil.rmtree(folder)
         (staging / "exr").mkdir(parents=True)
         if site.views:
             (staging / "views").mkdir()
