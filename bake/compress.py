@@ -61,7 +61,7 @@ from bake.lowrank import (
     texel_means,
 )
 from bake.quantize import quantized_png, refinement_png
-from bake.rowstore import RowFile, StackStore, as_stack, row_block
+from bake.rowstore import as_stack, let_go, row_block, valid_rows
 from bake.testskies import TestSky, prior_skies, selectable_lights, test_skies
 from daylit.selection import Selection
 
@@ -430,8 +430,8 @@ def compress_rms_stack(image, name, out_dir, skies, S, S_inv, selection, setting
     stack = as_stack(image)
     del image
     valid = stack.valid
-    [M] = _valid_rows([stack], valid, lambda rows, t: rows, [f"{name}.spectrum"])
-    _let_go(stack)
+    [M] = valid_rows([stack], valid, lambda rows, t: rows, [f"{name}.spectrum"])
+    let_go(stack)
     spectrum = Spectrum.of(M, np.ones(len(M), np.float32), S)
     del stack  # the spectrum holds the valid texels (a caller's reference keeps it, if any)
     first = None
@@ -450,6 +450,7 @@ def compress_rms_stack(image, name, out_dir, skies, S, S_inv, selection, setting
             break
     if "etc1s" not in result.entry:  # an earlier try's ETC1S array
         (out_dir / "ktx2" / f"{name}.etc1s.ktx2").unlink(missing_ok=True)
+    spectrum.remove()
     return result
 
 
@@ -502,9 +503,9 @@ def compress_ratio_pair(I, d, names, out_dir, skies, S, S_inv, selection, settin
         rows_d /= g
         return delta, rows_d
 
-    M_delta, M_d = _valid_rows([d, I], valid, normalized,
+    M_delta, M_d = valid_rows([d, I], valid, normalized,
                                [f"{names[0]}.spectrum", f"{names[1]}.spectrum"])
-    _let_go(I, d)
+    let_go(I, d)
     del I, d  # the spectra hold the valid texels: a whole stack is no longer held
     spec_delta = Spectrum.of(M_delta, gain, S)
     spec_d = Spectrum.of(M_d, gain, S)
@@ -557,57 +558,9 @@ def compress_ratio_pair(I, d, names, out_dir, skies, S, S_inv, selection, settin
         ),
     ):
         _record_errors(stack.entry, references, lambda r, f=rebuild: f(r)[valid], skies)
-    _remove_spectrum(spec_d, spec_delta)
+    spec_d.remove()
+    spec_delta.remove()
     return delta_stack, d_stack
-
-
-def _valid_rows(stacks, valid: np.ndarray, make, names: list[str]) -> list:
-    """The valid texels of ``stacks`` (each with ``rows``, :mod:`bake.rowstore`) as made by
-    ``make(*rows of each stack at the valid texels, first texel index)`` -> one array
-    (b, n, 3) per name of ``names``: in memory for stacks in memory, else one
-    :class:`RowFile` each beside the first stack's store (``<name>.npy``), written by
-    blocks of rows."""
-    first = stacks[0]
-    T = int(valid.sum())
-    on_disk = isinstance(first, StackStore)
-    out = [
-        RowFile.create(first.folder.parent / f"{name}.npy", (T, first.n, 3)) if on_disk
-        else np.empty((T, first.n, 3), dtype=np.float32)
-        for name in names
-    ]
-    flat = valid.ravel()
-    step = row_block(first.n)
-    t = 0
-    for a in range(0, first.texels, step):
-        keep = flat[a : a + step]
-        if not keep.any():
-            continue
-        made = make(*(s.rows(a, a + step)[keep] for s in stacks), t)
-        made = made if isinstance(made, tuple) else (made,)
-        for target, rows in zip(out, made, strict=True):
-            if on_disk:
-                target.write(t, rows)
-            else:
-                target[t : t + len(rows)] = rows
-        t += len(made[0])
-    return out
-
-
-def _let_go(*stacks) -> None:
-    """Remove stores from disk once their valid texels are gathered (an array in memory is
-    the caller's)."""
-    for stack in stacks:
-        if isinstance(stack, StackStore):
-            stack.remove()
-
-
-def _remove_spectrum(*spectra) -> None:
-    for spectrum in spectra:
-        if isinstance(spectrum.M, RowFile):
-            spectrum.M.remove()
-        for held in spectrum._truths.values():
-            if isinstance(held, tuple):
-                held[0].remove()
 
 
 def _selected_by_any(skies, selection: Selection) -> list[int]:

@@ -166,6 +166,15 @@ class Spectrum:
         store, j = held
         return store.read(j * self.T + start, j * self.T + stop)
 
+    def remove(self) -> None:
+        """Remove what the spectrum keeps on disk (its texels, its composites)."""
+        if isinstance(self.M, RowFile):
+            self.M.remove()
+        for held in self._truths.values():
+            if isinstance(held, tuple):
+                held[0].remove()
+        self._truths = {}
+
     def absolute_truths(self, skies: list[TestSky]):
         """Exact composites of the absolute values ``g M r`` (T, 3) under the test skies."""
         return (truth * self.gain[:, None] for truth in self.truths(skies))

@@ -105,6 +105,11 @@ class StackStore:
         return (self.height, self.width, self.n, 3)
 
     @property
+    def work(self) -> Path:
+        """Where what is made from the stack goes (its spectrum: bake.compress)."""
+        return self.folder.parent
+
+    @property
     def texels(self) -> int:
         return self.height * self.width
 
@@ -166,13 +171,22 @@ class StackStore:
 
 
 class ArrayStack:
-    """A stack ``(H, W, n, 3)`` already in memory (a fixed view's, a test's), read as a
-    :class:`StackStore` is."""
+    """A stack ``(H, W, n, 3)`` given as an array (a fixed view's, a test's), read as a
+    :class:`StackStore` is. A memory-mapped one (``np.memmap``, ``np.load(mmap_mode=...)``)
+    is read by rows too, and what is made from it goes to disk beside it (:attr:`work`)."""
 
     def __init__(self, image: np.ndarray):
         self.image = image
         self.height, self.width, self.n, _ = image.shape
-        self.valid = np.any(image != 0.0, axis=(2, 3))
+        mapped = getattr(image, "filename", None)
+        self.work = None if mapped is None else Path(mapped).parent
+        # By rows: ``image != 0`` whole would be a byte per value (a quarter of the stack).
+        flat = image.reshape(self.texels, self.n, 3)
+        step = row_block(self.n)
+        self.valid = np.concatenate(
+            [np.any(flat[a : a + step] != 0.0, axis=(1, 2)) for a in range(0, self.texels, step)]
+            or [np.zeros(0, bool)]
+        ).reshape(self.height, self.width)
 
     shape = StackStore.shape
     texels = StackStore.texels
@@ -197,6 +211,46 @@ def as_stack(stack):
     """A :class:`StackStore` or :class:`ArrayStack` as it is; an array (H, W, n, 3) as an
     :class:`ArrayStack`."""
     return stack if isinstance(stack, (StackStore, ArrayStack)) else ArrayStack(stack)
+
+
+def valid_rows(stacks, valid: np.ndarray, make, names: list[str]) -> list:
+    """The valid texels of ``stacks`` (each with ``rows``, :mod:`bake.rowstore`) as made by
+    ``make(*rows of each stack at the valid texels, first texel index)`` -> one array
+    (b, n, 3) per name of ``names``: in memory for stacks in memory, else one
+    :class:`RowFile` each in the first stack's ``work`` folder (``<name>.npy``), written by
+    blocks of rows."""
+    first = stacks[0]
+    T = int(valid.sum())
+    on_disk = first.work is not None
+    out = [
+        RowFile.create(first.work / f"{name}.npy", (T, first.n, 3)) if on_disk
+        else np.empty((T, first.n, 3), dtype=np.float32)
+        for name in names
+    ]
+    flat = valid.ravel()
+    step = row_block(first.n)
+    t = 0
+    for a in range(0, first.texels, step):
+        keep = flat[a : a + step]
+        if not keep.any():
+            continue
+        made = make(*(s.rows(a, a + step)[keep] for s in stacks), t)
+        made = made if isinstance(made, tuple) else (made,)
+        for target, rows in zip(out, made, strict=True):
+            if on_disk:
+                target.write(t, rows)
+            else:
+                target[t : t + len(rows)] = rows
+        t += len(made[0])
+    return out
+
+
+def let_go(*stacks) -> None:
+    """Remove stores from disk once their valid texels are gathered (an array in memory is
+    the caller's)."""
+    for stack in stacks:
+        if isinstance(stack, StackStore):
+            stack.remove()
 
 
 def row_block(n: int, itemsize: int = 4, budget: int | None = None) -> int:

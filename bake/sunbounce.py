@@ -19,7 +19,7 @@ from bake.compact_reader import CompactReader
 from bake.compress import CompactStack
 from bake.ktx2decoder import decode
 from bake.quantize import quantized_png, refinement_png
-from bake.rowstore import RowFile, StackStore, as_stack, row_block
+from bake.rowstore import RowFile, as_stack, row_block
 
 SUN_BOUNCE_DECODE_CHUNK = 16  # light images decoded at a time (memory: the lightmap is large)
 DISPLAY_SKY_SAMPLES_PER_SIDE = 6  # the display skies' patch integration (as the test skies')
@@ -109,8 +109,8 @@ class DisplayCheck:
         self.skies = skies
         self.lights = [int(i) for i in lights]
         V = int(self.valid.sum())
-        if isinstance(sky, StackStore):
-            self.shown = RowFile.create(sky.folder.parent / "sky-shown.npy",
+        if sky.work is not None:
+            self.shown = RowFile.create(sky.work / f"sky-shown-{id(self)}.npy",
                                         (len(self.lights) * V, 3), np.float64)
         else:
             self.shown = np.empty((len(self.lights) * V, 3), dtype=np.float64)
