@@ -108,18 +108,21 @@ class SunBounce:
         image[:, :, columns] = part
         return image
 
-    def view_image(self, view, hits, smoothed: np.ndarray) -> np.ndarray:
-        """The one-bounce part of a fixed view's O or S stack (H, W, n, 3) radiance, exactly
-        as :func:`write_view` adds it: ``albedo / pi`` times the bounce ``smoothed`` (P, n, 3,
-        from :func:`view_smoothed`) at the pixels that see a surface, for the lights the sun
-        can be in; zero in the other columns, on the sky and on the open ground past the
-        site (its radiance in the view is the dome's direct light alone, no bounce)."""
-        image = np.zeros((view.height * view.width, len(self.up), 3), dtype=np.float32)
-        lights = self.lights
-        image[hits.surface[:, None], lights[None, :]] = (
-            hits.albedo[:, None, :] / np.pi * smoothed[:, lights]
+    def view_image(self, view, hits, smoothed: np.ndarray,
+                   block: slice = slice(None)) -> np.ndarray:
+        """The one-bounce part of a fixed view's O or S stack's lights ``block`` (H, W, b, 3)
+        radiance, exactly as :func:`write_view` adds it: ``albedo / pi`` times the bounce
+        ``smoothed`` (P, b, 3, from :func:`view_smoothed`) at the pixels that see a surface,
+        for the lights the sun can be in; zero in the other columns, on the sky and on the
+        open ground past the site (its radiance in the view is the dome's direct light
+        alone, no bounce)."""
+        start, stop, _ = block.indices(len(self.up))
+        columns = self.lights[(self.lights >= start) & (self.lights < stop)] - start
+        image = np.zeros((view.height * view.width, stop - start, 3), dtype=np.float32)
+        image[hits.surface[:, None], columns[None, :]] = (
+            hits.albedo[:, None, :] / np.pi * smoothed[:, columns]
         )
-        return image.reshape(view.height, view.width, len(self.up), 3)
+        return image.reshape(view.height, view.width, stop - start, 3)
 
 
 def write_atlas(a, traced: TracedResults, staging: Path, compressor, sun_bounce,
@@ -340,32 +343,52 @@ def write_view(
         "stacks": {},
     }
     up = dome.cosine_weighted_sr
-    results = traced.load(view.name)
-    sun_images, sky_images = {}, {}
-    for stack, config in (("O", "all"), ("S", "real")):
-        direct, bounce = lookup_result(results, f"{view.name}.{stack}", config)
-        E = _rgb(direct, config)
-        if bounce is not None:
-            smoothed = view_smoothed(view, hits[stack], bounce, geometry)
-            E += smoothed
-            if sun_bounce is not None and sun_bounce.enabled:
-                sun_images[stack] = sun_bounce.view_image(view, hits[stack], smoothed)
-            del smoothed
-        image = radiance_image(view, hits[stack], E, up, site.ground.albedo)
-        rel = f"views/{view.name}.{stack}.exr"
-        write_stack_exr(staging / rel, image)
-        entry["stacks"][stack] = {
-            "master": rel,
-            "quantity": "radiance",
-            "channels": CHANNEL_PATTERN,
-            "compact": compressor.run({stack: image}, view.name, staging)[stack],
-        }
-        if stack in sun_images:  # it judges the sun-bounce images as displayed
-            sky_images[stack] = image
-        del image
-    sun_entries = _write_sun_bounce(sun_images, view.name, "views", "radiance", staging,
-                                    compressor, sky_images)
-    del sky_images
+    n = len(up)
+    work = staging.parent / "work" / view.name
+    blocks = light_blocks(n, atlas_light_block(view.height, view.width))
+    sun_entries = {}
+    try:
+        for stack, config in (("O", "all"), ("S", "real")):
+            # By blocks of lights, as an atlas's stacks (every step treats each light on its
+            # own: the same values as the stack made whole).
+            store = StackStore(work / stack, view.height, view.width, n)
+            sun_store = None
+            for block in blocks:
+                results = traced.load(view.name, block, {config, "bounce:" + config})
+                direct, bounce = lookup_result(results, f"{view.name}.{stack}", config)
+                del results
+                E = _rgb(direct, config)
+                if bounce is not None:
+                    smoothed = view_smoothed(view, hits[stack], bounce, geometry)
+                    E += smoothed
+                    if sun_bounce is not None and sun_bounce.enabled:
+                        if sun_store is None:
+                            sun_store = StackStore(work / f"sun_bounce.{stack}", view.height,
+                                                   view.width, n)
+                        sun_store.write_block(
+                            block, sun_bounce.view_image(view, hits[stack], smoothed, block)
+                        )
+                    del smoothed
+                store.write_block(
+                    block, radiance_image(view, hits[stack], E, up[block], site.ground.albedo)
+                )
+                del E, direct, bounce
+            rel = f"views/{view.name}.{stack}.exr"
+            _write_master(staging / rel, store)
+            if sun_store is not None:  # judged as displayed with its sky stack
+                sun_entries.update(_write_sun_bounce(
+                    {stack: sun_store}, view.name, "views", "radiance", staging, compressor,
+                    {stack: store}))
+                sun_store.remove()
+            entry["stacks"][stack] = {
+                "master": rel,
+                "quantity": "radiance",
+                "channels": CHANNEL_PATTERN,
+                "compact": compressor.run({stack: store}, view.name, staging)[stack],
+            }
+            store.remove()
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
     if sun_entries:
         entry["sun_bounce"] = sun_entries
     entry["mask"] = f"views/{view.name}.mask.png"

@@ -1,8 +1,10 @@
 """The write stage's memory (issue 20, "A large site"): an atlas stack is assembled by blocks
 of lights (bake.writers.LIGHT_BLOCK), its bounce fitted within each surface by blocks of
-channels (bake.denoise.FIT_BYTES), into the same bytes as made whole, and a shadowing pair
+channels (bake.denoise.FIT_BYTES), into the same bytes as made whole; a shadowing pair
 lets go of its whole (H, W, n, 3) stacks once their valid texels are gathered, before any
-encoding (bake.compress.compress_stacks)."""
+encoding (bake.compress.compress_stacks); and a stack on disk is written (its compact pair,
+its EXR master, its sun-bounce images) holding far less than its lights x texels
+(bake.rowstore)."""
 
 from __future__ import annotations
 
