@@ -61,7 +61,7 @@ from bake.lowrank import (
     texel_means,
 )
 from bake.quantize import quantized_png, refinement_png
-from bake.rowstore import as_stack, let_go, row_block, valid_rows
+from bake.rowstore import as_stack, let_go, release_freed_memory, row_block, valid_rows
 from bake.testskies import TestSky, prior_skies, selectable_lights, test_skies
 from daylit.selection import Selection
 
@@ -507,6 +507,7 @@ def compress_ratio_pair(I, d, names, out_dir, skies, S, S_inv, selection, settin
                                [f"{names[0]}.spectrum", f"{names[1]}.spectrum"])
     let_go(I, d)
     del I, d  # the spectra hold the valid texels: a whole stack is no longer held
+    release_freed_memory()
     spec_delta = Spectrum.of(M_delta, gain, S)
     spec_d = Spectrum.of(M_d, gain, S)
     k_start = rms_rank(spec_d, S, S_inv, skies, selection, settings)[0]

@@ -51,6 +51,7 @@ from bake.gltf import write_site_glb
 from bake.irradiance import SceneSet
 from bake.ktx2decoder import close_decoders
 from bake.raytrace import Geometry, RayScene
+from bake.rowstore import release_freed_memory
 from bake.scene import Site, load_site
 from bake.tracework import TracedResults, TraceWork
 from bake.views import trace_view
@@ -171,6 +172,8 @@ def _bake(
         # Each unit loads its own traced arrays when it starts and lets go of them when done:
         # loading every set first held them all at once (the peak memory: docs/benchmarks.md).
         traced = TracedResults(work.point_sets, partial)
+        del scenes  # (the tracing's ray scenes: the write stage casts no rays)
+        release_freed_memory()
         units = [
             partial_fn(write_atlas, a, traced, staging, compressor, sun_bounce)
             for a in atlases.values()

@@ -21,6 +21,8 @@ What is read is a fresh array: the caller's block is all that is held.
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 from pathlib import Path
 
 import numpy as np
@@ -251,6 +253,28 @@ def let_go(*stacks) -> None:
     for stack in stacks:
         if isinstance(stack, StackStore):
             stack.remove()
+
+
+def release_freed_memory() -> None:
+    """Give the heap's free pages back to the system (glibc's ``malloc_trim``; nothing
+    elsewhere). Arrays below glibc's mmap threshold (up to 32 MB) come from the heap, and
+    once freed their pages stay in the process's resident memory: after the receivers and
+    the tracing 0.4 GB of the palace bake's 0.95 GB was such pages (docs/benchmarks.md,
+    "The write stage's memory")."""
+    if _LIBC is not None:
+        _LIBC.malloc_trim(0)
+
+
+def _libc():
+    name = ctypes.util.find_library("c")
+    try:
+        libc = ctypes.CDLL(name) if name else None
+    except OSError:
+        return None
+    return libc if libc is not None and hasattr(libc, "malloc_trim") else None
+
+
+_LIBC = _libc()
 
 
 def row_block(n: int, itemsize: int = 4, budget: int | None = None) -> int:

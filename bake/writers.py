@@ -31,7 +31,7 @@ from bake.denoise import (
 from bake.dome import Dome
 from bake.errors import BakeError
 from bake.raytrace import Geometry
-from bake.rowstore import StackStore
+from bake.rowstore import StackStore, release_freed_memory
 from bake.scene import Site
 from bake.tracework import TracedResults, lookup_result
 from bake.views import mask_image, radiance_image, virtual_depth_image
@@ -181,6 +181,7 @@ def write_atlas(a, traced: TracedResults, staging: Path, compressor, sun_bounce,
         for store in stores.values():
             store.remove()
         shutil.rmtree(work, ignore_errors=True)
+        release_freed_memory()
     if sun_entries:
         entry["sun_bounce"] = sun_entries
     return entry
@@ -227,6 +228,7 @@ def _assemble(a, stack, config, traced, n, coverage, labels, sun_bounce, work: P
         if with_sun:
             sun_store.write_block(block, sun_bounce.image(a, config, smoothed, coverage, block))
         del smoothed
+        release_freed_memory()
     return store, sun_store
 
 
