@@ -12,7 +12,7 @@ that was running at it, and writes the samples to ``--log`` (seconds, GB, runnin
 Usage::
 
     .venv/bin/python benchmarks/bench_write_memory.py SCENE OUT --lights 40 --quality draft \\
-        [--limit-gb 9] [--every 1] [--log rss.tsv]
+        [--workers N] [--limit-gb 9] [--every 1] [--log rss.tsv]
 
 Run it niced on a shared machine; wrap it in ``/usr/bin/time -v`` for the largest single
 process's peak as the kernel counts it. Results go in docs/benchmarks.md by hand.
@@ -100,6 +100,7 @@ def main() -> None:
     parser.add_argument("out", type=Path)
     parser.add_argument("--lights", type=int, default=40)
     parser.add_argument("--quality", default="draft")
+    parser.add_argument("--workers", type=int, help="tracing processes (default: one per core)")
     parser.add_argument("--limit-gb", type=float, default=9.0)
     parser.add_argument("--every", type=float, default=1.0)
     parser.add_argument("--log", type=Path)
@@ -117,7 +118,8 @@ def main() -> None:
     wall = time.strftime("%H:%M:%S", time.gmtime())
     try:
         result = bake(args.scene, args.out, lights=args.lights, quality=args.quality,
-                      progress=False, log=lambda msg: print(msg, file=sys.stderr, flush=True))
+                      workers=args.workers, progress=False,
+                      log=lambda msg: print(msg, file=sys.stderr, flush=True))
     finally:
         stop.set()
         sampler.join()
