@@ -79,7 +79,8 @@ def _tree_rss(process: psutil.Process) -> int:
     return total
 
 
-def _sample(limit: float, every: float, samples: list, stop: threading.Event) -> None:
+def _sample(limit: float, every: float, samples: list, stop: threading.Event,
+            log: Path | None) -> None:
     me = psutil.Process()
     while not stop.is_set():
         rss = _tree_rss(me)
@@ -88,10 +89,21 @@ def _sample(limit: float, every: float, samples: list, stop: threading.Event) ->
             print(f"stopped: the process tree passed {limit / 1e9:.1f} GB "
                   f"({rss / 1e9:.2f} GB) in {sorted(set(RUNNING.values()))}", file=sys.stderr,
                   flush=True)
+            _write_log(log, samples)
             for child in me.children(recursive=True):
                 child.kill()
             os._exit(3)
         stop.wait(every)
+
+
+def _write_log(log: Path | None, samples: list) -> None:
+    if log is None:
+        return
+    with open(log, "w") as f:
+        for t, rss, steps in samples:
+            f.write(f"{t:.1f}\t{rss / 1e9:.3f}\t{'; '.join(steps)}\n")
+        for t, event in EVENTS:
+            f.write(f"{t:.1f}\t-\t{event}\n")
 
 
 def main() -> None:
@@ -111,7 +123,8 @@ def main() -> None:
     samples: list = []
     stop = threading.Event()
     sampler = threading.Thread(
-        target=_sample, args=(args.limit_gb * 1e9, args.every, samples, stop), daemon=True
+        target=_sample, args=(args.limit_gb * 1e9, args.every, samples, stop, args.log),
+        daemon=True
     )
     sampler.start()
     load = os.getloadavg()[0]
@@ -123,12 +136,7 @@ def main() -> None:
     finally:
         stop.set()
         sampler.join()
-        if args.log:
-            with open(args.log, "w") as f:
-                for t, rss, steps in samples:
-                    f.write(f"{t:.1f}\t{rss / 1e9:.3f}\t{'; '.join(steps)}\n")
-                for t, event in EVENTS:
-                    f.write(f"{t:.1f}\t-\t{event}\n")
+        _write_log(args.log, samples)
     end = time.strftime("%H:%M:%S", time.gmtime())
     print(f"{wall}-{end} UTC, load average {load:.1f} at the start, "
           f"{os.getloadavg()[0]:.1f} at the end; {args.scene}, {args.lights} lights, "
