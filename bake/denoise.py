@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from scipy.ndimage import find_objects
 
 MAX_CHANNELS = 128  # OpenCV 5 rejects images of more channels (measured: 256 fails)
 # Bytes of one float64 working array of a fit (a surface's bounding box x the channels done at
@@ -54,10 +55,14 @@ def smooth_within_labels(
     flat = np.ascontiguousarray(image, dtype=np.float32).reshape(h, w, -1)
     out = flat.copy()
     radius, blur = gaussian(sigma_px)
+    # Each label's bounding box in one pass over the image (a search of the whole image per
+    # label took most of the time on an atlas of thousands of small surfaces, once per call:
+    # a stack assembled by blocks of lights calls this once per block).
+    boxes = find_objects(np.where(labels >= 0, labels + 1, 0))
     for label in np.unique(labels[labels >= 0]):
-        ys, xs = np.nonzero(labels == label)
-        y0, y1 = max(ys.min() - radius, 0), min(ys.max() + radius + 1, h)
-        x0, x1 = max(xs.min() - radius, 0), min(xs.max() + radius + 1, w)
+        rows, columns = boxes[label]
+        y0, y1 = max(rows.start - radius, 0), min(rows.stop + radius, h)
+        x0, x1 = max(columns.start - radius, 0), min(columns.stop + radius, w)
         mask = (labels[y0:y1, x0:x1] == label).astype(np.float32)
         inside = mask > 0
         if order == 0:
