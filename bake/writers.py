@@ -207,6 +207,8 @@ def _assemble(a, stack, config, traced, n, coverage, labels, sun_bounce, work: P
     open_labels = _open_labels(a, labels, seen, config)
     store = StackStore(work / stack, a.height, a.width, n)
     sun_store = None
+    bounce_labels = _bounce_labels(a, open_labels)
+    plans: dict = {}  # the smoothing's fit weights, the same for every block
     for block in blocks:
         direct, bounce = lookup_result(traced.load(a.id, block, names), name, config)
         if config != "none":  # texels moved onto contact lines: their chord (bake.contact)
@@ -219,7 +221,7 @@ def _assemble(a, stack, config, traced, n, coverage, labels, sun_bounce, work: P
         # write stage's time when done for each: docs/benchmarks.md).
         smoothed = (
             None if bounce is None
-            else smooth_bounce(a.to_image(bounce), *_bounce_labels(a, open_labels))
+            else smooth_bounce(a.to_image(bounce), *bounce_labels, plans=plans)
         )
         del bounce
         store.write_block(block, _atlas_image(a, config, direct, smoothed, coverage,
@@ -292,7 +294,8 @@ def _bounce_labels(a, labels: np.ndarray) -> tuple:
     return out, (y[moved], x[moved])
 
 
-def smooth_bounce(image: np.ndarray, labels: np.ndarray, moved=None) -> np.ndarray:
+def smooth_bounce(image: np.ndarray, labels: np.ndarray, moved=None,
+                  plans: dict | None = None) -> np.ndarray:
     """An atlas's traced bounce (H, W, ...) smoothed within each surface by a local linear
     fit (:data:`BOUNCE_ORDER`) over its open texels, with a narrower kernel near contact
     lines; texels ``moved`` onto contact lines ((rows, columns), marked buried in
@@ -301,10 +304,13 @@ def smooth_bounce(image: np.ndarray, labels: np.ndarray, moved=None) -> np.ndarr
     (label ``-2 - label``, :func:`_open_labels`) next to open ones hold the fit continued,
     the rest the value of the nearest of those, so bilinear filtering at a wall's foot reads
     the open side's bounce only (bake.contact, bake.denoise)."""
-    smoothed = smooth_within_labels(image, labels, BOUNCE_SIGMA_TEXELS, order=BOUNCE_ORDER)
+    plans = {} if plans is None else plans  # fit weights kept for the same labels' blocks
+    smoothed = smooth_within_labels(image, labels, BOUNCE_SIGMA_TEXELS, order=BOUNCE_ORDER,
+                                    plan=plans.setdefault("open", {}))
     near = near_contact(labels)
     if near.any():
-        fine = smooth_within_labels(image, labels, NEAR_SIGMA_TEXELS, order=BOUNCE_ORDER)
+        fine = smooth_within_labels(image, labels, NEAR_SIGMA_TEXELS, order=BOUNCE_ORDER,
+                                    plan=plans["open"])
         smoothed[near] = fine[near]
     smoothed = continue_into_buried(smoothed, labels)
     keep = continued_labels(labels)
@@ -314,7 +320,8 @@ def smooth_bounce(image: np.ndarray, labels: np.ndarray, moved=None) -> np.ndarr
         surface = np.where(labels <= -2, -2 - labels, labels)
         strips = np.full(labels.shape, -1, dtype=labels.dtype)
         strips[moved] = surface[moved]
-        along = smooth_within_labels(image, strips, BOUNCE_SIGMA_TEXELS, order=BOUNCE_ORDER)
+        along = smooth_within_labels(image, strips, BOUNCE_SIGMA_TEXELS, order=BOUNCE_ORDER,
+                                     plan=plans.setdefault("strips", {}))
         smoothed[moved] = along[moved]
         keep[moved] = True
     surface = np.where(labels <= -2, -2 - labels, labels)

@@ -53,9 +53,9 @@ def test_stacks_assembled_by_blocks_of_lights_are_the_bytes_of_whole_ones(
     calls = []
     smooth = writers.smooth_bounce
 
-    def counted(image, *args):
+    def counted(image, *args, **kwargs):
         calls.append(image.shape[2])
-        return smooth(image, *args)
+        return smooth(image, *args, **kwargs)
 
     monkeypatch.setattr(writers, "smooth_bounce", counted)
     bake(scene, tmp_path / "out", workers=2, **QUIET)
