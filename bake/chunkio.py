@@ -33,28 +33,37 @@ def save_chunk(path: Path, arrays: dict) -> None:
     os.replace(tmp, path)
 
 
-def load_chunks(paths: list[Path]) -> dict:
+def load_chunks(paths: list[Path], columns: slice | None = None, names=None) -> dict:
     """Every array of the chunk files ``paths``, each chunk's rows after the previous one's:
     ``{name: (sum of rows, ...)}``. The files must hold the same names, shapes beyond axis 0
-    and dtypes."""
+    and dtypes. ``columns``: only these of axis 1 (the lights: a block of them, so that a
+    set's arrays are not all held at once, docs/benchmarks.md "The write stage's memory");
+    ``names``: only these arrays (those the chunks hold)."""
     layouts = [_layout(path) for path in paths]
+    if names is not None:
+        layouts = [{k: v for k, v in layout.items() if k in names} for layout in layouts]
     for path, layout in zip(paths[1:], layouts[1:], strict=True):
         if layout.keys() != layouts[0].keys():
             raise ValueError(f"{path} holds {sorted(layout)}, {paths[0]} {sorted(layouts[0])}")
     out = {}
     for name, (shape, dtype, _) in (layouts[0] if layouts else {}).items():
         rows = sum(layout[name][0][0] for layout in layouts)
-        out[name] = np.empty((rows,) + shape[1:], dtype=dtype)
+        width = shape[1:] if columns is None else (len(range(shape[1])[columns]),) + shape[2:]
+        out[name] = np.empty((rows,) + width, dtype=dtype)
     row = dict.fromkeys(out, 0)
     for path, layout in zip(paths, layouts, strict=True):
         with open(path, "rb") as f:
             for name, (shape, dtype, offset) in layout.items():
-                if shape[1:] != out[name].shape[1:] or dtype != out[name].dtype:
+                if shape[1:] != layouts[0][name][0][1:] or dtype != out[name].dtype:
                     raise ValueError(f"{path}: {name} {shape} {dtype} does not match the others")
                 target = out[name][row[name] : row[name] + shape[0]]
+                # A block of columns is read whole, then its columns copied: one chunk's rows.
+                whole = target if columns is None else np.empty(shape, dtype=dtype)
                 f.seek(offset)
-                if f.readinto(memoryview(target).cast("B")) != target.nbytes:
+                if f.readinto(memoryview(whole).cast("B")) != whole.nbytes:
                     raise ValueError(f"{path} is truncated (in {name})")
+                if columns is not None:
+                    target[...] = whole[:, columns]
                 row[name] += shape[0]
     return out
 

@@ -55,11 +55,15 @@ class CompactReader:
             files = [self.dir / self.entry["ktx2"]]
             if "etc1s" in self.entry:  # its layers follow the UASTC array's in ``layers``
                 files.append(self.dir / self.entry["etc1s"]["ktx2"])
-            raw = np.concatenate(decode(files))[..., :3].astype(np.float32) / 255.0
+            raw = np.concatenate(decode(files))  # (layers, H, W, 4) uint8
             n, k = self.entry["v"]["shape"]
-            self._base = np.zeros((k,) + raw.shape[1:], dtype=np.float32)
+            self._base = np.zeros((k,) + raw.shape[1:3] + (3,), dtype=np.float32)
+            # A layer at a time: the layers as float32 at once (coarse and refinements, up to
+            # twice k) were twice the base again (docs/benchmarks.md, "The write stage's
+            # memory"); the same values.
             for layer, texel in zip(self.entry["layers"], raw, strict=True):
-                value = texel * np.float32(layer["scale"]) + np.float32(layer["offset"])
+                value = texel[..., :3].astype(np.float32) / 255.0
+                value = value * np.float32(layer["scale"]) + np.float32(layer["offset"])
                 self._base[layer["coefficient"]] += value
         return self._base
 

@@ -53,13 +53,15 @@ from bake.lowrank import (
     RatioRefinement,
     Spectrum,
     factors,
-    gain_of,
+    floored_gain,
     layers_to_refine,
     prior_sqrt,
     ratio_rank,
     rms_rank,
+    texel_means,
 )
 from bake.quantize import quantized_png, refinement_png
+from bake.rowstore import as_stack, let_go, release_freed_memory, row_block, valid_rows
 from bake.testskies import TestSky, prior_skies, selectable_lights, test_skies
 from daylit.selection import Selection
 
@@ -211,7 +213,6 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
     if spectrum is None:
         spectrum = Spectrum.of(image[valid], np.ones(int(valid.sum()), np.float32), S)
     normalized_gain = not np.all(spectrum.gain == 1.0)
-    M = spectrum.M  # (T, n, 3), normalized
     if rank is None:
         k, errors = rms_rank(spectrum, S, S_inv, skies, selection, settings)
         k = max(k, min_k)
@@ -236,13 +237,17 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
         # (len(lit), H, W, 3), so that each image is one contiguous block (normalized[j] is
         # light lit[j]).
         lit = selection.selectable if selection.m > 0 else np.zeros(0, dtype=int)
-        normalized = np.ascontiguousarray(full(M[:, lit]).transpose(2, 0, 1, 3))
+        # (With the default m = 0 none: a stack that selects lights holds their images.)
+        normalized = np.ascontiguousarray(full(spectrum.columns(lit)).transpose(2, 0, 1, 3))
         # Stage 1: coarse gain, base layers and light images.
         gain_image = np.repeat(full(spectrum.gain[:, None]), 3, axis=2)
         gain_q = quantized_png(gain_image, tmp / "gain.png")
         encode_array([gain_q.path], tmp / "gain-coarse.ktx2")
-        base = [full(f.U[:, :, layer]) for layer in range(f.k)]
-        base_q = [quantized_png(x, tmp / f"base{j:04d}.png") for j, x in enumerate(base)]
+        # Each base layer's full image is made when it is written and again for its loss:
+        # k full images at once were k x texels x 3 more (docs/benchmarks.md, "The write
+        # stage's memory").
+        base_q = [quantized_png(full(f.U[:, :, j]), tmp / f"base{j:04d}.png")
+                  for j in range(f.k)]
         # Layers from ``head`` on go to the ETC1S array (``settings.etc1s_from_layer``),
         # encoded once, where it is written; the others to the UASTC array.
         head = _etc1s_split(f.k, settings)
@@ -265,20 +270,21 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
             + [coarse_dir / f"{name}.L{i:04d}.ktx2" for i in lit]
         )
         coarse_gain = gain_q.value(decoded[0][0])
-        arrays = np.concatenate(decoded[1:3] if head < f.k else decoded[1:2])
-        coarse_base = [q.value(arrays[j]) for j, q in enumerate(base_q)]
+        arrays = np.concatenate(decoded[1:3] if head < f.k else decoded[1:2])  # 8-bit
         first_light = 3 if head < f.k else 2
         coarse_lights = [q.value(decoded[first_light + i][0]) for i, q in enumerate(light_q)]
+        del decoded
 
         # Stage 2: refinements of the gain, the base layers that matter and every light image.
-        lost = [b - c for b, c in zip(base, coarse_base, strict=True)]  # (H, W, 3) each
-        # The base, its coarse decoding and the loss are each k x texels x 3: only the loss
-        # is needed from here (memory: docs/benchmarks.md, "A large site").
-        del base, coarse_base, decoded, arrays
+        def lost(j, arrays):  # what layer j's coarse encoding lost, (H, W, 3)
+            return full(f.U[:, :, j]) - base_q[j].value(arrays[j])
+
         if refine_all:
             refine = list(range(f.k))
         else:
-            losses = np.stack([x[valid] for x in lost])  # (k, T, 3): a block per layer
+            losses = np.empty((f.k, len(f.U), 3), dtype=np.float32)  # a block per layer
+            for j in range(f.k):
+                losses[j] = lost(j, arrays)[valid]
             refine = layers_to_refine(
                 losses, f, skies, selection, settings, None if ratio is None else ratio.means
             )
@@ -289,9 +295,12 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
             # ETC1S saved, where unrefined they keep the stacks within the budget and the
             # ground's ratio within 0.02 (docs/benchmarks.md, "Downloads with the sun apart").
             refine = [j for j in refine if j < head]
+            del losses
         refine_q = [
-            refinement_png(lost[j], tmp / f"refine{j:04d}.png", refine_mask) for j in refine
+            refinement_png(lost(j, arrays), tmp / f"refine{j:04d}.png", refine_mask)
+            for j in refine
         ]
+        del arrays
         base_file = out_dir / "ktx2" / f"{name}.base.ktx2"
         encode_array([q.path for q in base_q[:head] + refine_q], base_file)
         gain_refine_q = refinement_png(gain_image - coarse_gain, tmp / "gain-refine.png", None)
@@ -379,14 +388,17 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
 
 
 def compress_stacks(images, prefix, out_dir, skies, S, S_inv, selection, settings):
-    """Compress the stacks of one atlas or view, ``images`` {name: (H, W, n, 3)}: ``I`` and
-    ``d`` of a shadowing atlas together for their ratio (:func:`compress_ratio_pair`), any
-    other stack alone (:func:`compress_stack`, its refinements at the UASTC level
+    """Compress the stacks of one atlas or view, ``images`` {name: (H, W, n, 3) array or
+    :class:`bake.rowstore.StackStore`}: ``I`` and ``d`` of a shadowing atlas together for
+    their ratio (:func:`compress_ratio_pair`), any other stack alone
+    (:func:`compress_rms_stack`, its refinements at the UASTC level
     ``settings.rms_refine_level``), each named ``<prefix>.<name>``.
 
     ``images`` is emptied as its stacks are taken: each is let go of once its valid texels
     are gathered (a whole stack is lights x texels: holding them all through the encoding
-    was most of the write stage's peak memory, docs/benchmarks.md "A large site").
+    was most of the write stage's peak memory, docs/benchmarks.md "A large site"). A stack
+    on disk is read by blocks of rows, and its valid texels (the spectrum) are written
+    beside it and read by rows too: no step holds a stack's lights x texels.
 
     Returns ``[(name, CompactStack)]`` in sorted name order."""
     names = sorted(images)
@@ -409,14 +421,19 @@ def compress_rms_stack(image, name, out_dir, skies, S, S_inv, selection, setting
     """:func:`compress_stack` for a stack judged by its RMS error alone (lightmap, views):
     ETC1S from ``settings.rms_etc1s_from_layer`` on; if the decoded composite is then over the
     budget on a test sky, again from ``settings.etc1s_from_layer``, then with every layer
-    UASTC (same rank and factors; the last try is kept whatever its error, as before)."""
+    UASTC (same rank and factors; the last try is kept whatever its error, as before).
+    ``image``: (H, W, n, 3) or a :class:`bake.rowstore.StackStore`."""
     tries = [settings.rms_etc1s_from_layer, settings.etc1s_from_layer, None]
     if settings.etc1s_from_layer is None:
         tries = [None]
     tries = list(dict.fromkeys(tries))  # in order, once each
-    valid = np.any(image != 0.0, axis=(2, 3))
-    spectrum = Spectrum.of(image[valid], np.ones(int(valid.sum()), np.float32), S)
-    del image  # the spectrum holds the valid texels (a caller's reference keeps it, if any)
+    stack = as_stack(image)
+    del image
+    valid = stack.valid
+    [M] = valid_rows([stack], valid, lambda rows, t: rows, [f"{name}.spectrum"])
+    let_go(stack)
+    spectrum = Spectrum.of(M, np.ones(len(M), np.float32), S)
+    del stack  # the spectrum holds the valid texels (a caller's reference keeps it, if any)
     first = None
     for j0 in tries:
         result = compress_stack(
@@ -433,11 +450,13 @@ def compress_rms_stack(image, name, out_dir, skies, S, S_inv, selection, setting
             break
     if "etc1s" not in result.entry:  # an earlier try's ETC1S array
         (out_dir / "ktx2" / f"{name}.etc1s.ktx2").unlink(missing_ok=True)
+    spectrum.remove()
     return result
 
 
 def compress_ratio_pair(I, d, names, out_dir, skies, S, S_inv, selection, settings):
-    """Compress a shadowing atlas's ``I`` and ``d`` (H, W, n, 3) for their ratio.
+    """Compress a shadowing atlas's ``I`` and ``d`` (H, W, n, 3, or
+    :class:`bake.rowstore.StackStore` s) for their ratio.
 
     What is encoded is ``d`` and ``delta = d - I``, the virtual objects' effect (the client
     gets ``I = d - delta`` and the shadow's alpha ``1 - I/d = sum r delta / sum r d``). Errors
@@ -448,19 +467,49 @@ def compress_ratio_pair(I, d, names, out_dir, skies, S, S_inv, selection, settin
     encoding; base layers are refined where the ratio needs it (:class:`RatioRefinement`).
     Returns the :class:`CompactStack` of ``I`` (whose entry says ``"encodes": "d - I"``) and
     of ``d``, both checked against their masters.
+
+    Two passes over the stacks' rows: the per-texel gain and where the virtual objects have
+    an effect, then the normalized valid texels of ``d`` and ``delta`` (the spectra).
     """
-    valid = np.any(I != 0.0, axis=(2, 3)) | np.any(d != 0.0, axis=(2, 3))
-    gain = np.maximum(gain_of(d[valid]), gain_of(I[valid]))
-    delta = d - I
-    del I  # from here on the pair is d and delta (the caller's reference keeps I, if any)
-    # The ratio's error is -delta' / d + delta d' / d^2: where the virtual objects change
-    # nothing (delta = 0) the errors of d do not matter. Refine only near delta != 0.
-    effect = np.abs(delta).max(axis=(2, 3)) > 1e-4 * np.abs(d).max(axis=(2, 3))
-    refine_mask = cv2.dilate(effect.astype(np.uint8), np.ones((9, 9), np.uint8)) > 0
-    spec_delta = Spectrum.of(_normalized(delta, valid, gain), gain, S)
-    del delta
-    spec_d = Spectrum.of(_normalized(d, valid, gain), gain, S)
-    del d  # the spectra hold the valid texels: a whole stack is no longer held
+    I, d = as_stack(I), as_stack(d)
+    valid = I.valid | d.valid
+    flat = valid.ravel()
+    step = row_block(d.n)
+    means_I, means_d, effect = [], [], np.zeros(flat.shape, dtype=bool)
+    for a in range(0, d.texels, step):
+        rows_I, rows_d = I.rows(a, a + step), d.rows(a, a + step)
+        b = a + len(rows_d)
+        # The ratio's error is -delta' / d + delta d' / d^2: where the virtual objects
+        # change nothing (delta = 0) the errors of d do not matter. Refine only near
+        # delta != 0.
+        effect[a:b] = (
+            np.abs(rows_d - rows_I).max(axis=(1, 2)) > 1e-4 * np.abs(rows_d).max(axis=(1, 2))
+        )
+        means_I.append(texel_means(rows_I[flat[a:b]]))
+        means_d.append(texel_means(rows_d[flat[a:b]]))
+        del rows_I, rows_d
+    gain = np.maximum(floored_gain(np.concatenate(means_d)),
+                      floored_gain(np.concatenate(means_I)))
+    del means_I, means_d
+    refine_mask = cv2.dilate(effect.reshape(valid.shape).astype(np.uint8),
+                             np.ones((9, 9), np.uint8)) > 0
+    del effect
+
+    def normalized(rows_d, rows_I, t):
+        # delta = d - I and d at the valid texels, divided by the gain in place.
+        g = gain[t : t + len(rows_d), None, None]
+        delta = rows_d - rows_I
+        delta /= g
+        rows_d /= g
+        return delta, rows_d
+
+    M_delta, M_d = valid_rows([d, I], valid, normalized,
+                               [f"{names[0]}.spectrum", f"{names[1]}.spectrum"])
+    let_go(I, d)
+    del I, d  # the spectra hold the valid texels: a whole stack is no longer held
+    release_freed_memory()
+    spec_delta = Spectrum.of(M_delta, gain, S)
+    spec_d = Spectrum.of(M_d, gain, S)
     k_start = rms_rank(spec_d, S, S_inv, skies, selection, settings)[0]
     k = ratio_rank(spec_delta, spec_d, k_start, S, S_inv, skies, selection, settings)
     ratio_d, ratio_delta = RatioRefinement.pair(spec_d, spec_delta, skies, selection)
@@ -491,15 +540,18 @@ def compress_ratio_pair(I, d, names, out_dir, skies, S, S_inv, selection, settin
     }
     for reader in readers.values():
         reader.lights(_selected_by_any(skies, selection))
-    # The masters' composites: d's, and I's as d's minus delta's (the spectra keep them from
-    # choosing the rank; one gain for both).
-    d_true = spec_d.absolute_truths(skies)
-    I_true = [d - delta for d, delta in zip(d_true, spec_delta.absolute_truths(skies), strict=True)]
+
+    # The masters' composites, one sky at a time: d's, and I's as d's minus delta's (the
+    # spectra keep them from choosing the rank; one gain for both).
+    def i_true():
+        return (d - delta for d, delta in zip(spec_d.absolute_truths(skies),
+                                              spec_delta.absolute_truths(skies), strict=True))
+
     for stack, references, rebuild in (
-        (d_stack, d_true, lambda r: readers["d"].composite(r, selection)),
+        (d_stack, spec_d.absolute_truths(skies), lambda r: readers["d"].composite(r, selection)),
         (
             delta_stack,
-            I_true,
+            i_true(),
             lambda r: (
                 readers["d"].composite(r, selection)
                 - readers["delta"].composite(r, selection)
@@ -507,15 +559,9 @@ def compress_ratio_pair(I, d, names, out_dir, skies, S, S_inv, selection, settin
         ),
     ):
         _record_errors(stack.entry, references, lambda r, f=rebuild: f(r)[valid], skies)
+    spec_d.remove()
+    spec_delta.remove()
     return delta_stack, d_stack
-
-
-def _normalized(image: np.ndarray, valid: np.ndarray, gain: np.ndarray) -> np.ndarray:
-    """``image[valid] / gain`` (T, n, 3) float32, divided in place: one copy of the valid
-    texels, not two (the same values as the division into a new array)."""
-    out = image[valid]
-    out /= gain[:, None, None]
-    return out
 
 
 def _selected_by_any(skies, selection: Selection) -> list[int]:

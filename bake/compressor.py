@@ -16,6 +16,7 @@ from bake import basisu, compress, compressjobs, sunbounce, testskies
 from bake.dome import Dome
 from bake.downloads import download_bytes
 from bake.errors import BakeError
+from bake.rowstore import as_stack
 from bake.scene import Site
 
 SELECTION_RULE = (
@@ -86,7 +87,8 @@ class Compressor:
         )
 
     def run(self, images: dict, prefix: str, staging: Path) -> dict:
-        """Compress the stacks ``images`` ({name: (H, W, n, 3)}) of one atlas or fixed view;
+        """Compress the stacks ``images`` ({name: (H, W, n, 3) or a
+        :class:`bake.rowstore.StackStore`}) of one atlas or fixed view;
         ``I`` and ``d`` together (shadow ratio). Returns {name: compact manifest entry}. Safe
         to call from several threads at once (each with its own stacks)."""
         try:
@@ -96,6 +98,8 @@ class Compressor:
                     self.settings,
                 )
             else:
+                # A worker gets the stacks whole (it has no access to this machine's disk).
+                images = {name: as_stack(images.pop(name)).array() for name in sorted(images)}
                 results, files = self.cluster.compress(
                     compressjobs.compress_stacks_job, images, prefix, self.skies, self.S,
                     self.S_inv, self.selection, self.settings, label=f"{prefix}'s stacks",
@@ -139,6 +143,8 @@ class Compressor:
                     image, name, staging, self.selection.selectable, self.settings, sky, skies
                 )
             else:
+                image = as_stack(image).array()
+                sky = None if sky is None else as_stack(sky).array()
                 result, files = self.cluster.compress(
                     compressjobs.sun_bounce_job, image, name, self.selection.selectable,
                     self.settings, sky, skies, label=f"the sun-bounce stack {name}",

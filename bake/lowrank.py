@@ -17,9 +17,11 @@ Shapes: texels ``M`` (T, n, 3) over a stack's valid texels, gain (T,), ``U`` (T,
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
+from bake.rowstore import RowFile, row_block, rows_of
 from bake.testskies import TestSky
 from daylit.selection import Selection
 
@@ -66,11 +68,14 @@ RATIO_FLOOR = 0.05  # ratios are checked where sum r d exceeds this share of its
 class Spectrum:
     """One stack's valid texels, gain-normalized, and what choosing a rank needs.
 
-    ``M`` (T, n, 3) are the texels divided by their gain ``g`` (T,); the prior-weighted
-    eigenvectors ``Y`` (n, n, strongest first) are those of the normalized texels, so the
-    basis fits every texel to the same *relative* precision (dim texels too); the per-channel
-    Gram matrices ``G`` (3, n, n) and column sums (3, n) are of the *absolute* values
-    ``g M``, which the error budget is stated in.
+    ``M`` (T, n, 3) are the texels divided by their gain ``g`` (T,), in memory or on disk
+    (a :class:`bake.rowstore.RowFile`, read by blocks of rows: every use of ``M`` is row-wise,
+    so a stack's spectrum is never held whole); the prior-weighted eigenvectors ``Y`` (n, n,
+    strongest first) are those of the normalized texels, so the basis fits every texel to
+    the same *relative* precision (dim texels too); the per-channel Gram matrices ``G``
+    (3, n, n) and column sums (3, n) are of the *absolute* values ``g M``, which the error
+    budget is stated in. ``work``: where the composites under the test skies are kept
+    (:meth:`truths`; None: in memory).
     """
 
     M: np.ndarray
@@ -78,33 +83,105 @@ class Spectrum:
     G: np.ndarray
     colsum: np.ndarray
     Y: np.ndarray
-    _projected: np.ndarray | None = None
+    work: Path | None = None
+    _width: int = 0
     _truths: dict = field(default_factory=dict)
 
-    def projections(self, S: np.ndarray, k: int) -> np.ndarray:
-        """``M S Y`` for at least the first k columns, computed once for the largest rank
-        asked so far (doubling) and cached."""
-        if self._projected is None or self._projected.shape[2] < k:
-            have = 0 if self._projected is None else self._projected.shape[2]
-            self._projected = self.project(S, min(self.Y.shape[1], max(k, 2 * have)))
-        return self._projected
+    @property
+    def T(self) -> int:  # noqa: N802  (texels, as in the shapes above)
+        return len(self.M)
 
-    def truths(self, skies: list[TestSky]) -> list[np.ndarray]:
-        """Exact normalized composites ``M r`` (T, 3) under the test skies, cached by sky
-        name; the missing ones come from one BLAS product (:func:`sky_composites`)."""
+    @property
+    def n(self) -> int:
+        return self.M.shape[1]
+
+    def blocks(self) -> list[tuple[int, int]]:
+        """Row ranges of the texels, each a working block (bake.rowstore.row_block)."""
+        step = row_block(self.n)
+        return [(a, min(a + step, self.T)) for a in range(0, self.T, step)]
+
+    def rows(self, start: int, stop: int) -> np.ndarray:
+        """``M[start:stop]`` (a view in memory, a fresh array from disk)."""
+        return rows_of(self.M, start, stop)
+
+    def columns(self, lights) -> np.ndarray:
+        """``M[:, lights]`` (T, len(lights), 3), read by blocks of rows."""
+        lights = np.asarray(lights, dtype=int)
+        out = np.empty((self.T, len(lights), 3), dtype=np.float32)
+        if len(lights):
+            for a, b in self.blocks():
+                out[a:b] = self.rows(a, b)[:, lights]
+        return out
+
+    def projection_width(self, k: int) -> int:
+        """The columns ``M S Y`` is computed with for rank k: the largest rank asked so far,
+        doubling (as a cache of them was: the products' first k columns, and the sums over
+        them, then take the same path)."""
+        if self._width < k:
+            self._width = min(self.Y.shape[1], max(k, 2 * self._width))
+        return self._width
+
+    def projections(self, S: np.ndarray, k: int) -> np.ndarray:
+        """``M S Y`` (T, 3, K) for the :meth:`projection_width` K of rank k (whole: small
+        stacks and tests; the bake reads them by rows, :meth:`project_rows`)."""
+        return self.project(S, self.projection_width(k))
+
+    def project_rows(self, S: np.ndarray, K: int, rows: np.ndarray) -> np.ndarray:
+        """``rows S Y_K`` (b, 3, K) float32 of texel rows (b, n, 3) of ``M``."""
+        SY = (S @ self.Y[:, :K]).astype(np.float32)
+        flat = np.ascontiguousarray(rows.transpose(0, 2, 1)).reshape(len(rows) * 3, self.n)
+        return (flat @ SY).reshape(len(rows), 3, K)
+
+    def truths(self, skies: list[TestSky]):
+        """Exact normalized composites ``M r`` (T, 3) under the test skies, one per sky as
+        they are iterated; computed once (by blocks of rows, each block one BLAS product for
+        every missing sky: :func:`sky_composites`) and kept in memory or, with ``work``, on
+        disk (skies x texels: a large atlas's were 1 GB a stack)."""
         missing = [sky for sky in skies if sky.name not in self._truths]
         if missing:
-            values = sky_composites(self.M, np.stack([sky.r for sky in missing]))
-            self._truths.update(zip((sky.name for sky in missing), values, strict=True))
-        return [self._truths[sky.name] for sky in skies]
+            r = np.stack([sky.r for sky in missing])
+            if self.work is None:
+                values = sky_composites(self.M, r)
+                self._truths.update(zip((sky.name for sky in missing), values, strict=True))
+            else:
+                store = RowFile.create(
+                    Path(self.work) / f"truths-{id(self)}-{len(self._truths)}.npy",
+                    (len(missing) * self.T, 3),
+                )
+                for a, b in self.blocks():
+                    values = sky_composites(self.rows(a, b), r)
+                    for j in range(len(missing)):
+                        store.write(j * self.T + a, values[j])
+                for j, sky in enumerate(missing):
+                    self._truths[sky.name] = (store, j)
+        return (self._truth(sky.name) for sky in skies)
 
-    def absolute_truths(self, skies: list[TestSky]) -> list[np.ndarray]:
+    def _truth(self, name: str, start: int = 0, stop: int | None = None) -> np.ndarray:
+        """The composite under the sky ``name`` (computed by :meth:`truths`), rows
+        ``start .. stop`` of it."""
+        stop = self.T if stop is None else min(stop, self.T)
+        held = self._truths[name]
+        if isinstance(held, np.ndarray):
+            return held[start:stop]
+        store, j = held
+        return store.read(j * self.T + start, j * self.T + stop)
+
+    def remove(self) -> None:
+        """Remove what the spectrum keeps on disk (its texels, its composites)."""
+        if isinstance(self.M, RowFile):
+            self.M.remove()
+        for held in self._truths.values():
+            if isinstance(held, tuple):
+                held[0].remove()
+        self._truths = {}
+
+    def absolute_truths(self, skies: list[TestSky]):
         """Exact composites of the absolute values ``g M r`` (T, 3) under the test skies."""
-        return [truth * self.gain[:, None] for truth in self.truths(skies)]
+        return (truth * self.gain[:, None] for truth in self.truths(skies))
 
     @classmethod
-    def of(cls, M: np.ndarray, gain: np.ndarray, S: np.ndarray) -> Spectrum:
-        T, n, _ = M.shape
+    def of(cls, M, gain: np.ndarray, S: np.ndarray, work: Path | None = None) -> Spectrum:
+        T, n = len(M), M.shape[1]
         G = np.zeros((3, n, n))
         G_normalized = np.zeros((n, n))
         colsum = np.zeros((3, n))
@@ -113,7 +190,9 @@ class Spectrum:
         unit_gain = bool(np.all(gain == 1.0))
         for start in range(0, T, GRAM_ROWS):
             # float32 products per block (BLAS sgemm), accumulated in float64 across blocks.
-            block = np.ascontiguousarray(M[start : start + GRAM_ROWS].transpose(2, 0, 1))
+            rows = rows_of(M, start, start + GRAM_ROWS)
+            block = np.ascontiguousarray(rows.transpose(2, 0, 1))
+            del rows
             g = gain[start : start + GRAM_ROWS].astype(np.float32)
             for c in range(3):
                 absolute = block[c] if unit_gain else block[c] * g[:, None]
@@ -124,26 +203,30 @@ class Spectrum:
         if unit_gain:
             G_normalized = G.sum(axis=0)
         eigenvalues, Y = np.linalg.eigh(S @ G_normalized @ S)
-        return cls(M, gain, G, colsum, Y[:, np.argsort(eigenvalues)[::-1]])
+        if work is None and isinstance(M, RowFile):
+            work = M.path.parent
+        return cls(M, gain, G, colsum, Y[:, np.argsort(eigenvalues)[::-1]], work)
 
     def project(self, S: np.ndarray, k: int) -> np.ndarray:
-        """``M S Y_k``: (T, 3, k) float32, the unquantized base U of rank k (one BLAS
-        product; every lower rank is a prefix of it)."""
-        T, n, _ = self.M.shape
-        SY = (S @ self.Y[:, :k]).astype(np.float32)
-        rows = np.ascontiguousarray(self.M.transpose(0, 2, 1)).reshape(T * 3, n)
-        return (rows @ SY).reshape(T, 3, k)
+        """``M S Y_k``: (T, 3, k) float32, the unquantized base U of rank k (by blocks of
+        rows; every lower rank is a prefix of it)."""
+        out = np.empty((self.T, 3, k), dtype=np.float32)
+        for a, b in self.blocks():
+            out[a:b] = self.project_rows(S, k, self.rows(a, b))
+        return out
 
     def composite(
-        self, P: np.ndarray, k: int, S_inv, r: np.ndarray, chosen: np.ndarray
+        self, P: np.ndarray, k: int, S_inv, r: np.ndarray, chosen: np.ndarray, rows=None
     ) -> np.ndarray:
-        """(T, 3) normalized composite of rank k with the lights ``chosen`` exact,
-        ``M (Q_k r' + r_A)``, from the projections ``P = project(S, K >= k)``."""
+        """(b, 3) normalized composite of rank k with the lights ``chosen`` exact,
+        ``M (Q_k r' + r_A)``, from the projections ``P`` (b, 3, K >= k) of texel rows
+        ``rows`` of ``M`` (b, n, 3; default all of ``M``)."""
+        rows = self.M if rows is None else rows
         rest = r.copy()
         rest[chosen] = 0.0
         c = (self.Y[:, :k].T @ (S_inv @ rest)).astype(np.float32)  # (k, 3)
         out = np.einsum("tck,kc->tc", P[:, :, :k], c)
-        return out + np.einsum("tnc,nc->tc", self.M[:, chosen], r[chosen].astype(np.float32))
+        return out + np.einsum("tnc,nc->tc", rows[:, chosen], r[chosen].astype(np.float32))
 
 
 def sky_composites(M: np.ndarray, r: np.ndarray) -> np.ndarray:
@@ -169,7 +252,7 @@ def rms_rank(spec: Spectrum, S, S_inv, skies, selection, settings) -> tuple[int,
     The error of every rank comes in closed form from the per-channel Gram matrices,
     ``err_c^2 = e_c^T (I - Q)^T G_c (I - Q) e_c`` with ``e = r - r_A``: no pass over texels.
     """
-    T, n, _ = spec.M.shape
+    T, n = spec.T, spec.n
     rest, mean = [], []
     for sky in skies:
         e = sky.r.copy()
@@ -209,25 +292,39 @@ def ratio_error(
 ) -> float:
     """Worst per-texel error of ``sum r I / sum r d`` at rank k over the skies, where
     ``sum r d`` is not tiny (above ``RATIO_FLOOR`` of its mean), with ``I = d - delta``. The
-    two spectra share one gain, which cancels in the ratio."""
+    two spectra share one gain, which cancels in the ratio.
+
+    By blocks of texel rows (the two spectra's projections of a block, then every sky),
+    with each sky's threshold from its whole composite first: the same maximum as over
+    whole arrays, without holding texels x rank or texels x skies."""
+    floors = [RATIO_FLOOR * d.mean() for d in spec_d.absolute_truths(skies)]
+    spec_delta.truths(skies)  # computed once, read by blocks below
+    chosen = [selection(sky.r) for sky in skies]
+    K_delta, K_d = spec_delta.projection_width(k), spec_d.projection_width(k)
     worst = 0.0
-    P_delta, P_d = spec_delta.projections(S, k), spec_d.projections(S, k)
-    for sky, d_true, delta_true, lit in ratio_checks(spec_d, spec_delta, skies):
-        chosen = selection(sky.r)
-        I_true = d_true - delta_true
-        d_k = spec_d.composite(P_d, k, S_inv, sky.r, chosen)
-        I_k = d_k - spec_delta.composite(P_delta, k, S_inv, sky.r, chosen)
-        if lit.any():
-            error = np.abs(I_k / np.maximum(d_k, 1e-12) - I_true / np.maximum(d_true, 1e-12))
-            worst = max(worst, float(error[lit].max()))
+    for a, b in spec_d.blocks():
+        rows_d, rows_delta = spec_d.rows(a, b), spec_delta.rows(a, b)
+        P_d = spec_d.project_rows(S, K_d, rows_d)
+        P_delta = spec_delta.project_rows(S, K_delta, rows_delta)
+        gain = spec_d.gain[a:b, None]
+        for s, sky in enumerate(skies):
+            d_true = spec_d._truth(sky.name, a, b)
+            I_true = d_true - spec_delta._truth(sky.name, a, b)
+            lit = d_true * gain > floors[s]
+            d_k = spec_d.composite(P_d, k, S_inv, sky.r, chosen[s], rows_d)
+            I_k = d_k - spec_delta.composite(P_delta, k, S_inv, sky.r, chosen[s], rows_delta)
+            if lit.any():
+                error = np.abs(
+                    I_k / np.maximum(d_k, 1e-12) - I_true / np.maximum(d_true, 1e-12)
+                )
+                worst = max(worst, float(error[lit].max()))
     return worst
 
 
 def ratio_rank(spec_I, spec_d, k_start, S, S_inv, skies, selection, settings) -> int:
     """Smallest rank at least ``k_start`` found (doubling, then bisection) whose shadow ratio
     is within ``RATIO_TRUNCATION`` at every texel on the skies; at most ``max_rank``."""
-    n = spec_I.M.shape[1]
-    top = min(settings.max_rank, n)
+    top = min(settings.max_rank, spec_I.n)
 
     def ok(k):
         return (
@@ -251,14 +348,27 @@ def ratio_rank(spec_I, spec_d, k_start, S, S_inv, skies, selection, settings) ->
 
 def factors(spec: Spectrum, k: int, S, S_inv, errors: dict) -> Factors:
     """``U = M S Y_k`` (T, 3, k) and ``V = S^-1 Y_k`` (n, k)."""
-    U = spec.projections(S, k)[:, :, :k]
-    return Factors(k, np.ascontiguousarray(U), (S_inv @ spec.Y[:, :k]).astype(np.float32), errors)
+    K = spec.projection_width(k)
+    U = np.empty((spec.T, 3, k), dtype=np.float32)
+    for a, b in spec.blocks():
+        U[a:b] = spec.project_rows(S, K, spec.rows(a, b))[:, :, :k]
+    return Factors(k, U, (S_inv @ spec.Y[:, :k]).astype(np.float32), errors)
 
 
 def gain_of(M: np.ndarray) -> np.ndarray:
     """Per-texel gain (T,): the mean basis value over lights and channels, floored at a
     millionth of its overall mean so that empty texels stay finite."""
-    g = M.mean(axis=(1, 2), dtype=np.float64)
+    return floored_gain(texel_means(M))
+
+
+def texel_means(M: np.ndarray) -> np.ndarray:
+    """Each texel's mean over lights and channels (T,) float64, of rows ``M`` (T, n, 3)
+    (row-wise: the same bits by blocks of rows)."""
+    return M.mean(axis=(1, 2), dtype=np.float64)
+
+
+def floored_gain(g: np.ndarray) -> np.ndarray:
+    """:func:`gain_of` from every valid texel's :func:`texel_means` ``g`` (T,)."""
     return np.maximum(g, 1e-6 * max(g.mean(), 1e-30)).astype(np.float32)
 
 
@@ -327,30 +437,43 @@ class RatioRefinement:
 
     def moves(self, losses: np.ndarray, V: np.ndarray, j: int) -> list[np.ndarray]:
         """Layer j's move of the ratio on each sky (L,) float32, from ``losses`` (k, T, 3)."""
-        out = []
-        for rest, lit, D, X in zip(self.rests, self.lit, self.d, self.delta, strict=True):
-            change = (losses[j] * (V[:, j] @ rest).astype(np.float32))[lit]
-            out.append(change / D if self.role == "delta" else -X * change / D**2)
-        return out
+        return [self.move(losses, V, j, s) for s in range(len(self.rests))]
+
+    def move(self, losses: np.ndarray, V: np.ndarray, j: int, s: int) -> np.ndarray:
+        """Layer j's move of the ratio on sky ``s`` (L,) float32."""
+        rest, lit, D, X = self.rests[s], self.lit[s], self.d[s], self.delta[s]
+        change = (losses[j] * (V[:, j] @ rest).astype(np.float32))[lit]
+        return change / D if self.role == "delta" else -X * change / D**2
 
     def layers(self, losses: np.ndarray, f: Factors) -> list[int]:
         """The layers to refine, given their coarse ``losses`` (k, T, 3).
 
-        One layer's moves are held at a time: all k at once are k x skies x texels values,
-        which raised the bake's peak memory (docs/benchmarks.md,
-        "Figures behind choices in the code")."""
+        One layer's move on one sky is held at a time, besides the summed moves of the
+        layers left unrefined: all k at once were k x skies x texels values, which raised
+        the bake's peak memory (docs/benchmarks.md, "Figures behind choices in the code"),
+        and a layer's moves on every sky are skies x texels (the same sums either way)."""
 
-        def largest(per_sky) -> float:
-            return max((float(np.abs(m).max(initial=0.0)) for m in per_sky), default=0.0)
+        def largest(m) -> float:
+            return float(np.abs(m).max(initial=0.0))
 
-        worst = [largest(self.moves(losses, f.V, j)) for j in range(f.k)]
+        skies = range(len(self.rests))
+        worst = [
+            max((largest(self.move(losses, f.V, j, s)) for s in skies), default=0.0)
+            for j in range(f.k)
+        ]
         total = None
         refine = []
         for j in np.argsort(worst, kind="stable"):
-            moves = self.moves(losses, f.V, j)
-            trial = moves if total is None else [t + m for t, m in zip(total, moves, strict=True)]
-            if largest(trial) <= self.tolerance:
-                total = trial
-            else:
+            fits = all(
+                largest(self.move(losses, f.V, j, s) if total is None
+                        else total[s] + self.move(losses, f.V, j, s)) <= self.tolerance
+                for s in skies
+            )
+            if not fits:
                 refine.append(int(j))
+            elif total is None:
+                total = [self.move(losses, f.V, j, s) for s in skies]
+            else:
+                for s in skies:
+                    total[s] = total[s] + self.move(losses, f.V, j, s)
         return sorted(refine)

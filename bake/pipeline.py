@@ -51,6 +51,7 @@ from bake.gltf import write_site_glb
 from bake.irradiance import SceneSet
 from bake.ktx2decoder import close_decoders
 from bake.raytrace import Geometry, RayScene
+from bake.rowstore import release_freed_memory
 from bake.scene import Site, load_site
 from bake.tracework import TracedResults, TraceWork
 from bake.views import trace_view
@@ -161,14 +162,18 @@ def _bake(
         compressor.start(site, dome, work.stack_names + sun_bounce.stack_names, progress=progress)
         sun_bounce.lights = compressor.selection.selectable
         staging = partial / "build"
-        if staging.exists():
-            shutil.rmtree(staging)
+        # The atlases' stacks as they are written and read back (bake.rowstore), per unit.
+        for folder in (staging, partial / "work"):
+            if folder.exists():
+                shutil.rmtree(folder)
         (staging / "exr").mkdir(parents=True)
         if site.views:
             (staging / "views").mkdir()
         # Each unit loads its own traced arrays when it starts and lets go of them when done:
         # loading every set first held them all at once (the peak memory: docs/benchmarks.md).
         traced = TracedResults(work.point_sets, partial)
+        del scenes  # (the tracing's ray scenes: the write stage casts no rays)
+        release_freed_memory()
         units = [
             partial_fn(write_atlas, a, traced, staging, compressor, sun_bounce)
             for a in atlases.values()

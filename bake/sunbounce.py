@@ -19,6 +19,7 @@ from bake.compact_reader import CompactReader
 from bake.compress import CompactStack
 from bake.ktx2decoder import decode
 from bake.quantize import quantized_png, refinement_png
+from bake.rowstore import RowFile, as_stack, row_block
 
 SUN_BOUNCE_DECODE_CHUNK = 16  # light images decoded at a time (memory: the lightmap is large)
 DISPLAY_SKY_SAMPLES_PER_SIDE = 6  # the display skies' patch integration (as the test skies')
@@ -93,24 +94,68 @@ class _Cosine:
 
 class DisplayCheck:
     """The error a decoded sun-bounce column makes in what the client shows, for one stack:
-    the sky stack ``sky`` (H, W, n, 3, the same atlas's or view's) relit with the display sky
-    plus the sun's bounce (the master column), over the receiver texels (the sky stack's
-    non-zero ones). The sun's direct term, drawn apart, is left out: with it every error
-    would be smaller."""
+    the sky stack ``sky`` (H, W, n, 3, the same atlas's or view's, an array or a
+    :class:`bake.rowstore.StackStore`) relit with the display sky plus the sun's bounce (the
+    master column), over the receiver texels (the sky stack's non-zero ones). The sun's
+    direct term, drawn apart, is left out: with it every error would be smaller.
 
-    def __init__(self, sky: np.ndarray, skies: DisplaySkies):
-        self.valid = np.any(sky != 0.0, axis=(2, 3))
-        # (3, V, n) per channel, contiguous: a chunk of lights is one matrix product each.
-        self.sky = np.stack([sky[..., c][self.valid] for c in range(3)])
+    The relit sky stack of every light of ``lights`` is made in one pass over the sky
+    stack's rows (for each block of rows, a matrix product per chunk of lights and
+    channel) and kept, (len(lights), V, 3) float64: in memory, or beside a stack on disk."""
+
+    def __init__(self, sky, skies: DisplaySkies, lights):
+        sky = as_stack(sky)
+        self.valid = sky.valid
         self.skies = skies
+        self.lights = [int(i) for i in lights]
+        V = int(self.valid.sum())
+        if sky.work is not None:
+            self.shown = RowFile.create(sky.work / f"sky-shown-{id(self)}.npy",
+                                        (len(self.lights) * V, 3), np.float64)
+        else:
+            self.shown = np.empty((len(self.lights) * V, 3), dtype=np.float64)
+        self.V = V
+        flat = self.valid.ravel()
+        step = row_block(sky.n)
+        t = 0
+        for a in range(0, sky.texels, step):
+            keep = flat[a : a + step]
+            if not keep.any():
+                continue
+            rows = sky.rows(a, a + step)[keep]
+            # (3, b, n) per channel, contiguous: a chunk of lights is one matrix product each.
+            per_channel = np.stack([rows[..., c] for c in range(3)])
+            del rows
+            for start in range(0, len(self.lights), SUN_BOUNCE_DECODE_CHUNK):
+                chunk = self.lights[start : start + SUN_BOUNCE_DECODE_CHUNK]
+                sky_rows = [self.skies.row(p) for p in chunk]
+                out = np.empty((len(chunk), per_channel.shape[1], 3), dtype=np.float64)
+                for c in range(3):
+                    out[:, :, c] = (
+                        per_channel[c] @ self.skies.r[sky_rows, :, c].T.astype(np.float32)
+                    ).T
+                for j in range(len(chunk)):
+                    at = (start + j) * V + t
+                    if isinstance(self.shown, RowFile):
+                        self.shown.write(at, out[j])
+                    else:
+                        self.shown[at : at + len(out[j])] = out[j]
+            t += per_channel.shape[1]
 
     def sky_shown(self, lights) -> np.ndarray:
         """(len(lights), V, 3) the sky stack relit with each light's display sky."""
-        rows = [self.skies.row(p) for p in lights]
-        out = np.empty((len(rows), self.sky.shape[1], 3), dtype=np.float64)
-        for c in range(3):
-            out[:, :, c] = (self.sky[c] @ self.skies.r[rows, :, c].T.astype(np.float32)).T
-        return out
+        out = []
+        for p in lights:
+            j = self.lights.index(int(p))
+            if isinstance(self.shown, RowFile):
+                out.append(self.shown.read(j * self.V, (j + 1) * self.V))
+            else:
+                out.append(self.shown[j * self.V : (j + 1) * self.V])
+        return np.stack(out) if out else np.zeros((0, self.V, 3))
+
+    def remove(self) -> None:
+        if isinstance(self.shown, RowFile):
+            self.shown.remove()
 
     def error(self, light: int, sky_shown: np.ndarray, master, decoded) -> float:
         """RMS error over the mean of the displayed value with the sun in ``light``'s patch,
@@ -154,13 +199,28 @@ def compress_sun_bounce(image, name, out_dir, lights, settings, sky=None,
     of ``test_lights``, and when judged ``displayed``: ``max``, ``median``, ``worst_light``,
     ``budget`` and ``refined`` lights), or ``None`` when the stack is zero everywhere."""
     started = time.perf_counter()
+    image = as_stack(image)
     H, W, n, _ = image.shape
     lights = np.asarray(lights, dtype=int)
-    valid = np.any(image != 0.0, axis=(2, 3))
+    valid = image.valid
     if not valid.any() or len(lights) == 0:
         return None
     budget = getattr(settings, "sun_bounce_budget", None)
-    check = DisplayCheck(sky, skies) if sky is not None and skies is not None else None
+    check = (DisplayCheck(sky, skies, lights) if sky is not None and skies is not None
+             else None)
+    try:
+        return _compress_columns(image, name, out_dir, lights, settings, check, budget,
+                                 started)
+    finally:
+        if check is not None:
+            check.remove()
+
+
+def _compress_columns(image, name, out_dir, lights, settings, check, budget, started):
+    """:func:`compress_sun_bounce` once its stack (a :mod:`bake.rowstore` stack) and its
+    check are ready; its columns read a chunk of lights at a time."""
+    H, W, n, _ = image.shape
+    valid = image.valid
     judged = check is not None and budget is not None
     # The selected lights' images' two levels (coarse at uastc_level, refinement at
     # refine_level), not the RMS stacks' cheaper refinement (rms_refine_level): a column's
@@ -175,25 +235,28 @@ def compress_sun_bounce(image, name, out_dir, lights, settings, sky=None,
         coarse_dir, refine_dir = tmp / "coarse", tmp / "refine"
         coarse_dir.mkdir()
         refine_dir.mkdir()
-        coarse_q = {
-            int(i): quantized_png(image[:, :, i], tmp / f"{name}.L{i:04d}.png") for i in lights
-        }
+        coarse_q = {}
+        for start in range(0, len(lights), SUN_BOUNCE_DECODE_CHUNK):
+            chunk = [int(i) for i in lights[start : start + SUN_BOUNCE_DECODE_CHUNK]]
+            for i, column in zip(chunk, image.columns(chunk), strict=True):
+                coarse_q[i] = quantized_png(column, tmp / f"{name}.L{i:04d}.png")
         encode([q.path for q in coarse_q.values()], coarse_dir, image_settings, array=False)
         refine_q = {}
         for start in range(0, len(lights), SUN_BOUNCE_DECODE_CHUNK):
             chunk = [int(i) for i in lights[start : start + SUN_BOUNCE_DECODE_CHUNK]]
             decoded = decode([coarse_dir / f"{name}.L{i:04d}.ktx2" for i in chunk])
             shown = check.sky_shown(chunk) if judged else None
+            columns = image.columns(chunk)
             for j, i in enumerate(chunk):
                 coarse = coarse_q[i].value(decoded[j][0])
                 # The coarse image alone is enough where its error does not show.
-                if judged and check.error(i, shown[j], image[:, :, i], coarse) <= budget:
+                if judged and check.error(i, shown[j], columns[j], coarse) <= budget:
                     continue
                 refined.append(i)
                 refine_q[i] = refinement_png(
-                    image[:, :, i] - coarse, tmp / f"{name}.L{i:04d}r.png", None
+                    columns[j] - coarse, tmp / f"{name}.L{i:04d}r.png", None
                 )
-            del decoded, shown
+            del decoded, shown, columns
         if refine_q:
             encode(
                 [q.path for q in refine_q.values()], refine_dir, image_settings, array=False,
@@ -251,11 +314,12 @@ def sun_bounce_errors(reader: CompactReader, image, valid, lights,
         chunk = [int(i) for i in lights[start : start + SUN_BOUNCE_DECODE_CHUNK]]
         decoded = reader.lights(chunk)
         shown = check.sky_shown(chunk) if check is not None else None
+        columns = as_stack(image).columns(chunk)
         for j, i in enumerate(chunk):
-            truth = image[:, :, i][valid].astype(np.float64)
+            truth = columns[j][valid].astype(np.float64)
             rms = np.sqrt(((decoded[i][valid] - truth) ** 2).mean())
             errors.append(rms / max(float(truth.mean()), 1e-30))
             if check is not None:
-                displayed.append(check.error(i, shown[j], image[:, :, i], decoded[i]))
+                displayed.append(check.error(i, shown[j], columns[j], decoded[i]))
         reader.forget_lights()
     return np.array(errors), np.array(displayed)

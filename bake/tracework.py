@@ -240,10 +240,12 @@ class TracedResults:
     def __init__(self, sets: list[PointSet], partial: Path):
         self.sets, self.partial = sets, partial
 
-    def load(self, owner: str) -> dict:
-        """{set name: arrays} of every set of an atlas or view ``owner`` (``<owner>.*``)."""
+    def load(self, owner: str, lights: slice | None = None, names=None) -> dict:
+        """{set name: arrays} of every set of an atlas or view ``owner`` (``<owner>.*``):
+        of the lights ``lights`` only (default all), and of the arrays ``names`` only (a
+        configuration and ``bounce:<configuration>``; default all)."""
         return {
-            s.name: _load_set(s, self.partial)
+            s.name: _load_set(s, self.partial, lights, names)
             for s in self.sets
             if s.name.split(".")[0] == owner
         }
@@ -308,6 +310,8 @@ def _run_sets(sets, partial, seed, init, cache_file, workers, bar, cluster=None)
     return rays
 
 
-def _load_set(s: PointSet, partial: Path) -> dict:
-    """Every array the set's chunks hold (configurations and their bounces), concatenated."""
-    return chunkio.load_chunks([_chunk_path(partial, s, i) for i in range(len(s.chunks))])
+def _load_set(s: PointSet, partial: Path, lights=None, names=None) -> dict:
+    """Every array the set's chunks hold (configurations and their bounces), concatenated
+    (``lights`` and ``names``: :meth:`TracedResults.load`)."""
+    paths = [_chunk_path(partial, s, i) for i in range(len(s.chunks))]
+    return chunkio.load_chunks(paths, lights, names)

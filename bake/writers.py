@@ -31,18 +31,27 @@ from bake.denoise import (
 from bake.dome import Dome
 from bake.errors import BakeError
 from bake.raytrace import Geometry
+from bake.rowstore import StackStore, release_freed_memory
 from bake.scene import Site
-from bake.tracework import TracedResults, lookup_result, release_result
+from bake.tracework import TracedResults, lookup_result
 from bake.views import mask_image, radiance_image, virtual_depth_image
-from daylit.stackio import CHANNEL_PATTERN, write_exr, write_stack_exr
+from daylit.stackio import (
+    CHANNEL_PATTERN,
+    write_exr,
+    write_stack_exr,
+    write_stack_exr_by_rows,
+)
 
 BOUNCE_SIGMA_TEXELS = 1.5  # smoothing of the indirect bounce within a surface (texels, pixels)
 # An atlas's bounce is smoothed with a local linear fit (bake.denoise: no bias at a surface's
 # edges, where the bounce beside a sunlit wall changes fastest); views keep the plain mean.
 BOUNCE_ORDER = 1
-# Lights of an atlas stack assembled at a time: one of the smoothing's channel blocks (three
-# channels a light), so that 40 lights are one block and 400 lights ten.
+# Lights of an atlas stack assembled at a time: at most one of the smoothing's channel blocks
+# (three channels a light), fewer on a large atlas (:data:`ASSEMBLY_BYTES`).
 LIGHT_BLOCK = MAX_CHANNELS // 3
+# Bytes of one block of an atlas stack as it is assembled, (H, W, b, 3) float32: the block's
+# traced arrays, its bounce image and the smoothing's copies are each about this size.
+ASSEMBLY_BYTES = 256 << 20
 
 
 @dataclass
@@ -99,24 +108,35 @@ class SunBounce:
         image[:, :, columns] = part
         return image
 
-    def view_image(self, view, hits, smoothed: np.ndarray) -> np.ndarray:
-        """The one-bounce part of a fixed view's O or S stack (H, W, n, 3) radiance, exactly
-        as :func:`write_view` adds it: ``albedo / pi`` times the bounce ``smoothed`` (P, n, 3,
-        from :func:`view_smoothed`) at the pixels that see a surface, for the lights the sun
-        can be in; zero in the other columns, on the sky and on the open ground past the
-        site (its radiance in the view is the dome's direct light alone, no bounce)."""
-        image = np.zeros((view.height * view.width, len(self.up), 3), dtype=np.float32)
-        lights = self.lights
-        image[hits.surface[:, None], lights[None, :]] = (
-            hits.albedo[:, None, :] / np.pi * smoothed[:, lights]
+    def view_image(self, view, hits, smoothed: np.ndarray,
+                   block: slice = slice(None)) -> np.ndarray:
+        """The one-bounce part of a fixed view's O or S stack's lights ``block`` (H, W, b, 3)
+        radiance, exactly as :func:`write_view` adds it: ``albedo / pi`` times the bounce
+        ``smoothed`` (P, b, 3, from :func:`view_smoothed`) at the pixels that see a surface,
+        for the lights the sun can be in; zero in the other columns, on the sky and on the
+        open ground past the site (its radiance in the view is the dome's direct light
+        alone, no bounce)."""
+        start, stop, _ = block.indices(len(self.up))
+        columns = self.lights[(self.lights >= start) & (self.lights < stop)] - start
+        image = np.zeros((view.height * view.width, stop - start, 3), dtype=np.float32)
+        image[hits.surface[:, None], columns[None, :]] = (
+            hits.albedo[:, None, :] / np.pi * smoothed[:, columns]
         )
-        return image.reshape(view.height, view.width, len(self.up), 3)
+        return image.reshape(view.height, view.width, stop - start, 3)
 
 
-def write_atlas(a, traced: TracedResults, staging: Path, compressor, sun_bounce) -> dict:
+def write_atlas(a, traced: TracedResults, staging: Path, compressor, sun_bounce,
+                work: Path | None = None) -> dict:
     """Assemble an atlas's stacks (direct plus smoothed bounce, gutters filled), write their
     EXR masters and compact textures; then its sun-bounce stacks (the bounce alone, the
-    sun's lights only: :class:`SunBounce`); returns the atlas's manifest entry."""
+    sun's lights only: :class:`SunBounce`); returns the atlas's manifest entry.
+
+    No step holds every light of a stack (issue 20): each stack is assembled by blocks of
+    lights (:func:`atlas_light_block`), each block read from the traced chunks and written
+    to disk in ``work`` (default: ``work`` beside ``staging``) as a
+    :class:`bake.rowstore.StackStore`, which the EXR master, the sun's bounce and the
+    compression read back by rows of texels (docs/benchmarks.md, "The write stage's
+    memory")."""
     entry = {
         "id": a.id,
         "role": a.role,
@@ -128,70 +148,111 @@ def write_atlas(a, traced: TracedResults, staging: Path, compressor, sun_bounce)
     }
     if a.d_reference:
         entry["d_reference"] = a.d_reference
+    work = (staging.parent / "work" if work is None else Path(work)) / a.id
     coverage = a.coverage()
     labels = a.label_image()
-    results = traced.load(a.id)
-    images, sun_entries = {}, {}
-    configs = list(a.stacks.values())
-    for stack, config in a.stacks.items():
-        direct, bounce = lookup_result(results, f"{a.id}.{stack}", config)
-        if config != "none":  # texels moved onto contact lines: their chord (bake.contact)
-            direct = extrapolate_direct(a, direct)
-        open_labels = _open_labels(a, labels, direct, config)
-        bounce_labels = None if bounce is None else _bounce_labels(a, open_labels)
-        with_sun = sun_bounce.enabled and (bounce is not None or config == "none")
-        n = direct.shape[1]
-        image = np.empty((a.height, a.width, n, 3), dtype=np.float32)
-        sun_image = np.empty_like(image) if with_sun else None
-        # By blocks of lights: the smoothing's working arrays (several of the block's size)
-        # are then those of a block, not of every light (docs/benchmarks.md, "A large site").
-        # Every step treats each light on its own: the same values as the stack made whole.
-        for block in light_blocks(n):
-            # Smoothed once, for the stack and its sun-bounce stack (it took a quarter of the
-            # write stage's time when done for each: docs/benchmarks.md).
-            smoothed = (
-                None if bounce is None
-                else smooth_bounce(a.to_image(bounce[:, block]), *bounce_labels)
-            )
-            image[:, :, block] = _atlas_image(
-                a, config, direct[:, block], smoothed, coverage, open_labels
-            )
-            if with_sun:
-                sun_image[:, :, block] = sun_bounce.image(a, config, smoothed, coverage, block)
-            del smoothed
-        images[stack] = image
-        rel = f"exr/{a.id}.{stack}.exr"
-        write_stack_exr(staging / rel, image)
-        entry["stacks"][stack] = {
-            "master": rel,
-            "quantity": "irradiance",
-            "channels": CHANNEL_PATTERN,
-        }
-        if with_sun:
-            # Written and compressed at once, not held until the stacks are: each is a whole
-            # lights x texels array (docs/benchmarks.md, "A large site"); judged as displayed
-            # with its sky stack (bake.sunbounce), here while both are.
-            sun_entries.update(
-                _write_sun_bounce({stack: sun_image}, a.id, "exr", "irradiance", staging,
-                                  compressor, {stack: image})
-            )
-        image = sun_image = direct = bounce = None  # let go before the next stack's are made
-        configs.remove(config)
-        if config not in configs:  # no other stack of the atlas reads its traced arrays
-            release_result(results, f"{a.id}.{stack}", config)
-    del results  # the images hold what compression needs
-    # Shadowing atlases show I / d: their two stacks are compressed together for it (the
-    # compressor empties ``images`` as it takes them).
-    for stack, compact in compressor.run(images, a.id, staging).items():
-        entry["stacks"][stack]["compact"] = compact
+    n = len(sun_bounce.up)
+    stores, sun_entries = {}, {}
+    try:
+        for stack, config in a.stacks.items():
+            store, sun_store = _assemble(a, stack, config, traced, n, coverage, labels,
+                                         sun_bounce, work)
+            stores[stack] = store
+            rel = f"exr/{a.id}.{stack}.exr"
+            _write_master(staging / rel, store)
+            entry["stacks"][stack] = {
+                "master": rel,
+                "quantity": "irradiance",
+                "channels": CHANNEL_PATTERN,
+            }
+            if sun_store is not None:
+                # Written and compressed at once, judged as displayed with its sky stack
+                # (bake.sunbounce), here while both are on disk.
+                sun_entries.update(
+                    _write_sun_bounce({stack: sun_store}, a.id, "exr", "irradiance", staging,
+                                      compressor, {stack: store})
+                )
+                sun_store.remove()
+        # Shadowing atlases show I / d: their two stacks are compressed together for it (the
+        # compressor empties ``stores`` as it takes them).
+        for stack, compact in compressor.run(dict(stores), a.id, staging).items():
+            entry["stacks"][stack]["compact"] = compact
+    finally:
+        for store in stores.values():
+            store.remove()
+        shutil.rmtree(work, ignore_errors=True)
+        release_freed_memory()
     if sun_entries:
         entry["sun_bounce"] = sun_entries
     return entry
 
 
-def light_blocks(n: int) -> list[slice]:
-    """The lights 0..n-1 in blocks of :data:`LIGHT_BLOCK`."""
-    return [slice(i, min(i + LIGHT_BLOCK, n)) for i in range(0, n, LIGHT_BLOCK)]
+def _assemble(a, stack, config, traced, n, coverage, labels, sun_bounce, work: Path):
+    """One atlas stack and its sun-bounce stack (None without one) as
+    :class:`StackStore` s in ``work``, made by blocks of lights: the traced arrays of a
+    block are read from the chunks, their bounce smoothed, the gutters filled (every step
+    treats each light on its own: the same values as the stack made whole)."""
+    name = f"{a.id}.{stack}"
+    names = {config, "bounce:" + config}
+    blocks = light_blocks(n, atlas_light_block(a.height, a.width))
+    # The buried texels are those no light reaches: one pass over the direct light first.
+    seen = np.zeros(a.count, dtype=bool)
+    has_bounce = False
+    if config != "none":
+        for block in blocks:
+            direct, bounce = lookup_result(traced.load(a.id, block, {config}), name, config)
+            direct = extrapolate_direct(a, direct)
+            seen |= direct.reshape(len(direct), -1).max(axis=1) > 0.0
+            del direct
+    open_labels = _open_labels(a, labels, seen, config)
+    store = StackStore(work / stack, a.height, a.width, n)
+    sun_store = None
+    bounce_labels = _bounce_labels(a, open_labels)
+    plans: dict = {}  # the smoothing's fit weights, the same for every block
+    for block in blocks:
+        direct, bounce = lookup_result(traced.load(a.id, block, names), name, config)
+        if config != "none":  # texels moved onto contact lines: their chord (bake.contact)
+            direct = extrapolate_direct(a, direct)
+        has_bounce = bounce is not None
+        with_sun = sun_bounce.enabled and (has_bounce or config == "none")
+        if with_sun and sun_store is None:
+            sun_store = StackStore(work / f"sun_bounce.{stack}", a.height, a.width, n)
+        # Smoothed once, for the stack and its sun-bounce stack (it took a quarter of the
+        # write stage's time when done for each: docs/benchmarks.md).
+        smoothed = (
+            None if bounce is None
+            else smooth_bounce(a.to_image(bounce), *bounce_labels, plans=plans)
+        )
+        del bounce
+        store.write_block(block, _atlas_image(a, config, direct, smoothed, coverage,
+                                              open_labels))
+        del direct
+        if with_sun:
+            sun_store.write_block(block, sun_bounce.image(a, config, smoothed, coverage, block))
+        del smoothed
+        release_freed_memory()
+    return store, sun_store
+
+
+def _write_master(path: Path, store: StackStore) -> None:
+    """A stack's EXR master from its store, a band of lines at a time."""
+    h, w, n = store.height, store.width, store.n
+    write_stack_exr_by_rows(
+        path, h, w, n, lambda y0, y1: store.rows(y0 * w, y1 * w).reshape(y1 - y0, w, n, 3)
+    )
+
+
+def atlas_light_block(height: int, width: int) -> int:
+    """Lights of an atlas stack assembled at a time: as many as keep one block's image
+    (H, W, b, 3) float32 within :data:`ASSEMBLY_BYTES` (the smoothing holds several), at
+    least one and at most :data:`LIGHT_BLOCK`."""
+    return int(np.clip(ASSEMBLY_BYTES // (height * width * 3 * 4), 1, LIGHT_BLOCK))
+
+
+def light_blocks(n: int, size: int | None = None) -> list[slice]:
+    """The lights 0..n-1 in blocks of ``size`` (default :data:`LIGHT_BLOCK`)."""
+    size = LIGHT_BLOCK if size is None else min(size, LIGHT_BLOCK)
+    return [slice(i, min(i + size, n)) for i in range(0, n, size)]
 
 
 def _atlas_image(a, config, direct, smoothed, coverage, labels) -> np.ndarray:
@@ -205,13 +266,14 @@ def _atlas_image(a, config, direct, smoothed, coverage, labels) -> np.ndarray:
     return _dilate(image, coverage, rings=3)
 
 
-def _open_labels(a, labels: np.ndarray, direct, config: str) -> np.ndarray:
+def _open_labels(a, labels: np.ndarray, seen, config: str) -> np.ndarray:
     """The atlas's surface labels (H, W) with its *buried* texels (inside another solid: no
-    light from any patch of the dome reaches them, e.g. the ground under a building) marked
-    ``-2 - label``: the bounce's smoothing leaves them out (:func:`smooth_bounce`)."""
+    light from any patch of the dome reaches them, e.g. the ground under a building: not
+    ``seen``, (count,) bool over the atlas's texels) marked ``-2 - label``: the bounce's
+    smoothing leaves them out (:func:`smooth_bounce`)."""
     if config == "none":
         return labels  # nothing casts: nothing is buried
-    seen = a.to_image(np.asarray(direct).reshape(len(direct), -1).max(axis=1) > 0.0)
+    seen = a.to_image(seen)
     out = labels.copy()
     buried = (labels >= 0) & ~seen
     out[buried] = -2 - labels[buried]
@@ -232,7 +294,8 @@ def _bounce_labels(a, labels: np.ndarray) -> tuple:
     return out, (y[moved], x[moved])
 
 
-def smooth_bounce(image: np.ndarray, labels: np.ndarray, moved=None) -> np.ndarray:
+def smooth_bounce(image: np.ndarray, labels: np.ndarray, moved=None,
+                  plans: dict | None = None) -> np.ndarray:
     """An atlas's traced bounce (H, W, ...) smoothed within each surface by a local linear
     fit (:data:`BOUNCE_ORDER`) over its open texels, with a narrower kernel near contact
     lines; texels ``moved`` onto contact lines ((rows, columns), marked buried in
@@ -241,10 +304,13 @@ def smooth_bounce(image: np.ndarray, labels: np.ndarray, moved=None) -> np.ndarr
     (label ``-2 - label``, :func:`_open_labels`) next to open ones hold the fit continued,
     the rest the value of the nearest of those, so bilinear filtering at a wall's foot reads
     the open side's bounce only (bake.contact, bake.denoise)."""
-    smoothed = smooth_within_labels(image, labels, BOUNCE_SIGMA_TEXELS, order=BOUNCE_ORDER)
+    plans = {} if plans is None else plans  # fit weights kept for the same labels' blocks
+    smoothed = smooth_within_labels(image, labels, BOUNCE_SIGMA_TEXELS, order=BOUNCE_ORDER,
+                                    plan=plans.setdefault("open", {}))
     near = near_contact(labels)
     if near.any():
-        fine = smooth_within_labels(image, labels, NEAR_SIGMA_TEXELS, order=BOUNCE_ORDER)
+        fine = smooth_within_labels(image, labels, NEAR_SIGMA_TEXELS, order=BOUNCE_ORDER,
+                                    plan=plans["open"])
         smoothed[near] = fine[near]
     smoothed = continue_into_buried(smoothed, labels)
     keep = continued_labels(labels)
@@ -254,7 +320,8 @@ def smooth_bounce(image: np.ndarray, labels: np.ndarray, moved=None) -> np.ndarr
         surface = np.where(labels <= -2, -2 - labels, labels)
         strips = np.full(labels.shape, -1, dtype=labels.dtype)
         strips[moved] = surface[moved]
-        along = smooth_within_labels(image, strips, BOUNCE_SIGMA_TEXELS, order=BOUNCE_ORDER)
+        along = smooth_within_labels(image, strips, BOUNCE_SIGMA_TEXELS, order=BOUNCE_ORDER,
+                                     plan=plans.setdefault("strips", {}))
         smoothed[moved] = along[moved]
         keep[moved] = True
     surface = np.where(labels <= -2, -2 - labels, labels)
@@ -285,32 +352,52 @@ def write_view(
         "stacks": {},
     }
     up = dome.cosine_weighted_sr
-    results = traced.load(view.name)
-    sun_images, sky_images = {}, {}
-    for stack, config in (("O", "all"), ("S", "real")):
-        direct, bounce = lookup_result(results, f"{view.name}.{stack}", config)
-        E = _rgb(direct, config)
-        if bounce is not None:
-            smoothed = view_smoothed(view, hits[stack], bounce, geometry)
-            E += smoothed
-            if sun_bounce is not None and sun_bounce.enabled:
-                sun_images[stack] = sun_bounce.view_image(view, hits[stack], smoothed)
-            del smoothed
-        image = radiance_image(view, hits[stack], E, up, site.ground.albedo)
-        rel = f"views/{view.name}.{stack}.exr"
-        write_stack_exr(staging / rel, image)
-        entry["stacks"][stack] = {
-            "master": rel,
-            "quantity": "radiance",
-            "channels": CHANNEL_PATTERN,
-            "compact": compressor.run({stack: image}, view.name, staging)[stack],
-        }
-        if stack in sun_images:  # it judges the sun-bounce images as displayed
-            sky_images[stack] = image
-        del image
-    sun_entries = _write_sun_bounce(sun_images, view.name, "views", "radiance", staging,
-                                    compressor, sky_images)
-    del sky_images
+    n = len(up)
+    work = staging.parent / "work" / view.name
+    blocks = light_blocks(n, atlas_light_block(view.height, view.width))
+    sun_entries = {}
+    try:
+        for stack, config in (("O", "all"), ("S", "real")):
+            # By blocks of lights, as an atlas's stacks (every step treats each light on its
+            # own: the same values as the stack made whole).
+            store = StackStore(work / stack, view.height, view.width, n)
+            sun_store = None
+            for block in blocks:
+                results = traced.load(view.name, block, {config, "bounce:" + config})
+                direct, bounce = lookup_result(results, f"{view.name}.{stack}", config)
+                del results
+                E = _rgb(direct, config)
+                if bounce is not None:
+                    smoothed = view_smoothed(view, hits[stack], bounce, geometry)
+                    E += smoothed
+                    if sun_bounce is not None and sun_bounce.enabled:
+                        if sun_store is None:
+                            sun_store = StackStore(work / f"sun_bounce.{stack}", view.height,
+                                                   view.width, n)
+                        sun_store.write_block(
+                            block, sun_bounce.view_image(view, hits[stack], smoothed, block)
+                        )
+                    del smoothed
+                store.write_block(
+                    block, radiance_image(view, hits[stack], E, up[block], site.ground.albedo)
+                )
+                del E, direct, bounce
+            rel = f"views/{view.name}.{stack}.exr"
+            _write_master(staging / rel, store)
+            if sun_store is not None:  # judged as displayed with its sky stack
+                sun_entries.update(_write_sun_bounce(
+                    {stack: sun_store}, view.name, "views", "radiance", staging, compressor,
+                    {stack: store}))
+                sun_store.remove()
+            entry["stacks"][stack] = {
+                "master": rel,
+                "quantity": "radiance",
+                "channels": CHANNEL_PATTERN,
+                "compact": compressor.run({stack: store}, view.name, staging)[stack],
+            }
+            store.remove()
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
     if sun_entries:
         entry["sun_bounce"] = sun_entries
     entry["mask"] = f"views/{view.name}.mask.png"
@@ -386,16 +473,20 @@ def swap_into_place(staging: Path, out_dir: Path) -> None:
 def _write_sun_bounce(sun_images: dict, owner: str, folder: str, quantity: str, staging: Path,
                       compressor, sky_images: dict) -> dict:
     """Write and compress an atlas's or a view's sun-bounce stacks (``sun_images``: stack ->
-    image, emptied as they are written) as ``<folder>/<owner>.sun_bounce.<stack>.exr`` masters
-    and their compact images, each judged as displayed with its sky stack (``sky_images``:
-    stack -> image, (H, W, n, 3)); the manifest entries of the stacks that are not zero
+    image or :class:`StackStore`, emptied as they are written) as
+    ``<folder>/<owner>.sun_bounce.<stack>.exr`` masters and their compact images, each
+    judged as displayed with its sky stack (``sky_images``: stack -> image, (H, W, n, 3), or
+    store); the manifest entries of the stacks that are not zero
     everywhere."""
     entries = {}
     for stack in list(sun_images):
         image = sun_images.pop(stack)
         name = f"{owner}.sun_bounce.{stack}"
         rel = f"{folder}/{name}.exr"
-        write_stack_exr(staging / rel, image)
+        if isinstance(image, StackStore):
+            _write_master(staging / rel, image)
+        else:
+            write_stack_exr(staging / rel, image)
         compact = compressor.run_sun_bounce(image, name, staging, master=rel,
                                             sky=sky_images.get(stack))
         if compact is not None:
