@@ -180,11 +180,14 @@ def compress_sun_bounce(image, name, out_dir, lights, settings, sky=None,
             int(i): quantized_png(image[:, :, i], tmp / f"{name}.L{i:04d}.png") for i in lights
         }
         encode([q.path for q in coarse_q.values()], coarse_dir, image_settings, array=False)
-        # The lights whose coarse image shows (all of them when not judged), with it decoded.
-        over = _shown_coarse(lights, coarse_dir, name, coarse_q, image, check if judged else None,
-                             budget)
         second = getattr(settings, "sun_bounce_level", settings.uastc_level)
-        if judged and over and second != settings.uastc_level:
+        again = judged and second != settings.uastc_level
+        # The lights whose coarse image shows (all of them when not judged); refined at once
+        # unless they get a second coarse level first.
+        refine_q = {}
+        over = _shown_coarse(lights, coarse_dir, name, coarse_q, image,
+                             check if judged else None, budget, None if again else refine_q, tmp)
+        if again and over:
             # Encoded again at a better UASTC level (the same 8-bit image: the same scale and
             # offset), which is enough for some; those keep it, the others are refined
             # against it (docs/compact-assets.md, "The sun's bounce").
@@ -195,14 +198,9 @@ def compress_sun_bounce(image, name, out_dir, lights, settings, sky=None,
             for i in over:
                 shutil.move(again_dir / f"{name}.L{i:04d}.ktx2",
                             coarse_dir / f"{name}.L{i:04d}.ktx2")
-            over = _shown_coarse(list(over), coarse_dir, name, coarse_q, image, check, budget)
-        refine_q = {}
-        for i, coarse in over.items():
-            refined.append(i)
-            refine_q[i] = refinement_png(
-                image[:, :, i] - coarse, tmp / f"{name}.L{i:04d}r.png", None
-            )
-        del over
+            over = _shown_coarse(over, coarse_dir, name, coarse_q, image, check, budget,
+                                 refine_q, tmp)
+        refined.extend(over)
         if refine_q:
             encode(
                 [q.path for q in refine_q.values()], refine_dir, image_settings, array=False,
@@ -249,11 +247,13 @@ def compress_sun_bounce(image, name, out_dir, lights, settings, sky=None,
     return compact
 
 
-def _shown_coarse(lights, folder: Path, name: str, coarse_q: dict, image, check, budget) -> dict:
-    """{light: its decoded coarse image (H, W, 3)} for the ``lights`` whose coarse image in
-    ``folder`` is off by more than ``budget`` as displayed (``check``: a
-    :class:`DisplayCheck`; None: every light)."""
-    over = {}
+def _shown_coarse(lights, folder: Path, name: str, coarse_q: dict, image, check, budget,
+                  refine_q: dict | None, tmp: Path) -> list[int]:
+    """The ``lights`` whose coarse image in ``folder`` is off by more than ``budget`` as
+    displayed (``check``: a :class:`DisplayCheck`; None: every light). With ``refine_q``, the
+    refinement image of each of them (what its coarse image lost) is written into ``tmp`` and
+    listed there, as its chunk is decoded (not every decoded image held at once: memory)."""
+    over = []
     for start in range(0, len(lights), SUN_BOUNCE_DECODE_CHUNK):
         chunk = [int(i) for i in lights[start : start + SUN_BOUNCE_DECODE_CHUNK]]
         decoded = decode([folder / f"{name}.L{i:04d}.ktx2" for i in chunk])
@@ -263,7 +263,11 @@ def _shown_coarse(lights, folder: Path, name: str, coarse_q: dict, image, check,
             # The coarse image alone is enough where its error does not show.
             if check is not None and check.error(i, shown[j], image[:, :, i], coarse) <= budget:
                 continue
-            over[i] = coarse
+            over.append(i)
+            if refine_q is not None:
+                refine_q[i] = refinement_png(
+                    image[:, :, i] - coarse, tmp / f"{name}.L{i:04d}r.png", None
+                )
         del decoded, shown
     return over
 
