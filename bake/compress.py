@@ -83,6 +83,12 @@ class Settings:
     # edge for a few per cent more bytes, as level 2 does at several times the time.
     uastc_level: int = 0  # coarse light images
     refine_level: int = 1  # refinement layers, and arrays holding both stages
+    # A sun-bounce coarse image over ``sun_bounce_budget`` as displayed (below) at
+    # ``uastc_level`` is encoded again at this level before it is given a refinement: on the
+    # 400-light final lightmap level 1's images were 7 % larger and 12 % closer, and spared
+    # 24 of 142 refinements, each larger than the coarse image (docs/benchmarks.md,
+    # "Downloads with the sun apart").
+    sun_bounce_level: int = 1
     # The same for stacks judged by their RMS error alone (lightmap, views): a refinement
     # layer spans a few steps of its coarse layer, so level 1's better worst texel does not
     # show there, and level 0 is faster.
@@ -104,9 +110,12 @@ class Settings:
     # every layer UASTC.
     etc1s_from_layer: int | None = 8
     # The same for stacks judged by their RMS error alone (lightmap, views: no shadow ratio
-    # to keep), tried first; if the decoded composite is then over the budget on a test sky,
-    # the stack is encoded again from ``etc1s_from_layer``, then with no ETC1S layer
-    # (:func:`compress_rms_stack`). Measured: docs/benchmarks.md, "Downloads with the sun apart".
+    # to keep), tried first; while the decoded composite is over the budget on a test sky,
+    # the stack is encoded again with the ETC1S array one layer later, up to
+    # ``etc1s_from_layer``, then with no ETC1S layer (:func:`compress_rms_stack`; straight
+    # from 4 to 8, the 400-light final lightmap fell back to 8 for 0.05 % over the budget
+    # where 5 was within it and 0.61 MB smaller). Measured: docs/benchmarks.md, "Downloads
+    # with the sun apart".
     rms_etc1s_from_layer: int | None = 4
     # No rate-distortion optimization (basisu -uastc_rdo_l): it shrinks coarse light images
     # but refinements are most of the light bytes, so over a bake it saved little of a
@@ -419,14 +428,14 @@ def compress_stacks(images, prefix, out_dir, skies, S, S_inv, selection, setting
 
 def compress_rms_stack(image, name, out_dir, skies, S, S_inv, selection, settings):
     """:func:`compress_stack` for a stack judged by its RMS error alone (lightmap, views):
-    ETC1S from ``settings.rms_etc1s_from_layer`` on; if the decoded composite is then over the
-    budget on a test sky, again from ``settings.etc1s_from_layer``, then with every layer
-    UASTC (same rank and factors; the last try is kept whatever its error, as before).
+    ETC1S from ``settings.rms_etc1s_from_layer`` on; while the decoded composite is over the
+    budget on a test sky, again with the ETC1S array starting one layer later, up to
+    ``settings.etc1s_from_layer``, then with every layer UASTC (same rank and factors; the
+    last try is kept whatever its error, as before). Each layer moved out of the ETC1S array
+    is a UASTC layer (and its refinement) more: the first split within the budget is the
+    smallest (docs/benchmarks.md, "Downloads with the sun apart").
     ``image``: (H, W, n, 3) or a :class:`bake.rowstore.StackStore`."""
-    tries = [settings.rms_etc1s_from_layer, settings.etc1s_from_layer, None]
-    if settings.etc1s_from_layer is None:
-        tries = [None]
-    tries = list(dict.fromkeys(tries))  # in order, once each
+    tries = rms_etc1s_tries(settings)
     stack = as_stack(image)
     del image
     valid = stack.valid
@@ -434,13 +443,18 @@ def compress_rms_stack(image, name, out_dir, skies, S, S_inv, selection, setting
     let_go(stack)
     spectrum = Spectrum.of(M, np.ones(len(M), np.float32), S)
     del stack  # the spectrum holds the valid texels (a caller's reference keeps it, if any)
-    first = None
+    first, splits = None, set()
     for j0 in tries:
+        if first is not None:  # a try that splits the rank as an earlier one did: the same files
+            split = _etc1s_split(first.entry["k"], replace(settings, etc1s_from_layer=j0))
+            if split in splits:
+                continue
         result = compress_stack(
             None, name, out_dir, skies, S, S_inv, selection,
             replace(settings, etc1s_from_layer=j0), valid=valid, spectrum=spectrum,
             rank=None if first is None else first.entry["k"],
         )
+        splits.add(_etc1s_split(result.entry["k"], replace(settings, etc1s_from_layer=j0)))
         if first is None:
             first = result
         else:  # the rank was fixed: keep the first try's truncation errors
@@ -452,6 +466,17 @@ def compress_rms_stack(image, name, out_dir, skies, S, S_inv, selection, setting
         (out_dir / "ktx2" / f"{name}.etc1s.ktx2").unlink(missing_ok=True)
     spectrum.remove()
     return result
+
+
+def rms_etc1s_tries(settings: Settings) -> list[int | None]:
+    """The first layers of the ETC1S array that :func:`compress_rms_stack` tries, in order:
+    every one from ``settings.rms_etc1s_from_layer`` to ``settings.etc1s_from_layer``, then
+    None (every layer UASTC); only None without ``etc1s_from_layer``."""
+    last, first = settings.etc1s_from_layer, settings.rms_etc1s_from_layer
+    if last is None:
+        return [None]
+    first = last if first is None else min(first, last)
+    return [*range(first, last + 1), None]
 
 
 def compress_ratio_pair(I, d, names, out_dir, skies, S, S_inv, selection, settings):

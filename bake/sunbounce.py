@@ -181,11 +181,12 @@ def compress_sun_bounce(image, name, out_dir, lights, settings, sky=None,
 
     Each image is encoded as the ordinary stacks' light images
     (:func:`bake.compress.compress_stack`): quantized to 8 bits with its own scale and
-    offset, encoded at UASTC level ``settings.uastc_level`` and decoded. What was lost is
-    encoded again as a refinement at level ``settings.refine_level`` only where the coarse
+    offset, encoded at UASTC level ``settings.uastc_level`` and decoded. Where the coarse
     image alone is off by more than ``settings.sun_bounce_budget`` as displayed
     (:class:`DisplayCheck`: ``sky`` (H, W, n, 3), the same atlas's or view's sky stack,
-    relit with ``skies``' clear sky for that patch, plus the bounce); without ``sky`` and
+    relit with ``skies``' clear sky for that patch, plus the bounce) it is encoded again at
+    level ``settings.sun_bounce_level``, and where that is still off, what was lost is
+    encoded as a refinement at level ``settings.refine_level``; without ``sky`` and
     ``skies``, or with the budget None, every light keeps its refinement. Every column is
     then decoded as the client decodes it (:class:`CompactReader`) and checked against the
     master: RMS error over the stack's valid texels relative to the column's mean there, and
@@ -241,22 +242,27 @@ def _compress_columns(image, name, out_dir, lights, settings, check, budget, sta
             for i, column in zip(chunk, image.columns(chunk), strict=True):
                 coarse_q[i] = quantized_png(column, tmp / f"{name}.L{i:04d}.png")
         encode([q.path for q in coarse_q.values()], coarse_dir, image_settings, array=False)
+        second = getattr(settings, "sun_bounce_level", settings.uastc_level)
+        again = judged and second != settings.uastc_level
+        # The lights whose coarse image shows (all of them when not judged); refined at once
+        # unless they get a second coarse level first.
         refine_q = {}
-        for start in range(0, len(lights), SUN_BOUNCE_DECODE_CHUNK):
-            chunk = [int(i) for i in lights[start : start + SUN_BOUNCE_DECODE_CHUNK]]
-            decoded = decode([coarse_dir / f"{name}.L{i:04d}.ktx2" for i in chunk])
-            shown = check.sky_shown(chunk) if judged else None
-            columns = image.columns(chunk)
-            for j, i in enumerate(chunk):
-                coarse = coarse_q[i].value(decoded[j][0])
-                # The coarse image alone is enough where its error does not show.
-                if judged and check.error(i, shown[j], columns[j], coarse) <= budget:
-                    continue
-                refined.append(i)
-                refine_q[i] = refinement_png(
-                    columns[j] - coarse, tmp / f"{name}.L{i:04d}r.png", None
-                )
-            del decoded, shown, columns
+        over = _shown_coarse(lights, coarse_dir, name, coarse_q, image,
+                             check if judged else None, budget, None if again else refine_q, tmp)
+        if again and over:
+            # Encoded again at a better UASTC level (the same 8-bit image: the same scale and
+            # offset), which is enough for some; those keep it, the others are refined
+            # against it (docs/compact-assets.md, "The sun's bounce").
+            again_dir = tmp / "again"
+            again_dir.mkdir()
+            encode([coarse_q[i].path for i in over], again_dir, image_settings, array=False,
+                   level=second)
+            for i in over:
+                shutil.move(again_dir / f"{name}.L{i:04d}.ktx2",
+                            coarse_dir / f"{name}.L{i:04d}.ktx2")
+            over = _shown_coarse(over, coarse_dir, name, coarse_q, image, check, budget,
+                                 refine_q, tmp)
+        refined.extend(over)
         if refine_q:
             encode(
                 [q.path for q in refine_q.values()], refine_dir, image_settings, array=False,
@@ -301,6 +307,32 @@ def _compress_columns(image, name, out_dir, lights, settings, check, budget, sta
     compact = CompactStack(entry, light_files, encode_s=encode_s)
     compact.light_bytes = sum(p.stat().st_size for p in light_files)
     return compact
+
+
+def _shown_coarse(lights, folder: Path, name: str, coarse_q: dict, image, check, budget,
+                  refine_q: dict | None, tmp: Path) -> list[int]:
+    """The ``lights`` whose coarse image in ``folder`` is off by more than ``budget`` as
+    displayed (``check``: a :class:`DisplayCheck`; None: every light). With ``refine_q``, the
+    refinement image of each of them (what its coarse image lost) is written into ``tmp`` and
+    listed there, as its chunk is decoded (not every decoded image held at once: memory)."""
+    over = []
+    for start in range(0, len(lights), SUN_BOUNCE_DECODE_CHUNK):
+        chunk = [int(i) for i in lights[start : start + SUN_BOUNCE_DECODE_CHUNK]]
+        decoded = decode([folder / f"{name}.L{i:04d}.ktx2" for i in chunk])
+        shown = check.sky_shown(chunk) if check is not None else None
+        columns = as_stack(image).columns(chunk)
+        for j, i in enumerate(chunk):
+            coarse = coarse_q[i].value(decoded[j][0])
+            # The coarse image alone is enough where its error does not show.
+            if check is not None and check.error(i, shown[j], columns[j], coarse) <= budget:
+                continue
+            over.append(i)
+            if refine_q is not None:
+                refine_q[i] = refinement_png(
+                    columns[j] - coarse, tmp / f"{name}.L{i:04d}r.png", None
+                )
+        del decoded, shown, columns
+    return over
 
 
 def sun_bounce_errors(reader: CompactReader, image, valid, lights,

@@ -13,9 +13,11 @@ from dataclasses import replace
 from pathlib import Path
 
 
-def recompress_sun_bounce(build_dir: Path, copy: Path, budget: float) -> Path:
+def recompress_sun_bounce(build_dir: Path, copy: Path, budget: float,
+                          second_level: int | None = None) -> Path:
     """Copy ``build_dir`` to ``copy`` and compress its atlases' and views' sun-bounce stacks
-    again, judged with ``budget``; returns ``copy``."""
+    again, judged with ``budget`` (and ``Settings.sun_bounce_level`` ``second_level``, by
+    default the baker's); returns ``copy``."""
     from bake.compress import Settings
     from bake.evaluate import Build
     from bake.sunbounce import DisplaySkies, compress_sun_bounce
@@ -30,6 +32,8 @@ def recompress_sun_bounce(build_dir: Path, copy: Path, budget: float) -> Path:
     skies = DisplaySkies.of_dome(build.dome_vertices, build.solid_angles, lights,
                                  manifest["scene"]["elevation_m"])
     settings = replace(Settings(), sun_bounce_budget=budget)
+    if second_level is not None:
+        settings = replace(settings, sun_bounce_level=second_level)
     for owner in manifest["atlases"] + manifest["views"]:
         for stack, entry in owner.get("sun_bounce", {}).items():
             result = compress_sun_bounce(

@@ -158,8 +158,9 @@ def test_ktx2_files_parse_with_an_independent_reader(build):
         tail = compact["etc1s"]["layers"] if "etc1s" in compact else 0
         if "d" in entry["stacks"]:  # a shadowing pair: ETC1S from layer 8
             assert tail == tail_from(settings.etc1s_from_layer, k), (atlas, name)
-        else:  # judged by RMS: from layer 4, or 8, or none if over the budget
-            tries = (settings.rms_etc1s_from_layer, settings.etc1s_from_layer, None)
+        else:  # judged by RMS: from layer 4, 5, ... or 8, or none if over the budget
+            tries = compress.rms_etc1s_tries(settings)
+            assert tries == [4, 5, 6, 7, 8, None]
             assert tail in {tail_from(j0, k) for j0 in tries}, (atlas, name)
         files.append(build.dir / compact["ktx2"])
         expected.append((entry["width"], entry["height"], len(compact["layers"]) - tail, UASTC))
@@ -587,6 +588,53 @@ def test_a_stack_judged_by_rms_falls_back_to_uastc_when_etc1s_is_over_budget(bui
     loose = compress.compress_rms_stack(
         image, "loose.I", tmp_path, skies, S, S_inv, selection,
         compress.Settings(selected_lights=0))
-    assert loose.entry["etc1s"]["layers"] in (loose.entry["k"] - 4, loose.entry["k"] - 8)
+    k = loose.entry["k"]
+    assert loose.entry["etc1s"]["layers"] in {k - j0 for j0 in range(4, 9)}
     assert loose.entry["error"]["max"] <= 0.01
     assert (tmp_path / "ktx2" / "loose.I.etc1s.ktx2").is_file()
+
+
+def test_a_stack_judged_by_rms_keeps_the_first_etc1s_split_within_the_budget(
+        build, tmp_path, monkeypatch):
+    """With a budget just under the lightmap's error with ETC1S from layer 4, the stack is
+    encoded again with the ETC1S array one layer later each time, and keeps the first split
+    whose decoded composite is within the budget (not straight to layer 8: each layer moved
+    to UASTC costs a UASTC layer and its refinement). Every error is the decoded composite's
+    against the master on the test skies (``compress_stack``'s own check)."""
+    m = build.manifest
+    skies, S, S_inv, selection = compress.prepare(
+        m["scene"], build.dome_vertices, build.solid_angles, 0,
+        selectable=build.selection.selectable,
+    )
+    image = build.stack("lightmap", "I")
+    settings = compress.Settings(selected_lights=0)
+    from4 = compress.compress_stack(
+        image, "from4.I", tmp_path, skies, S, S_inv, selection,
+        dataclasses.replace(settings, etc1s_from_layer=4))
+    budget = 0.999 * from4.entry["error"]["max"]  # layer 4 on is just over it
+    # The same rank as that try (a smaller budget would raise it): only the split changes.
+    monkeypatch.setattr(compress, "rms_rank", lambda *args, **kwargs: (from4.entry["k"], {}))
+    tried = []
+    real = compress.compress_stack
+
+    def recording(*args, **kwargs):
+        result = real(*args, **kwargs)
+        tried.append((args[7].etc1s_from_layer, result.entry["error"]["max"],
+                      result.base_bytes))
+        return result
+
+    monkeypatch.setattr(compress, "compress_stack", recording)
+    result = compress.compress_rms_stack(
+        image, "chain.I", tmp_path, skies, S, S_inv, selection,
+        dataclasses.replace(settings, budget=budget))
+    firsts = [j0 for j0, _, _ in tried]
+    assert firsts[0] == 4 and tried[0][1] == pytest.approx(from4.entry["error"]["max"],
+                                                           rel=1e-3)
+    assert firsts == sorted(firsts, key=lambda j0: 99 if j0 is None else j0)
+    assert all(error > budget for _, error, _ in tried[:-1])  # each try before was over
+    last, error, _ = tried[-1]
+    assert error <= budget and last != 4  # a later split is within the budget
+    k = result.entry["k"]
+    head = compress._etc1s_split(k, dataclasses.replace(settings, etc1s_from_layer=last))
+    assert result.entry.get("etc1s", {"layers": 0})["layers"] == k - head
+    assert result.entry["error"]["max"] == error

@@ -385,6 +385,40 @@ def test_the_refinement_is_kept_where_the_coarse_image_would_show(tight_build):
     assert worst["stored"]["rms"] <= 1.1 * TIGHT_BUDGET, worst
 
 
+def test_a_second_coarse_level_spares_refinements(sun_site_build, tight_build, tmp_path):
+    """The tight build's coarse images over the budget were encoded again at UASTC level 1
+    before any was refined: against the same build compressed without that second level
+    (level 0 twice: the rule before 2026-12-04) fewer lights keep a refinement, every one
+    that was spared one has a coarse file other than level 0's, and, judged independently
+    (gendaylit), it is within the budget as displayed; the lights within the budget at level
+    0 keep their level-0 file byte for byte."""
+    from tests.sunbounce_levels import recompress_sun_bounce
+
+    before = recompress_sun_bounce(sun_site_build, tmp_path / "level0", TIGHT_BUDGET,
+                                   second_level=0)
+    rows = {(r["stack"], r["light"]): r for r in judged_by_gendaylit(tight_build)}
+    rows_before = {(r["stack"], r["light"]): r for r in judged_by_gendaylit(before)}
+    assert rows.keys() == rows_before.keys()
+    spared = [key for key, r in rows.items()
+              if r["levels"] == 1 and rows_before[key]["levels"] == 2]
+    refined_before = sum(r["levels"] == 2 for r in rows_before.values())
+    refined_now = sum(r["levels"] == 2 for r in rows.values())
+    assert spared and refined_now == refined_before - len(spared), (refined_before,
+                                                                    refined_now)
+    def coarse_file(stack: str, light: int) -> str:  # rows name stacks "<owner>.<stack>"
+        owner, name = stack.split(".")
+        return f"ktx2/{owner}.sun_bounce.{name}.L{light:04d}.ktx2"
+
+    for stack, light in spared:
+        name = coarse_file(stack, light)
+        assert (tight_build / name).read_bytes() != (before / name).read_bytes()
+        assert rows[(stack, light)]["stored"]["rms"] <= 1.1 * TIGHT_BUDGET
+    for key, r in rows_before.items():
+        if r["levels"] == 1:
+            name = coarse_file(*key)
+            assert (tight_build / name).read_bytes() == (before / name).read_bytes()
+
+
 def test_the_sun_in_patch_p_reads_file_p_and_shuffled_files_break_it(sun_site_build, tmp_path):
     """The index rule: with the sun in patch p the client reads L{p} (its levels) with
     scale[p] and offset[p]. Swapping the coarse files of the build's lights breaks every
