@@ -215,6 +215,23 @@ def as_stack(stack):
     return stack if isinstance(stack, (StackStore, ArrayStack)) else ArrayStack(stack)
 
 
+def valid_blocks(stacks, valid: np.ndarray):
+    """The valid texels of ``stacks`` (each with ``rows``, the same texels) by blocks of rows
+    (:func:`row_block` of the first's n): yields ``(t, [rows (b, n, 3) of each stack at the
+    block's valid texels])``, t the first one's index among the valid texels. The list is
+    the caller's alone (nothing here keeps it), so a caller may let it go before working."""
+    first = stacks[0]
+    flat = valid.ravel()
+    step = row_block(first.n)
+    t = 0
+    for a in range(0, first.texels, step):
+        keep = flat[a : a + step]
+        if not keep.any():
+            continue
+        yield t, [s.rows(a, a + step)[keep] for s in stacks]
+        t += int(keep.sum())
+
+
 def valid_rows(stacks, valid: np.ndarray, make, names: list[str]) -> list:
     """The valid texels of ``stacks`` (each with ``rows``, :mod:`bake.rowstore`) as made by
     ``make(*rows of each stack at the valid texels, first texel index)`` -> one array
@@ -229,21 +246,14 @@ def valid_rows(stacks, valid: np.ndarray, make, names: list[str]) -> list:
         else np.empty((T, first.n, 3), dtype=np.float32)
         for name in names
     ]
-    flat = valid.ravel()
-    step = row_block(first.n)
-    t = 0
-    for a in range(0, first.texels, step):
-        keep = flat[a : a + step]
-        if not keep.any():
-            continue
-        made = make(*(s.rows(a, a + step)[keep] for s in stacks), t)
+    for t, rows in valid_blocks(stacks, valid):
+        made = make(*rows, t)
         made = made if isinstance(made, tuple) else (made,)
-        for target, rows in zip(out, made, strict=True):
+        for target, block in zip(out, made, strict=True):
             if on_disk:
-                target.write(t, rows)
+                target.write(t, block)
             else:
-                target[t : t + len(rows)] = rows
-        t += len(made[0])
+                target[t : t + len(block)] = block
     return out
 
 

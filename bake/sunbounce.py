@@ -19,7 +19,7 @@ from bake.compact_reader import CompactReader
 from bake.compress import CompactStack
 from bake.ktx2decoder import decode
 from bake.quantize import quantized_png, refinement_png
-from bake.rowstore import RowFile, as_stack, row_block
+from bake.rowstore import RowFile, as_stack, valid_blocks
 
 SUN_BOUNCE_DECODE_CHUNK = 16  # light images decoded at a time (memory: the lightmap is large)
 DISPLAY_SKY_SAMPLES_PER_SIDE = 6  # the display skies' patch integration (as the test skies')
@@ -115,17 +115,10 @@ class DisplayCheck:
         else:
             self.shown = np.empty((len(self.lights) * V, 3), dtype=np.float64)
         self.V = V
-        flat = self.valid.ravel()
-        step = row_block(sky.n)
-        t = 0
-        for a in range(0, sky.texels, step):
-            keep = flat[a : a + step]
-            if not keep.any():
-                continue
-            rows = sky.rows(a, a + step)[keep]
+        for t, block in valid_blocks([sky], self.valid):
             # (3, b, n) per channel, contiguous: a chunk of lights is one matrix product each.
-            per_channel = np.stack([rows[..., c] for c in range(3)])
-            del rows
+            per_channel = np.stack([block[0][..., c] for c in range(3)])
+            del block
             for start in range(0, len(self.lights), SUN_BOUNCE_DECODE_CHUNK):
                 chunk = self.lights[start : start + SUN_BOUNCE_DECODE_CHUNK]
                 sky_rows = [self.skies.row(p) for p in chunk]
@@ -140,7 +133,6 @@ class DisplayCheck:
                         self.shown.write(at, out[j])
                     else:
                         self.shown[at : at + len(out[j])] = out[j]
-            t += per_channel.shape[1]
 
     def sky_shown(self, lights) -> np.ndarray:
         """(len(lights), V, 3) the sky stack relit with each light's display sky."""
