@@ -121,10 +121,12 @@ def test_a_full_disk_ends_the_bake_with_what_to_do_and_keeps_the_chunks(tmp_path
     scene = _scene(tmp_path)
     out, partial = tmp_path / "out", tmp_path / ".out.partial"
 
-    def full_disk(path, stack, attributes=None):
+    def full_disk(path, *args, **kwargs):
         raise OSError(errno.ENOSPC, f"no space left on device writing {path}")
 
+    # Both master writers: an atlas's (by bands of rows, from its store) and a view's.
     monkeypatch.setattr(writers, "write_stack_exr", full_disk)
+    monkeypatch.setattr(writers, "write_stack_exr_by_rows", full_disk)
     with pytest.raises(BakeError, match="no space left") as caught:
         bake(scene, out, **QUIET)
     assert "free space" in str(caught.value) and "run the same command again" in str(caught.value)
