@@ -40,6 +40,7 @@ Every function is deterministic for a given ``numpy.random.Generator`` state.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -111,6 +112,12 @@ class BounceCache:
     cell_m : float, raster cell of the nearest-point look-up (half the cache spacing)
     bounce : dict config -> (C, n, 3) float32 or None: the cache points' own indirect
         irradiance (bounces 1 to N - 1, :func:`cache_bounces`); None for one bounce
+    lit : (C,) bool or None: the points some light reaches with everything present (from
+        ``E["all"]`` when None)
+    picked : dict config -> (C, n * 3) float32 or None: what a gather ray picks up
+        (:func:`picked_up`, from ``E`` and ``bounce`` when None); the local pool's workers
+        get it memory-mapped from the files :func:`write_shared_cache` wrote, one copy in
+        the page cache for them all, rather than each making its own
     """
 
     points: np.ndarray
@@ -121,31 +128,28 @@ class BounceCache:
     geometry: Geometry
     cell_m: float
     bounce: dict | None = None
+    lit: np.ndarray | None = None
+    picked: dict | None = None
 
     def __post_init__(self):
         # Points no light reaches with everything present are buried (the ground under a
         # wall): a hit beside the wall's foot must not read one of them as its nearest, or
         # the ground's bounce there reads dark (a test bake's ground 5 cm from a wall: 15 %
         # low on the side whose jittered cache points fell under the wall).
-        lit = np.ones(len(self.points), bool)
-        if "all" in self.E and len(self.points):
-            lit = np.asarray(self.E["all"]).max(axis=1) > 0.0
-            if not lit.any():
-                lit[:] = True
+        lit = lit_points(self.E, len(self.points)) if self.lit is None else self.lit
         keep = np.flatnonzero(lit)
         raster = _nearest_point_rasters(
             self.geometry, self.points[keep], self.faces[keep], self.cell_m
         )
         self._raster = raster[:-1] + (keep[raster[-1]],)
-        # Albedo times irradiance, flattened to (C, n * 3): what one bounce ray picks up.
-        # float32, as the gather matrix: the gather streams this whole array once per chunk,
-        # and float64 doubled its time (results differ by 1e-6 relative).
+        # Albedo times irradiance, flattened to (C, n * 3): what one bounce ray picks up,
+        # made on first use (the bake process's own cache, which only gathers the cache's
+        # bounces, never makes it: two of them were 1.9 GB of the palace's cache stage at
+        # 160 lights). float32, as the gather matrix: the gather streams this whole array
+        # once per chunk, and float64 doubled its time (results differ by 1e-6 relative).
         # Multiplied in float32 too: a float64 product slowed every worker's start (page
         # faults of its size). Figures: docs/benchmarks.md, "Figures behind choices in the code".
-        self._picked_up = {
-            config: picked_up(E, self.albedo, (self.bounce or {}).get(config))
-            for config, E in self.E.items()
-        }
+        self._picked_up = dict(self.picked) if self.picked is not None else {}
 
     @classmethod
     def from_arrays(cls, arrays, geometry: Geometry) -> BounceCache:
@@ -165,6 +169,22 @@ class BounceCache:
             {"all": arrays["B_all"], "real": arrays["B_real"]} if "B_all" in names else None,
         )
 
+    @classmethod
+    def from_files(cls, cache_file, geometry: Geometry) -> BounceCache:
+        """The cache of ``cache_file`` (``cache.npz``) with what :func:`write_shared_cache`
+        wrote beside it memory-mapped, read-only (the irradiance itself is not loaded); a
+        cache written without them (a partial bake from before 2026-12-04) as
+        :meth:`from_arrays`."""
+        shared = shared_cache_files(cache_file)
+        with np.load(cache_file) as data:
+            if not all(path.is_file() for path in shared.values()):
+                return cls.from_arrays(data, geometry)
+            small = {k: data[k] for k in ("points", "normals", "faces", "albedo", "cell_m")}
+        maps = {k: np.load(path, mmap_mode="r") for k, path in shared.items()}
+        return cls(small["points"], small["normals"], small["faces"], small["albedo"], {},
+                   geometry, float(small["cell_m"]), None, lit=np.asarray(maps.pop("lit")),
+                   picked=maps)
+
     def nearest(self, points: np.ndarray, faces: np.ndarray) -> np.ndarray:
         """The cache point nearest to each point on its face (to within half a raster cell),
         shape ``(m,)`` int; -1 where the face has no cache point (a sliver of ground)."""
@@ -175,7 +195,55 @@ class BounceCache:
         )
 
     def picked_up(self, config: str) -> np.ndarray:
+        if config not in self._picked_up:
+            self._picked_up[config] = picked_up(
+                self.E[config], self.albedo, (self.bounce or {}).get(config)
+            )
         return self._picked_up[config]
+
+
+def lit_points(E: dict, count: int) -> np.ndarray:
+    """(count,) bool: the cache points some light reaches with everything present (all of
+    them where none is, or without ``E["all"]``)."""
+    lit = np.ones(count, bool)
+    if "all" in E and count:
+        lit = np.asarray(E["all"]).max(axis=1) > 0.0
+        if not lit.any():
+            lit[:] = True
+    return lit
+
+
+def shared_cache_files(cache_file) -> dict:
+    """The files :func:`write_shared_cache` writes beside ``cache_file``: ``{"lit": path,
+    config: path}`` for the configurations ``all`` and ``real``."""
+    folder, stem = cache_file.parent, cache_file.name.split(".")[0]
+    return {"lit": folder / f"{stem}-lit.npy",
+            **{config: folder / f"{stem}-picked-{config}.npy" for config in ("all", "real")}}
+
+
+def write_shared_cache(cache_file, E: dict, albedo: np.ndarray, bounce: dict | None,
+                       rows: int = 65536) -> None:
+    """Write beside ``cache_file`` what the workers' gathers read (:meth:`BounceCache.from_files`):
+    the lit points and, for ``E``'s configurations ``all`` and ``real`` ((C, n) float32 each,
+    ``bounce`` (C, n, 3) or None), :func:`picked_up` as (C, n * 3) float32 ``.npy`` files,
+    made ``rows`` cache points at a time (each a temporary name first, then renamed)."""
+    paths = shared_cache_files(cache_file)
+    lit = lit_points(E, len(albedo))
+    tmp = paths["lit"].with_name(paths["lit"].name + ".tmp")
+    with open(tmp, "wb") as f:
+        np.save(f, lit)
+    os.replace(tmp, paths["lit"])
+    for config in ("all", "real"):
+        C, n = E[config].shape
+        tmp = paths[config].with_name(paths[config].name + ".tmp")
+        out = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.float32, shape=(C, n * 3))
+        for a in range(0, C, rows):
+            b = min(C, a + rows)
+            out[a:b] = picked_up(E[config][a:b], albedo[a:b],
+                                 None if bounce is None else bounce[config][a:b])
+        out.flush()
+        del out
+        os.replace(tmp, paths[config])
 
 
 def picked_up(E: np.ndarray, albedo: np.ndarray, bounce: np.ndarray | None) -> np.ndarray:
@@ -188,14 +256,18 @@ def picked_up(E: np.ndarray, albedo: np.ndarray, bounce: np.ndarray | None) -> n
     return (total * albedo.astype(np.float32)[:, None, :]).reshape(len(E), -1)
 
 
-def cache_bounces(estimator: Estimator, bounces: int, rng, batch: int = 20_000) -> dict | None:
+def cache_bounces(estimator: Estimator, bounces: int, rng, batch: int = 20_000,
+                  light_block_bytes: int = 256 << 20, out=None) -> dict | None:
     """The cache points' own indirect irradiance after ``bounces - 1`` bounces, for every
     configuration of ``estimator.cache.E``: ``{config: (C, n, 3) float32}``; None when
     ``bounces <= 1`` (the receivers' gather is then the one bounce).
 
     Each cache point casts ``estimator.bounce_rays`` gather rays once (one sparse (C, C)
     matrix per configuration, :meth:`Estimator.gather`); then ``B_k = G (albedo (E +
-    B_(k-1))) + (open ground's share)``, ``B_0 = 0``. Deterministic for a given ``rng``.
+    B_(k-1))) + (open ground's share)``, ``B_0 = 0``, for blocks of lights of at most
+    ``light_block_bytes`` of float64 per product. Deterministic for a given ``rng``.
+    ``out(config, shape)`` gives each configuration's array to fill (default: in memory; the
+    bake gives a memory-mapped file, so that C x n x 3 is never held at once).
     """
     cache = estimator.cache
     if bounces <= 1 or cache is None or estimator.bounce_rays == 0:
@@ -203,7 +275,8 @@ def cache_bounces(estimator: Estimator, bounces: int, rng, batch: int = 20_000) 
     C, n = len(cache.points), estimator.n
     ground = (estimator.up_irradiance[:, None] * estimator.scenes.ground_albedo[None, :])
     ground = ground.reshape(1, -1).astype(np.float32)  # (1, n * 3)
-    out = {}
+    make = out or (lambda config, shape: np.empty(shape, np.float32))
+    result = {}
     for config, E in cache.E.items():
         rows, downs = [], []
         for start in range(0, C, batch):
@@ -216,11 +289,19 @@ def cache_bounces(estimator: Estimator, bounces: int, rng, batch: int = 20_000) 
         G = scipy.sparse.vstack(rows, format="csr")
         G.sum_duplicates()
         down = np.concatenate(downs).astype(np.float32)[:, None]  # (C, 1)
-        B = None
-        for _ in range(bounces - 1):
-            B = (G @ picked_up(E, cache.albedo, B) + down * ground).reshape(C, n, 3)
-        out[config] = B.astype(np.float32)
-    return out
+        # By blocks of lights (each light's bounces are its own; the same bits as all at
+        # once): the products' temporaries stay within `light_block_bytes`, not C x n x 3
+        # several times over (7.8 GB in the palace's cache stage at 160 lights).
+        result[config] = make(config, (C, n, 3))
+        step = max(1, light_block_bytes // max(1, C * 3 * 8))
+        for a in range(0, n, step):
+            b = min(n, a + step)
+            B = None
+            for _ in range(bounces - 1):
+                B = (G @ picked_up(E[:, a:b], cache.albedo, B)
+                     + down * ground[:, 3 * a : 3 * b]).reshape(C, b - a, 3)
+            result[config][:, a:b] = B
+    return result
 
 
 def _nearest_point_rasters(geometry: Geometry, points, faces, cell_m: float) -> tuple:

@@ -22,7 +22,14 @@ import numpy as np
 from tqdm import tqdm
 
 from bake import chunkio, contact
-from bake.irradiance import BounceCache, Estimator, SceneSet, cache_bounces, cache_points
+from bake.irradiance import (
+    BounceCache,
+    Estimator,
+    SceneSet,
+    cache_bounces,
+    cache_points,
+    write_shared_cache,
+)
 from bake.raytrace import RayScene
 
 RAYS_PER_CHUNK = 3_000_000
@@ -62,10 +69,7 @@ def _init_worker(geometry, dome_vertices, ground_albedo, samples, bounce_rays, c
     # Ctrl-C reaches the whole process group: the parent decides, workers just finish.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     scenes = SceneSet.build(geometry, ground_albedo)
-    cache = None
-    if cache_file is not None:
-        with np.load(cache_file) as data:
-            cache = BounceCache.from_arrays(data, geometry)
+    cache = None if cache_file is None else BounceCache.from_files(cache_file, geometry)
     _WORKER["estimator"] = Estimator(dome_vertices, scenes, samples, bounce_rays, cache)
 
 
@@ -199,7 +203,14 @@ class TraceWork:
             E_real=E["real"],
             cell_m=0.5 * settings.cache_spacing_m,
         )
-        # More than one bounce: the cache points' own bounces (bake.irradiance.cache_bounces).
+        # More than one bounce: the cache points' own bounces (bake.irradiance.cache_bounces),
+        # into files beside the cache (C x lights x 3 each: 2.4 GB for the palace at 400
+        # lights), read from there into cache.npz and the shared files by blocks.
+        def bounce_file(config, shape):
+            return np.lib.format.open_memmap(
+                partial / f"cache-B-{config}.npy", mode="w+", dtype=np.float32, shape=shape
+            )
+
         bounce = cache_bounces(
             Estimator(
                 self.dome.vertices,
@@ -212,11 +223,17 @@ class TraceWork:
             ),
             settings.bounces,
             np.random.default_rng([settings.seed, STAGE_CODES["cache bounces"]]),
+            out=bounce_file,
         )
         if bounce is not None:
             arrays.update(B_all=bounce["all"], B_real=bounce["real"])
+        # Before cache.npz, whose presence says the cache is whole.
+        write_shared_cache(cache_file, E, arrays["albedo"], bounce)
         np.savez(tmp, **arrays)
         os.replace(tmp, cache_file)
+        del bounce, arrays
+        for path in partial.glob("cache-B-*.npy"):
+            path.unlink()
         return cache_file
 
 

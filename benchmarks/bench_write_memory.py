@@ -44,6 +44,8 @@ def _wrap(module, name: str, label) -> None:
     @functools.wraps(original)
     def wrapped(*args, **kwargs):
         step = label(*args, **kwargs)
+        if UNTIL_WRITE.is_set():
+            raise StopAtWriteError(step)
         me = threading.get_ident()
         before = RUNNING.get(me)
         RUNNING[me] = step
@@ -71,11 +73,22 @@ def _instrument() -> None:
     _wrap(pipeline, "write_view", lambda view, *r, **k: f"view {view.name}")
 
 
+class StopAtWriteError(Exception):
+    """``--until-write``: the write stage's first step started."""
+
+
+UNTIL_WRITE = threading.Event()
+PSS = threading.Event()
+
+
 def _tree_rss(process: psutil.Process) -> int:
+    """The tree's resident bytes: RSS summed, or with ``--pss`` each process's proportional
+    share (pages mapped by several processes, e.g. the tracing workers' memory-mapped bounce
+    cache, counted once in all, not once per process)."""
     total = 0
     for p in [process, *process.children(recursive=True)]:
         with contextlib.suppress(psutil.Error):
-            total += p.memory_info().rss
+            total += p.memory_full_info().pss if PSS.is_set() else p.memory_info().rss
     return total
 
 
@@ -116,7 +129,15 @@ def main() -> None:
     parser.add_argument("--limit-gb", type=float, default=9.0)
     parser.add_argument("--every", type=float, default=1.0)
     parser.add_argument("--log", type=Path)
+    parser.add_argument("--until-write", action="store_true",
+                        help="stop when the write stage starts (receivers, cache, tracing)")
+    parser.add_argument("--pss", action="store_true",
+                        help="count each process's proportional set size, not its RSS")
     args = parser.parse_args()
+    if args.until_write:
+        UNTIL_WRITE.set()
+    if args.pss:
+        PSS.set()
     from bake.pipeline import bake
 
     _instrument()
@@ -133,11 +154,22 @@ def main() -> None:
         result = bake(args.scene, args.out, lights=args.lights, quality=args.quality,
                       workers=args.workers, progress=False,
                       log=lambda msg: print(msg, file=sys.stderr, flush=True))
+    except StopAtWriteError as reached:
+        result = None
+        print(f"stopped as the write stage started ({reached})", file=sys.stderr)
     finally:
         stop.set()
         sampler.join()
         _write_log(args.log, samples)
     end = time.strftime("%H:%M:%S", time.gmtime())
+    if result is None:
+        t, peak, _ = max(samples, key=lambda s: s[1])
+        print(f"{wall}-{end} UTC, load average {load:.1f} at the start, "
+              f"{os.getloadavg()[0]:.1f} at the end; {args.scene}, {args.lights} lights, "
+              f"{args.quality}; {'PSS' if args.pss else 'RSS'} of the process tree")
+        print(f"peak before the write stage: {peak / 1e9:.2f} GB at {t:.0f} s "
+              f"(receivers, cache and tracing, {samples[-1][0]:.0f} s)")
+        return
     print(f"{wall}-{end} UTC, load average {load:.1f} at the start, "
           f"{os.getloadavg()[0]:.1f} at the end; {args.scene}, {args.lights} lights, "
           f"{args.quality}")
