@@ -51,8 +51,11 @@ def smooth_within_labels(
     left as they are and never contribute. Returns a new float32 array of the same shape.
 
     ``plan``: a dict kept by a caller that smooths several images with the same ``labels``
-    (a stack's blocks of lights): each label's box, mask and fit weights (which depend on
-    the labels only) are computed on the first call and reused (the same values).
+    (a stack's blocks of lights): each label's box and fit weights (which depend on the
+    labels only: (K,) per weight, K the label's texels) are computed on the first call and
+    reused (the same values); its mask and the coordinate images are made again per call
+    (kept, they were box-sized float64 images for every label at once: 9 GB for the
+    palace's lightmap).
     """
     if order not in (0, 1):
         raise ValueError(f"order must be 0 or 1, got {order}")
@@ -63,10 +66,13 @@ def smooth_within_labels(
     key = (sigma_px, order)
     regions = None if plan is None else plan.get(key)
     if regions is None:
-        regions = list(_fit_regions(labels, radius, blur, sigma_px, order))
+        regions = _fit_regions(labels, radius, blur, sigma_px, order)
         if plan is not None:
-            plan[key] = regions
-    for (y0, y1, x0, x1), mask, inside, weights in regions:
+            regions = plan[key] = list(regions)
+    for (y0, y1, x0, x1), label, kept in regions:
+        mask = (labels[y0:y1, x0:x1] == label).astype(np.float32)
+        inside = mask > 0
+        weights = list(zip(kept, _coordinates(mask.shape, order), strict=True))
         for c0, c1 in channel_blocks(flat.shape[2], mask.size):
             region = flat[y0:y1, x0:x1, c0:c1] * mask[:, :, None]
             if order == 1:  # G(m x v) - x0 G(m v) cancels: float32 loses 1e-4 of v at x ~ 400
@@ -78,10 +84,19 @@ def smooth_within_labels(
     return out.reshape(image.shape)
 
 
+def _coordinates(shape: tuple, order: int) -> list:
+    """The coordinate image each fit weight multiplies (:func:`plane_weights`' order): None
+    for the mean (order 0); None, x, y (float64, ``shape``) for the plane (order 1)."""
+    if order == 0:
+        return [None]
+    yy, xx = np.mgrid[0 : shape[0], 0 : shape[1]].astype(np.float64)
+    return [None, xx, yy]
+
+
 def _fit_regions(labels: np.ndarray, radius: int, blur, sigma_px: float, order: int):
-    """Per label of ``labels`` (>= 0): its box (y0, y1, x0, x1) grown by ``radius``, its mask
-    (float32) and inside (bool) there, and its fit weights (:func:`plane_weights` or the
-    mean's)."""
+    """Per label of ``labels`` (>= 0): its box (y0, y1, x0, x1) grown by ``radius``, the
+    label, and its fit weights' (K,) arrays (:func:`plane_weights` or the mean's, without
+    their coordinate images: :func:`_coordinates`)."""
     h, w = labels.shape
     # Each label's bounding box in one pass over the image (a search of the whole image per
     # label was 42 s of CPU per call on the palace's lightmap of 10,146 surfaces).
@@ -96,7 +111,7 @@ def _fit_regions(labels: np.ndarray, radius: int, blur, sigma_px: float, order: 
             weights = [(blur(mask)[inside] ** -1, None)]
         else:
             weights = plane_weights(mask.astype(np.float64), inside, blur, sigma_px)
-        yield (y0, y1, x0, x1), mask, inside, weights
+        yield (y0, y1, x0, x1), label, [w for w, _ in weights]
 
 
 def channel_blocks(channels: int, texels: int) -> list[tuple[int, int]]:
