@@ -49,6 +49,7 @@ from scipy.spatial import cKDTree
 
 from bake import tracing_loops as loops
 from bake.raytrace import RAY_OFFSET_M, Geometry, RayScene
+from bake.rowstore import RowFile
 from daylit.spherical import clipped_cosine_integral, sample_triangles
 
 GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
@@ -236,13 +237,11 @@ def write_shared_cache(cache_file, E: dict, albedo: np.ndarray, bounce: dict | N
     for config in ("all", "real"):
         C, n = E[config].shape
         tmp = paths[config].with_name(paths[config].name + ".tmp")
-        out = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.float32, shape=(C, n * 3))
+        out = RowFile.create(tmp, (C, n * 3))  # written by rows with plain file I/O
         for a in range(0, C, rows):
             b = min(C, a + rows)
-            out[a:b] = picked_up(E[config][a:b], albedo[a:b],
-                                 None if bounce is None else bounce[config][a:b])
-        out.flush()
-        del out
+            out.write(a, picked_up(E[config][a:b], albedo[a:b],
+                                   None if bounce is None else bounce[config][a:b]))
         os.replace(tmp, paths[config])
 
 
