@@ -121,11 +121,6 @@ class Spectrum:
             self._width = min(self.Y.shape[1], max(k, 2 * self._width))
         return self._width
 
-    def projections(self, S: np.ndarray, k: int) -> np.ndarray:
-        """``M S Y`` (T, 3, K) for the :meth:`projection_width` K of rank k (whole: small
-        stacks and tests; the bake reads them by rows, :meth:`project_rows`)."""
-        return self.project(S, self.projection_width(k))
-
     def project_rows(self, S: np.ndarray, K: int, rows: np.ndarray) -> np.ndarray:
         """``rows S Y_K`` (b, 3, K) float32 of texel rows (b, n, 3) of ``M``."""
         SY = (S @ self.Y[:, :K]).astype(np.float32)
@@ -207,21 +202,12 @@ class Spectrum:
             work = M.path.parent
         return cls(M, gain, G, colsum, Y[:, np.argsort(eigenvalues)[::-1]], work)
 
-    def project(self, S: np.ndarray, k: int) -> np.ndarray:
-        """``M S Y_k``: (T, 3, k) float32, the unquantized base U of rank k (by blocks of
-        rows; every lower rank is a prefix of it)."""
-        out = np.empty((self.T, 3, k), dtype=np.float32)
-        for a, b in self.blocks():
-            out[a:b] = self.project_rows(S, k, self.rows(a, b))
-        return out
-
     def composite(
-        self, P: np.ndarray, k: int, S_inv, r: np.ndarray, chosen: np.ndarray, rows=None
+        self, P: np.ndarray, k: int, S_inv, r: np.ndarray, chosen: np.ndarray, rows: np.ndarray
     ) -> np.ndarray:
         """(b, 3) normalized composite of rank k with the lights ``chosen`` exact,
         ``M (Q_k r' + r_A)``, from the projections ``P`` (b, 3, K >= k) of texel rows
-        ``rows`` of ``M`` (b, n, 3; default all of ``M``)."""
-        rows = self.M if rows is None else rows
+        ``rows`` of ``M`` (b, n, 3)."""
         rest = r.copy()
         rest[chosen] = 0.0
         c = (self.Y[:, :k].T @ (S_inv @ rest)).astype(np.float32)  # (k, 3)
@@ -434,10 +420,6 @@ class RatioRefinement:
             delta.append(delta_true[mask])
             means.append(float(np.abs(d_true).mean()))
         return tuple(cls(role, rests, lit, d, delta, means) for role in ("d", "delta"))
-
-    def moves(self, losses: np.ndarray, V: np.ndarray, j: int) -> list[np.ndarray]:
-        """Layer j's move of the ratio on each sky (L,) float32, from ``losses`` (k, T, 3)."""
-        return [self.move(losses, V, j, s) for s in range(len(self.rests))]
 
     def move(self, losses: np.ndarray, V: np.ndarray, j: int, s: int) -> np.ndarray:
         """Layer j's move of the ratio on sky ``s`` (L,) float32."""
