@@ -35,12 +35,7 @@ from bake.rowstore import StackStore, release_freed_memory
 from bake.scene import Site
 from bake.tracework import TracedResults, lookup_result
 from bake.views import mask_image, radiance_image, virtual_depth_image
-from daylit.stackio import (
-    CHANNEL_PATTERN,
-    write_exr,
-    write_stack_exr,
-    write_stack_exr_by_rows,
-)
+from daylit.stackio import CHANNEL_PATTERN, write_exr, write_stack_exr_by_rows
 
 BOUNCE_SIGMA_TEXELS = 1.5  # smoothing of the indirect bounce within a surface (texels, pixels)
 # An atlas's bounce is smoothed with a local linear fit (bake.denoise: no bias at a surface's
@@ -197,7 +192,6 @@ def _assemble(a, stack, config, traced, n, coverage, labels, sun_bounce, work: P
     blocks = light_blocks(n, atlas_light_block(a.height, a.width))
     # The buried texels are those no light reaches: one pass over the direct light first.
     seen = np.zeros(a.count, dtype=bool)
-    has_bounce = False
     if config != "none":
         for block in blocks:
             direct, bounce = lookup_result(traced.load(a.id, block, {config}), name, config)
@@ -213,8 +207,7 @@ def _assemble(a, stack, config, traced, n, coverage, labels, sun_bounce, work: P
         direct, bounce = lookup_result(traced.load(a.id, block, names), name, config)
         if config != "none":  # texels moved onto contact lines: their chord (bake.contact)
             direct = extrapolate_direct(a, direct)
-        has_bounce = bounce is not None
-        with_sun = sun_bounce.enabled and (has_bounce or config == "none")
+        with_sun = sun_bounce.enabled and (bounce is not None or config == "none")
         if with_sun and sun_store is None:
             sun_store = StackStore(work / f"sun_bounce.{stack}", a.height, a.width, n)
         # Smoothed once, for the stack and its sun-bounce stack (it took a quarter of the
@@ -473,20 +466,16 @@ def swap_into_place(staging: Path, out_dir: Path) -> None:
 def _write_sun_bounce(sun_images: dict, owner: str, folder: str, quantity: str, staging: Path,
                       compressor, sky_images: dict) -> dict:
     """Write and compress an atlas's or a view's sun-bounce stacks (``sun_images``: stack ->
-    image or :class:`StackStore`, emptied as they are written) as
+    :class:`StackStore`, emptied as they are written) as
     ``<folder>/<owner>.sun_bounce.<stack>.exr`` masters and their compact images, each
-    judged as displayed with its sky stack (``sky_images``: stack -> image, (H, W, n, 3), or
-    store); the manifest entries of the stacks that are not zero
-    everywhere."""
+    judged as displayed with its sky stack (``sky_images``: stack -> :class:`StackStore`);
+    the manifest entries of the stacks that are not zero everywhere."""
     entries = {}
     for stack in list(sun_images):
         image = sun_images.pop(stack)
         name = f"{owner}.sun_bounce.{stack}"
         rel = f"{folder}/{name}.exr"
-        if isinstance(image, StackStore):
-            _write_master(staging / rel, image)
-        else:
-            write_stack_exr(staging / rel, image)
+        _write_master(staging / rel, image)
         compact = compressor.run_sun_bounce(image, name, staging, master=rel,
                                             sky=sky_images.get(stack))
         if compact is not None:
