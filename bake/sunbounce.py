@@ -304,7 +304,8 @@ def _compress_columns(image, name, out_dir, lights, settings, check, budget, sta
 def _shown_coarse(lights, folder: Path, name: str, coarse_q: dict, image, check, budget,
                   refine_q: dict | None, tmp: Path) -> list[int]:
     """The ``lights`` whose coarse image in ``folder`` is off by more than ``budget`` as
-    displayed (``check``: a :class:`DisplayCheck`; None: every light). With ``refine_q``, the
+    displayed (``check``: a :class:`DisplayCheck`; None: every light), the masters read from
+    ``image`` (a :mod:`bake.rowstore` stack). With ``refine_q``, the
     refinement image of each of them (what its coarse image lost) is written into ``tmp`` and
     listed there, as its chunk is decoded (not every decoded image held at once: memory)."""
     over = []
@@ -312,7 +313,7 @@ def _shown_coarse(lights, folder: Path, name: str, coarse_q: dict, image, check,
         chunk = [int(i) for i in lights[start : start + SUN_BOUNCE_DECODE_CHUNK]]
         decoded = decode([folder / f"{name}.L{i:04d}.ktx2" for i in chunk])
         shown = check.sky_shown(chunk) if check is not None else None
-        columns = as_stack(image).columns(chunk)
+        columns = image.columns(chunk)
         for j, i in enumerate(chunk):
             coarse = coarse_q[i].value(decoded[j][0])
             # The coarse image alone is enough where its error does not show.
@@ -333,12 +334,13 @@ def sun_bounce_errors(reader: CompactReader, image, valid, lights,
     against the master ``image[:, :, p]`` (H, W, n, 3): RMS error over the ``valid`` texels
     (H, W) relative to the column's mean there, and (with ``check``) as displayed
     (:meth:`DisplayCheck.error`; empty without). Returns two arrays (len(lights),)."""
+    image = as_stack(image)
     errors, displayed = [], []
     for start in range(0, len(lights), SUN_BOUNCE_DECODE_CHUNK):
         chunk = [int(i) for i in lights[start : start + SUN_BOUNCE_DECODE_CHUNK]]
         decoded = reader.lights(chunk)
         shown = check.sky_shown(chunk) if check is not None else None
-        columns = as_stack(image).columns(chunk)
+        columns = image.columns(chunk)
         for j, i in enumerate(chunk):
             truth = columns[j][valid].astype(np.float64)
             rms = np.sqrt(((decoded[i][valid] - truth) ** 2).mean())
