@@ -124,8 +124,7 @@ def test_a_full_disk_ends_the_bake_with_what_to_do_and_keeps_the_chunks(tmp_path
     def full_disk(path, *args, **kwargs):
         raise OSError(errno.ENOSPC, f"no space left on device writing {path}")
 
-    # Both master writers: an atlas's (by bands of rows, from its store) and a view's.
-    monkeypatch.setattr(writers, "write_stack_exr", full_disk)
+    # Every master (an atlas's, a view's, a sun-bounce stack's) is written from its store.
     monkeypatch.setattr(writers, "write_stack_exr_by_rows", full_disk)
     with pytest.raises(BakeError, match="no space left") as caught:
         bake(scene, out, **QUIET)
