@@ -98,7 +98,7 @@ def instrument() -> None:
     _wrap(lowrank.RatioRefinement, "pair")
     for name in ("composite", "lights"):
         _wrap(compact_reader.CompactReader, name)
-    _wrap(stackio, "write_stack_exr", writers)
+    _wrap(stackio, "write_stack_exr_by_rows", writers)
     for name in ("_atlas_image", "smooth_bounce", "_dilate", "view_smoothed", "_write_depth"):
         _wrap(writers, name)
     _wrap(writers.SunBounce, "image")
