@@ -55,6 +55,7 @@ from bake.lowrank import (
     factors,
     floored_gain,
     layers_to_refine,
+    layers_to_refine_within,
     prior_sqrt,
     ratio_rank,
     rms_rank,
@@ -117,6 +118,14 @@ class Settings:
     # where 5 was within it and 0.61 MB smaller). Measured: docs/benchmarks.md, "Downloads
     # with the sun apart".
     rms_etc1s_from_layer: int | None = 4
+    # Which base layers of a stack judged by its RMS error alone are refined: the fewest
+    # that keep its decoded composite within this share of the budget on every test sky
+    # (lowrank.layers_to_refine_within; the rest of the budget is the refinements' own
+    # residual's and a margin for skies that did not choose them). None: every layer whose
+    # own loss passes a tenth of the budget on some sky (lowrank.layers_to_refine), as
+    # before 2026-12-05, which refined four layers of the 400-light final lightmap that the
+    # budget did not need (docs/benchmarks.md, "issue 15, 2026-12-05").
+    rms_refine_target: float | None = 0.9
     # No rate-distortion optimization (basisu -uastc_rdo_l): it shrinks coarse light images
     # but refinements are most of the light bytes, so over a bake it saved little of a
     # phone's download for about half of the bake's time.
@@ -294,9 +303,19 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
             losses = np.empty((f.k, len(f.U), 3), dtype=np.float32)  # a block per layer
             for j in range(f.k):
                 losses[j] = lost(j, arrays)[valid]
-            refine = layers_to_refine(
-                losses, f, skies, selection, settings, None if ratio is None else ratio.means
-            )
+            if ratio is None and settings.rms_refine_target is not None:
+                # A stack judged by its RMS error alone: the fewest layers that keep the
+                # decoded composite within the target on every test sky (ETC1S layers'
+                # losses counted, never refined).
+                refine = layers_to_refine_within(
+                    losses, f, skies, selection, spectrum.absolute_truths(skies),
+                    settings.rms_refine_target * settings.budget, refinable=head,
+                )
+            else:
+                refine = layers_to_refine(
+                    losses, f, skies, selection, settings,
+                    None if ratio is None else ratio.means,
+                )
             if ratio is not None:
                 refine = sorted(set(refine) | set(ratio.layers(losses, f)))
             # The ETC1S layers are never refined: both rules above are per-layer bounds

@@ -459,3 +459,61 @@ class RatioRefinement:
                 for s in skies:
                     total[s] = total[s] + self.move(losses, f.V, j, s)
         return sorted(refine)
+
+
+def layers_to_refine_within(losses, f, skies, selection, truths, target: float,
+                            refinable: int | None = None) -> list[int]:
+    """The fewest base layers to refine so that the *decoded* composite stays within
+    ``target`` (RMS error over the mean, as :func:`bake.compress._record_errors` judges it)
+    on every test sky: the RMS-judged stacks' budget-driven rule (the per-layer rule,
+    :func:`layers_to_refine`, refines every layer whose own loss passes a tenth of the
+    budget on some sky, whether or not the sum needs it: docs/compact-assets.md,
+    "Encoding").
+
+    ``losses`` (k, T, 3) what each layer's coarse encoding lost (ETC1S layers' too: their
+    loss is part of what every sky sees, but only layers below ``refinable`` (default all)
+    can be refined); ``truths`` the master's composite (T, 3) per sky, in the order of
+    ``skies``. On sky ``s`` (``c = V^T r'``) the coarse composite's error is ``a_s = truth -
+    sum_j c_j (U_j - e_j)``, and refining layer ``j`` takes ``c_j e_j`` off it (the
+    refinement's own residual is left to the margin ``target`` leaves and to the bake's
+    check of the decoded composite). Layers are added greedily, each time the one that
+    lowers the worst sky's error most (ties: the lower index), until every sky is within
+    ``target`` or no refinable layer is left. The errors come from Gram matrices (k x k per
+    channel, k per sky and channel), so each step is cheap."""
+    k = f.k
+    refinable = k if refinable is None else min(refinable, k)
+    if refinable == 0 or not skies:
+        return []
+    G = np.einsum("jtc,ltc->cjl", losses, losses, dtype=np.float64)  # (3, k, k)
+    A, P, C, means = [], [], [], []
+    for sky, truth in zip(skies, truths, strict=True):
+        rest = sky.r.copy()
+        rest[selection(sky.r)] = 0.0
+        c = (f.V.T @ rest).astype(np.float32)  # (k, 3)
+        a = truth.astype(np.float32) - np.einsum("tck,kc->tc", f.U, c)
+        a += np.einsum("ktc,kc->tc", losses, c)
+        A.append((a.astype(np.float64) ** 2).sum(axis=0))  # (3,)
+        P.append(np.einsum("tc,jtc->cj", a, losses, dtype=np.float64))  # (3, k)
+        C.append(c.T.astype(np.float64))  # (3, k)
+        means.append(max(float(truth.mean()), 1e-30))
+    A, P, C, means = np.array(A), np.array(P), np.array(C), np.array(means)
+    count = losses.shape[1] * 3  # the texel values the RMS is over
+
+    def worst(chosen: list[int]) -> float:
+        x = np.zeros((len(skies), 3, k))
+        x[:, :, chosen] = C[:, :, chosen]  # the refined layers' c
+        sq = A - 2.0 * (x * P).sum(axis=2) + np.einsum("scj,cjl,scl->sc", x, G, x)
+        errors = np.sqrt(np.maximum(sq.sum(axis=1), 0.0) / count) / means
+        return float(errors.max())
+
+    chosen: list[int] = []
+    current = worst(chosen)
+    while current > target:
+        candidates = [j for j in range(refinable) if j not in chosen]
+        if not candidates:
+            break
+        scores = [worst(chosen + [j]) for j in candidates]
+        best = int(np.argmin(scores))
+        chosen.append(candidates[best])
+        current = scores[best]
+    return sorted(chosen)

@@ -389,6 +389,77 @@ def test_ratio_refinement_leaves_unrefined_only_what_the_ratio_can_afford():
     assert _ratio_refinement("d", X=2.0).layers(_layer_major(losses), f) == [0, 2, 3]
 
 
+def _budget_case(layer_losses, k=3, T=400, layers=(1.0, 0.0, 0.0)):
+    """A stack with no truncation error (the master is exactly ``U V^T r``), layer ``j``
+    constant at ``layers[j]``, one sky with ``c_j = 1`` for every layer (mean 1 over its
+    texels by default), and coarse losses ``e_j`` of RMS ``layer_losses[j]`` (independent
+    noise), returned layer-major."""
+    rng = np.random.default_rng(3)
+    U = np.zeros((T, 3, k), np.float32)
+    U[:, :, :] = np.asarray(layers, np.float32)
+    V = np.eye(k, dtype=np.float32)
+    f = lowrank.Factors(k, U, V, {})
+    sky = testskies.TestSky("one", np.ones((k, 3)))
+    truth = np.einsum("tck,kc->tc", U, (V.T @ sky.r).astype(np.float32))
+    losses = np.zeros((k, T, 3), np.float32)
+    for j, rms in enumerate(layer_losses):
+        noise = rng.standard_normal((T, 3)).astype(np.float32)
+        losses[j] = noise / np.sqrt((noise**2).mean()) * rms
+    return f, sky, truth, losses
+
+
+def test_budget_rule_refines_only_what_the_budget_needs():
+    """The RMS stacks' budget-driven rule (``layers_to_refine_within``) against the per-layer
+    rule: known answers on a stack whose composite error is the coarse losses alone."""
+    nothing = Selection(np.zeros(3), 0)
+    settings = compress.Settings(budget=0.01)
+    target = 0.9 * settings.budget
+
+    def both(losses_rms):
+        f, sky, truth, losses = _budget_case(losses_rms)
+        within = lowrank.layers_to_refine_within(losses, f, [sky], nothing, [truth], target)
+        per_layer = lowrank.layers_to_refine(losses, f, [sky], nothing, settings)
+        return within, per_layer
+
+    # Each loss above a tenth of the budget, together 0.5 % (RMS of independent losses):
+    # within the budget, so none is needed; the per-layer rule refined all three.
+    assert both([0.003, 0.003, 0.003]) == ([], [0, 1, 2])
+    # One large loss (1.5 %) and two small: that one alone must be refined.
+    assert both([0.015, 0.002, 0.002])[0] == [0]
+    # Three losses of 0.6 %, together 1.04 %: over the target; refining any one of them
+    # brings the rest to 0.85 %, so one is refined (the per-layer rule: all three).
+    within, per_layer = both([0.006, 0.006, 0.006])
+    assert len(within) == 1 and per_layer == [0, 1, 2]
+    # The largest first: 0.5 %, 0.9 %, 0.5 % (1.14 % together): layer 1.
+    assert both([0.005, 0.009, 0.005])[0] == [1]
+    # Over the target whatever is refined below ``refinable`` (an ETC1S layer's loss counts
+    # but cannot be refined): every refinable layer is taken, and no other.
+    f, sky, truth, losses = _budget_case([0.004, 0.004, 0.012])
+    assert lowrank.layers_to_refine_within(losses, f, [sky], nothing, [truth], target,
+                                           refinable=2) == [0, 1]
+    assert lowrank.layers_to_refine_within(losses, f, [sky], nothing, [truth], target) == [2]
+
+
+def test_budget_rule_counts_the_truncation_error_and_every_sky():
+    """The rule sees the composite's whole error: a truncation error already near the target
+    makes a small loss need its refinement; the worst of several skies decides."""
+    nothing = Selection(np.zeros(3), 0)
+    f, sky, truth, losses = _budget_case([0.005, 0.0, 0.0], layers=(0.5, 0.5, 0.0))
+    assert lowrank.layers_to_refine_within(losses, f, [sky], nothing, [truth], 0.009) == []
+    rng = np.random.default_rng(4)
+    off = rng.standard_normal(truth.shape).astype(np.float32)
+    off *= 0.008 / np.sqrt((off**2).mean())  # a truncation error of 0.8 % RMS: 0.94 % in all
+    assert lowrank.layers_to_refine_within(
+        losses, f, [sky], nothing, [truth + off], 0.009) == [0]
+    # A second sky that weights layer 0 three times and layer 1 a fifth: its mean is 1.6,
+    # layer 0's loss 1.5 % of 1, so 0.94 % of its mean.
+    bright = testskies.TestSky("bright", np.array([[3.0] * 3, [0.2] * 3, [1.0] * 3]))
+    truth_bright = np.einsum("tck,kc->tc", f.U, (f.V.T @ bright.r).astype(np.float32))
+    assert lowrank.layers_to_refine_within(losses, f, [sky], nothing, [truth], 0.009) == []
+    assert lowrank.layers_to_refine_within(
+        losses, f, [sky, bright], nothing, [truth, truth_bright], 0.009) == [0]
+
+
 def test_unit_gain_spectrum_matches_the_general_gram_matrices():
     """With unit gain the normalized Gram matrix is taken as the sum of the per-channel ones;
     a gain of 1.0 + 1e-7 (not unit, the general path) must give the same eigenvectors."""
