@@ -306,11 +306,25 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
             if ratio is None and settings.rms_refine_target is not None:
                 # A stack judged by its RMS error alone: the fewest layers that keep the
                 # decoded composite within the target on every test sky (ETC1S layers'
-                # losses counted, never refined).
+                # losses counted, never refined), knowing what each UASTC layer's
+                # refinement restores as decoded: every candidate refinement is encoded
+                # (one array, at the level the base array is written at: UASTC is
+                # deterministic, so a chosen one comes out the same there) and decoded.
+                candidates = [
+                    refinement_png(lost(j, arrays), tmp / f"refine{j:04d}.png", refine_mask)
+                    for j in range(head)
+                ]
+                restored = np.empty((head, len(f.U), 3), dtype=np.float32)
+                if head:
+                    encode_array([q.path for q in candidates], tmp / "candidates.ktx2")
+                    for j, texel in enumerate(decode([tmp / "candidates.ktx2"])[0]):
+                        restored[j] = candidates[j].value(texel)[valid]
                 refine = layers_to_refine_within(
                     losses, f, skies, selection, spectrum.absolute_truths(skies),
                     settings.rms_refine_target * settings.budget, refinable=head,
+                    restored=restored,
                 )
+                del restored
             else:
                 refine = layers_to_refine(
                     losses, f, skies, selection, settings,

@@ -440,6 +440,27 @@ def test_budget_rule_refines_only_what_the_budget_needs():
     assert lowrank.layers_to_refine_within(losses, f, [sky], nothing, [truth], target) == [2]
 
 
+def test_budget_rule_takes_what_a_refinement_restores_as_decoded():
+    """A refinement that restores only part of its layer's loss (an 8-bit image over the
+    loss's own range) must not count as a whole one: with two 0.8 % losses (1.13 %
+    together) one ideal refinement is enough (0.8 %), but if each restores only a quarter,
+    one leaves 1.0 % and both are needed (0.85 %); and where even every refinement cannot
+    reach the target, the rule stops within 1 % of that floor instead of refining what does
+    not help."""
+    nothing = Selection(np.zeros(3), 0)
+    f, sky, truth, losses = _budget_case([0.008, 0.008, 0.004])
+    rule = lowrank.layers_to_refine_within
+    losses[2] = 0.0
+    assert len(rule(losses, f, [sky], nothing, [truth], 0.009)) == 1
+    assert rule(losses, f, [sky], nothing, [truth], 0.009, restored=losses / 4.0) == [0, 1]
+    # Layer 2 (0.4 %) restores nothing, layers 0 and 1 a tenth each: the floor is 1.09 %,
+    # over a 0.5 % target; 0 and 1 bring the error there (one of them: 1.15 %), 2 never.
+    f, sky, truth, losses = _budget_case([0.008, 0.008, 0.004])
+    restored = losses / 10.0
+    restored[2] = 0.0
+    assert rule(losses, f, [sky], nothing, [truth], 0.005, restored=restored) == [0, 1]
+
+
 def test_budget_rule_counts_the_truncation_error_and_every_sky():
     """The rule sees the composite's whole error: a truncation error already near the target
     makes a small loss need its refinement; the worst of several skies decides."""
