@@ -218,8 +218,11 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
     Refinement (two-stage quantization): a texture is encoded, decoded, and what the codec
     and the 8-bit quantization lost is encoded again with its own, much smaller range. The
     decoded value is the sum of both. Every light image and the gain are refined; base layers
-    only where their loss would weigh on a test sky (above a tenth of the budget, or for a
-    shadowing pair more than ``RATIO_UNREFINED`` in the ratio at some texel).
+    of a stack judged by its RMS error alone (no ``ratio``) the fewest that keep the decoded
+    composite within ``settings.rms_refine_target`` of the budget on every test sky
+    (:func:`bake.lowrank.layers_to_refine_within`; None: the per-layer rule), of a shadowing
+    pair's stack where their loss would weigh on a test sky (above a tenth of the budget, or
+    more than ``RATIO_UNREFINED`` in the ratio at some texel).
     """
     started = time.perf_counter()
     if image is None:  # the texels are in the spectrum (which the caller let go of the image)
