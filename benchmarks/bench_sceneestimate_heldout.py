@@ -18,12 +18,19 @@ Usage::
 
     nice -n 10 .venv/bin/python benchmarks/bench_sceneestimate_heldout.py BUILD \\
         [--eye 30,6,-45 --target 46,2,-6] [--size 320x180] [--accurate] [--seeds 12]
+        [--renders FILE.pkl] [--baseline-repo DIR]
+
+``--renders`` keeps the renders in a pickle (made on the first run, read on the next: the
+estimator can be re-run without rendering again). ``--baseline-repo`` runs the same streams
+with another checkout's estimator in the same run (e.g. main's), printed beside.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
+import pickle
 import sys
 import time
 from pathlib import Path
@@ -61,10 +68,26 @@ def render_all(build: Path, view, size: tuple[int, int], accurate: bool, skies: 
     return out, used
 
 
-def stream_errors(build: Path, manifest: dict, rendered, view, seed: int) -> dict:
+def estimator_class(repo: Path | None):
+    """``SceneEstimator`` of this checkout, or of the checkout ``repo`` (its ``server``
+    package imported in place of this one's)."""
+    if repo is not None:
+        for name in [m for m in sys.modules if m == "server" or m.startswith("server.")]:
+            del sys.modules[name]
+        sys.path.insert(0, str(repo))
+        try:
+            return importlib.import_module("server.sceneestimate").SceneEstimator
+        finally:
+            sys.path.remove(str(repo))
+            for name in [m for m in sys.modules if m == "server" or m.startswith("server.")]:
+                del sys.modules[name]
+    return importlib.import_module("server.sceneestimate").SceneEstimator
+
+
+def stream_errors(build: Path, manifest: dict, rendered, view, seed: int,
+                  SceneEstimator) -> dict:
     """The last estimate of a stream of ``FRAMES`` camera frames against the render's truth."""
     from daylit.sun import sun_position
-    from server.sceneestimate import SceneEstimator
     from server.scenemeter import real_proxies
     from tests.radiance_frames import camera_frame, linearise
 
@@ -99,6 +122,9 @@ def main() -> None:
                         help="render without Radiance's ambient cache (slow, unbiased)")
     parser.add_argument("--skies", default="clear,overcast", help="of " + ",".join(SKIES))
     parser.add_argument("--seeds", type=int, default=12, help="streams per condition")
+    parser.add_argument("--renders", type=Path, help="keep the renders in this pickle")
+    parser.add_argument("--baseline-repo", type=Path,
+                        help="another checkout whose estimator runs the same streams")
     parser.add_argument("--json", type=Path, help="write the rows here too")
     args = parser.parse_args()
     if (args.eye is None) != (args.target is None):
@@ -110,24 +136,38 @@ def main() -> None:
     manifest = manifest_io.load(args.build)
     view = (look_at_view(args.eye, args.target, width, height, args.hfov_deg)
             if args.eye is not None else None)
-    renders, view = render_all(args.build, view, (width, height), args.accurate,
-                               args.skies.split(","))
+    if args.renders is not None and args.renders.exists():
+        renders = pickle.loads(args.renders.read_bytes())
+        view = next(iter(renders.values()))[1]
+    else:
+        rendered, view = render_all(args.build, view, (width, height), args.accurate,
+                                    args.skies.split(","))
+        renders = {key: (r, view) for key, r in rendered.items()}
+        if args.renders is not None:
+            args.renders.write_bytes(pickle.dumps(renders))
+    estimators = {"this": estimator_class(None)}
+    if args.baseline_repo is not None:
+        estimators["baseline"] = estimator_class(args.baseline_repo)
     rows = []
-    print("sky           hour  sun: max |err|  streams off goal  sky: max |err|  CIE types")
-    for (name, hour), rendered in sorted(renders.items()):
-        errs = [stream_errors(args.build, manifest, rendered, view, seed)
-                for seed in range(args.seeds)]
-        sun = np.abs([e["sun_err"] for e in errs])
-        sky = np.abs([e["sky_err"] for e in errs])
-        goal = OVERCAST_SUN_GOAL if name == "overcast" else SUN_GOAL
-        row = {"sky": name, "hour": hour, "sun_max_abs_err": float(sun.max()),
-               "streams_off_goal": int((sun > goal).sum()), "streams": len(errs),
-               "sky_max_abs_err": float(sky.max()),
-               "sky_types": sorted({e["sky_type"] for e in errs})}
-        rows.append(row)
-        print(f"{name:12s}  {hour:4s}  {row['sun_max_abs_err']:13.3f}  "
-              f"{row['streams_off_goal']:7d} of {len(errs):<7d}  {row['sky_max_abs_err']:13.3f}"
-              f"  {row['sky_types']}", flush=True)
+    print("estimator  sky           hour  sun: max |err|  streams off goal  sky: max |err|"
+          "  streams sky > 10 %  CIE types")
+    for (name, hour), (rendered, _) in sorted(renders.items()):
+        for label, cls in estimators.items():
+            errs = [stream_errors(args.build, manifest, rendered, view, seed, cls)
+                    for seed in range(args.seeds)]
+            sun = np.abs([e["sun_err"] for e in errs])
+            sky = np.abs([e["sky_err"] for e in errs])
+            goal = OVERCAST_SUN_GOAL if name == "overcast" else SUN_GOAL
+            row = {"estimator": label, "sky": name, "hour": hour,
+                   "sun_max_abs_err": float(sun.max()),
+                   "streams_off_goal": int((sun > goal).sum()), "streams": len(errs),
+                   "sky_max_abs_err": float(sky.max()), "sky_off_10": int((sky > 0.1).sum()),
+                   "sky_types": sorted({e["sky_type"] for e in errs})}
+            rows.append(row)
+            print(f"{label:9s}  {name:12s}  {hour:4s}  {row['sun_max_abs_err']:13.3f}  "
+                  f"{row['streams_off_goal']:7d} of {len(errs):<7d}  "
+                  f"{row['sky_max_abs_err']:13.3f}  {row['sky_off_10']:17d}  "
+                  f"{row['sky_types']}", flush=True)
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
 
