@@ -24,7 +24,10 @@ The sky's angular distribution is a CIE general sky (``daylit.sky.CIESky``) chos
 estimated sun/sky ratio (:func:`sky_type_for_ratio`) and solved again with that shape, blended
 with an isotropic part whose share is fitted from the pixels (followed across frames). Under an
 overcast sky the sun is kept only when it explains the pixels clearly better than the sky alone
-(``sun_significance``). The overcast model's shape is what keeps the sun near 0 under heavy
+(``sun_significance``), and any sun only when pairs of patches across the model's shadow
+edges, which see nearly the same sky, show it (``pair_floor``, ``server/shadowpairs.py``). A
+sample's sun is the share of its patch in sun (a thin shadow seen at a grazing angle is
+narrower than a patch). The overcast model's shape is what keeps the sun near 0 under heavy
 cloud: anything the sky model gets wrong that differs between sunlit and shadowed surfaces is
 read as sun. Radiance's Perez overcast skies are brighter toward the sun when it is low and
 nearly uniform in azimuth when it is high; walls get about 0.4 of the horizontal irradiance,
@@ -63,8 +66,10 @@ from server.scenesamples import (  # noqa: F401 (PinholeView, SceneEstimateError
     SceneEstimateError,
     SceneSamples,
     intersector,
+    patch_points_m,
     prepare_samples,
 )
+from server.shadowpairs import ShadowPairs, pair_sun_ratio, shadow_pairs
 from server.skyshape import (  # noqa: F401 (sky_type_for_ratio, unit_sky: used by tests)
     OVERCAST_TYPES,
     sky_type_for_ratio,
@@ -143,6 +148,9 @@ class SceneEstimator:
         lowers the weighted squared residual by more than this fraction
     learn_albedo : learn each surface's albedo scale from the frames (server.surfacescale):
         one surface with a wrong stated albedo no longer scales the estimate
+    pair_floor : a sun is dropped when the pairs across the model's shadow edges read less
+        than this fraction of the sky's horizontal irradiance (server.shadowpairs; 0: no
+        check)
     """
 
     mesh: trimesh.Trimesh
@@ -158,9 +166,12 @@ class SceneEstimator:
     share_memory: float = 0.8
     sun_significance: float = 0.5
     learn_albedo: bool = True
+    pair_floor: float = 0.05
     _pool: SceneSamples | None = field(default=None, init=False, repr=False)
     _surface_scales: SurfaceScales | None = field(default=None, init=False, repr=False)
     _sun_cache: tuple | None = field(default=None, init=False, repr=False)
+    _pairs_cache: tuple | None = field(default=None, init=False, repr=False)
+    _patch_points: np.ndarray | None = field(default=None, init=False, repr=False)
     _rng: np.random.Generator | None = field(default=None, init=False, repr=False)
     _hit: object = field(default=None, init=False, repr=False)
     _sky_cache: dict = field(default_factory=dict, init=False, repr=False)
@@ -196,16 +207,23 @@ class SceneEstimator:
                 for k in range(len(scales.scale)) if scales.area[k] > 0]
 
     def in_sun(self, sun_dir: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """For a sun direction: (m,) bool, each pool sample faces the sun and nothing of the
-        mesh is in between; (m, 3) and (m, 3), the bounce terms per unit sun normal irradiance
-        and per unit sky irradiance (:meth:`SceneSamples.bounce_terms`). Cast again only when
-        the sun moved more than ``sun_cache_deg``."""
+        """For a sun direction: (m,) the share of each pool sample's patch of pixels that
+        faces the sun with nothing of the mesh in between (0 to 1); (m, 3) and (m, 3), the
+        bounce terms per unit sun normal irradiance and per unit sky irradiance
+        (:meth:`SceneSamples.bounce_terms`). Cast again only when the sun moved more than
+        ``sun_cache_deg``."""
         sun_dir = normalize(np.asarray(sun_dir, float))
         if self._sun_cache is not None and float(self._sun_cache[0] @ sun_dir) >= math.cos(
                 math.radians(self.sun_cache_deg)):
             return self._sun_cache[1:]
         p = self.pool_samples
-        lit = self._unblocked(p.points_m, p.normals, sun_dir)
+        # A sample reads its patch's mean, so its sun is the patch's share in sun: a thin
+        # shadow seen at a grazing angle (a tree's on far ground) is a pixel or two wide, and
+        # a patch centred in it reads mostly sunlit ground.
+        points = self._patch_points_m()
+        m, k = points.shape[:2]
+        lit = self._unblocked(points.reshape(-1, 3), np.repeat(p.normals, k, axis=0),
+                              sun_dir).reshape(m, k).mean(axis=1)
         cos_h = np.clip(p.bounce_normals @ sun_dir, 0.0, None)
         far = ~np.isfinite(p.bounce_points_m[:, 0])
         bounce = np.zeros(len(cos_h))
@@ -216,6 +234,34 @@ class SceneEstimator:
         bounce_sun, bounce_sky, _ = p.bounce_terms(bounce)
         self._sun_cache = (sun_dir, lit, bounce_sun, bounce_sky)
         return lit, bounce_sun, bounce_sky
+
+    def _patch_points_m(self) -> np.ndarray:
+        """(m, P, 3): :func:`server.scenesamples.patch_points_m` of the pool, kept."""
+        if self._patch_points is None:
+            self._patch_points = patch_points_m(self.pool_samples, self.view, self.patch_px)
+        return self._patch_points
+
+    def shadow_pairs(self, sun_dir: np.ndarray) -> ShadowPairs:
+        """The pool's pairs across the model's shadow edges for a sun direction
+        (:func:`server.shadowpairs.shadow_pairs`), cached like :meth:`in_sun`."""
+        sun_dir = normalize(np.asarray(sun_dir, float))
+        if self._pairs_cache is not None and float(self._pairs_cache[0] @ sun_dir) >= math.cos(
+                math.radians(self.sun_cache_deg)):
+            return self._pairs_cache[1]
+        p = self.pool_samples
+        share = self.in_sun(sun_dir)[0]
+        pairs = shadow_pairs(p.pixels_xy, p.points_m, p.normals, p.surface, p.sky_view, share,
+                             sun_dir)
+        self._pairs_cache = (sun_dir, pairs)
+        return pairs
+
+    def pair_sun_ratio(self, linear: np.ndarray, sun_dir: np.ndarray, light: SceneLight,
+                       radiance_per_unit: float = 1.0, clip_level: float | None = None,
+                       ignore_mask: np.ndarray | None = None, to_linear=None) -> float | None:
+        """The sun the shadow-edge pairs read in a frame, over the sky's horizontal
+        irradiance of ``light`` (:func:`server.shadowpairs.pair_sun_ratio`)."""
+        return pair_sun_ratio(self, linear, sun_dir, light, radiance_per_unit, clip_level,
+                              ignore_mask, to_linear)
 
     def sky_term(self, sky_type: int, sun_dir: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """For a CIE sky of this type and sun scaled to an open horizontal irradiance of 1:
@@ -262,7 +308,8 @@ class SceneEstimator:
         return float(share if previous is None else (
             self.share_memory * previous + (1.0 - self.share_memory) * share))
 
-    def _best_overcast_fit(self, sun_dir: np.ndarray, frame: _FrameSamples) -> SceneLight:
+    def _best_overcast_fit(self, sun_dir: np.ndarray, frame: _FrameSamples,
+                           allow_sun: bool = True) -> SceneLight:
         """The overcast shape that explains the frames best without a sun (the sky-alone
         residual, followed across frames), fitted with it; the surfaces' albedo scales as that
         fit left them (each shape's fit starts from the same scales: one shape's refit must
@@ -271,7 +318,7 @@ class SceneEstimator:
         fits = []
         for sky_type in OVERCAST_TYPES:
             self._surface_scales = copy.deepcopy(before)
-            light, sky_alone = self._fit_shape(sky_type, sun_dir, frame)
+            light, sky_alone = self._fit_shape(sky_type, sun_dir, frame, allow_sun)
             # followed across frames like the share: the sky's shape changes slowly, one
             # frame's residuals are noisy
             previous = self._shape_misfit.get(sky_type, sky_alone)
@@ -281,8 +328,8 @@ class SceneEstimator:
         _, light, self._surface_scales = min(fits, key=lambda fit: fit[0])
         return light
 
-    def _fit_shape(self, sky_type: int, sun_dir: np.ndarray,
-                   frame: _FrameSamples) -> tuple[SceneLight, float]:
+    def _fit_shape(self, sky_type: int, sun_dir: np.ndarray, frame: _FrameSamples,
+                   allow_sun: bool = True) -> tuple[SceneLight, float]:
         """The sun and sky with the sky's shape of CIE type ``sky_type``, and the weighted
         mean squared residual the sky alone leaves with that shape (what tells one overcast
         shape from another)."""
@@ -333,7 +380,7 @@ class SceneEstimator:
             sky_alone += _weighted_mse(values[:, ch], sky_alone_rgb[ch] * sky_col[:, ch],
                                        weights)
         sun_needed = with_sun < (1.0 - self.sun_significance) * sky_alone
-        if sky_type in OVERCAST_TYPES and not sun_needed:
+        if not allow_sun or (sky_type in OVERCAST_TYPES and not sun_needed):
             # Overcast: a small sun that explains little more than the sky alone is the sky
             # model's error, not a sun (Jensen et al.: under heavy cloud, none).
             sun_rgb, sky_rgb = np.zeros(3), sky_alone_rgb
@@ -343,9 +390,10 @@ class SceneEstimator:
                           float(model_share)), sky_alone
 
     def _pick(self, lit: np.ndarray) -> np.ndarray:
-        """``samples`` pool indices, half in sun and half in shadow where the pool has them
-        (the shadowed ones are what tells the sky from the sun)."""
-        groups = [np.flatnonzero(lit), np.flatnonzero(~lit)]
+        """``samples`` pool indices, half mostly in sun and half mostly in shadow (``lit``,
+        the share in sun, from 0.5 or below it) where the pool has them (the shadowed ones are
+        what tells the sky from the sun)."""
+        groups = [np.flatnonzero(lit >= 0.5), np.flatnonzero(lit < 0.5)]
         want = self.samples // 2
         small = min(groups, key=len)
         large = max(groups, key=len)
@@ -414,6 +462,13 @@ class SceneEstimator:
             if new_type == sky_type:
                 break
             sky_type = new_type
+        if self.pair_floor > 0.0 and float(np.max(result.sun_normal_irradiance)) > 0.0:
+            # the sky model's errors read as sun; the shadow edges alone say whether there is
+            # one (server.shadowpairs)
+            ratio = self.pair_sun_ratio(linear, sun_dir, result, radiance_per_unit, clip_level,
+                                        ignore_mask, to_linear)
+            if ratio is not None and ratio < self.pair_floor:
+                result = self._best_overcast_fit(sun_dir, frame, allow_sun=False)
         if self.learn_albedo:
             self._scales.end_frame()
         return result

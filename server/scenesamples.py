@@ -124,6 +124,22 @@ class SceneSamples:
         return sun / k, sky / k, np.bincount(self.bounce_sample, minlength=m) / k
 
 
+def patch_points_m(samples: SceneSamples, view: PinholeView, patch_px: int) -> np.ndarray:
+    """(m, P, 3) site points seen through the ``P = (2 patch_px + 1)^2`` pixel centres of each
+    sample's patch (what a sample's read averages), on the sample's plane (the pool keeps
+    patches on one plane)."""
+    dy, dx = np.mgrid[-patch_px:patch_px + 1, -patch_px:patch_px + 1]
+    offsets = np.column_stack([dx.ravel(), dy.ravel()]).astype(float)
+    k = len(offsets)
+    pixels = (samples.pixels_xy[:, None, :] + 0.5 + offsets[None]).reshape(-1, 2)
+    origins, dirs = view.rays(pixels)
+    plane_point = np.repeat(samples.points_m, k, axis=0)
+    plane_normal = np.repeat(samples.normals, k, axis=0)
+    t = np.einsum("ij,ij->i", plane_point - origins, plane_normal) / np.einsum(
+        "ij,ij->i", dirs, plane_normal)
+    return (origins + t[:, None] * dirs).reshape(-1, k, 3)
+
+
 def intersector(mesh: trimesh.Trimesh):
     """trimesh's ray intersector for ``mesh``: Embree's where installed."""
     return trimesh.ray.ray_pyembree.RayMeshIntersector(mesh) if trimesh.ray.has_embree \

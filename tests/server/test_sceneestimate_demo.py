@@ -1,0 +1,103 @@
+"""The scene estimate on the demo site's own real proxies, a site it was not tuned on (issue 16).
+
+The estimator's other tests use one small test site (``tests/radiance_frames.known_site``).
+Here the truth is Radiance's render (gendaylit skies, 15 October at 9:30, 12:00 and 14:30,
+without the ambient cache, whose bias brightens shade) of the demo build's real proxies and
+ground (the visitor centre, the tree, the ground; ``render_build_view``), seen by a site camera
+north-west of the visitor centre so that the centre and its shadow are in view. (The demo's
+kiosk view sees the ground and the tree's thin shadow only: docs/benchmarks.md, "On a site it
+was not tuned on".) Each condition is a stream of camera frames (noise, JPEG 85) per seed,
+through the server's estimator built from the build as ``daylit serve --sky scene`` builds it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+HOURS = ("9.5", "12", "14.5")
+SKIES = {"clear": (800.0, 80.0), "overcast": (0.0, 150.0)}
+EYE_M, TARGET_M = (30.0, 6.0, -45.0), (46.0, 2.0, -6.0)
+SIZE = (160, 90)  # a quarter of the tests' usual 320x180: uncached renders take 10-20 s
+SEEDS = range(6)
+FRAMES = 4
+
+
+@pytest.fixture(scope="module")
+def demo_streams(demo_draft_build):
+    """{(sky, hour): [last estimate of each seed's stream]} and the renders' truths."""
+    from benchmarks.bench_fidelity import SkySpec
+    from daylit import manifest as manifest_io
+    from daylit.sun import sun_position
+    from server.sceneestimate import SceneEstimator
+    from server.scenemeter import real_proxies
+    from tests.radiance_frames import (
+        ACCURATE_CAMERA_RAYS,
+        camera_frame,
+        linearise,
+        look_at_view,
+        render_build_view,
+    )
+
+    manifest = manifest_io.load(demo_draft_build)
+    mesh, albedo = real_proxies(demo_draft_build, manifest)
+    ground = float(np.mean(manifest["ground"]["albedo"]))
+    scene = manifest["scene"]
+    view = look_at_view(EYE_M, TARGET_M, *SIZE, 75.0)
+    out = {}
+    for hour in HOURS:
+        for name, (dni, dhi) in SKIES.items():
+            rendered, _ = render_build_view(demo_draft_build, SkySpec(name, 10, 15, hour, dni,
+                                                                      dhi),
+                                            *SIZE, procs=2, view=view, rays=ACCURATE_CAMERA_RAYS)
+            sun = sun_position(scene["latitude_deg"], scene["longitude_deg"],
+                               scene["elevation_m"], [rendered.when_unix_s]).direction[0]
+            lasts = []
+            for seed in SEEDS:
+                est = SceneEstimator(mesh, albedo, view, environment_albedo=ground, seed=seed)
+                rng = np.random.default_rng(seed)
+                exposure = None
+                for _ in range(FRAMES):
+                    codes, exposure = camera_frame(rendered.image(), rng, exposure=exposure)
+                    last = est.estimate(linearise(codes), sun, 1.0 / exposure, clip_level=0.99)
+                lasts.append(last)
+            out[name, hour] = (rendered, lasts)
+    return out
+
+
+def _grey(rgb) -> float:
+    return float(np.mean(rgb))
+
+
+@pytest.mark.slow
+def test_clear_sun_within_ten_percent_on_the_demo(demo_streams):
+    for hour in HOURS:
+        rendered, lasts = demo_streams["clear", hour]
+        for seed, last in zip(SEEDS, lasts, strict=True):
+            err = _grey(last.sun_normal_irradiance) / rendered.dni_w_m2 - 1.0
+            assert abs(err) < 0.10, (hour, seed, err, last)
+
+
+@pytest.mark.slow
+def test_overcast_sun_below_five_percent_of_the_sky_on_the_demo(demo_streams):
+    """Before the shadow-edge pairs' check this failed (at 9:30 the first stream kept a sun of
+    7.1 % of the sky; at 320x180, 3-11 of 40 streams an hour kept one above 5 %)."""
+    for hour in HOURS:
+        rendered, lasts = demo_streams["overcast", hour]
+        for seed, last in zip(SEEDS, lasts, strict=True):
+            sky = _grey(last.sky_horizontal_irradiance)
+            assert _grey(last.sun_normal_irradiance) < 0.05 * sky, (hour, seed, last)
+            assert sky == pytest.approx(rendered.dhi_w_m2, rel=0.10), (hour, seed, last)
+
+
+@pytest.mark.slow
+def test_clear_sky_within_a_quarter_on_the_demo(demo_streams):
+    """The clear sky's horizontal irradiance (a tenth of the light) within 25 %. The issue's
+    10 % is not met on this site: over 40 streams per hour it was up to 22 % off at 12:00 (17
+    of 40 beyond 10 %; 9 of 40 at 320x180, up to 15 %), within 10 % at 14:30 and 9:30 in all
+    but 1-2 (docs/benchmarks.md, "On a site it was not tuned on")."""
+    for hour in HOURS:
+        rendered, lasts = demo_streams["clear", hour]
+        for seed, last in zip(SEEDS, lasts, strict=True):
+            err = _grey(last.sky_horizontal_irradiance) / rendered.dhi_w_m2 - 1.0
+            assert abs(err) < 0.25, (hour, seed, err, last)
