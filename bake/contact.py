@@ -92,11 +92,12 @@ def continue_into_buried(image: np.ndarray, labels: np.ndarray,
     out = flat.copy()
     radius, blur = gaussian(sigma_px)
     surface = np.where(labels <= -2, -2 - labels, labels)
+    boxes = surface_boxes(surface)  # one pass (a search per label: 10,146 on the palace)
     for label in np.unique(labels[labels <= -2]):
         label = -2 - label
-        ys, xs = np.nonzero(surface == label)
-        y0, y1 = max(ys.min() - radius, 0), min(ys.max() + radius + 1, h)
-        x0, x1 = max(xs.min() - radius, 0), min(xs.max() + radius + 1, w)
+        rows, columns = boxes[label]
+        y0, y1 = max(rows.start - radius, 0), min(rows.stop + radius, h)
+        x0, x1 = max(columns.start - radius, 0), min(columns.stop + radius, w)
         visible = labels[y0:y1, x0:x1] == label
         if not visible.any():
             continue
@@ -130,13 +131,28 @@ def continued_labels(labels: np.ndarray, rings: int = RINGS) -> np.ndarray:
     out = labels >= 0
     if not ENABLED:
         return out
+    h, w = labels.shape
     surface = np.where(labels <= -2, -2 - labels, labels)
+    boxes = surface_boxes(surface)
     for label in np.unique(labels[labels <= -2]):
         label = -2 - label
-        visible = (labels == label).astype(np.uint8)
+        # Within the surface's box grown by ``rings``: the dilation reaches no farther.
+        rows, columns = boxes[label]
+        y0, y1 = max(rows.start - rings, 0), min(rows.stop + rings, h)
+        x0, x1 = max(columns.start - rings, 0), min(columns.stop + rings, w)
+        visible = (labels[y0:y1, x0:x1] == label).astype(np.uint8)
         near = cv2.dilate(visible, np.ones((3, 3), np.uint8), iterations=rings) > 0
-        out |= near & (surface == label)
+        out[y0:y1, x0:x1] |= near & (surface[y0:y1, x0:x1] == label)
     return out
+
+
+def surface_boxes(surface: np.ndarray) -> list:
+    """Each surface's bounding box, ``(rows, columns)`` slices, indexed by ``surface`` (H, W)
+    int (>= 0; others are no texel), from one pass over the image (None for a surface
+    without texels)."""
+    from scipy.ndimage import find_objects
+
+    return find_objects(np.where(surface >= 0, surface + 1, 0))
 
 
 def move_buried_samples(atlas, scene) -> None:

@@ -303,7 +303,7 @@ def smooth_bounce(image: np.ndarray, labels: np.ndarray, moved=None,
     near = near_contact(labels)
     if near.any():
         fine = smooth_within_labels(image, labels, NEAR_SIGMA_TEXELS, order=BOUNCE_ORDER,
-                                    plan=plans["open"])
+                                    plan=plans["open"], only=near)
         smoothed[near] = fine[near]
     smoothed = continue_into_buried(smoothed, labels)
     keep = continued_labels(labels)
