@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bake.rowstore import RowFile, row_block, rows_of
+from bake.rowstore import ROW_BLOCK_BYTES, RowFile, row_block, rows_of
 from bake.testskies import TestSky
 from daylit.selection import Selection
 
@@ -375,12 +375,10 @@ def layers_to_refine(losses, f, skies, selection, settings, means=None) -> list[
     through memory: docs/benchmarks.md, "One Node decoder per writing thread"); ``means`` the
     composite's mean on each sky to measure against (default: this stack's base composite).
 
-    The same layers as the test of each layer on each sky (:func:`_loses_too_much`), which
-    passed over the (T, 3) losses once per layer and sky: a layer's RMS loss on a sky is
-    ``sqrt(sum_c c_c^2 Q_c / 3T)`` with ``Q`` (k, 3) its losses' sums of squares, taken once;
-    every sky's composite mean comes from one matrix product. Where that value lies within
-    its rounding of the threshold, the per-sky test decides (docs/benchmarks.md, "issue 20,
-    2026-12-05")."""
+    The same layers as each layer's test on each sky (:func:`_loses_too_much`), which passed
+    over the losses once per layer and sky: a layer's RMS loss on a sky is ``sqrt(sum_c
+    c_c^2 Q_c / 3T)``, ``Q`` (k, 3) its losses' sums of squares taken once; the skies' means
+    come from matrix products. Within rounding of the threshold the per-sky test decides."""
     if not skies:
         return []
     texels = losses.shape[1]
@@ -401,8 +399,7 @@ def layers_to_refine(losses, f, skies, selection, settings, means=None) -> list[
         means, slack = np.asarray(given, dtype=np.float64), np.zeros(len(skies))
     rms = np.sqrt(np.einsum("skc,kc->sk", cs**2, squares) / (3 * texels))  # (skies, k)
     thresholds = 0.1 * settings.budget * means
-    # Rounding: the RMS from two orders of summation within 1e-9 of each other (float64
-    # sums of at most a few million terms: 1e-12), the fast mean within ``slack``.
+    # Rounding: two orders of float64 sums of millions of terms agree within 1e-12.
     doubt = np.abs(rms - thresholds[:, None]) <= (1e-9 + slack[:, None]) * thresholds[:, None]
     refine = rms > thresholds[:, None]
     for s, j in zip(*np.nonzero(doubt), strict=True):
@@ -422,16 +419,18 @@ def _loses_too_much(loss_j: np.ndarray, c_j: np.ndarray, mean: float, settings) 
 
 def _composite_means(U: np.ndarray, cs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The mean of ``|U c|`` over texels and channels for each sky's ``c`` of ``cs``
-    (skies, k, 3), ``U`` (T, 3, k), from one matrix product per channel; and each mean's
-    bound on its difference from another order of summation, relative (a product's
-    rounding is within ``2 k eps`` of ``sum |U| |c|``)."""
+    (skies, k, 3), ``U`` (T, 3, k), from matrix products by blocks of rows (each within
+    ``ROW_BLOCK_BYTES``: no texels x skies array); and each mean's bound on its difference
+    from another order of summation, relative (within ``2 k eps`` of ``sum |U| |c|``)."""
     k = U.shape[2]
     sums = np.zeros(len(cs))
     bounds = np.zeros(len(cs))
-    for channel in range(3):
-        u = np.ascontiguousarray(U[:, channel, :], dtype=np.float64)  # (T, k)
-        sums += np.abs(u @ cs[:, :, channel].T).sum(axis=0)
-        bounds += (np.abs(u) @ np.abs(cs[:, :, channel]).T).sum(axis=0)
+    step = max(1, ROW_BLOCK_BYTES // (8 * max(k, len(cs))))
+    for a in range(0, len(U), step):
+        for channel in range(3):
+            u = U[a : a + step, channel, :].astype(np.float64)  # (b, k)
+            sums += np.abs(u @ cs[:, :, channel].T).sum(axis=0)
+            bounds += (np.abs(u) @ np.abs(cs[:, :, channel]).T).sum(axis=0)
     count = 3 * U.shape[0]
     means = sums / count
     eps = np.finfo(np.float64).eps
