@@ -30,8 +30,14 @@ from scipy.sparse.csgraph import connected_components
 # 15 images: 1.2 s against 2.0 s for 17 lights), and each label in its own box gives the bits
 # of the code before the groups exactly. Groups give them but for rounding: a texel whose
 # blur OpenCV computes in a row's scalar tail in one image and by SIMD in the other can
-# differ in its last bit (1 of 9.9 M values on the demo's lightmap).
+# differ in its last bit (1 of 9.9 M values on the demo's lightmap). A row's tail is less
+# than a texel's channels, and a box reaches ``radius`` past its texels but where the image
+# ends: only texels in the image's last column can differ.
 GROUPS_FROM = 32
+# The continuation into buried texels (bake.contact) fits a few texels along contact lines
+# from windows spanning a surface's scattered pieces: on the palace's lightmap 22 images of
+# windows for 10 k texels, 1.9 in groups (0.9 s against 9.8 s for 4 lights, the same bits).
+CONTINUATION_GROUPS_FROM = 4
 
 
 def _window_shifts(radius: int):
@@ -93,8 +99,19 @@ def cluster_colours(clusters: np.ndarray, n: int, radius: int) -> np.ndarray:
     for dy, dx in _window_shifts(radius):
         other = _shifted(clusters, dy, dx, -1)
         near = (clusters >= 0) & (other >= 0) & (other != clusters)
-        a, b = clusters[near], other[near]
-        codes.append(np.unique(np.minimum(a, b) * n + np.maximum(a, b)))
+        codes.append(_pair_codes(clusters[near], other[near], n))
+    return greedy_colours(codes, n)
+
+
+def _pair_codes(a: np.ndarray, b: np.ndarray, n: int) -> np.ndarray:
+    """Unordered pairs of clusters ``a``, ``b`` (m,) as unique codes ``min * n + max``."""
+    return np.unique(np.minimum(a, b) * n + np.maximum(a, b))
+
+
+def greedy_colours(codes: list, n: int) -> np.ndarray:
+    """(n,) int: a colour per node 0..n-1 of the graph whose edges are ``codes`` (a list of
+    arrays of :func:`_pair_codes`), no edge within one colour; greedy, the nodes with most
+    neighbours first (deterministic)."""
     codes = np.unique(np.concatenate(codes)) if codes else np.zeros(0, np.int64)
     a, b = codes // n, codes % n
     adjacency = coo_matrix(
@@ -193,3 +210,104 @@ def _cluster_groups(labels: np.ndarray, radius: int, only, boxes: np.ndarray):
         local = np.stack([xs - boxes[own, 2], ys - boxes[own, 0]])
         yield ((y0, y1, x0, x1), ((ys - y0) * (x1 - x0) + (xs - x0)).astype(np.int32),
                local.astype(np.int32))
+
+
+def continuation_fits(labels: np.ndarray, radius: int, rings: int):
+    """The fits of :func:`bake.contact.continue_into_buried`: for each surface (visible
+    texels ``s >= 0``, buried ones ``-2 - s`` in ``labels`` (H, W)), its buried texels within
+    ``rings`` texels (Chebyshev) of a visible texel of it (the *targets*) fitted from its
+    visible texels within ``radius``. Each surface on its own in the window its targets span
+    (grown by ``radius``), as before issue 20, where those windows add up to less than
+    :data:`CONTINUATION_GROUPS_FROM` images or than the groups' boxes; else in groups as
+    :func:`label_groups` (clusters of a surface's targets and the visible texels within
+    ``radius`` of them, clusters of a colour never within ``radius`` of another's targets).
+
+    Yields, per fit: ``(box, visible, targets)``: the box ``(y0, y1, x0, x1)``; the visible
+    texels it reads and the targets, each ``(texels, local)`` as :func:`label_groups` gives
+    them, ``local`` relative to the origin of the texel's surface's own window."""
+    h, w = labels.shape
+    surface = np.where(labels <= -2, -2 - labels, labels)
+    buried = labels <= -2
+    target = np.zeros((h, w), bool)
+    for dy in range(-rings, rings + 1):
+        for dx in range(-rings, rings + 1):
+            if dy or dx:
+                target |= buried & (_shifted(labels, dy, dx, -1) == surface)
+    if not target.any():
+        return
+    windows = _label_boxes(np.where(target, surface, -1), radius)  # (L, 4)
+    present = np.zeros(len(windows), bool)
+    present[np.unique(surface[target])] = True
+    areas = (windows[:, 1] - windows[:, 0]) * (windows[:, 3] - windows[:, 2])
+    visible = labels >= 0
+    per_label = int(areas[present].sum())
+    if per_label > CONTINUATION_GROUPS_FROM * h * w:
+        groups = list(_continuation_groups(labels, surface, target, windows, radius))
+        if sum((b[1] - b[0]) * (b[3] - b[2]) for b, _, _ in groups) < per_label:
+            yield from groups
+            return
+    ty, tx = np.nonzero(target)
+    vy, vx = np.nonzero(visible)
+    t_own, v_own = surface[ty, tx], labels[vy, vx]
+    t_order, v_order = np.argsort(t_own, kind="stable"), np.argsort(v_own, kind="stable")
+    ty, tx, t_own = ty[t_order], tx[t_order], t_own[t_order]
+    vy, vx, v_own = vy[v_order], vx[v_order], v_own[v_order]
+    t_start = np.searchsorted(t_own, np.arange(len(windows) + 1))
+    v_start = np.searchsorted(v_own, np.arange(len(windows) + 1))
+    for label in np.nonzero(present)[0]:
+        y0, y1, x0, x1 = windows[label]
+        y, x = vy[v_start[label] : v_start[label + 1]], vx[v_start[label] : v_start[label + 1]]
+        inside = (y >= y0) & (y < y1) & (x >= x0) & (x < x1)
+        parts = []
+        for yy, xx in ((y[inside], x[inside]),
+                       (ty[t_start[label] : t_start[label + 1]],
+                        tx[t_start[label] : t_start[label + 1]])):
+            parts.append((((yy - y0) * (x1 - x0) + (xx - x0)).astype(np.int32),
+                          np.stack([xx - x0, yy - y0]).astype(np.int32)))
+        yield (y0, y1, x0, x1), parts[0], parts[1]
+
+
+def _continuation_groups(labels, surface, target, windows, radius: int):
+    """:func:`continuation_fits` by groups of clusters (one per colour)."""
+    h, w = labels.shape
+    visible = labels >= 0
+    index = np.full((h, w), -1, np.int64)
+    nodes = visible | target
+    index[nodes] = np.arange(int(nodes.sum()))
+    first, second = [], []
+    shifts = [(dy, dx) for dy in range(-radius, radius + 1) for dx in range(-radius, radius + 1)
+              if dy or dx]
+    for dy, dx in shifts:  # a target and the visible texels of its surface it reads
+        reads = target & (_shifted(labels, dy, dx, -1) == surface)
+        first.append(index[reads])
+        second.append(_shifted(index, dy, dx, -1)[reads])
+    first, second = np.concatenate(first), np.concatenate(second)
+    count = int(nodes.sum())
+    graph = coo_matrix((np.ones(len(first), np.int8), (first, second)), shape=(count, count))
+    _, component = connected_components(graph.tocsr(), directed=False)
+    member = np.zeros(count, bool)
+    member[first] = member[second] = True  # targets and the visible texels they read
+    clusters = np.full((h, w), -1, np.int64)
+    clusters[nodes] = np.where(member, component, -1)
+    n = int(component.max()) + 1
+    codes = []
+    for dy, dx in shifts:  # a target and another cluster's visible texel within reach
+        other = _shifted(np.where(visible, clusters, -1), dy, dx, -1)
+        near = target & (other >= 0) & (other != clusters)
+        codes.append(_pair_codes(clusters[near], other[near], n))
+    colour = greedy_colours(codes, n)
+    texel_colour = np.where(clusters >= 0, colour[np.maximum(clusters, 0)], -1)
+    for c in np.unique(texel_colour[target]):
+        ty, tx = np.nonzero(target & (texel_colour == c))
+        y0, y1 = max(ty.min() - radius, 0), min(ty.max() + radius + 1, h)
+        x0, x1 = max(tx.min() - radius, 0), min(tx.max() + radius + 1, w)
+        read = visible[y0:y1, x0:x1] & (texel_colour[y0:y1, x0:x1] == c)
+        vy, vx = np.nonzero(read)
+        vy, vx = vy + y0, vx + x0
+        parts = []
+        for yy, xx in ((vy, vx), (ty, tx)):
+            own = surface[yy, xx]
+            local = np.stack([xx - windows[own, 2], yy - windows[own, 0]])
+            parts.append((((yy - y0) * (x1 - x0) + (xx - x0)).astype(np.int32),
+                          local.astype(np.int32)))
+        yield (y0, y1, x0, x1), parts[0], parts[1]

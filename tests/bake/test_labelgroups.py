@@ -139,3 +139,34 @@ def test_boxes_from_one_pass_give_the_whole_image_searchs_answers():
         ty, tx = np.nonzero(own & ~source)
         expected[y0 + ty, x0 + tx] = expected[y0 + iy[ty, tx], x0 + ix[ty, tx]]
     assert np.array_equal(filled, expected)
+
+
+def _buried_scattered(seed: int):
+    """:func:`_scattered` with a quarter of the texels buried (``-2 - label``)."""
+    labels = _scattered(seed, count=120)
+    rng = np.random.default_rng(seed + 100)
+    buried = (labels >= 0) & (rng.random(labels.shape) < 0.25)
+    return np.where(buried, -2 - labels, labels)
+
+
+def test_continuation_in_groups_gives_each_surfaces_own_window_values(monkeypatch):
+    """The continuation into buried texels (bake.contact) fitted in groups of surfaces'
+    pieces gives the values of each surface fitted in its own window: the same bits but in
+    the image's last column (OpenCV's row tail), there within 2 ulps; a plan gives the same
+    values again."""
+    from bake import contact, labelgroups
+
+    labels = _buried_scattered(10)
+    values = np.random.default_rng(11).uniform(0, 2, labels.shape + (4, 3)).astype(np.float32)
+    monkeypatch.setattr(labelgroups, "CONTINUATION_GROUPS_FROM", 10**9)
+    own = contact.continue_into_buried(values, labels)
+    monkeypatch.setattr(labelgroups, "CONTINUATION_GROUPS_FROM", 0)
+    plan: dict = {}
+    grouped = contact.continue_into_buried(values, labels, plan=plan)
+    boxes = [fit[0] for fit in plan[(contact.FIT_SIGMA_TEXELS, contact.RINGS)]]
+    assert len(boxes) < len(np.unique(labels[labels <= -2])) / 5  # groups, not surfaces
+    assert np.array_equal(grouped[:, :-1], own[:, :-1])
+    assert np.allclose(grouped, own, rtol=2.5e-7, atol=0)
+    assert np.array_equal(contact.continue_into_buried(values, labels, plan=plan), grouped)
+    changed = np.any(grouped != values, axis=(2, 3))
+    assert changed.sum() > 100 and (labels[changed] <= -2).all()  # buried texels only
