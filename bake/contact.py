@@ -89,7 +89,8 @@ def continue_into_buried(image: np.ndarray, labels: np.ndarray,
     every other texel is unchanged. Each surface is fitted in the window its buried texels
     span, or, where those windows add up to many images (the palace's lightmap), in groups
     of surfaces' pieces that one blur fits (:func:`bake.labelgroups.continuation_fits`:
-    the same values but for the last bit of a texel in OpenCV's scalar row tail).
+    the same values but for the last bit of a texel within the kernel's radius of the
+    image's right edge).
     """
     if not ENABLED:
         return np.array(image, dtype=np.float32, copy=True)

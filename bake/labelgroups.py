@@ -28,11 +28,11 @@ from scipy.sparse.csgraph import connected_components
 # Labels are grouped only where their boxes add up to more than this many images: below it the
 # groups' blurs, most of them over nearly the whole image, save little (the demo's lightmap,
 # 15 images: 1.2 s against 2.0 s for 17 lights), and each label in its own box gives the bits
-# of the code before the groups exactly. Groups give them but for rounding: a texel whose
-# blur OpenCV computes in a row's scalar tail in one image and by SIMD in the other can
-# differ in its last bit (1 of 9.9 M values on the demo's lightmap). A row's tail is less
-# than a texel's channels, and a box reaches ``radius`` past its texels but where the image
-# ends: only texels in the image's last column can differ.
+# of the code before the groups exactly. Groups give them but for rounding: a box reaches
+# ``radius`` past its texels except where the image cuts it, and there OpenCV's border and
+# row-tail code meets the texel's window for boxes of other widths: texels within ``radius``
+# of the image's right edge can differ in their last bit (1 of 9.9 M values on the demo's
+# lightmap with groups forced; elsewhere the filter gives the same bits wherever the window).
 GROUPS_FROM = 32
 # The continuation into buried texels (bake.contact) fits a few texels along contact lines
 # from windows spanning a surface's scattered pieces: on the palace's lightmap 22 images of
