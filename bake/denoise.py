@@ -55,7 +55,7 @@ def smooth_within_labels(
     The labels are smoothed a group at a time (:func:`bake.labelgroups.label_groups`: pieces
     of labels more than the kernel's radius apart share one blur), with the values of a fit
     of each label in its own bounding box (:func:`smooth_label_by_label`): the same bits but
-    within the kernel's radius of the image's right edge, there the same to the last bit.
+    within the kernel's radius of the image's right edge, where the last bit can differ.
 
     ``only`` (H, W) bool or None: the values are needed at these texels only; labels' pieces
     without one are left as they are (same values where they are needed).
