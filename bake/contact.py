@@ -48,6 +48,7 @@ from __future__ import annotations
 import numpy as np
 
 from bake.denoise import channel_blocks, fitted_values, gaussian, plane_weights
+from bake.labelgroups import continuation_fits
 
 # False: texels at contact lines are treated as before issue 20 (buried texels dark, their
 # bounce the nearest open texel's): benchmarks/bench_contact.py's "before", in one run.
@@ -68,7 +69,8 @@ CLOSED_SHARE = 0.1  # a cache point this much closed in within the spacing is ne
 
 
 def continue_into_buried(image: np.ndarray, labels: np.ndarray,
-                         sigma_px: float = FIT_SIGMA_TEXELS, rings: int = RINGS) -> np.ndarray:
+                         sigma_px: float = FIT_SIGMA_TEXELS, rings: int = RINGS,
+                         plan: dict | None = None) -> np.ndarray:
     """Continue each surface's visible values into its buried texels along contact lines.
 
     Parameters
@@ -78,48 +80,64 @@ def continue_into_buried(image: np.ndarray, labels: np.ndarray,
         ``-2 - s``, no texel -1 (bake.writers._open_labels)
     sigma_px : the Gaussian of the local plane fit, texels
     rings : how far (8-connected texels) from a visible texel a buried one is continued
+    plan : a dict kept by a caller that continues several images with the same ``labels``
+        (a stack's blocks of lights): the fits' texels and weights, (K,) per texel, made
+        on the first call (the same values)
 
     Returns a new float32 array like ``image``: buried texels within ``rings`` of visible
     texels of their surface hold the fitted plane's value at their centre (never below 0);
-    every other texel is unchanged.
+    every other texel is unchanged. Each surface is fitted in the window its buried texels
+    span, or, where those windows add up to many images (the palace's lightmap), in groups
+    of surfaces' pieces that one blur fits (:func:`bake.labelgroups.continuation_fits`:
+    the same values but for the last bit of a texel within the kernel's radius of the
+    image's right edge).
     """
-    import cv2
-
     if not ENABLED:
         return np.array(image, dtype=np.float32, copy=True)
     h, w = labels.shape
     flat = np.ascontiguousarray(image, dtype=np.float32).reshape(h, w, -1)
     out = flat.copy()
     radius, blur = gaussian(sigma_px)
-    surface = np.where(labels <= -2, -2 - labels, labels)
-    for label in np.unique(labels[labels <= -2]):
-        label = -2 - label
-        ys, xs = np.nonzero(surface == label)
-        y0, y1 = max(ys.min() - radius, 0), min(ys.max() + radius + 1, h)
-        x0, x1 = max(xs.min() - radius, 0), min(xs.max() + radius + 1, w)
-        visible = labels[y0:y1, x0:x1] == label
-        if not visible.any():
-            continue
-        near = cv2.dilate(visible.astype(np.uint8), np.ones((3, 3), np.uint8),
-                          iterations=rings) > 0
-        target = near & (labels[y0:y1, x0:x1] == -2 - label)
-        if not target.any():
-            continue
-        # Only the window around the texels to fill is fitted (a ground receiver is large,
-        # its contact lines a small part of it).
-        ty, tx = np.nonzero(target)
-        wy0, wy1 = max(ty.min() - radius, 0), min(ty.max() + radius + 1, y1 - y0)
-        wx0, wx1 = max(tx.min() - radius, 0), min(tx.max() + radius + 1, x1 - x0)
-        target = target[wy0:wy1, wx0:wx1]
-        mask = visible[wy0:wy1, wx0:wx1].astype(np.float64)
-        y0, x0 = y0 + wy0, x0 + wx0
-        y1, x1 = y0 + (wy1 - wy0), x0 + (wx1 - wx0)
-        weights = plane_weights(mask, target, blur, sigma_px)
+    key = (sigma_px, rings)
+    fits = None if plan is None else plan.get(key)
+    if fits is None:
+        fits = _continuation_weights(labels, radius, rings, blur, sigma_px)
+        if plan is not None:
+            fits = plan[key] = list(fits)
+    for (y0, y1, x0, x1), visible, targets, weights in fits:
+        mask, target, coordinates = _fit_images((y1 - y0, x1 - x0), visible, targets)
+        weights = list(zip(weights, [None, *coordinates], strict=True))
         for c0, c1 in channel_blocks(flat.shape[2], mask.size):
             region = flat[y0:y1, x0:x1, c0:c1].astype(np.float64) * mask[:, :, None]
             value = fitted_values(region, weights, blur, target)
             out[y0:y1, x0:x1, c0:c1][target] = np.maximum(value, 0.0)
     return out.reshape(image.shape)
+
+
+def _fit_images(shape: tuple, visible: tuple, targets: tuple):
+    """A fit's mask (``shape``, float64: 1 at its ``visible`` texels), its targets (bool)
+    and its coordinate images ``[x, y]`` (float64: each texel's coordinates in its own
+    surface's window at the visible texels and the targets); ``visible`` and ``targets``
+    ``(texels, local)`` from :func:`bake.labelgroups.continuation_fits`."""
+    mask = np.zeros(shape)
+    mask.flat[visible[0]] = 1.0
+    target = np.zeros(shape, bool)
+    target.flat[targets[0]] = True
+    coordinates = [np.zeros(shape), np.zeros(shape)]
+    for texels, local in (visible, targets):
+        for axis in range(2):
+            coordinates[axis].flat[texels] = local[axis]
+    return mask, target, coordinates
+
+
+def _continuation_weights(labels, radius: int, rings: int, blur, sigma_px: float):
+    """Per fit of :func:`bake.labelgroups.continuation_fits`: its box, visible texels,
+    targets and plane-fit weights' (K,) arrays (:func:`plane_weights`)."""
+    for box, visible, targets in continuation_fits(labels, radius, rings):
+        mask, target, coordinates = _fit_images((box[1] - box[0], box[3] - box[2]), visible,
+                                                targets)
+        weights = plane_weights(mask, target, blur, sigma_px, coordinates)
+        yield box, visible, targets, [w for w, _ in weights]
 
 
 def continued_labels(labels: np.ndarray, rings: int = RINGS) -> np.ndarray:
@@ -130,13 +148,28 @@ def continued_labels(labels: np.ndarray, rings: int = RINGS) -> np.ndarray:
     out = labels >= 0
     if not ENABLED:
         return out
+    h, w = labels.shape
     surface = np.where(labels <= -2, -2 - labels, labels)
+    boxes = surface_boxes(surface)
     for label in np.unique(labels[labels <= -2]):
         label = -2 - label
-        visible = (labels == label).astype(np.uint8)
+        # Within the surface's box grown by ``rings``: the dilation reaches no farther.
+        rows, columns = boxes[label]
+        y0, y1 = max(rows.start - rings, 0), min(rows.stop + rings, h)
+        x0, x1 = max(columns.start - rings, 0), min(columns.stop + rings, w)
+        visible = (labels[y0:y1, x0:x1] == label).astype(np.uint8)
         near = cv2.dilate(visible, np.ones((3, 3), np.uint8), iterations=rings) > 0
-        out |= near & (surface == label)
+        out[y0:y1, x0:x1] |= near & (surface[y0:y1, x0:x1] == label)
     return out
+
+
+def surface_boxes(surface: np.ndarray) -> list:
+    """Each surface's bounding box, ``(rows, columns)`` slices, indexed by ``surface`` (H, W)
+    int (>= 0; others are no texel), from one pass over the image (None for a surface
+    without texels)."""
+    from scipy.ndimage import find_objects
+
+    return find_objects(np.where(surface >= 0, surface + 1, 0))
 
 
 def move_buried_samples(atlas, scene) -> None:

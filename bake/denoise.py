@@ -28,6 +28,8 @@ import cv2
 import numpy as np
 from scipy.ndimage import find_objects
 
+from bake.labelgroups import label_groups
+
 MAX_CHANNELS = 128  # OpenCV 5 rejects images of more channels (measured: 256 fails)
 # Bytes of one float64 working array of a fit (a surface's bounding box x the channels done at
 # once): a surface whose charts are spread over a whole atlas has a bounding box of the atlas,
@@ -41,7 +43,7 @@ RIDGE = 1e-6
 
 def smooth_within_labels(
     image: np.ndarray, labels: np.ndarray, sigma_px: float, order: int = 0,
-    plan: dict | None = None,
+    plan: dict | None = None, only: np.ndarray | None = None,
 ) -> np.ndarray:
     """Gaussian-smooth ``image`` (H, W, ...) separately inside each label of ``labels`` (H, W).
 
@@ -50,12 +52,19 @@ def smooth_within_labels(
     a label's edges; see the module's docstring), never below zero. Texels with label < 0 are
     left as they are and never contribute. Returns a new float32 array of the same shape.
 
+    The labels are smoothed a group at a time (:func:`bake.labelgroups.label_groups`: pieces
+    of labels more than the kernel's radius apart share one blur), with the values of a fit
+    of each label in its own bounding box (:func:`smooth_label_by_label`): the same bits but
+    within the kernel's radius of the image's right edge, where the last bit can differ.
+
+    ``only`` (H, W) bool or None: the values are needed at these texels only; labels' pieces
+    without one are left as they are (same values where they are needed).
+
     ``plan``: a dict kept by a caller that smooths several images with the same ``labels``
-    (a stack's blocks of lights): each label's box and fit weights (which depend on the
-    labels only: (K,) per weight, K the label's texels) are computed on the first call and
-    reused (the same values); its mask and the coordinate images are made again per call
-    (kept, they were box-sized float64 images for every label at once: 9 GB for the
-    palace's lightmap).
+    (and ``only``: a stack's blocks of lights): each group's texels and fit weights (which
+    depend on the labels only: (K,) float64 per weight, K the group's texels) are computed on
+    the first call and reused (the same values); its mask and the coordinate images are made
+    again per call.
     """
     if order not in (0, 1):
         raise ValueError(f"order must be 0 or 1, got {order}")
@@ -63,16 +72,16 @@ def smooth_within_labels(
     flat = np.ascontiguousarray(image, dtype=np.float32).reshape(h, w, -1)
     out = flat.copy()
     radius, blur = gaussian(sigma_px)
-    key = (sigma_px, order)
-    regions = None if plan is None else plan.get(key)
-    if regions is None:
-        regions = _fit_regions(labels, radius, blur, sigma_px, order)
+    key = (sigma_px, order, None if only is None else "only")
+    groups = None if plan is None else plan.get(key)
+    if groups is None:
+        groups = _fit_groups(labels, radius, blur, sigma_px, order, only)
         if plan is not None:
-            regions = plan[key] = list(regions)
-    for (y0, y1, x0, x1), label, kept in regions:
-        mask = (labels[y0:y1, x0:x1] == label).astype(np.float32)
+            groups = plan[key] = list(groups)
+    for (y0, y1, x0, x1), texels, local, kept in groups:
+        mask, coordinates = _group_images((y1 - y0, x1 - x0), texels, local, order)
         inside = mask > 0
-        weights = list(zip(kept, _coordinates(mask.shape, order), strict=True))
+        weights = list(zip(kept, coordinates, strict=True))
         for c0, c1 in channel_blocks(flat.shape[2], mask.size):
             region = flat[y0:y1, x0:x1, c0:c1] * mask[:, :, None]
             if order == 1:  # G(m x v) - x0 G(m v) cancels: float32 loses 1e-4 of v at x ~ 400
@@ -84,22 +93,45 @@ def smooth_within_labels(
     return out.reshape(image.shape)
 
 
-def _coordinates(shape: tuple, order: int) -> list:
-    """The coordinate image each fit weight multiplies (:func:`plane_weights`' order): None
-    for the mean (order 0); None, x, y (float64, ``shape``) for the plane (order 1)."""
+def _group_images(shape: tuple, texels: np.ndarray, local: np.ndarray, order: int):
+    """A group's mask (``shape``, float32: 1 at its ``texels``, flat indices) and the
+    coordinate images each fit weight multiplies (:func:`plane_weights`' order): None for
+    the mean (order 0); None, x, y (float64, ``shape``; ``local`` (2, K) at the texels, the
+    coordinates in each texel's own label's box) for the plane (order 1)."""
+    mask = np.zeros(shape, np.float32)
+    mask.flat[texels] = 1.0
     if order == 0:
-        return [None]
-    yy, xx = np.mgrid[0 : shape[0], 0 : shape[1]].astype(np.float64)
-    return [None, xx, yy]
+        return mask, [None]
+    xx, yy = np.zeros(shape), np.zeros(shape)
+    xx.flat[texels], yy.flat[texels] = local[0], local[1]
+    return mask, [None, xx, yy]
 
 
-def _fit_regions(labels: np.ndarray, radius: int, blur, sigma_px: float, order: int):
-    """Per label of ``labels`` (>= 0): its box (y0, y1, x0, x1) grown by ``radius``, the
-    label, and its fit weights' (K,) arrays (:func:`plane_weights` or the mean's, without
-    their coordinate images: :func:`_coordinates`)."""
+def _fit_groups(labels, radius: int, blur, sigma_px: float, order: int, only=None):
+    """Per group of ``labels`` (:func:`bake.labelgroups.label_groups`): its box, texels,
+    local coordinates and its fit weights' (K,) arrays (:func:`plane_weights` or the
+    mean's, without their coordinate images: :func:`_group_images`)."""
+    for box, texels, local in label_groups(labels, radius, only):
+        mask, coordinates = _group_images((box[1] - box[0], box[3] - box[2]), texels, local,
+                                          order)
+        inside = mask > 0
+        if order == 0:
+            weights = [(blur(mask)[inside] ** -1, None)]
+        else:
+            weights = plane_weights(mask.astype(np.float64), inside, blur, sigma_px,
+                                    coordinates[1:])
+        yield box, texels, local, [w for w, _ in weights]
+
+
+def smooth_label_by_label(image: np.ndarray, labels: np.ndarray, sigma_px: float,
+                          order: int = 0) -> np.ndarray:
+    """:func:`smooth_within_labels` one label at a time in its bounding box grown by the
+    kernel's radius (the code before issue 20's groups, kept as the tests' reference: the
+    same bits, far slower where a label's pieces are scattered over an atlas)."""
     h, w = labels.shape
-    # Each label's bounding box in one pass over the image (a search of the whole image per
-    # label was 42 s of CPU per call on the palace's lightmap of 10,146 surfaces).
+    flat = np.ascontiguousarray(image, dtype=np.float32).reshape(h, w, -1)
+    out = flat.copy()
+    radius, blur = gaussian(sigma_px)
     boxes = find_objects(np.where(labels >= 0, labels + 1, 0))
     for label in np.unique(labels[labels >= 0]):
         rows, columns = boxes[label]
@@ -111,7 +143,15 @@ def _fit_regions(labels: np.ndarray, radius: int, blur, sigma_px: float, order: 
             weights = [(blur(mask)[inside] ** -1, None)]
         else:
             weights = plane_weights(mask.astype(np.float64), inside, blur, sigma_px)
-        yield (y0, y1, x0, x1), label, [w for w, _ in weights]
+        for c0, c1 in channel_blocks(flat.shape[2], mask.size):
+            region = flat[y0:y1, x0:x1, c0:c1] * mask[:, :, None]
+            if order == 1:
+                region = region.astype(np.float64)
+            value = fitted_values(region, weights, blur, inside)
+            if order == 1:
+                value = np.maximum(value, 0.0)
+            out[y0:y1, x0:x1, c0:c1][inside] = value
+    return out.reshape(image.shape)
 
 
 def channel_blocks(channels: int, texels: int) -> list[tuple[int, int]]:
@@ -147,15 +187,21 @@ def fitted_values(region: np.ndarray, weights: list, blur, at: np.ndarray) -> np
     return value
 
 
-def plane_weights(mask: np.ndarray, inside: np.ndarray, blur, sigma_px: float) -> list:
+def plane_weights(mask: np.ndarray, inside: np.ndarray, blur, sigma_px: float,
+                  coordinates: list | None = None) -> list:
     """For a Gaussian-weighted plane fit ``a + b (x - x0) + c (y - y0)`` at every texel
     ``(x0, y0)`` of ``mask``: ``a = w_0 G(m v) + w_x G(m x v) + w_y G(m y v)`` (``G`` the blur,
     ``m`` the mask, ``v`` the values). Returns ``[(w_0, None), (w_x, x), (w_y, y)]``, the
     weights (K,) at the ``inside`` texels and the coordinate images (texels, float64).
     ``inside`` need not lie in the mask: the plane is then continued to those texels
-    (bake.contact)."""
-    hh, ww = mask.shape
-    yy, xx = np.mgrid[0:hh, 0:ww].astype(np.float64)
+    (bake.contact). ``coordinates``: the images ``[x, y]`` (float64, as ``mask``) to use
+    instead of each texel's column and row in ``mask`` (a group of labels: each texel's
+    coordinates in its own label's box, :func:`smooth_within_labels`)."""
+    if coordinates is None:
+        hh, ww = mask.shape
+        yy, xx = np.mgrid[0:hh, 0:ww].astype(np.float64)
+    else:
+        xx, yy = coordinates
     S = {k: blur(mask * f) for k, f in (("1", 1.0), ("x", xx), ("y", yy), ("xx", xx * xx),
                                          ("xy", xx * yy), ("yy", yy * yy))}
     S = {k: v[inside] for k, v in S.items()}
@@ -182,9 +228,10 @@ def fill_from_nearest(image: np.ndarray, labels: np.ndarray, keep: np.ndarray) -
     from scipy.ndimage import distance_transform_edt
 
     fill = (labels >= 0) & ~keep
+    boxes = find_objects(np.where(labels >= 0, labels + 1, 0))  # one pass, not one per label
     for label in np.unique(labels[fill]):
-        ys, xs = np.nonzero(labels == label)
-        y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
+        rows, columns = boxes[label]
+        y0, y1, x0, x1 = rows.start, rows.stop, columns.start, columns.stop
         own = labels[y0:y1, x0:x1] == label
         source = own & keep[y0:y1, x0:x1]
         if not source.any():

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bake.rowstore import RowFile, row_block, rows_of
+from bake.rowstore import ROW_BLOCK_BYTES, RowFile, row_block, rows_of
 from bake.testskies import TestSky
 from daylit.selection import Selection
 
@@ -373,18 +373,69 @@ def layers_to_refine(losses, f, skies, selection, settings, means=None) -> list[
     what each layer's coarse encoding lost at the valid texels, layer-major so that each
     layer's losses are one contiguous block (a (T, 3, k) slice per layer and sky strode
     through memory: docs/benchmarks.md, "One Node decoder per writing thread"); ``means`` the
-    composite's mean on each sky to measure against (default: this stack's base composite)."""
-    refine = set()
-    for s, sky in enumerate(skies):
+    composite's mean on each sky to measure against (default: this stack's base composite).
+
+    The same layers as each layer's test on each sky (:func:`_loses_too_much`), which passed
+    over the losses once per layer and sky: a layer's RMS loss on a sky is ``sqrt(sum_c
+    c_c^2 Q_c / 3T)``, ``Q`` (k, 3) its losses' sums of squares taken once; the skies' means
+    come from matrix products. Within rounding of the threshold the per-sky test decides."""
+    if not skies:
+        return []
+    texels = losses.shape[1]
+    squares = np.empty((f.k, 3))
+    for j in range(f.k):
+        block = losses[j].astype(np.float64)
+        squares[j] = np.einsum("tc,tc->c", block, block)
+    rests = []
+    for sky in skies:
         rest = sky.r.copy()
         rest[selection(sky.r)] = 0.0
-        c = f.V.T @ rest  # (k, 3)
-        mean = np.abs(np.einsum("tck,kc->tc", f.U, c)).mean() if means is None else means[s]
-        for j in range(f.k):
-            loss = losses[j] * c[j]
-            if np.sqrt((loss**2).mean()) > 0.1 * settings.budget * mean:
-                refine.add(j)
-    return sorted(refine)
+        rests.append(rest)
+    cs = np.stack([f.V.T @ rest for rest in rests])  # (skies, k, 3)
+    given = means
+    if given is None:
+        means, slack = _composite_means(f.U, cs)
+    else:
+        means, slack = np.asarray(given, dtype=np.float64), np.zeros(len(skies))
+    rms = np.sqrt(np.einsum("skc,kc->sk", cs**2, squares) / (3 * texels))  # (skies, k)
+    thresholds = 0.1 * settings.budget * means
+    # Rounding: two orders of float64 sums of millions of terms agree within 1e-12.
+    doubt = np.abs(rms - thresholds[:, None]) <= (1e-9 + slack[:, None]) * thresholds[:, None]
+    refine = rms > thresholds[:, None]
+    for s, j in zip(*np.nonzero(doubt), strict=True):
+        c = cs[s]
+        mean = np.abs(np.einsum("tck,kc->tc", f.U, c)).mean() if given is None else given[s]
+        refine[s, j] = _loses_too_much(losses[j], c[j], mean, settings)
+    return sorted(int(j) for j in np.nonzero(refine.any(axis=0))[0])
+
+
+def _loses_too_much(loss_j: np.ndarray, c_j: np.ndarray, mean: float, settings) -> bool:
+    """A layer's test on one sky, as :func:`layers_to_refine` made it per sky and layer:
+    its coarse loss ``loss_j`` (T, 3) under the sky's coefficients ``c_j`` (3,) above a
+    tenth of the budget times the composite's ``mean``."""
+    loss = loss_j * c_j
+    return bool(np.sqrt((loss**2).mean()) > 0.1 * settings.budget * mean)
+
+
+def _composite_means(U: np.ndarray, cs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The mean of ``|U c|`` over texels and channels for each sky's ``c`` of ``cs``
+    (skies, k, 3), ``U`` (T, 3, k), from matrix products by blocks of rows (each within
+    ``ROW_BLOCK_BYTES``: no texels x skies array); and each mean's bound on its difference
+    from another order of summation, relative (within ``2 k eps`` of ``sum |U| |c|``)."""
+    k = U.shape[2]
+    sums = np.zeros(len(cs))
+    bounds = np.zeros(len(cs))
+    step = max(1, ROW_BLOCK_BYTES // (8 * max(k, len(cs))))
+    for a in range(0, len(U), step):
+        for channel in range(3):
+            u = U[a : a + step, channel, :].astype(np.float64)  # (b, k)
+            sums += np.abs(u @ cs[:, :, channel].T).sum(axis=0)
+            bounds += (np.abs(u) @ np.abs(cs[:, :, channel]).T).sum(axis=0)
+    count = 3 * U.shape[0]
+    means = sums / count
+    eps = np.finfo(np.float64).eps
+    slack = 4 * (k + 2) * eps * (bounds / count) / np.maximum(means, 1e-300) + 1e-12
+    return means, slack
 
 
 @dataclass

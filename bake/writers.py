@@ -218,7 +218,7 @@ def _assemble(a, stack, config, traced, n, coverage, labels, sun_bounce, work: P
         )
         del bounce
         store.write_block(block, _atlas_image(a, config, direct, smoothed, coverage,
-                                              open_labels))
+                                              open_labels, plans.setdefault("direct", {})))
         del direct
         if with_sun:
             sun_store.write_block(block, sun_bounce.image(a, config, smoothed, coverage, block))
@@ -248,12 +248,12 @@ def light_blocks(n: int, size: int | None = None) -> list[slice]:
     return [slice(i, min(i + size, n)) for i in range(0, n, size)]
 
 
-def _atlas_image(a, config, direct, smoothed, coverage, labels) -> np.ndarray:
+def _atlas_image(a, config, direct, smoothed, coverage, labels, plan=None) -> np.ndarray:
     """An atlas stack (H, W, n, 3): direct plus the bounce ``smoothed`` (H, W, n, 3, from
     :func:`smooth_bounce`, or None), gutters filled. ``labels`` from :func:`_open_labels`
-    (buried texels -2)."""
+    (buried texels -2); ``plan`` kept for the stack's blocks (:func:`continue_into_buried`)."""
     # Buried texels along contact lines hold the visible side's light continued (bake.contact).
-    image = continue_into_buried(_rgb(a.to_image(direct), config), labels)
+    image = continue_into_buried(_rgb(a.to_image(direct), config), labels, plan=plan)
     if smoothed is not None:
         image += smoothed
     return _dilate(image, coverage, rings=3)
@@ -303,9 +303,9 @@ def smooth_bounce(image: np.ndarray, labels: np.ndarray, moved=None,
     near = near_contact(labels)
     if near.any():
         fine = smooth_within_labels(image, labels, NEAR_SIGMA_TEXELS, order=BOUNCE_ORDER,
-                                    plan=plans["open"])
+                                    plan=plans["open"], only=near)
         smoothed[near] = fine[near]
-    smoothed = continue_into_buried(smoothed, labels)
+    smoothed = continue_into_buried(smoothed, labels, plan=plans.setdefault("continued", {}))
     keep = continued_labels(labels)
     if moved is not None:
         # The moved texels form strips along the contact lines: their bounce, traced there,

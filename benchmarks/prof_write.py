@@ -29,6 +29,7 @@ sys.path.insert(0, str(REPO))
 import bake.basisu as basisu  # noqa: E402
 import bake.compact_reader as compact_reader  # noqa: E402
 import bake.compress as compress  # noqa: E402
+import bake.contact as contact  # noqa: E402
 import bake.ktx2decoder as ktx2decoder  # noqa: E402
 import bake.lowrank as lowrank  # noqa: E402
 import bake.pipeline as pipeline  # noqa: E402
@@ -101,6 +102,9 @@ def instrument() -> None:
     _wrap(stackio, "write_stack_exr_by_rows", writers)
     for name in ("_atlas_image", "smooth_bounce", "_dilate", "view_smoothed", "_write_depth"):
         _wrap(writers, name)
+    # The continuation into buried texels, within _atlas_image and smooth_bounce (issue 20:
+    # 72 s of a loaded demo bake's write stage by cProfile, docs/benchmarks.md).
+    _wrap(contact, "continue_into_buried", writers)
     _wrap(writers.SunBounce, "image")
     _wrap(tracework.TracedResults, "load")
     for name in ("compress_stack", "compress_rms_stack", "compress_ratio_pair",

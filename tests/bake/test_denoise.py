@@ -82,8 +82,8 @@ def test_a_plan_keeps_per_texel_weights_only_and_gives_the_same_values():
     """The plan a stack's blocks share keeps each label's fit weights, K per weight (K its
     texels), not box-sized images: on an atlas of 400 labels each scattered over the whole
     image (every box the whole atlas) it holds at most the three plane weights per labelled
-    texel (float64) and a little per label; and the values are the plain call's, bit for
-    bit, block after block."""
+    texel (float64) and each texel's place and coordinates (three int32); and the values are
+    the plain call's, bit for bit, block after block."""
     rng = np.random.default_rng(4)
     h, w = 60, 80
     labels = rng.integers(0, 400, (h, w))
@@ -95,7 +95,7 @@ def test_a_plan_keeps_per_texel_weights_only_and_gives_the_same_values():
         assert np.array_equal(planned, smooth_within_labels(block, labels, SIGMA, order=1))
     held = _array_bytes(plan)
     labelled = int((labels >= 0).sum())
-    assert held <= 3 * 8 * labelled, (held, labelled)
+    assert held <= (3 * 8 + 3 * 4) * labelled, (held, labelled)
     # Box-sized images per label, as the plan held before, would be 400 x 60 x 80 x 21 bytes.
     assert held < 400 * h * w * 21 / 50
 
