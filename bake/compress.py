@@ -50,18 +50,16 @@ from bake.compact_reader import CompactReader
 from bake.ktx2decoder import decode
 from bake.lowrank import (
     Factors,
-    RatioRefinement,
     Spectrum,
     factors,
     floored_gain,
-    layers_to_refine,
-    layers_to_refine_within,
     prior_sqrt,
     ratio_rank,
     rms_rank,
     texel_means,
 )
 from bake.quantize import quantized_png, refinement_png
+from bake.refinement import RatioRefinement, layers_to_refine, layers_to_refine_within
 from bake.rowstore import as_stack, let_go, release_freed_memory, row_block, valid_rows
 from bake.testskies import TestSky, prior_skies, selectable_lights, test_skies
 from daylit.selection import Selection
@@ -120,9 +118,9 @@ class Settings:
     rms_etc1s_from_layer: int | None = 4
     # Which base layers of a stack judged by its RMS error alone are refined: the fewest
     # that keep its decoded composite within this share of the budget on every test sky
-    # (lowrank.layers_to_refine_within; the rest of the budget is the refinements' own
+    # (refinement.layers_to_refine_within; the rest of the budget is the refinements' own
     # residual's and a margin for skies that did not choose them). None: every layer whose
-    # own loss passes a tenth of the budget on some sky (lowrank.layers_to_refine), as
+    # own loss passes a tenth of the budget on some sky (refinement.layers_to_refine), as
     # before 2026-12-05, which refined four layers of the 400-light final lightmap that the
     # budget did not need (docs/benchmarks.md, "issue 15, 2026-12-05").
     rms_refine_target: float | None = 0.9
@@ -220,7 +218,7 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
     decoded value is the sum of both. Every light image and the gain are refined; base layers
     of a stack judged by its RMS error alone (no ``ratio``) the fewest that keep the decoded
     composite within ``settings.rms_refine_target`` of the budget on every test sky
-    (:func:`bake.lowrank.layers_to_refine_within`; None: the per-layer rule), of a shadowing
+    (:func:`bake.refinement.layers_to_refine_within`; None: the per-layer rule), of a shadowing
     pair's stack where their loss would weigh on a test sky (above a tenth of the budget, or
     more than ``RATIO_UNREFINED`` in the ratio at some texel).
     """

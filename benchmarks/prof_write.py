@@ -34,6 +34,7 @@ import bake.ktx2decoder as ktx2decoder  # noqa: E402
 import bake.lowrank as lowrank  # noqa: E402
 import bake.pipeline as pipeline  # noqa: E402
 import bake.quantize as quantize  # noqa: E402
+import bake.refinement as refinement  # noqa: E402
 import bake.sunbounce as sunbounce  # noqa: E402
 import bake.tracework as tracework  # noqa: E402
 import bake.writers as writers  # noqa: E402
@@ -92,11 +93,12 @@ def instrument() -> None:
     _wrap(ktx2decoder, "decode", compress, sunbounce, compact_reader)
     for name in ("quantized_png", "refinement_png"):
         _wrap(quantize, name, compress, sunbounce)
-    for name in ("factors", "rms_rank", "ratio_rank", "layers_to_refine"):
+    for name in ("factors", "rms_rank", "ratio_rank"):
         _wrap(lowrank, name, compress)
+    _wrap(refinement, "layers_to_refine", compress)
     for name in ("of", "absolute_truths"):
         _wrap(lowrank.Spectrum, name)
-    _wrap(lowrank.RatioRefinement, "pair")
+    _wrap(refinement.RatioRefinement, "pair")
     for name in ("composite", "lights"):
         _wrap(compact_reader.CompactReader, name)
     _wrap(stackio, "write_stack_exr_by_rows", writers)

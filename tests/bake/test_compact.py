@@ -16,7 +16,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bake import basisu, compact_reader, compress, ktx2decoder, lowrank, quantize, testskies
+from bake import (
+    basisu,
+    compact_reader,
+    compress,
+    ktx2decoder,
+    lowrank,
+    quantize,
+    refinement,
+    testskies,
+)
 from bake.evaluate import Build
 from daylit import sky as skies
 from daylit.selection import Selection, select_lights
@@ -358,10 +367,10 @@ def test_sky_composites_sum_each_channel_over_the_lights():
     assert np.all(out[2] == 0.0) and np.all(out[3, :, 1] == 0.0)
 
 
-def _ratio_refinement(role: str, X: float) -> lowrank.RatioRefinement:
+def _ratio_refinement(role: str, X: float) -> refinement.RatioRefinement:
     """One sky, one light (r' = 1), 4 texels with D = 1 and X as given, all checked."""
     lit = np.ones((4, 3), bool)
-    return lowrank.RatioRefinement(
+    return refinement.RatioRefinement(
         role, [np.ones((1, 3))], [lit], [np.ones(12)], [np.full(12, X)], [1.0], tolerance=0.002
     )
 
@@ -417,8 +426,8 @@ def test_budget_rule_refines_only_what_the_budget_needs():
 
     def both(losses_rms):
         f, sky, truth, losses = _budget_case(losses_rms)
-        within = lowrank.layers_to_refine_within(losses, f, [sky], nothing, [truth], target)
-        per_layer = lowrank.layers_to_refine(losses, f, [sky], nothing, settings)
+        within = refinement.layers_to_refine_within(losses, f, [sky], nothing, [truth], target)
+        per_layer = refinement.layers_to_refine(losses, f, [sky], nothing, settings)
         return within, per_layer
 
     # Each loss above a tenth of the budget, together 0.5 % (RMS of independent losses):
@@ -435,9 +444,9 @@ def test_budget_rule_refines_only_what_the_budget_needs():
     # Over the target whatever is refined below ``refinable`` (an ETC1S layer's loss counts
     # but cannot be refined): every refinable layer is taken, and no other.
     f, sky, truth, losses = _budget_case([0.004, 0.004, 0.012])
-    assert lowrank.layers_to_refine_within(losses, f, [sky], nothing, [truth], target,
+    assert refinement.layers_to_refine_within(losses, f, [sky], nothing, [truth], target,
                                            refinable=2) == [0, 1]
-    assert lowrank.layers_to_refine_within(losses, f, [sky], nothing, [truth], target) == [2]
+    assert refinement.layers_to_refine_within(losses, f, [sky], nothing, [truth], target) == [2]
 
 
 def test_budget_rule_takes_what_a_refinement_restores_as_decoded():
@@ -449,7 +458,7 @@ def test_budget_rule_takes_what_a_refinement_restores_as_decoded():
     not help."""
     nothing = Selection(np.zeros(3), 0)
     f, sky, truth, losses = _budget_case([0.008, 0.008, 0.004])
-    rule = lowrank.layers_to_refine_within
+    rule = refinement.layers_to_refine_within
     losses[2] = 0.0
     assert len(rule(losses, f, [sky], nothing, [truth], 0.009)) == 1
     assert rule(losses, f, [sky], nothing, [truth], 0.009, restored=losses / 4.0) == [0, 1]
@@ -466,18 +475,18 @@ def test_budget_rule_counts_the_truncation_error_and_every_sky():
     makes a small loss need its refinement; the worst of several skies decides."""
     nothing = Selection(np.zeros(3), 0)
     f, sky, truth, losses = _budget_case([0.005, 0.0, 0.0], layers=(0.5, 0.5, 0.0))
-    assert lowrank.layers_to_refine_within(losses, f, [sky], nothing, [truth], 0.009) == []
+    assert refinement.layers_to_refine_within(losses, f, [sky], nothing, [truth], 0.009) == []
     rng = np.random.default_rng(4)
     off = rng.standard_normal(truth.shape).astype(np.float32)
     off *= 0.008 / np.sqrt((off**2).mean())  # a truncation error of 0.8 % RMS: 0.94 % in all
-    assert lowrank.layers_to_refine_within(
+    assert refinement.layers_to_refine_within(
         losses, f, [sky], nothing, [truth + off], 0.009) == [0]
     # A second sky that weights layer 0 three times and layer 1 a fifth: its mean is 1.6,
     # layer 0's loss 1.5 % of 1, so 0.94 % of its mean.
     bright = testskies.TestSky("bright", np.array([[3.0] * 3, [0.2] * 3, [1.0] * 3]))
     truth_bright = np.einsum("tck,kc->tc", f.U, (f.V.T @ bright.r).astype(np.float32))
-    assert lowrank.layers_to_refine_within(losses, f, [sky], nothing, [truth], 0.009) == []
-    assert lowrank.layers_to_refine_within(
+    assert refinement.layers_to_refine_within(losses, f, [sky], nothing, [truth], 0.009) == []
+    assert refinement.layers_to_refine_within(
         losses, f, [sky, bright], nothing, [truth, truth_bright], 0.009) == [0]
 
 

@@ -5,7 +5,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from bake import lowrank
+from bake import refinement
 
 
 def _per_sky_and_layer(losses, f, skies, selection, settings, means=None) -> list[int]:
@@ -41,11 +41,11 @@ def _brightest(r):
 def test_the_same_layers_as_each_layer_tested_on_each_sky(budget):
     losses, f, skies = _problem(1)
     settings = SimpleNamespace(budget=budget)
-    chosen = lowrank.layers_to_refine(losses, f, skies, _brightest, settings)
+    chosen = refinement.layers_to_refine(losses, f, skies, _brightest, settings)
     assert chosen == _per_sky_and_layer(losses, f, skies, _brightest, settings)
     assert 0 < len(chosen) < f.k  # the problem has layers on both sides
     means = list(np.random.default_rng(2).uniform(0.5, 2.0, len(skies)))
-    assert lowrank.layers_to_refine(losses, f, skies, _brightest, settings, means) == \
+    assert refinement.layers_to_refine(losses, f, skies, _brightest, settings, means) == \
         _per_sky_and_layer(losses, f, skies, _brightest, settings, means)
 
 
@@ -62,14 +62,14 @@ def test_a_layer_right_at_the_threshold_is_decided_by_the_per_sky_test():
         j = s % f.k
         rms = np.sqrt(((losses[j] * c[j]) ** 2).mean())
         means.append(rms / (0.1 * settings.budget) * (1.0 + (-1) ** s * 1e-15))
-    assert lowrank.layers_to_refine(losses, f, skies, _brightest, settings, means) == \
+    assert refinement.layers_to_refine(losses, f, skies, _brightest, settings, means) == \
         _per_sky_and_layer(losses, f, skies, _brightest, settings, means)
 
 
 def test_composite_means_and_their_bound():
     losses, f, skies = _problem(4)
     cs = np.stack([f.V.T @ sky.r for sky in skies])
-    means, slack = lowrank._composite_means(f.U, cs)
+    means, slack = refinement._composite_means(f.U, cs)
     for s, c in enumerate(cs):
         exact = np.abs(np.einsum("tck,kc->tc", f.U, c)).mean()
         assert abs(means[s] - exact) <= slack[s] * means[s]
