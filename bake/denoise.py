@@ -80,17 +80,26 @@ def smooth_within_labels(
             groups = plan[key] = list(groups)
     for (y0, y1, x0, x1), texels, local, kept in groups:
         mask, coordinates = _group_images((y1 - y0, x1 - x0), texels, local, order)
-        inside = mask > 0
         weights = list(zip(kept, coordinates, strict=True))
-        for c0, c1 in channel_blocks(flat.shape[2], mask.size):
-            region = flat[y0:y1, x0:x1, c0:c1] * mask[:, :, None]
-            if order == 1:  # G(m x v) - x0 G(m v) cancels: float32 loses 1e-4 of v at x ~ 400
-                region = region.astype(np.float64)
-            value = fitted_values(region, weights, blur, inside)
-            if order == 1:
-                value = np.maximum(value, 0.0)
-            out[y0:y1, x0:x1, c0:c1][inside] = value
+        _fit_box(flat, out, (y0, y1, x0, x1), mask, weights, blur, order)
     return out.reshape(image.shape)
+
+
+def _fit_box(flat: np.ndarray, out: np.ndarray, box: tuple, mask: np.ndarray, weights: list,
+             blur, order: int) -> None:
+    """Fit the texels of ``mask`` (float32, 1 inside) in ``box`` (y0, y1, x0, x1) of ``flat``
+    (H, W, C) into ``out`` (same shape), by blocks of channels (:func:`fitted_values`; order
+    1 in float64, clipped at 0)."""
+    y0, y1, x0, x1 = box
+    inside = mask > 0
+    for c0, c1 in channel_blocks(flat.shape[2], mask.size):
+        region = flat[y0:y1, x0:x1, c0:c1] * mask[:, :, None]
+        if order == 1:  # G(m x v) - x0 G(m v) cancels: float32 loses 1e-4 of v at x ~ 400
+            region = region.astype(np.float64)
+        value = fitted_values(region, weights, blur, inside)
+        if order == 1:
+            value = np.maximum(value, 0.0)
+        out[y0:y1, x0:x1, c0:c1][inside] = value
 
 
 def _group_images(shape: tuple, texels: np.ndarray, local: np.ndarray, order: int):
@@ -143,14 +152,7 @@ def smooth_label_by_label(image: np.ndarray, labels: np.ndarray, sigma_px: float
             weights = [(blur(mask)[inside] ** -1, None)]
         else:
             weights = plane_weights(mask.astype(np.float64), inside, blur, sigma_px)
-        for c0, c1 in channel_blocks(flat.shape[2], mask.size):
-            region = flat[y0:y1, x0:x1, c0:c1] * mask[:, :, None]
-            if order == 1:
-                region = region.astype(np.float64)
-            value = fitted_values(region, weights, blur, inside)
-            if order == 1:
-                value = np.maximum(value, 0.0)
-            out[y0:y1, x0:x1, c0:c1][inside] = value
+        _fit_box(flat, out, (y0, y1, x0, x1), mask, weights, blur, order)
     return out.reshape(image.shape)
 
 

@@ -62,16 +62,12 @@ def stream_errors(site, rendered, samples: int, frames: int, seed: int) -> dict:
     """Relative errors of the last estimate of a stream of ``frames`` camera frames."""
     from daylit.sun import sun_position
     from server.sceneestimate import SceneEstimator
-    from tests.radiance_frames import camera_frame, linearise
+    from tests.radiance_frames import last_estimate
 
     mesh, albedo = site.mesh_and_albedo()
     est = SceneEstimator(mesh, albedo, site.view, samples=samples, seed=seed)
     sun = sun_position(34.47, 135.82, 100.0, [rendered.when_unix_s]).direction[0]
-    rng = np.random.default_rng(seed)
-    exposure = None
-    for _ in range(frames):
-        codes, exposure = camera_frame(rendered.image(), rng, exposure=exposure)
-        light = est.estimate(linearise(codes), sun, 1.0 / exposure, clip_level=0.99)
+    light = last_estimate(est, rendered, sun, seed, frames)
     e_sun = float(np.mean(light.sun_normal_irradiance))
     e_sky = float(np.mean(light.sky_horizontal_irradiance))
     return {

@@ -89,7 +89,7 @@ def stream_errors(build: Path, manifest: dict, rendered, view, seed: int,
     """The last estimate of a stream of ``FRAMES`` camera frames against the render's truth."""
     from daylit.sun import sun_position
     from server.scenemeter import real_proxies
-    from tests.radiance_frames import camera_frame, linearise
+    from tests.radiance_frames import last_estimate
 
     mesh, albedo = real_proxies(build, manifest)
     ground = float(np.mean(manifest["ground"]["albedo"]))
@@ -97,11 +97,7 @@ def stream_errors(build: Path, manifest: dict, rendered, view, seed: int,
     scene = manifest["scene"]
     sun = sun_position(scene["latitude_deg"], scene["longitude_deg"],
                        scene.get("elevation_m", 0.0), [rendered.when_unix_s]).direction[0]
-    rng = np.random.default_rng(seed)
-    exposure = None
-    for _ in range(FRAMES):
-        codes, exposure = camera_frame(rendered.image(), rng, exposure=exposure)
-        light = est.estimate(linearise(codes), sun, 1.0 / exposure, clip_level=0.99)
+    light = last_estimate(est, rendered, sun, seed, FRAMES)
     e_sun = float(np.mean(light.sun_normal_irradiance))
     e_sky = float(np.mean(light.sky_horizontal_irradiance))
     sun_err = e_sun / rendered.dni_w_m2 - 1.0 if rendered.dni_w_m2 > 0 else e_sun / max(

@@ -229,6 +229,19 @@ def camera_frame(radiance: np.ndarray, rng: np.random.Generator, jpeg_quality: i
     return np.ascontiguousarray(out), exposure
 
 
+def last_estimate(estimator, rendered: RenderedSky, sun_dir: np.ndarray, seed: int,
+                  frames: int = 4):
+    """The last of a stream of ``frames`` estimates (``estimator``: a SceneEstimator) from
+    camera frames (:func:`camera_frame`, the stream's own noise seeded by ``seed``, the first
+    frame's exposure kept) of one render."""
+    rng = np.random.default_rng(seed)
+    exposure = None
+    for _ in range(frames):
+        codes, exposure = camera_frame(rendered.image(), rng, exposure=exposure)
+        light = estimator.estimate(linearise(codes), sun_dir, 1.0 / exposure, clip_level=0.99)
+    return light
+
+
 def radiance_version() -> str:
     _, env = radiance_env()
     return subprocess.run(["rtrace", "-version"], env=env, capture_output=True,

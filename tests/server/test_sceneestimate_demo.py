@@ -33,8 +33,7 @@ def demo_streams(demo_draft_build):
     from server.scenemeter import real_proxies
     from tests.radiance_frames import (
         ACCURATE_CAMERA_RAYS,
-        camera_frame,
-        linearise,
+        last_estimate,
         look_at_view,
         render_build_view,
     )
@@ -52,15 +51,9 @@ def demo_streams(demo_draft_build):
                                             *SIZE, procs=2, view=view, rays=ACCURATE_CAMERA_RAYS)
             sun = sun_position(scene["latitude_deg"], scene["longitude_deg"],
                                scene["elevation_m"], [rendered.when_unix_s]).direction[0]
-            lasts = []
-            for seed in SEEDS:
-                est = SceneEstimator(mesh, albedo, view, environment_albedo=ground, seed=seed)
-                rng = np.random.default_rng(seed)
-                exposure = None
-                for _ in range(FRAMES):
-                    codes, exposure = camera_frame(rendered.image(), rng, exposure=exposure)
-                    last = est.estimate(linearise(codes), sun, 1.0 / exposure, clip_level=0.99)
-                lasts.append(last)
+            lasts = [last_estimate(SceneEstimator(mesh, albedo, view, environment_albedo=ground,
+                                                  seed=seed), rendered, sun, seed, FRAMES)
+                     for seed in SEEDS]
             out[name, hour] = (rendered, lasts)
     return out
 
