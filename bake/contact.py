@@ -48,7 +48,7 @@ from __future__ import annotations
 import numpy as np
 
 from bake.denoise import channel_blocks, fitted_values, gaussian, plane_weights
-from bake.labelgroups import continuation_fits
+from bake.labelgroups import continuation_fits, label_boxes
 
 # False: texels at contact lines are treated as before issue 20 (buried texels dark, their
 # bounce the nearest open texel's): benchmarks/bench_contact.py's "before", in one run.
@@ -150,7 +150,7 @@ def continued_labels(labels: np.ndarray, rings: int = RINGS) -> np.ndarray:
         return out
     h, w = labels.shape
     surface = np.where(labels <= -2, -2 - labels, labels)
-    boxes = surface_boxes(surface)
+    boxes = label_boxes(surface)
     for label in np.unique(labels[labels <= -2]):
         label = -2 - label
         # Within the surface's box grown by ``rings``: the dilation reaches no farther.
@@ -161,15 +161,6 @@ def continued_labels(labels: np.ndarray, rings: int = RINGS) -> np.ndarray:
         near = cv2.dilate(visible, np.ones((3, 3), np.uint8), iterations=rings) > 0
         out[y0:y1, x0:x1] |= near & (surface[y0:y1, x0:x1] == label)
     return out
-
-
-def surface_boxes(surface: np.ndarray) -> list:
-    """Each surface's bounding box, ``(rows, columns)`` slices, indexed by ``surface`` (H, W)
-    int (>= 0; others are no texel), from one pass over the image (None for a surface
-    without texels)."""
-    from scipy.ndimage import find_objects
-
-    return find_objects(np.where(surface >= 0, surface + 1, 0))
 
 
 def move_buried_samples(atlas, scene) -> None:

@@ -26,9 +26,8 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from scipy.ndimage import find_objects
 
-from bake.labelgroups import label_groups
+from bake.labelgroups import label_boxes, label_groups
 
 MAX_CHANNELS = 128  # OpenCV 5 rejects images of more channels (measured: 256 fails)
 # Bytes of one float64 working array of a fit (a surface's bounding box x the channels done at
@@ -141,7 +140,7 @@ def smooth_label_by_label(image: np.ndarray, labels: np.ndarray, sigma_px: float
     flat = np.ascontiguousarray(image, dtype=np.float32).reshape(h, w, -1)
     out = flat.copy()
     radius, blur = gaussian(sigma_px)
-    boxes = find_objects(np.where(labels >= 0, labels + 1, 0))
+    boxes = label_boxes(labels)
     for label in np.unique(labels[labels >= 0]):
         rows, columns = boxes[label]
         y0, y1 = max(rows.start - radius, 0), min(rows.stop + radius, h)
@@ -230,7 +229,7 @@ def fill_from_nearest(image: np.ndarray, labels: np.ndarray, keep: np.ndarray) -
     from scipy.ndimage import distance_transform_edt
 
     fill = (labels >= 0) & ~keep
-    boxes = find_objects(np.where(labels >= 0, labels + 1, 0))  # one pass, not one per label
+    boxes = label_boxes(labels)  # one pass, not one per label
     for label in np.unique(labels[fill]):
         rows, columns = boxes[label]
         y0, y1, x0, x1 = rows.start, rows.stop, columns.start, columns.stop
