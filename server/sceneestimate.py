@@ -414,6 +414,21 @@ class SceneEstimator:
         raw = image[ys, xs, :3]
         return (to_linear(raw) if to_linear is not None else raw).astype(np.float64)
 
+    def read_usable(self, image: np.ndarray, pixels_xy: np.ndarray, to_linear=None,
+                    clip_level: float | None = None, ignore_mask: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, np.ndarray]:
+        """Each sample's patch mean (m, 3) linear (:meth:`read_pixels`) and (m,) bool whether
+        it is usable: finite, not negative, no pixel of its patch at ``clip_level``, not
+        marked by ``ignore_mask`` (H, W bool)."""
+        patches = self.read_pixels(image, pixels_xy, to_linear)
+        values = patches.mean(axis=0)
+        usable = np.all(np.isfinite(values), axis=1) & (values.min(axis=1) >= 0.0)
+        if clip_level is not None:
+            usable &= patches.max(axis=(0, 2)) < clip_level
+        if ignore_mask is not None:
+            usable &= ~np.asarray(ignore_mask, bool)[pixels_xy[:, 1], pixels_xy[:, 0]]
+        return values, usable
+
     def estimate(self, linear: np.ndarray, sun_dir: np.ndarray, radiance_per_unit: float = 1.0,
                  clip_level: float | None = None, ignore_mask: np.ndarray | None = None,
                  to_linear=None) -> SceneLight:
@@ -435,13 +450,7 @@ class SceneEstimator:
         lit, bounce_sun, bounce_sky = self.in_sun(sun_dir)
         pick = self._pick(lit)
         xy = p.pixels_xy[pick]
-        patches = self.read_pixels(linear, xy, to_linear)
-        values = patches.mean(axis=0)
-        usable = np.all(np.isfinite(values), axis=1) & (values.min(axis=1) >= 0.0)
-        if clip_level is not None:
-            usable &= patches.max(axis=(0, 2)) < clip_level
-        if ignore_mask is not None:
-            usable &= ~np.asarray(ignore_mask, bool)[xy[:, 1], xy[:, 0]]
+        values, usable = self.read_usable(linear, xy, to_linear, clip_level, ignore_mask)
         pick, values = pick[usable], values[usable] * radiance_per_unit
         if len(pick) < 8:
             raise SceneEstimateError(f"only {len(pick)} usable samples in the frame")

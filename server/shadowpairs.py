@@ -103,22 +103,17 @@ def pair_sun_ratio(est, linear: np.ndarray, sun_dir: np.ndarray, light,
     irradiance of ``light`` (a ``SceneLight``), for the estimator ``est``
     (``server.sceneestimate.SceneEstimator``: its pool, pairs, sun and sky terms and learned
     albedo scales); None with fewer than ``MIN_PAIRS`` usable pairs. Pixels are read and
-    skipped (non-finite, negative, clipped, masked) as the estimate reads them."""
+    skipped as the estimate reads them (``SceneEstimator.read_usable``)."""
     pairs = est.shadow_pairs(sun_dir)
     if len(pairs) < MIN_PAIRS:
         return None
     p = est.pool_samples
     idx = np.unique(np.concatenate([pairs.shaded, pairs.lit]))
-    xy = p.pixels_xy[idx]
-    patches = est.read_pixels(linear, xy, to_linear)
-    usable = np.all(np.isfinite(patches), axis=(0, 2)) & (patches.min(axis=(0, 2)) >= 0.0)
-    if clip_level is not None:
-        usable &= patches.max(axis=(0, 2)) < clip_level
-    if ignore_mask is not None:
-        usable &= ~np.asarray(ignore_mask, bool)[xy[:, 1], xy[:, 0]]
+    values, usable = est.read_usable(linear, p.pixels_xy[idx], to_linear, clip_level,
+                                     ignore_mask)
     row = np.full(len(p.pixels_xy), -1)
     row[idx[usable]] = np.arange(int(usable.sum()))
-    values = patches.mean(axis=0)[usable] * radiance_per_unit
+    values = values[usable] * radiance_per_unit
     keep = (row[pairs.shaded] >= 0) & (row[pairs.lit] >= 0)
     if keep.sum() < MIN_PAIRS:
         return None
