@@ -22,20 +22,21 @@ Under heavy cloud sunlit and shadowed surfaces look alike and ``E_sun`` goes to 
 
 The sky's angular distribution is a CIE general sky (``daylit.sky.CIESky``) chosen by the
 estimated sun/sky ratio (:func:`sky_type_for_ratio`) and solved again with that shape, blended
-with an isotropic part whose share is fitted from the pixels (followed across frames). Under an
-overcast sky the sun is kept only when it explains the pixels clearly better than the sky alone
-(``sun_significance``), and any sun only when pairs of patches across the model's shadow
-edges, which see nearly the same sky, show it (``pair_floor``, ``server/shadowpairs.py``). A
-sample's sun is the share of its patch in sun (a thin shadow seen at a grazing angle is
-narrower than a patch). The overcast model's shape is what keeps the sun near 0 under heavy
-cloud: anything the sky model gets wrong that differs between sunlit and shadowed surfaces is
-read as sun. Radiance's Perez overcast skies are brighter toward the sun when it is low and
-nearly uniform in azimuth when it is high; walls get about 0.4 of the horizontal irradiance,
-not an isotropic sky's 0.5. So the overcast shape is either CIE type (``OVERCAST_TYPES``: 1,
-uniform in azimuth, or 2, slight brightening toward the sun), whichever leaves the smaller
-residual without a sun (followed across frames), and bounce surfaces are lit on their tilt.
-Type 1 alone left a phantom sun at low sun; type 2 alone doubled the error of the irradiance
-at the site's points under a high overcast sun (docs/benchmarks.md).
+with an isotropic part whose share is fitted from the pixels (followed across frames). Under any
+sky the sun is kept only when it explains the pixels clearly better than the sky alone
+(``sun_significance``; a view that shows almost no shade cannot tell a sun from the sky, and a
+fit with a free sun there reads noise as one), and only when pairs of patches across the model's
+shadow edges, which see nearly the same sky, show it (``pair_floor``,
+``server/shadowpairs.py``). A sample's sun is the share of its patch in sun (a thin shadow seen
+at a grazing angle is narrower than a patch). The overcast model's shape is what keeps the sun
+near 0 under heavy cloud: anything the sky model gets wrong that differs between sunlit and
+shadowed surfaces is read as sun. Radiance's Perez overcast skies are brighter toward the sun
+when it is low and nearly uniform in azimuth when it is high; walls get about 0.4 of the
+horizontal irradiance, not an isotropic sky's 0.5. So the overcast shape is either CIE type
+(``OVERCAST_TYPES``: 1, uniform in azimuth, or 2, slight brightening toward the sun), whichever
+leaves the smaller residual without a sun (followed across frames), and bounce surfaces are lit
+on their tilt. Type 1 alone left a phantom sun at low sun; type 2 alone doubled the error of the
+irradiance at the site's points under a high overcast sun (docs/benchmarks.md).
 
 Everything that depends only on the view (pixels, their surface points, normals, albedos and
 which hemisphere directions see open sky) is computed once by :class:`SceneSamples`
@@ -144,8 +145,8 @@ class SceneEstimator:
     patch_px : half-size of the square of pixels averaged per sample (1: 3 x 3)
     sun_cache_deg : in-sun flags are cast again when the sun moved more than this
     share_memory : weight of the past in the sky shape's model share (0: each frame alone)
-    sun_significance : under an overcast sky (``OVERCAST_TYPES``), the sun is kept only if it
-        lowers the weighted squared residual by more than this fraction
+    sun_significance : the sun is kept only if it lowers the weighted squared residual of the
+        sky alone (same shape) by more than this fraction, under any sky type
     learn_albedo : learn each surface's albedo scale from the frames (server.surfacescale):
         one surface with a wrong stated albedo no longer scales the estimate
     pair_floor : a sun is dropped when the pairs across the model's shadow edges read less
@@ -380,9 +381,12 @@ class SceneEstimator:
             sky_alone += _weighted_mse(values[:, ch], sky_alone_rgb[ch] * sky_col[:, ch],
                                        weights)
         sun_needed = with_sun < (1.0 - self.sun_significance) * sky_alone
-        if not allow_sun or (sky_type in OVERCAST_TYPES and not sun_needed):
-            # Overcast: a small sun that explains little more than the sky alone is the sky
-            # model's error, not a sun (Jensen et al.: under heavy cloud, none).
+        if not allow_sun or not sun_needed:
+            # A sun that explains little more than the sky alone is the sky model's error or
+            # noise, not a sun (Jensen et al.: under heavy cloud, none). Under every type: a
+            # view with almost no shade (the demo's kiosk: a tree's thin shadow) went from the
+            # clear type to an intermediate one on noise and kept a sun of up to 94 % of an
+            # overcast sky there; the estimate then falls to an overcast type.
             sun_rgb, sky_rgb = np.zeros(3), sky_alone_rgb
         self._share[sky_type] = model_share
         return SceneLight(sun_rgb, sky_rgb, sky_type, sun_dir, sunlit_count >= MIN_SUNLIT,
