@@ -328,3 +328,44 @@ def test_no_phantom_sun_under_the_demo_s_overcast(browser, web_build, tmp_path):
     # the clear sun: read by the pairs (its check ran and kept it), within 10 %
     assert all(e["pairRatio"] is not None and e["pairRatio"] > 1.0 for e in clear), clear
     assert all(abs(err) < 0.10 for err in sun), sun
+
+
+# The demo's kiosk view (its standpoint and direction, 16, 3.2, 52 m, looking 17 degrees west
+# of north), which sees the ground, the tree and its shadow, one or two pixels high at the
+# copy's 108 rows at 14:30, and no other shade.
+KIOSK_POSE = ([16.0, 3.2, 52.0], (17.1, 91.9, 0.0))
+KIOSK_SKIES = [("clear-9.5", "9.5", 800.0, 80.0), ("clear-14.5", "14.5", 800.0, 80.0)]
+
+
+def test_a_thin_shadow_is_not_shade(browser, web_build, tmp_path):
+    """Each sample's sun is its patch's share in sun: on the demo's kiosk view at 14:30 the
+    tree's shadow is thinner than a patch, so no pixel of the copy is mostly shaded and the phone
+    makes no estimate (the sky cannot be told from the sun; the last light stays). Before
+    (2026-12-05) the three pixels whose centres fell in the shadow counted as shaded while they
+    read mostly sunlit ground: the sky read 113-117 % too bright and the sun 21 % too dim. At
+    9:30 the same view sees the building's shade and the estimate is made: the sun within 10 %
+    of Radiance's, the sky within 25 %."""
+    frames = pose_frames(browser, web_build, KIOSK_POSE, KIOSK_SKIES, tmp_path, server=False)
+    got = {}
+    for name, sky in frames.items():
+        rendered = sky["rendered"]
+        with _open(browser, web_build, sky["y4m"],
+                   f"&sky=phone&time={rendered.when_unix_s}") as (page, _, errors):
+            standpoint, orientation = KIOSK_POSE
+            page.evaluate("(p) => window.daylit.debug.standAt(p)", standpoint)
+            orient(page, *orientation)
+            got[name] = [page.evaluate("window.daylit.debug.phoneEstimate()") for _ in range(8)]
+            assert not errors, errors
+    err = {}
+    for name, ests in got.items():
+        rendered, exposure = frames[name]["rendered"], frames[name]["exposure"]
+        err[name] = [None if e is None else (
+            round(float(LUMA @ np.asarray(e["sunNormal"])) / exposure / rendered.dni_w_m2 - 1, 3),
+            round(float(LUMA @ np.asarray(e["skyHorizontal"])) / exposure / rendered.dhi_w_m2
+                  - 1, 3)) for e in ests]
+    print("kiosk view: (sun, sky) error per estimate", err)
+    assert all(e is None for e in got["clear-14.5"]), err
+    assert all(e is not None for e in got["clear-9.5"]), err
+    # the last four of eight (the sky's share is followed across estimates)
+    for sun_err, sky_err in err["clear-9.5"][-4:]:
+        assert abs(sun_err) < 0.10 and abs(sky_err) < 0.25, err

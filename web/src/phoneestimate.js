@@ -41,6 +41,11 @@ const EDGE_PX = 1.5; // a pixel's corners this far away must see the same plane
 const SURFACE_OFFSET_M = 0.01;
 const MIN_SAMPLES = 30; // fewer usable pixels: no estimate
 const MIN_SUNLIT = 10; // fewer sunlit ones: the sun cannot be told from the sky
+// Fewer usable pixels mostly in shadow (a share in sun below 0.5): no estimate, the sky cannot
+// be told from the sun. The server has no such floor: its 3 x 3 patches at 320 x 180 find a few
+// on a shadow one or two pixels high; the phone's copy of the same view finds none, and without
+// the share in sun it took those pixels for shade and read a sky twice too bright.
+const MIN_SHADED = 10;
 const CLIP_CODE = 250; // a pixel with a channel at or above this code is clipped
 const DARK_CODE = 3;
 const POSE_TOLERANCE_DEG = 1.0;
@@ -334,8 +339,9 @@ export class PhoneEstimator {
    * @returns {object|null} {sunNormal: RGB, skyHorizontal: RGB (picture units x pi), ratio
    *   (luminance E_sun / k), skyType, used, sunlit, inlierFraction, pool, shiftPx (the
    *   registration's [dx, dy], pixels of the copy), turnDeg (the camera's turn that puts the
-   *   model on the picture: [left, up], degrees), fisher, fisherAtZero}; null when the
-   *   picture has too few usable pixels of known surfaces
+   *   model on the picture: [left, up], degrees), fisher, fisherAtZero, pairs (the pose's
+   *   shadow-edge pairs), pairRatio (the sun they read over the sky; null: no check)}; null
+   *   when the picture has too few usable pixels of known surfaces, or too few in shadow
    */
   estimate(rgba, w, h, camera, sun) {
     const shift = this.register(rgba, w, h, camera, sun);
@@ -349,7 +355,7 @@ export class PhoneEstimator {
       values.push(v);
       rows.push(i);
     }
-    if (rows.length < MIN_SAMPLES) {
+    if (rows.length < MIN_SAMPLES || rows.filter((i) => terms[i].share < 0.5).length < MIN_SHADED) {
       this.last = null;
       return null;
     }
