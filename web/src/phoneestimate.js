@@ -11,6 +11,9 @@
 // tilt). Linear in (E_sun, k): a few hundred pixels of the build's real proxies and ground,
 // some in sun and some in shadow, give both; people and wrong pixels are outliers of a robust
 // fit (RANSAC, then IRLS with Tukey's biweight on relative residuals, as server/robustfit.py).
+// As on the server, a pixel's in_sun is the share of the 3 x 3 about it in sun, and a sun the
+// fit finds is kept only if pairs of pixels across the model's shadow edges show it
+// (shadowpairs.js).
 //
 // A phone's camera is not calibrated: its exposure and gain are unknown, so the fit's absolute
 // level is in the picture's units. What it must get right is the sun/sky ratio and the sky's
