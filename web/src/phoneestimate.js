@@ -32,7 +32,7 @@ import { LINEAR_OF_CODE, luminance } from './colour.js';
 import { registerShift } from './poseregister.js';
 import { Proxies } from './proxyrays.js';
 import { robustFit } from './robustfit.js';
-import { MIN_PAIRS, PAIR_SKY_TYPE, pairSun, shadowPairs } from './shadowpairs.js';
+import { pairSunRatio, shadowPairs } from './shadowpairs.js';
 
 /** The estimated copy of the picture, pixels (w, h). */
 export const ESTIMATE_SIZE = [192, 108];
@@ -375,7 +375,7 @@ export class PhoneEstimator {
     // (shadowpairs.js; the server's pair_floor)
     let pairRatio = null;
     if (Math.max(...fit.sun) > 0) {
-      pairRatio = this._pairSunRatio(rgba, w, h, shift, sun, fit.sky);
+      pairRatio = pairSunRatio(this, rgba, w, h, shift, sun, fit.sky);
       if (pairRatio !== null && pairRatio < PAIR_FLOOR) fit = this._fit(OVERCAST_TYPE, rows, values, sun, sunlit, false);
     }
     const inliers = fit.weights.filter((x) => x > 0.5).length;
@@ -408,44 +408,10 @@ export class PhoneEstimator {
     return fit;
   }
 
-  /**
-   * The sun the pool's shadow-edge pairs read in the picture (shadowpairs.js pairSun) over the
-   * fit's sky horizontal irradiance `skyRgb` (picture units): server/shadowpairs.py
-   * pair_sun_ratio. Pixels are read and skipped as the estimate reads them; the pairs' small
-   * sky differences by the overcast sky brighter toward the sun (PAIR_SKY_TYPE; the bounce
-   * surfaces lit by an isotropic sky, as in the fit).
-   * @returns {number|null} null with fewer than MIN_PAIRS usable pairs
-   */
-  _pairSunRatio(rgba, w, h, shift, sun, skyRgb) {
-    const { shaded, lit } = this._pairs;
-    if (shaded.length < MIN_PAIRS) return null;
-    const pool = this.pool;
-    const terms = this._sunTerms;
-    const { terms: skyTerm } = this._skyFor(PAIR_SKY_TYPE, sun);
-    const radiance = [];
-    const skyOf = [];
-    const sunOf = [];
-    const sample = (i) => {
-      const a = pool[i].albedo.map((v) => v / Math.PI);
-      return {
-        sky: [0, 1, 2].map((c) => a[c] * (skyTerm[i] + terms[i].bSky[c]) * skyRgb[c]),
-        sun: [0, 1, 2].map((c) => a[c] * (terms[i].cosI + terms[i].bSun[c])),
-      };
-    };
-    shaded.forEach((i, p) => {
-      const pair = [i, lit[p]];
-      const read = pair.map((j) => readPixel(rgba, w, h, pool[j], shift));
-      if (read.includes(null)) return;
-      const [s, l] = pair.map(sample);
-      radiance.push(read);
-      skyOf.push([s.sky, l.sky]);
-      sunOf.push([s.sun, l.sun]);
-    });
-    if (radiance.length < MIN_PAIRS) return null;
-    const first = (list) => list.map((r) => r[0]);
-    const second = (list) => list.map((r) => r[1]);
-    const eSun = pairSun(first(radiance), second(radiance), first(skyOf), second(skyOf), first(sunOf), second(sunOf));
-    return eSun / Math.max((skyRgb[0] + skyRgb[1] + skyRgb[2]) / 3, 1e-12);
+  /** Pool sample i's pixel of the picture at the registration's shift, linear RGB; null where
+   * it falls outside the picture or is clipped (a channel at CLIP_CODE or more) or black. */
+  readSample(rgba, w, h, i, shift) {
+    return readPixel(rgba, w, h, this.pool[i], shift);
   }
 
   /**

@@ -88,6 +88,40 @@ export function pairSun(radianceShaded, radianceLit, skyShaded, skyLit, sunShade
   return reads.length % 2 ? reads[mid] : 0.5 * (reads[mid - 1] + reads[mid]);
 }
 
+/**
+ * The sun a picture's shadow-edge pairs read (pairSun) over the fit's sky horizontal
+ * irradiance `skyRgb` (picture units), for the estimator `est` (phoneestimate.js
+ * PhoneEstimator: its pool, pairs, sun and sky terms, and readSample, which reads and skips
+ * pixels as the estimate does, at the registration's `shift`): server/shadowpairs.py
+ * pair_sun_ratio. The pairs' small sky differences come from the overcast sky brighter toward
+ * the sun (PAIR_SKY_TYPE), the bounce surfaces lit by an isotropic sky on their tilt (as in
+ * the phone's fit), with the stated albedos.
+ * @returns {number|null} null with fewer than MIN_PAIRS usable pairs
+ */
+export function pairSunRatio(est, rgba, w, h, shift, sun, skyRgb) {
+  const { shaded, lit } = est._pairs;
+  if (shaded.length < MIN_PAIRS) return null;
+  const pool = est.pool;
+  const terms = est._sunTerms;
+  const { terms: skyTerm } = est._skyFor(PAIR_SKY_TYPE, sun);
+  const model = (i) => {
+    const a = pool[i].albedo.map((v) => v / Math.PI);
+    return {
+      sky: [0, 1, 2].map((c) => a[c] * (skyTerm[i] + terms[i].bSky[c]) * skyRgb[c]),
+      sun: [0, 1, 2].map((c) => a[c] * (terms[i].cosI + terms[i].bSun[c])),
+    };
+  };
+  const cols = [[], [], [], [], [], []]; // radiance, sky, sun: shaded and lit
+  shaded.forEach((i, p) => {
+    const read = [i, lit[p]].map((j) => est.readSample(rgba, w, h, j, shift));
+    if (read.includes(null)) return;
+    const [s, l] = [i, lit[p]].map(model);
+    [read[0], read[1], s.sky, l.sky, s.sun, l.sun].forEach((v, k) => cols[k].push(v));
+  });
+  if (cols[0].length < MIN_PAIRS) return null;
+  return pairSun(...cols) / Math.max((skyRgb[0] + skyRgb[1] + skyRgb[2]) / 3, 1e-12);
+}
+
 function sameAlbedo(p, q) {
   return p[0] === q[0] && p[1] === q[1] && p[2] === q[2];
 }
