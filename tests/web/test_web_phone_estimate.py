@@ -267,7 +267,8 @@ def test_the_view_follows_the_picture_under_a_server_sky(browser, phone_build, r
 
 def test_camera_mode_takes_the_server_sky_when_there_is_one(browser, phone_build, tmp_path):
     """With a server sky the phone does not estimate; with none (a server without cameras, or
-    offline) it does, without ?sky=phone."""
+    offline) it does, without ?sky=phone (turned to the eye-height pose, which sees the
+    building's shade: a view with none makes no estimate)."""
     y4m = tmp_path / "grey.y4m"
     write_y4m(y4m, np.full((RENDER[1], RENDER[0], 3), 120, np.uint8))
     lights = json.loads((phone_build / "manifest.json").read_text())
@@ -282,6 +283,9 @@ def test_camera_mode_takes_the_server_sky_when_there_is_one(browser, phone_build
     noon = "2026-10-15T12:00:00%2B09:00"
     with camera_page(browser, phone_build, y4m, None, query=f"&time={noon}",
                      size=SIZE) as (page, _, errors):
+        standpoint, orientation = POSES["eye"]
+        page.evaluate("(p) => window.daylit.debug.standAt(p)", standpoint)
+        orient(page, *orientation)
         page.wait_for_function("window.daylit.status.lightSource === 'phone'", timeout=30000)
         page.wait_for_function("window.daylit.status.lightSeq !== null", timeout=30000)
         assert page.evaluate("window.daylit.status.phoneEstimates") >= 1
