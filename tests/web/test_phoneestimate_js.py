@@ -68,3 +68,117 @@ def test_sky_and_ray_caster_match_python():
         assert mine["type"] == (2 if want in OVERCAST_TYPES else want), (t, mine)
         kinds.add(mine["type"])
     assert kinds == {2, 7, 12}
+
+
+def _run_cases(case: dict) -> dict:
+    out = subprocess.run([node_path(), str(ROOT / "tests" / "web" / "shadowpairs_cases.mjs")],
+                         input=json.dumps(case), capture_output=True, text=True, timeout=120,
+                         check=True)
+    return json.loads(out.stdout)
+
+
+def test_shadow_pairs_and_their_sun_match_python():
+    """shadowpairs.js's pairs and the sun they read against server/shadowpairs.py's on the same
+    samples: two planes (ground, a wall facing the sun), two albedos, patches off the plane, sky
+    views far apart, shares of 0, 1 and between, pixel positions between pixels (no ties in
+    distance, which a KD-tree orders as it likes)."""
+    from server.shadowpairs import pair_sun, shadow_pairs
+
+    rng = np.random.default_rng(11)
+    m = 700
+    sun = np.array([0.3, 0.6, 0.75])
+    sun /= np.linalg.norm(sun)
+    on_wall = rng.random(m) < 0.4
+    normals = np.where(on_wall[:, None], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0])
+    points = rng.uniform(-10, 10, (m, 3))
+    points[~on_wall, 1] = 0.0
+    points[on_wall, 2] = 4.0
+    off = rng.random(m) < 0.1
+    points[off] += normals[off] * 0.05  # off the plane: never paired
+    albedos = np.array([[0.3, 0.3, 0.25], [0.5, 0.4, 0.3]])
+    surface = (rng.random(m) < 0.3).astype(int)
+    sky_view = np.where(rng.random(m) < 0.2, 0.9, 0.5) + rng.uniform(-0.04, 0.04, m)
+    share = rng.choice([0.0, 1.0, 1.0 / 9.0, 5.0 / 9.0], m, p=[0.35, 0.45, 0.1, 0.1])
+    pixels = rng.uniform(0, 60, (m, 2))
+    samples = [{"x": float(pixels[i, 0]), "y": float(pixels[i, 1]), "point": points[i].tolist(),
+                "normal": normals[i].tolist(), "albedo": albedos[surface[i]].tolist(),
+                "skyView": float(sky_view[i])} for i in range(m)]
+    p = 80
+    radiances = {k: rng.uniform(0.0, 1.0, (p, 3)).tolist() for k in (
+        "radianceShaded", "radianceLit", "skyShaded", "skyLit", "sunShaded", "sunLit")}
+    radiances["sunShaded"][3] = radiances["sunLit"][3]  # a pair the sun cannot tell apart
+    for radius in (6.0, 12.0):
+        got = _run_cases({"pairs": {"samples": samples, "share": share.tolist(),
+                                    "sun": sun.tolist(), "radiusPx": radius},
+                          "pairSun": radiances})
+        ref = shadow_pairs(pixels, points, normals, surface, sky_view, share, sun,
+                           radius_px=radius)
+        assert len(ref) > 50, len(ref)  # enough pairs, and not every candidate pairs
+        assert len(ref) < 3 * np.sum(share == 0.0)
+        assert sorted(zip(got["pairs"]["shaded"], got["pairs"]["lit"], strict=True)) == sorted(
+            zip(ref.shaded.tolist(), ref.lit.tolist(), strict=True)), radius
+    want = pair_sun(*(np.asarray(radiances[k]) for k in (
+        "radianceShaded", "radianceLit", "skyShaded", "skyLit", "sunShaded", "sunLit")))
+    assert got["pairSun"] == pytest.approx(want, rel=1e-12)
+
+
+def test_the_phone_pool_s_sun_share_and_pairs_against_python():
+    """The phone's pool on the scene estimate's test site (tests/radiance_frames.known_site) from
+    a three.js camera at its view's eye, at the copy's 192 x 108: each sample's share in sun
+    (phoneestimate.js: the 3 x 3 pixel centres about it on its plane, a shadow ray from each by
+    proxyrays.js) against trimesh's shadow rays from the same pixel centres on the same plane
+    (the projection here from tests/web/phoneframes.view_from_three, not three's), and the
+    pool's pairs against server/shadowpairs.py's on the pool's own samples."""
+    from server.shadowpairs import shadow_pairs
+    from tests.web.phoneframes import view_from_three
+
+    site = known_site()
+    meshes = [{"vertices": m.vertices.tolist(), "faces": m.faces.tolist(), "albedo": list(rho)}
+              for m, rho in site.parts.values()]
+    sun = np.array([0.35, 0.55, 0.76])
+    sun /= np.linalg.norm(sun)
+    w, h = 192, 108
+    got = _run_cases({"pool": {"meshes": meshes, "eye": [3.0, 7.0, -24.0],
+                               "target": [0.0, 0.5, -3.0], "fovDeg": 60.0, "width": w,
+                               "height": h, "farAlbedo": [0.2, 0.2, 0.2],
+                               "sun": sun.tolist()}})["pool"]
+    s = got["samples"]
+    xy = np.array([[q["x"], q["y"]] for q in s], float)
+    points = np.array([q["point"] for q in s])
+    normals = np.array([q["normal"] for q in s])
+    mine = np.array([q["share"] for q in s])
+    view = view_from_three(got["matrixWorld"], 60.0, w, h)
+    dy, dx = np.mgrid[-1:2, -1:2]
+    offsets = np.column_stack([dx.ravel(), dy.ravel()]).astype(float)
+    pixels = (xy[:, None, :] + 0.5 + offsets[None]).reshape(-1, 2)
+    origins, dirs = view.rays(pixels)
+    plane_point, plane_normal = np.repeat(points, 9, axis=0), np.repeat(normals, 9, axis=0)
+    t = np.einsum("ij,ij->i", plane_point - origins, plane_normal) / np.einsum(
+        "ij,ij->i", dirs, plane_normal)
+    patch = origins + t[:, None] * dirs
+    mesh, _ = site.mesh_and_albedo()
+    blocked = trimesh.ray.ray_triangle.RayMeshIntersector(mesh).intersects_any(
+        patch + 0.01 * plane_normal, np.broadcast_to(sun, patch.shape))
+    facing = plane_normal @ sun > 0.0
+    ref = (facing & ~blocked).reshape(-1, 9).mean(axis=1)
+    # both cast against the same triangles: a point that grazes an edge may fall either way
+    assert np.mean(np.abs(mine - ref) > 1e-9) < 0.005
+    np.testing.assert_allclose(mine, ref, atol=1.0 / 9.0 + 1e-9)
+    partly = (mine > 0) & (mine < 1)
+    assert partly.sum() > 20 and (mine == 0).sum() > 100 and (mine == 1).sum() > 100
+    # the cosine the fit uses is the share's; the registration's flag is the centre's
+    cos = np.clip(normals @ sun, 0.0, None)
+    np.testing.assert_allclose([q["cosI"] for q in s], cos * mine, atol=1e-12)
+    centre = ref_centre = (facing & ~blocked).reshape(-1, 9)[:, 4]
+    assert np.mean(np.array([q["litCentre"] for q in s]) != ref_centre) < 0.005, centre.sum()
+    # the pool's pairs: integer pixels tie in distance, which the KD-tree orders as it likes
+    albedo = np.array([q["albedo"] for q in s])
+    _, surface = np.unique(albedo, axis=0, return_inverse=True)
+    ref_pairs = shadow_pairs(xy, points, normals, surface.ravel(),
+                             np.array([q["skyView"] for q in s]), mine, sun, radius_px=6.0)
+    js = set(zip(got["pairs"]["shaded"], got["pairs"]["lit"], strict=True))
+    py = set(zip(ref_pairs.shaded.tolist(), ref_pairs.lit.tolist(), strict=True))
+    assert len(py) >= 8, len(py)
+    assert {i for i, _ in js} == {i for i, _ in py}  # the same shaded patches pair
+    print("pool", len(s), "partly", int(partly.sum()), "pairs", len(js), len(py), len(js ^ py))
+    assert len(js ^ py) <= 0.1 * len(py), (len(js), len(py), len(js ^ py))

@@ -64,10 +64,11 @@ def _estimate(page, pose):
 _RENDERS = {}
 
 
-@pytest.fixture(scope="module")
-def renders(browser, phone_build, tmp_path_factory):
-    """Per pose (read from the page once) and sky: the Radiance render, the camera's frame (a
-    Y4M for the fake camera) and the server's estimate on it."""
+def pose_frames(browser, build, pose, skies, tmp, server=True):
+    """For a pose ((standpoint, orientation), read from the page once) and skies [(name, local
+    time, DNI, DHI)]: per sky the Radiance render of ``build`` from the pose the page draws, the
+    camera's frame (a Y4M for the fake camera), its exposure, the pose, Radiance's open
+    irradiances, and (``server``) the server's estimate on it."""
     from benchmarks.bench_fidelity import SkySpec
     from tests.radiance_frames import (
         ACCURATE_CAMERA_RAYS,
@@ -76,35 +77,42 @@ def renders(browser, phone_build, tmp_path_factory):
         render_build_view,
     )
 
+    grey = tmp / "grey.y4m"
+    write_y4m(grey, np.full((RENDER[1], RENDER[0], 3), 120, np.uint8))
+    standpoint, orientation = pose
+    with _open(browser, build, grey, "&sky=phone") as (page, _, errors):
+        page.evaluate("(p) => window.daylit.debug.standAt(p)", standpoint)
+        orient(page, *orientation)
+        drawn = page.evaluate("window.daylit.debug.cameraPose()")
+        assert not errors, errors
+    view = view_from_three(drawn["matrixWorld"], drawn["fovDeg"], *RENDER)
+    out = {}
+    rng = np.random.default_rng(4)
+    for name, hour, dni, dhi in skies:
+        spec = SkySpec(name, 10, 15, hour, dni, dhi)
+        # without the ambient cache: it put shaded surfaces 8-36 % too bright
+        rendered, _ = render_build_view(build, spec, *RENDER, view=view,
+                                        rays=ACCURATE_CAMERA_RAYS)
+        codes, exposure = camera_frame(rendered.sun_image, rng)
+        y4m = tmp / f"{name}.y4m"
+        write_y4m(y4m, codes)
+        out[name] = {"rendered": rendered, "y4m": y4m, "exposure": exposure, "pose": drawn,
+                     "open": open_irradiance_truth(spec, build)}
+        if server:
+            out[name]["server"] = server_estimate(build, view, linearise(codes),
+                                                  rendered.sun_dir)
+    return out
+
+
+@pytest.fixture(scope="module")
+def renders(browser, phone_build, tmp_path_factory):
+    """Per pose and sky: :func:`pose_frames` and the server's estimate on each frame."""
+
     def make(pose):
-        if pose in _RENDERS:
-            return _RENDERS[pose]
-        tmp = tmp_path_factory.mktemp(f"phone-{pose}")
-        grey = tmp / "grey.y4m"
-        write_y4m(grey, np.full((RENDER[1], RENDER[0], 3), 120, np.uint8))
-        standpoint, orientation = POSES[pose]
-        with _open(browser, phone_build, grey, "&sky=phone") as (page, _, errors):
-            page.evaluate("(p) => window.daylit.debug.standAt(p)", standpoint)
-            orient(page, *orientation)
-            drawn = page.evaluate("window.daylit.debug.cameraPose()")
-            assert not errors, errors
-        view = view_from_three(drawn["matrixWorld"], drawn["fovDeg"], *RENDER)
-        out = {}
-        rng = np.random.default_rng(4)
-        for name, hour, dni, dhi in SKIES:
-            spec = SkySpec(name, 10, 15, hour, dni, dhi)
-            # without the ambient cache: it put shaded surfaces 8-36 % too bright
-            rendered, _ = render_build_view(phone_build, spec, *RENDER, view=view,
-                                            rays=ACCURATE_CAMERA_RAYS)
-            codes, exposure = camera_frame(rendered.sun_image, rng)
-            y4m = tmp / f"{name}.y4m"
-            write_y4m(y4m, codes)
-            out[name] = {"rendered": rendered, "y4m": y4m, "exposure": exposure, "pose": drawn,
-                         "open": open_irradiance_truth(spec, phone_build),
-                         "server": server_estimate(phone_build, view, linearise(codes),
-                                                   rendered.sun_dir)}
-        _RENDERS[pose] = out
-        return out
+        if pose not in _RENDERS:
+            _RENDERS[pose] = pose_frames(browser, phone_build, POSES[pose], SKIES,
+                                         tmp_path_factory.mktemp(f"phone-{pose}"))
+        return _RENDERS[pose]
 
     return make
 
@@ -259,7 +267,8 @@ def test_the_view_follows_the_picture_under_a_server_sky(browser, phone_build, r
 
 def test_camera_mode_takes_the_server_sky_when_there_is_one(browser, phone_build, tmp_path):
     """With a server sky the phone does not estimate; with none (a server without cameras, or
-    offline) it does, without ?sky=phone."""
+    offline) it does, without ?sky=phone (turned to the eye-height pose, which sees the
+    building's shade: a view with none makes no estimate)."""
     y4m = tmp_path / "grey.y4m"
     write_y4m(y4m, np.full((RENDER[1], RENDER[0], 3), 120, np.uint8))
     lights = json.loads((phone_build / "manifest.json").read_text())
@@ -274,7 +283,92 @@ def test_camera_mode_takes_the_server_sky_when_there_is_one(browser, phone_build
     noon = "2026-10-15T12:00:00%2B09:00"
     with camera_page(browser, phone_build, y4m, None, query=f"&time={noon}",
                      size=SIZE) as (page, _, errors):
+        standpoint, orientation = POSES["eye"]
+        page.evaluate("(p) => window.daylit.debug.standAt(p)", standpoint)
+        orient(page, *orientation)
         page.wait_for_function("window.daylit.status.lightSource === 'phone'", timeout=30000)
         page.wait_for_function("window.daylit.status.lightSeq !== null", timeout=30000)
         assert page.evaluate("window.daylit.status.phoneEstimates") >= 1
         assert not errors, errors
+
+
+# The demo's visitor centre seen from 30 m north-west of it and 6 m up (the server's held-out
+# site camera's standpoint, docs/benchmarks.md "On a site it was not tuned on"), the phone
+# turned 22 degrees east of south toward it and 5 degrees down.
+DEMO_POSE = ([30.0, 6.0, -45.0], (202.3, 84.6, 0.0))
+DEMO_SKIES = [("overcast", "14.5", 0.0, 150.0), ("clear", "14.5", 800.0, 80.0)]
+
+
+def test_no_phantom_sun_under_the_demo_s_overcast(browser, web_build, tmp_path):
+    """On the demo's own real proxies (a site the phone's estimate was not tuned on) under
+    Radiance's overcast sky at 14:30, no estimate keeps a sun of 5 % of the sky or more; under
+    the clear sky of the same hour the shadow-edge pairs read the sun and it is kept, within
+    10 % of Radiance's. Before the phone's pairs' check (2026-12-05) estimates 2-4 of eight
+    kept a sun of 51-52 % of the sky on this frame: the whole-view fit took the CIE sky's
+    error on the centre's sunward side for a sun, the overcast contrast test let it through."""
+    frames = pose_frames(browser, web_build, DEMO_POSE, DEMO_SKIES, tmp_path, server=False)
+    got = {}
+    for name, sky in frames.items():
+        rendered = sky["rendered"]
+        with _open(browser, web_build, sky["y4m"],
+                   f"&sky=phone&time={rendered.when_unix_s}") as (page, _, errors):
+            standpoint, orientation = DEMO_POSE
+            page.evaluate("(p) => window.daylit.debug.standAt(p)", standpoint)
+            orient(page, *orientation)
+            got[name] = [page.evaluate("window.daylit.debug.phoneEstimate()") for _ in range(8)]
+            assert not errors, errors
+    overcast, clear = got["overcast"], got["clear"]
+    print("demo overcast ratios", [round(e["ratio"], 3) for e in overcast],
+          "pairs", [(e.get("pairs"), e.get("pairRatio")) for e in overcast])
+    sun = [float(LUMA @ np.asarray(e["sunNormal"])) / frames["clear"]["exposure"]
+           / frames["clear"]["rendered"].dni_w_m2 - 1.0 for e in clear]
+    print("demo clear ratios", [round(e["ratio"], 3) for e in clear], "sun", np.round(sun, 3),
+          "pairs", [(e.get("pairs"), e.get("pairRatio")) for e in clear])
+    # Goal: under overcast the sun below 5 % of the sky, in every estimate
+    assert all(e["ratio"] < 0.05 for e in overcast), overcast
+    assert all(e["skyType"] == 2 for e in overcast), overcast
+    # the view has enough shadow edges for the check (the pairs' MIN_PAIRS is 8)
+    assert all(e["pairs"] >= 8 for e in overcast + clear), got
+    # the clear sun: read by the pairs (its check ran and kept it), within 10 %
+    assert all(e["pairRatio"] is not None and e["pairRatio"] > 1.0 for e in clear), clear
+    assert all(abs(err) < 0.10 for err in sun), sun
+
+
+# The demo's kiosk view (its standpoint and direction, 16, 3.2, 52 m, looking 17 degrees west
+# of north), which sees the ground, the tree and its shadow, one or two pixels high at the
+# copy's 108 rows at 14:30, and no other shade.
+KIOSK_POSE = ([16.0, 3.2, 52.0], (17.1, 91.9, 0.0))
+KIOSK_SKIES = [("clear-9.5", "9.5", 800.0, 80.0), ("clear-14.5", "14.5", 800.0, 80.0)]
+
+
+def test_a_thin_shadow_is_not_shade(browser, web_build, tmp_path):
+    """Each sample's sun is its patch's share in sun: on the demo's kiosk view at 14:30 the
+    tree's shadow is thinner than a patch, so no pixel of the copy is mostly shaded and the phone
+    makes no estimate (the sky cannot be told from the sun; the last light stays). Before
+    (2026-12-05) the three pixels whose centres fell in the shadow counted as shaded while they
+    read mostly sunlit ground: the sky read 112-158 % too bright and the sun 21-30 % too dim. At
+    9:30 the same view sees the building's shade (some 25 usable pixels mostly in shadow) and
+    the floor lets every estimate be made. (Not a goal met there: with so little shade two or
+    three of eight estimates drop the sun and read the sky ten times too bright, before these
+    changes too; docs/web.md.)"""
+    frames = pose_frames(browser, web_build, KIOSK_POSE, KIOSK_SKIES, tmp_path, server=False)
+    got = {}
+    for name, sky in frames.items():
+        rendered = sky["rendered"]
+        with _open(browser, web_build, sky["y4m"],
+                   f"&sky=phone&time={rendered.when_unix_s}") as (page, _, errors):
+            standpoint, orientation = KIOSK_POSE
+            page.evaluate("(p) => window.daylit.debug.standAt(p)", standpoint)
+            orient(page, *orientation)
+            got[name] = [page.evaluate("window.daylit.debug.phoneEstimate()") for _ in range(8)]
+            assert not errors, errors
+    err = {}
+    for name, ests in got.items():
+        rendered, exposure = frames[name]["rendered"], frames[name]["exposure"]
+        err[name] = [None if e is None else (
+            round(float(LUMA @ np.asarray(e["sunNormal"])) / exposure / rendered.dni_w_m2 - 1, 3),
+            round(float(LUMA @ np.asarray(e["skyHorizontal"])) / exposure / rendered.dhi_w_m2
+                  - 1, 3)) for e in ests]
+    print("kiosk view: (sun, sky) error per estimate", err)
+    assert all(e is None for e in got["clear-14.5"]), err
+    assert all(e is not None for e in got["clear-9.5"]), err

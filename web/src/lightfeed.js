@@ -7,7 +7,8 @@
 // sky's, so that the sun glides with the sky; the app relights from `smoothed()`.
 import { LightSmoother } from './lightmath.js';
 import { KeptLight } from './offline.js';
-import { ESTIMATE_PERIOD_S, PhoneEstimator, PhoneLight } from './phoneestimate.js';
+import { ESTIMATE_PERIOD_S, PhoneEstimator } from './phoneestimate.js';
+import { PhoneLight } from './phonelight.js';
 import { sunPosition } from './sunposition.js';
 
 const STALE_AFTER_MS = 16000; // three missed keep-alives (the server sends every 5 s)

@@ -11,6 +11,9 @@
 // tilt). Linear in (E_sun, k): a few hundred pixels of the build's real proxies and ground,
 // some in sun and some in shadow, give both; people and wrong pixels are outliers of a robust
 // fit (RANSAC, then IRLS with Tukey's biweight on relative residuals, as server/robustfit.py).
+// As on the server, a pixel's in_sun is the share of the 3 x 3 about it in sun, and a sun the
+// fit finds is kept only if pairs of pixels across the model's shadow edges show it
+// (shadowpairs.js).
 //
 // A phone's camera is not calibrated: its exposure and gain are unknown, so the fit's absolute
 // level is in the picture's units. What it must get right is the sun/sky ratio and the sky's
@@ -29,6 +32,7 @@ import { LINEAR_OF_CODE, luminance } from './colour.js';
 import { registerShift } from './poseregister.js';
 import { Proxies } from './proxyrays.js';
 import { robustFit } from './robustfit.js';
+import { pairSunRatio, shadowPairs } from './shadowpairs.js';
 
 /** The estimated copy of the picture, pixels (w, h). */
 export const ESTIMATE_SIZE = [192, 108];
@@ -40,11 +44,28 @@ const EDGE_PX = 1.5; // a pixel's corners this far away must see the same plane
 const SURFACE_OFFSET_M = 0.01;
 const MIN_SAMPLES = 30; // fewer usable pixels: no estimate
 const MIN_SUNLIT = 10; // fewer sunlit ones: the sun cannot be told from the sky
+// Fewer usable pixels mostly in shadow (a share in sun below 0.5): no estimate, the sky cannot
+// be told from the sun. The server has no such floor: its 3 x 3 patches at 320 x 180 find a few
+// on a shadow one or two pixels high; the phone's copy of the same view finds none, and without
+// the share in sun it took those pixels for shade and read a sky twice too bright.
+const MIN_SHADED = 10;
 const CLIP_CODE = 250; // a pixel with a channel at or above this code is clipped
 const DARK_CODE = 3;
 const POSE_TOLERANCE_DEG = 1.0;
 const POSE_TOLERANCE_M = 0.2;
 const SUN_TOLERANCE_DEG = 0.1;
+// A sample's sun is the share in sun of the (2 PATCH_PX + 1)^2 pixel centres about it
+// (server/sceneestimate.py in_sun): the pixel is read where the registration puts it, which is
+// within about a pixel of the copy, so a pixel next to a shadow edge, or on a shadow a pixel or
+// two wide, is partly sun; and a patch counts as wholly shaded or sunlit for the shadow-edge
+// pairs only when it stays so a pixel either way.
+export const PATCH_PX = 1;
+// The shadow-edge pairs' check (shadowpairs.js): a sun the pairs read below PAIR_FLOOR of the
+// sky is dropped (the server's pair_floor). The server pairs patches less than 12 px apart at
+// 320 x 180 through 75 degrees (3.3 degrees at the centre); camera mode's 60-degree vertical
+// field over the copy's 108 rows has 94 px per radian there, so the same angle is 5.4 px: 6.
+export const PAIR_FLOOR = 0.05;
+export const PAIR_RADIUS_PX = 6;
 // server/skyshape.py: the CIE sky by the sun/sky ratio (overcast) and Perez's sky clearness
 // (clear from 4.5, the lower edge of Perez's clear bins; a ratio of 3 called Radiance's
 // intermediate sky clear once the clear sky's shape had read it high: docs/web.md)
@@ -112,7 +133,8 @@ export function unitSky(type, sun) {
  * @param {number} h copy height
  * @param {number[]} farAlbedo the open ground past the proxies (the build's ground albedo)
  * @returns {object[]} samples {x, y, point, normal, albedo, skyDirs: number[][], bounce:
- *   [{point|null, normal, albedo}]}
+ *   [{point|null, normal, albedo}], patch: the (2 PATCH_PX + 1)^2 points about the pixel on its
+ *   plane, skyView: the cosine-weighted open-sky fraction}
  */
 export function poolForPose(proxies, camera, w, h, farAlbedo, seed = 1) {
   camera.updateMatrixWorld();
@@ -158,13 +180,27 @@ export function poolForPose(proxies, camera, w, h, farAlbedo, seed = 1) {
         bounce.push({ point: null, normal: [0, 1, 0], albedo: farAlbedo }); // the open ground far off
       }
     }
-    pool.push({ x, y, point, normal: n, albedo: proxies.albedoOf(tri), skyDirs, bounce });
+    // the points seen through the patch's pixel centres, on the sample's plane (the corner
+    // rays above keep the patch on it: server/scenesamples.py patch_points_m)
+    const patch = [];
+    for (let dy = -PATCH_PX; dy <= PATCH_PX; dy++) {
+      for (let dx = -PATCH_PX; dx <= PATCH_PX; dx++) {
+        const dp = rayAt(x + 0.5 + dx, y + 0.5 + dy);
+        patch.push(add(origin, dp, dot(sub(point, origin), n) / dot(dp, n)));
+      }
+    }
+    pool.push({
+      x, y, point, normal: n, albedo: proxies.albedoOf(tri), skyDirs, bounce, patch,
+      skyView: skyDirs.length / HEMISPHERE_RAYS,
+    });
   }
   return pool;
 }
 
-/** The terms of the model that depend on the sun, per sample: in sun (cos_i, 0 in shadow),
- * and the one bounce per unit sun normal irradiance and per unit sky irradiance (RGB). */
+/** The terms of the model that depend on the sun, per sample: share, the share of its patch
+ * in sun (0 to 1); cosI, the sun's cosine times that share; litCentre, whether the pixel's own
+ * point is in sun (the registration's split); and the one bounce per unit sun normal
+ * irradiance and per unit sky irradiance (RGB). */
 export function sunTerms(proxies, pool, sun) {
   const up = sun[1] > 0;
   const lit = (point, normal) => {
@@ -184,7 +220,8 @@ export function sunTerms(proxies, pool, sun) {
         bSky[c] += b.albedo[c] * tilt / HEMISPHERE_RAYS;
       }
     }
-    return { cosI: lit(s.point, s.normal), bSun, bSky };
+    const share = s.patch.reduce((acc, p) => acc + (lit(p, s.normal) > 0 ? 1 : 0), 0) / s.patch.length;
+    return { cosI: Math.max(dot(s.normal, sun), 0) * share, share, litCentre: lit(s.point, s.normal) > 0, bSun, bSky };
   });
 }
 
@@ -207,6 +244,7 @@ export class PhoneEstimator {
     this._pose = null;
     this._sun = null;
     this._sunTerms = null;
+    this._pairs = null; // the pool's shadow-edge pairs for this sun (shadowpairs.js)
     this._skies = new Map();
     this._share = new Map(); // per sky type, the model sky's share (the rest isotropic)
     this.rand = null; // the estimate's random draws, seeded afresh for each view (_poolFor)
@@ -244,6 +282,7 @@ export class PhoneEstimator {
   _termsFor(sun) {
     if (!this._sun || dot(this._sun, sun) < Math.cos(SUN_TOLERANCE_DEG * Math.PI / 180)) {
       this._sunTerms = sunTerms(this.proxies, this.pool, sun);
+      this._pairs = shadowPairs(this.pool, this._sunTerms.map((t) => t.share), sun, { radiusPx: PAIR_RADIUS_PX });
       this._skies.clear();
       this._sun = sun.slice();
     }
@@ -258,13 +297,14 @@ export class PhoneEstimator {
     return this._skies.get(type);
   }
 
-  /** Pool indices, as many in sun as in shadow where the pool has them (the shadowed ones are
-   * what tells the sky from the sun; a view of mostly sunlit ground would otherwise let the
-   * sunlit majority set the fit, server/sceneestimate.py's _pick). */
+  /** Pool indices, as many mostly in sun (share from 0.5) as mostly in shadow where the pool
+   * has them (the shadowed ones are what tells the sky from the sun; a view of mostly sunlit
+   * ground would otherwise let the sunlit majority set the fit, server/sceneestimate.py's
+   * _pick). */
   _balanced(terms) {
     const lit = [];
     const shade = [];
-    terms.forEach((t, i) => (t.cosI > 0 ? lit : shade).push(i));
+    terms.forEach((t, i) => (t.share >= 0.5 ? lit : shade).push(i));
     const [small, large] = lit.length < shade.length ? [lit, shade] : [shade, lit];
     const take = Math.max(small.length, MIN_SAMPLES);
     for (let i = large.length - 1; i > 0; i--) { // a seeded shuffle of the larger group
@@ -287,7 +327,7 @@ export class PhoneEstimator {
     const pool = this._poolFor(camera, w, h);
     const terms = this._termsFor(sun);
     return this.registerPose
-      ? registerShift(rgba, w, h, pool, terms.map((t) => t.cosI > 0), camera.fov,
+      ? registerShift(rgba, w, h, pool, terms.map((t) => t.litCentre), camera.fov,
         { clipCode: CLIP_CODE, darkCode: DARK_CODE })
       : { dx: 0, dy: 0, fisher: NaN, fisherAtZero: NaN, turnDeg: [0, 0] };
   }
@@ -302,8 +342,9 @@ export class PhoneEstimator {
    * @returns {object|null} {sunNormal: RGB, skyHorizontal: RGB (picture units x pi), ratio
    *   (luminance E_sun / k), skyType, used, sunlit, inlierFraction, pool, shiftPx (the
    *   registration's [dx, dy], pixels of the copy), turnDeg (the camera's turn that puts the
-   *   model on the picture: [left, up], degrees), fisher, fisherAtZero}; null when the
-   *   picture has too few usable pixels of known surfaces
+   *   model on the picture: [left, up], degrees), fisher, fisherAtZero, pairs (the pose's
+   *   shadow-edge pairs), pairRatio (the sun they read over the sky; null: no check)}; null
+   *   when the picture has too few usable pixels of known surfaces, or too few in shadow
    */
   estimate(rgba, w, h, camera, sun) {
     const shift = this.register(rgba, w, h, camera, sun);
@@ -312,16 +353,12 @@ export class PhoneEstimator {
     const values = [];
     const rows = [];
     for (const i of this._balanced(terms)) {
-      const x = pool[i].x + shift.dx;
-      const y = pool[i].y + shift.dy;
-      if (x < 0 || y < 0 || x >= w || y >= h) continue;
-      const k = 4 * (y * w + x);
-      const codes = [rgba[k], rgba[k + 1], rgba[k + 2]];
-      if (Math.max(...codes) >= CLIP_CODE || Math.min(...codes) < DARK_CODE) continue;
-      values.push(codes.map((v) => LINEAR_OF_CODE[v]));
+      const v = readPixel(rgba, w, h, pool[i], shift);
+      if (v === null) continue;
+      values.push(v);
       rows.push(i);
     }
-    if (rows.length < MIN_SAMPLES) {
+    if (rows.length < MIN_SAMPLES || rows.filter((i) => terms[i].share < 0.5).length < MIN_SHADED) {
       this.last = null;
       return null;
     }
@@ -329,30 +366,52 @@ export class PhoneEstimator {
     let type = 12;
     let fit = null;
     for (let iteration = 0; iteration < 3; iteration++) {
-      const { terms: sky } = this._skyFor(type, sun);
-      const sunCol = rows.map((i) => [0, 1, 2].map((c) => (sunlit < MIN_SUNLIT ? 0
-        : pool[i].albedo[c] * (terms[i].cosI + terms[i].bSun[c]) / Math.PI)));
-      const skyCol = rows.map((i) => [0, 1, 2].map((c) => pool[i].albedo[c] * (sky[i] + terms[i].bSky[c]) / Math.PI));
-      // the isotropic part of the sky: the sky view factor (Perez and Hay-Davies split the
-      // sky the same way); its share beside the model's is followed across estimates
-      const isoCol = rows.map((i) => [0, 1, 2].map((c) => pool[i].albedo[c] * (pool[i].skyDirs.length / HEMISPHERE_RAYS + terms[i].bSky[c]) / Math.PI));
-      const previous = this._share.get(type);
-      fit = robustFit(values, sunCol, skyCol, isoCol, this.rand, type === OVERCAST_TYPE,
-        (share) => (previous === undefined ? share : SHARE_MEMORY * previous + (1 - SHARE_MEMORY) * share));
-      this._share.set(type, fit.share);
-      fit.type = type;
-      const ratio = luma(fit.sun) / Math.max(luma(fit.sky), 1e-12);
-      const next = skyTypeForRatio(ratio, sun[1]);
+      fit = this._fit(type, rows, values, sun, sunlit);
+      const next = skyTypeForRatio(luma(fit.sun) / Math.max(luma(fit.sky), 1e-12), sun[1]);
       if (next === type) break;
       type = next;
+    }
+    // The sky model's errors read as sun; the shadow edges alone say whether there is one
+    // (shadowpairs.js; the server's pair_floor)
+    let pairRatio = null;
+    if (Math.max(...fit.sun) > 0) {
+      pairRatio = pairSunRatio(this, rgba, w, h, shift, sun, fit.sky);
+      if (pairRatio !== null && pairRatio < PAIR_FLOOR) fit = this._fit(OVERCAST_TYPE, rows, values, sun, sunlit, false);
     }
     const inliers = fit.weights.filter((x) => x > 0.5).length;
     this.last = {
       sunNormal: fit.sun, skyHorizontal: fit.sky, ratio: luma(fit.sun) / Math.max(luma(fit.sky), 1e-12),
       skyType: fit.type, modelShare: fit.share, used: rows.length, sunlit, inlierFraction: inliers / rows.length, pool: pool.length,
       shiftPx: [shift.dx, shift.dy], turnDeg: shift.turnDeg, fisher: shift.fisher, fisherAtZero: shift.fisherAtZero,
+      pairs: this._pairs.shaded.length, pairRatio,
     };
     return this.last;
+  }
+
+  /** The robust fit (robustfit.js) of the samples `rows` (pool indices) and their linear
+   * `values` with the sky's shape of CIE type `type`; without a sun where allowSun is false. */
+  _fit(type, rows, values, sun, sunlit, allowSun = true) {
+    const pool = this.pool;
+    const terms = this._sunTerms;
+    const { terms: sky } = this._skyFor(type, sun);
+    const sunCol = rows.map((i) => [0, 1, 2].map((c) => (sunlit < MIN_SUNLIT ? 0
+      : pool[i].albedo[c] * (terms[i].cosI + terms[i].bSun[c]) / Math.PI)));
+    const skyCol = rows.map((i) => [0, 1, 2].map((c) => pool[i].albedo[c] * (sky[i] + terms[i].bSky[c]) / Math.PI));
+    // the isotropic part of the sky: the sky view factor (Perez and Hay-Davies split the
+    // sky the same way); its share beside the model's is followed across estimates
+    const isoCol = rows.map((i) => [0, 1, 2].map((c) => pool[i].albedo[c] * (pool[i].skyView + terms[i].bSky[c]) / Math.PI));
+    const previous = this._share.get(type);
+    const fit = robustFit(values, sunCol, skyCol, isoCol, this.rand, type === OVERCAST_TYPE,
+      (share) => (previous === undefined ? share : SHARE_MEMORY * previous + (1 - SHARE_MEMORY) * share), allowSun);
+    this._share.set(type, fit.share);
+    fit.type = type;
+    return fit;
+  }
+
+  /** Pool sample i's pixel of the picture at the registration's shift, linear RGB; null where
+   * it falls outside the picture or is clipped (a channel at CLIP_CODE or more) or black. */
+  readSample(rgba, w, h, i, shift) {
+    return readPixel(rgba, w, h, this.pool[i], shift);
   }
 
   /**
@@ -381,65 +440,18 @@ export class PhoneEstimator {
   }
 }
 
-/** Reads the camera's video into a small copy and estimates (or only registers the pose), at
- * most every ESTIMATE_PERIOD_S. */
-export class PhoneLight {
-  /**
-   * @param {HTMLVideoElement} video
-   * @param {PhoneEstimator} estimator
-   * @param {boolean} [held] no estimate unless forced (tests: only theirs, none of the frame
-   *   loop's between them)
-   */
-  constructor(video, estimator, held = false) {
-    this.video = video;
-    this.estimator = estimator;
-    this.held = held;
-    this.canvas = document.createElement('canvas');
-    [this.canvas.width, this.canvas.height] = ESTIMATE_SIZE;
-    this.context = this.canvas.getContext('2d', { willReadFrequently: true });
-    this.lastS = -Infinity;
-    this.estimates = 0; // estimates made (status.phoneEstimates)
-    this.ms = null; // the last estimate's milliseconds of CPU
-  }
-
-  /** @returns {boolean} whether an estimate is due at nowS (s) and the video has a frame */
-  due(nowS, force = false) {
-    return (force || (!this.held && nowS - this.lastS >= ESTIMATE_PERIOD_S)) && this.video.readyState >= 2;
-  }
-
-  /** @returns {object|null} a new estimate, or null (not due, no frame, nothing to read) */
-  read(camera, sun, nowS, force = false) {
-    return this._withCopy(nowS, force, (rgba, w, h) => {
-      const estimate = this.estimator.estimate(rgba, w, h, camera, sun);
-      if (estimate) this.estimates += 1;
-      return estimate;
-    });
-  }
-
-  /** @returns {object|null} the pose's registration on the picture now (PhoneEstimator
-   * register), or null (not due, no frame) */
-  readShift(camera, sun, nowS, force = false) {
-    return this._withCopy(nowS, force, (rgba, w, h) => this.estimator.register(rgba, w, h, camera, sun));
-  }
-
-  _withCopy(nowS, force, use) {
-    if (!this.due(nowS, force)) return null;
-    this.lastS = nowS;
-    const t0 = performance.now();
-    const [w, h] = ESTIMATE_SIZE;
-    this.context.drawImage(this.video, 0, 0, w, h);
-    const result = use(this.context.getImageData(0, 0, w, h).data, w, h);
-    this.ms = performance.now() - t0;
-    return result;
-  }
-}
-
 // ------------------------------------------------------------------------------ small helpers
 
-function median(v) {
-  if (!v.length) return 0;
-  const s = v.slice().sort((p, q) => p - q);
-  return s[s.length >> 1];
+/** A pool sample's pixel of the picture at the registration's shift, linear RGB; null where it
+ * falls outside the picture or is clipped (a channel at CLIP_CODE or more) or black. */
+function readPixel(rgba, w, h, sample, shift) {
+  const x = sample.x + shift.dx;
+  const y = sample.y + shift.dy;
+  if (x < 0 || y < 0 || x >= w || y >= h) return null;
+  const k = 4 * (y * w + x);
+  const codes = [rgba[k], rgba[k + 1], rgba[k + 2]];
+  if (Math.max(...codes) >= CLIP_CODE || Math.min(...codes) < DARK_CODE) return null;
+  return codes.map((v) => LINEAR_OF_CODE[v]);
 }
 
 function luma(rgb) {
@@ -448,6 +460,10 @@ function luma(rgb) {
 
 function dot(p, q) {
   return p[0] * q[0] + p[1] * q[1] + p[2] * q[2];
+}
+
+function sub(p, q) {
+  return [p[0] - q[0], p[1] - q[1], p[2] - q[2]];
 }
 
 function add(p, d, t) {

@@ -21,9 +21,11 @@ export const SUN_CONTRAST = 0.15;
  * @param {number[][]} isoCol (n, 3) the same of an isotropic sky
  * @param {(share: number) => number} follow the model share to use given this fit's (kept
  *   across estimates by the caller: one picture's samples determine it poorly)
+ * @param {boolean} [allowSun] false: the sky alone (the shadow-edge pairs read no sun,
+ *   shadowpairs.js), fitted as under the overcast test
  * @returns {{sun: number[], sky: number[], weights: number[], share: number}}
  */
-export function robustFit(values, sunCol, skyCol, isoCol, rand, overcast = false, follow = (x) => x) {
+export function robustFit(values, sunCol, skyCol, isoCol, rand, overcast = false, follow = (x) => x, allowSun = true) {
   const sum = (r) => r[0] + r[1] + r[2];
   const a = sunCol.map(sum);
   const c = skyCol.map(sum);
@@ -39,7 +41,7 @@ export function robustFit(values, sunCol, skyCol, isoCol, rand, overcast = false
   for (let ch = 0; ch < 3; ch++) {
     [sun[ch], sky[ch]] = nonneg([channel(sunCol, ch), channel(blend, ch)], channel(values, ch), w);
   }
-  if (overcast) {
+  if (overcast || !allowSun) {
     // Under heavy cloud sunlit and shadowed surfaces look alike (Jensen et al.): the sun is
     // kept only when, against the sky alone (fitted with its own outliers), the samples the
     // sun would reach are brighter than the shaded ones by more than SUN_CONTRAST. (A test on
@@ -52,7 +54,7 @@ export function robustFit(values, sunCol, skyCol, isoCol, rand, overcast = false
     const top = Math.max(...a);
     const lit = median(q.filter((_, i) => a[i] > 0.25 * top));
     const shade = median(q.filter((_, i) => a[i] <= 0.25 * top));
-    if (!(lit > (1 + SUN_CONTRAST) * shade)) {
+    if (!allowSun || !(lit > (1 + SUN_CONTRAST) * shade)) {
       sun.fill(0);
       sky.splice(0, 3, ...skyOnly);
       return { sun, sky, weights: w2, share };

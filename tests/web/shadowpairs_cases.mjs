@@ -1,0 +1,52 @@
+// Runs web/src/shadowpairs.js and the phone estimate's sun share (phoneestimate.js poolForPose,
+// sunTerms) in Node on the cases given as JSON on stdin:
+// `pairs` {samples [{x, y, point, normal, albedo, skyView}], share, sun, radiusPx} -> the pairs;
+// `pairSun` {radianceShaded, radianceLit, skyShaded, skyLit, sunShaded, sunLit} -> the sun read;
+// `pool` {meshes [{vertices, faces, albedo}], eye, target, fovDeg, width, height, farAlbedo,
+// sun} -> the camera's world matrix, and per pool sample its pixel, point, normal, albedo, sky
+// view, patch share in sun and the centre's flag, with the pool's own pairs.
+// For tests/web/test_phoneestimate_js.py.
+import { readFileSync } from 'node:fs';
+import * as THREE from 'three';
+import { PAIR_RADIUS_PX, poolForPose, sunTerms } from '../../web/src/phoneestimate.js';
+import { Proxies } from '../../web/src/proxyrays.js';
+import { pairSun, shadowPairs } from '../../web/src/shadowpairs.js';
+
+const c = JSON.parse(readFileSync(0, 'utf8'));
+const out = {};
+if (c.pairs) {
+  const { samples, share, sun, radiusPx } = c.pairs;
+  out.pairs = shadowPairs(samples, share, sun, { radiusPx });
+}
+if (c.pairSun) {
+  const p = c.pairSun;
+  out.pairSun = pairSun(p.radianceShaded, p.radianceLit, p.skyShaded, p.skyLit, p.sunShaded, p.sunLit);
+}
+if (c.pool) {
+  const p = c.pool;
+  const meshes = p.meshes.map((m) => {
+    const g = new THREE.BufferGeometry();
+    g.setAttribute('position', new THREE.Float32BufferAttribute(m.vertices.flat(), 3));
+    g.setIndex(m.faces.flat());
+    const mesh = new THREE.Mesh(g);
+    mesh.userData.albedo = new THREE.Vector3(...m.albedo);
+    return mesh;
+  });
+  const proxies = new Proxies(meshes);
+  const camera = new THREE.PerspectiveCamera(p.fovDeg, p.width / p.height, 0.1, 1000);
+  camera.position.set(...p.eye);
+  camera.lookAt(...p.target);
+  camera.updateMatrixWorld();
+  const pool = poolForPose(proxies, camera, p.width, p.height, p.farAlbedo);
+  const terms = sunTerms(proxies, pool, p.sun);
+  const pairs = shadowPairs(pool, terms.map((t) => t.share), p.sun, { radiusPx: PAIR_RADIUS_PX });
+  out.pool = {
+    matrixWorld: camera.matrixWorld.toArray(),
+    samples: pool.map((s, i) => ({
+      x: s.x, y: s.y, point: s.point, normal: s.normal, albedo: s.albedo, skyView: s.skyView,
+      share: terms[i].share, litCentre: terms[i].litCentre, cosI: terms[i].cosI,
+    })),
+    pairs,
+  };
+}
+console.log(JSON.stringify(out));
