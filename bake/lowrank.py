@@ -342,15 +342,23 @@ def factors(spec: Spectrum, k: int, S, S_inv, errors: dict) -> Factors:
 
 
 def gain_of(M: np.ndarray) -> np.ndarray:
-    """Per-texel gain (T,): the mean basis value over lights and channels, floored at a
-    millionth of its overall mean so that empty texels stay finite."""
+    """Per-texel gain (T,): the texel's level (:func:`texel_means`), floored at a millionth
+    of its overall mean so that empty texels stay finite."""
     return floored_gain(texel_means(M))
 
 
 def texel_means(M: np.ndarray) -> np.ndarray:
-    """Each texel's mean over lights and channels (T,) float64, of rows ``M`` (T, n, 3)
-    (row-wise: the same bits by blocks of rows)."""
-    return M.mean(axis=(1, 2), dtype=np.float64)
+    """Each texel's level: the mean of its basis values' magnitudes over lights and channels
+    (T,) float64, of rows ``M`` (T, n, 3) (row-wise: the same bits by blocks of rows).
+
+    Magnitudes, not signed values: a texel moved onto a contact line holds its direct light
+    extended along the chord to its buried centre (bake.contact.extrapolate_direct), negative
+    for the lights hidden at the contact line, and its signed mean can be near zero or below
+    it. Floored there, the gain was a millionth of the atlas's mean level, that texel's
+    normalized values millions, and every base layer's 8-bit range that texel's: the
+    palace's ground pair decoded 583 % off (docs/benchmarks.md, "The palace's ground pair").
+    Where no value is negative the magnitudes are the values: the same bits as the mean."""
+    return np.abs(M).mean(axis=(1, 2), dtype=np.float64)
 
 
 def floored_gain(g: np.ndarray) -> np.ndarray:
