@@ -535,7 +535,8 @@ def compress_rms_stack(image, name, out_dir, skies, S, S_inv, selection, setting
     is a UASTC layer (and its refinement) more: the first split within the budget is the
     smallest (docs/benchmarks.md, "Downloads with the sun apart"). The tries share one
     factorization and one UASTC encoding of each layer (``etc1s_tries``; until 2026-12-05
-    each try was a whole compression: docs/benchmarks.md, "The palace's ground pair").
+    each try was a whole compression: docs/benchmarks.md, "The ETC1S splits from one UASTC
+    encoding").
     ``image``: (H, W, n, 3) or a :class:`bake.rowstore.StackStore`."""
     stack = as_stack(image)
     del image
