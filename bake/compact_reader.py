@@ -57,15 +57,22 @@ class CompactReader:
                 files.append(self.dir / self.entry["etc1s"]["ktx2"])
             raw = np.concatenate(decode(files))  # (layers, H, W, 4) uint8
             n, k = self.entry["v"]["shape"]
-            self._base = np.zeros((k,) + raw.shape[1:3] + (3,), dtype=np.float32)
-            # A layer at a time: the layers as float32 at once (coarse and refinements, up to
-            # twice k) were twice the base again (docs/benchmarks.md, "The write stage's
-            # memory"); the same values.
-            for layer, texel in zip(self.entry["layers"], raw, strict=True):
-                value = texel[..., :3].astype(np.float32) / 255.0
-                value = value * np.float32(layer["scale"]) + np.float32(layer["offset"])
-                self._base[layer["coefficient"]] += value
+            self._base = layer_sum(self.entry["layers"], raw, k)
         return self._base
+
+    @classmethod
+    def decoded(cls, build_dir: Path, entry: dict, shape: tuple[int, int], V: np.ndarray,
+                raw: list[np.ndarray]) -> CompactReader:
+        """A reader of a stack whose base is not written (bake.compress tries its ETC1S
+        splits in memory): ``V`` (n, k) float32 as it would be written, ``raw`` its base
+        layers' decoded bytes in the order of ``entry["layers"]`` (each (H, W, 4) uint8);
+        the lights and the gain are read from ``build_dir`` as usual. The same composite,
+        to the bit, as a reader of the files that decode to those bytes."""
+        reader = cls(build_dir, {key: value for key, value in entry.items() if key != "v"},
+                     shape)
+        reader.V = V
+        reader._base = layer_sum(entry["layers"], raw, V.shape[1])
+        return reader
 
     def lights(self, indices) -> dict[int, np.ndarray]:
         """(H, W, 3) float32 decoded image of each light in ``indices``."""
@@ -110,3 +117,19 @@ class CompactReader:
         for i, light in self.lights(chosen).items():
             out += light * r[i].astype(np.float32)
         return out * self.gain()
+
+
+def layer_sum(layers: list[dict], raw, k: int) -> np.ndarray:
+    """(k, H, W, 3) float32 base layers from the decoded bytes ``raw`` of the ``layers``
+    (an entry's ``layers``: (layers, H, W, 4) uint8, or a list of (H, W, 4)), each layer's
+    value added to its coefficient's (refinements to their coarse layers), in their order.
+
+    A layer at a time: the layers as float32 at once (coarse and refinements, up to twice k)
+    were twice the base again (docs/benchmarks.md, "The write stage's memory"); the same
+    values."""
+    base = np.zeros((k,) + raw[0].shape[:2] + (3,), dtype=np.float32)
+    for layer, texel in zip(layers, raw, strict=True):
+        value = texel[..., :3].astype(np.float32) / 255.0
+        value = value * np.float32(layer["scale"]) + np.float32(layer["offset"])
+        base[layer["coefficient"]] += value
+    return base

@@ -62,6 +62,7 @@ from bake.quantize import quantized_png, refinement_png
 from bake.refinement import RatioRefinement, layers_to_refine, layers_to_refine_within
 from bake.rowstore import as_stack, let_go, release_freed_memory, row_block, valid_rows
 from bake.testskies import TestSky, prior_skies, selectable_lights, test_skies
+from bake.uastclayers import UastcLayers
 from daylit.selection import Selection
 
 
@@ -179,6 +180,7 @@ def compress_stack(
     verify: bool = True,
     refine_mask: np.ndarray | None = None,
     ratio: RatioRefinement | None = None,
+    etc1s_tries: list[int | None] | None = None,
 ) -> CompactStack:
     """Factor, quantize, encode and verify one stack ``image`` (H, W, n, 3), or None when
 ``valid`` and ``spectrum`` are given (everything is then read from the spectrum: a caller
@@ -199,7 +201,14 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
     test skies (a pair checks itself);
     ``refine_mask`` (H, W) limits refinement to where it matters (default: everywhere);
     ``ratio`` (a stack of a shadowing pair) also refines the base layers the per-texel shadow
-    ratio needs refined, and measures the RMS rule against the pair's ``d``.
+    ratio needs refined, and measures the RMS rule against the pair's ``d``;
+    ``etc1s_tries`` (a stack judged by its RMS error alone: :func:`compress_rms_stack`) the
+    first ETC1S layers to try in order, as :func:`rms_etc1s_tries` lists them: the first
+    split whose decoded composite is within ``settings.budget`` on every test sky is
+    written, else the last (default: ``settings.etc1s_from_layer`` alone). The UASTC
+    layers and their candidate refinements are encoded once for every split
+    (bake.uastclayers), each split's composite judged from the decoded bytes as the client
+    sums them; the written files are checked to decode to those bytes.
 
     Writes under ``out_dir``:
 
@@ -250,6 +259,12 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
         # Arrays (gain, base) hold coarse and refinement layers: one level for both.
         encode(pngs, out, settings, array=True, level=settings.refine_level)
 
+    heads = _etc1s_heads(f.k, settings, etc1s_tries)
+    if len(heads) > 1 and (ratio is not None or refine_all or normalized_gain
+                           or gain_file is not None or not verify):
+        raise ValueError("ETC1S splits are tried for a stack judged by its RMS error alone")
+    tail_file = out_dir / "ktx2" / f"{name}.etc1s.ktx2"
+    base_file = out_dir / "ktx2" / f"{name}.base.ktx2"
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         # Only selectable lights get images, and none when no light is selected; light-major
@@ -258,7 +273,8 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
         lit = selection.selectable if selection.m > 0 else np.zeros(0, dtype=int)
         # (With the default m = 0 none: a stack that selects lights holds their images.)
         normalized = np.ascontiguousarray(full(spectrum.columns(lit)).transpose(2, 0, 1, 3))
-        # Stage 1: coarse gain, base layers and light images.
+        # Stage 1: coarse gain and light images (and the lights' refinements, written: they
+        # do not depend on the base's ETC1S split), each base layer quantized.
         gain_image = np.repeat(full(spectrum.gain[:, None]), 3, axis=2)
         gain_q = quantized_png(gain_image, tmp / "gain.png")
         encode_array([gain_q.path], tmp / "gain-coarse.ktx2")
@@ -267,16 +283,6 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
         # stage's memory").
         base_q = [quantized_png(full(f.U[:, :, j]), tmp / f"base{j:04d}.png")
                   for j in range(f.k)]
-        # Layers from ``head`` on go to the ETC1S array (``settings.etc1s_from_layer``),
-        # encoded once, where it is written; the others to the UASTC array.
-        head = _etc1s_split(f.k, settings)
-        tail_file = out_dir / "ktx2" / f"{name}.etc1s.ktx2"
-        if head < f.k:
-            encode([q.path for q in base_q[head:]], tail_file,
-                   replace(settings, encoding="etc1s"), array=True)
-        # Arrays are encoded twice (coarse, then with refinements), at one level: UASTC is
-        # deterministic, so the coarse layers come out the same both times.
-        encode_array([q.path for q in base_q[:head]], tmp / "coarse.ktx2")
         coarse_dir = tmp / "coarse"
         coarse_dir.mkdir()
         light_q = [
@@ -284,122 +290,89 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
         ]
         encode([q.path for q in light_q], coarse_dir, settings, array=False)
         decoded = decode(
-            [tmp / "gain-coarse.ktx2", tmp / "coarse.ktx2"]
-            + ([tail_file] if head < f.k else [])
-            + [coarse_dir / f"{name}.L{i:04d}.ktx2" for i in lit]
+            [tmp / "gain-coarse.ktx2"] + [coarse_dir / f"{name}.L{i:04d}.ktx2" for i in lit]
         )
         coarse_gain = gain_q.value(decoded[0][0])
-        arrays = np.concatenate(decoded[1:3] if head < f.k else decoded[1:2])  # 8-bit
-        first_light = 3 if head < f.k else 2
-        coarse_lights = [q.value(decoded[first_light + i][0]) for i, q in enumerate(light_q)]
+        coarse_lights = [q.value(decoded[1 + i][0]) for i, q in enumerate(light_q)]
         del decoded
+        light_refine_q, light_files = _light_refinements(
+            name, lit, normalized, coarse_lights, light_q, coarse_dir, out_dir, tmp,
+            refine_mask, settings,
+        )
+        del normalized, coarse_lights
+        # [light][level], null for the lights that cannot be selected (they have no images).
+        scales: list = [None] * n
+        offsets: list = [None] * n
+        for i, q, r in zip(lit, light_q, light_refine_q, strict=True):
+            scales[i], offsets[i] = [q.scale_list, r.scale_list], [q.offset_list, r.offset_list]
+        lights = {
+            "ktx2": [f"ktx2/{name}.L{{index:04d}}.ktx2", f"ktx2/{name}.L{{index:04d}}r.ktx2"],
+            "scale": scales,
+            "offset": offsets,
+        }
 
-        # Stage 2: refinements of the gain, the base layers that matter and every light image.
-        def lost(j, arrays):  # what layer j's coarse encoding lost, (H, W, 3)
-            return full(f.U[:, :, j]) - base_q[j].value(arrays[j])
+        def lost(j, coarse):  # what layer j's coarse encoding (H, W, 4) lost, (H, W, 3)
+            return full(f.U[:, :, j]) - base_q[j].value(coarse)
 
-        if refine_all:
-            refine = list(range(f.k))
-        else:
-            losses = np.empty((f.k, len(f.U), 3), dtype=np.float32)  # a block per layer
-            for j in range(f.k):
-                losses[j] = lost(j, arrays)[valid]
-            if ratio is None and settings.rms_refine_target is not None:
-                # A stack judged by its RMS error alone: the fewest layers that keep the
-                # decoded composite within the target on every test sky (ETC1S layers'
-                # losses counted, never refined), knowing what each UASTC layer's
-                # refinement restores as decoded: every candidate refinement is encoded
-                # (one array, at the level the base array is written at: UASTC is
-                # deterministic, so a chosen one comes out the same there) and decoded.
-                candidates = [
-                    refinement_png(lost(j, arrays), tmp / f"refine{j:04d}.png", refine_mask)
-                    for j in range(head)
-                ]
-                restored = np.empty((head, len(f.U), 3), dtype=np.float32)
-                if head:
-                    encode_array([q.path for q in candidates], tmp / "candidates.ktx2")
-                    for j, texel in enumerate(decode([tmp / "candidates.ktx2"])[0]):
-                        restored[j] = candidates[j].value(texel)[valid]
-                refine = layers_to_refine_within(
-                    losses, f, skies, selection, spectrum.absolute_truths(skies),
-                    settings.rms_refine_target * settings.budget, refinable=head,
-                    restored=restored,
-                )
-                del restored
-            else:
-                refine = layers_to_refine(
-                    losses, f, skies, selection, settings,
-                    None if ratio is None else ratio.means,
-                )
-            if ratio is not None:
-                refine = sorted(set(refine) | set(ratio.layers(losses, f)))
-            # The ETC1S layers are never refined: both rules above are per-layer bounds
-            # that their ETC1S loss trips, and refining them (in UASTC) cost about what
-            # ETC1S saved, where unrefined they keep the stacks within the budget and the
-            # ground's ratio within 0.02 (docs/benchmarks.md, "Downloads with the sun apart").
-            refine = [j for j in refine if j < head]
-            del losses
+        # Stage 2, for each ETC1S split tried (the first whose decoded composite is within
+        # the budget on every test sky is written, else the last): its coarse base layers,
+        # the UASTC ones encoded once for all splits (bake.uastclayers), its ETC1S array;
+        # which of its layers are refined.
+        uastc = UastcLayers(base_q, lost, encode_array, tmp, refine_mask)
+        predicted = None
+        for attempt, head in enumerate(heads):
+            tail = []
+            if head < f.k:
+                encode([q.path for q in base_q[head:]], tail_file,
+                       replace(settings, encoding="etc1s"), array=True)
+                tail = list(decode([tail_file])[0])
+            arrays = uastc.coarse(head) + tail  # each layer's decoded bytes, (H, W, 4)
+            refine = _refined_layers(f, arrays, head, lost, valid, uastc, spectrum, skies,
+                                     selection, settings, ratio, refine_all)
+            if attempt == len(heads) - 1:
+                break
+            # This split's composite as the client will decode it, from the same bytes.
+            raw = arrays[:head] + [uastc.candidates(head)[1][j] for j in refine] + tail
+            candidates = uastc.candidates(head)[0]
+            predicted = {"layers": _layer_entries(base_q, [candidates[j] for j in refine], head,
+                                                  refine),
+                         "lights": lights, "error": {}}
+            reader = CompactReader.decoded(out_dir, predicted, (H, W), f.V, raw)
+            reader.lights(_selected_by_any(skies, selection))
+            _record_errors(predicted, spectrum.absolute_truths(skies),
+                           lambda r, reader=reader: reader.composite(r, selection)[valid], skies)
+            del reader
+            if predicted["error"]["max"] <= settings.budget:
+                break
+            predicted = raw = None
+        if head == f.k:  # an earlier try's ETC1S array
+            tail_file.unlink(missing_ok=True)
         refine_q = [
-            refinement_png(lost(j, arrays), tmp / f"refine{j:04d}.png", refine_mask)
+            refinement_png(lost(j, arrays[j]), tmp / f"refine{j:04d}.png", refine_mask)
             for j in refine
         ]
-        del arrays
-        base_file = out_dir / "ktx2" / f"{name}.base.ktx2"
+        del arrays, uastc
         encode_array([q.path for q in base_q[:head] + refine_q], base_file)
         gain_refine_q = refinement_png(gain_image - coarse_gain, tmp / "gain-refine.png", None)
         written_gain = out_dir / "ktx2" / f"{name}.gain.ktx2"
         write_gain = normalized_gain and gain_file is None
         if write_gain:
             encode_array([gain_q.path, gain_refine_q.path], written_gain)
-        refine_dir = tmp / "refine"
-        refine_dir.mkdir()
-        light_refine_q = [
-            refinement_png(
-                normalized[j] - coarse_lights[j], tmp / f"{name}.L{i:04d}r.png", refine_mask
-            )
-            for j, i in enumerate(lit)
-        ]
-        encode(
-            [q.path for q in light_refine_q],
-            refine_dir,
-            settings,
-            array=False,
-            level=settings.refine_level,
-        )
-        light_files = []
-        for i in lit:
-            for folder, suffix in ((coarse_dir, ""), (refine_dir, "r")):
-                target = out_dir / "ktx2" / f"{name}.L{i:04d}{suffix}.ktx2"
-                shutil.move(folder / f"{name}.L{i:04d}{suffix}.ktx2", target)
-                light_files.append(target)
     v_file = out_dir / "v" / f"{name}.V.bin"
     f.V.astype("<f4").tofile(v_file)
     encode_s = time.perf_counter() - started
 
-    # The UASTC array's layers (coarse, then refinements), then the ETC1S array's.
-    layers = [q.entry(coefficient=j) for j, q in enumerate(base_q[:head])]
-    layers += [q.entry(coefficient=j) for j, q in zip(refine, refine_q, strict=True)]
-    layers += [q.entry(coefficient=j) for j, q in enumerate(base_q) if j >= head]
-    # [light][level], null for the lights that cannot be selected (they have no images).
-    scales: list = [None] * n
-    offsets: list = [None] * n
-    for i, q, r in zip(lit, light_q, light_refine_q, strict=True):
-        scales[i], offsets[i] = [q.scale_list, r.scale_list], [q.offset_list, r.offset_list]
     entry = {
         "k": f.k,
         "selected_lights": selection.m,
         "ktx2": base_file.relative_to(out_dir).as_posix(),
-        "layers": layers,
+        "layers": _layer_entries(base_q, refine_q, head, refine),
         "v": {
             "path": v_file.relative_to(out_dir).as_posix(),
             "shape": [n, f.k],
             "dtype": "float32-le",
         },
-        "lights": {
-            "ktx2": [f"ktx2/{name}.L{{index:04d}}.ktx2", f"ktx2/{name}.L{{index:04d}}r.ktx2"],
-            "scale": scales,
-            "offset": offsets,
-        },
+        "lights": lights,
         "error": {"truncation": {k: round(v, 6) for k, v in f.truncation_error.items()}},
     }
     if head < f.k:
@@ -417,7 +390,13 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
     compact = CompactStack(entry, files, encode_s=encode_s, factors=f)
     compact.base_bytes = sum(p.stat().st_size for p in files if p not in light_files)
     compact.light_bytes = sum(p.stat().st_size for p in light_files)
-    if verify:
+    written = None
+    if predicted is not None:  # the files decode to the bytes judged: the same errors
+        written = np.concatenate(decode([base_file] + ([tail_file] if head < f.k else [])))
+    if written is not None and all(np.array_equal(a, b) for a, b in zip(written, raw,
+                                                                         strict=True)):
+        entry["error"].update(predicted["error"])
+    elif verify:
         # The decoded composite against the master on the test skies.
         reader = CompactReader(out_dir, entry, (H, W))
         reader.lights(_selected_by_any(skies, selection))
@@ -428,6 +407,93 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
             skies,
         )
     return compact
+
+
+def _etc1s_heads(k: int, settings: Settings, tries: list[int | None] | None) -> list[int]:
+    """How many of k base layers go to the UASTC array, for each ETC1S split tried in order
+    (``tries``: first ETC1S layers, as :func:`rms_etc1s_tries` lists them; None: the one
+    ``settings`` gives), each once."""
+    heads: list[int] = []
+    for j0 in [settings.etc1s_from_layer] if tries is None else tries:
+        head = _etc1s_split(k, replace(settings, etc1s_from_layer=j0))
+        if head not in heads:
+            heads.append(head)
+    return heads
+
+
+def _layer_entries(base_q, refine_q, head: int, refine: list[int]) -> list[dict]:
+    """An entry's ``layers``: the UASTC array's (coarse layers 0 .. head - 1, then the
+    refinements ``refine_q`` of the layers ``refine``), then the ETC1S array's."""
+    layers = [q.entry(coefficient=j) for j, q in enumerate(base_q[:head])]
+    layers += [q.entry(coefficient=j) for j, q in zip(refine, refine_q, strict=True)]
+    layers += [q.entry(coefficient=j) for j, q in enumerate(base_q) if j >= head]
+    return layers
+
+
+def _light_refinements(name, lit, normalized, coarse_lights, light_q, coarse_dir, out_dir,
+                       tmp, refine_mask, settings):
+    """Every selectable light's refinement encoded, and its coarse and refined images
+    moved into ``out_dir``; returns the refinements' :class:`Quantized` and the files."""
+    refine_dir = tmp / "refine"
+    refine_dir.mkdir()
+    light_refine_q = [
+        refinement_png(
+            normalized[j] - coarse_lights[j], tmp / f"{name}.L{i:04d}r.png", refine_mask
+        )
+        for j, i in enumerate(lit)
+    ]
+    encode(
+        [q.path for q in light_refine_q],
+        refine_dir,
+        settings,
+        array=False,
+        level=settings.refine_level,
+    )
+    light_files = []
+    for i in lit:
+        for folder, suffix in ((coarse_dir, ""), (refine_dir, "r")):
+            target = out_dir / "ktx2" / f"{name}.L{i:04d}{suffix}.ktx2"
+            shutil.move(folder / f"{name}.L{i:04d}{suffix}.ktx2", target)
+            light_files.append(target)
+    return light_refine_q, light_files
+
+
+def _refined_layers(f, arrays, head, lost, valid, uastc, spectrum, skies, selection, settings,
+                    ratio, refine_all) -> list[int]:
+    """Which base layers are refined, given each layer's coarse decoded bytes ``arrays``
+    (the first ``head`` UASTC, the rest ETC1S): :func:`compress_stack`'s rules."""
+    if refine_all:
+        return list(range(f.k))
+    losses = np.empty((f.k, len(f.U), 3), dtype=np.float32)  # a block per layer
+    for j in range(f.k):
+        losses[j] = lost(j, arrays[j])[valid]
+    if ratio is None and settings.rms_refine_target is not None:
+        # A stack judged by its RMS error alone: the fewest layers that keep the decoded
+        # composite within the target on every test sky (ETC1S layers' losses counted, never
+        # refined), knowing what each UASTC layer's refinement restores as decoded: every
+        # candidate refinement is encoded (at the level the base array is written at: UASTC
+        # encodes each block on its own, so a chosen one comes out the same there) and
+        # decoded.
+        candidates, decoded = uastc.candidates(head)
+        restored = np.empty((head, len(f.U), 3), dtype=np.float32)
+        for j, texel in enumerate(decoded):
+            restored[j] = candidates[j].value(texel)[valid]
+        refine = layers_to_refine_within(
+            losses, f, skies, selection, spectrum.absolute_truths(skies),
+            settings.rms_refine_target * settings.budget, refinable=head, restored=restored,
+        )
+        del restored
+    else:
+        refine = layers_to_refine(
+            losses, f, skies, selection, settings, None if ratio is None else ratio.means,
+        )
+    if ratio is not None:
+        refine = sorted(set(refine) | set(ratio.layers(losses, f)))
+    # The ETC1S layers are never refined: both rules above are per-layer bounds that their
+    # ETC1S loss trips, and refining them (in UASTC) cost about what ETC1S saved, where
+    # unrefined they keep the stacks within the budget and the ground's ratio within 0.02
+    # (docs/benchmarks.md, "Downloads with the sun apart").
+    return [j for j in refine if j < head]
 
 
 def compress_stacks(images, prefix, out_dir, skies, S, S_inv, selection, settings):
@@ -463,13 +529,15 @@ def compress_stacks(images, prefix, out_dir, skies, S, S_inv, selection, setting
 def compress_rms_stack(image, name, out_dir, skies, S, S_inv, selection, settings):
     """:func:`compress_stack` for a stack judged by its RMS error alone (lightmap, views):
     ETC1S from ``settings.rms_etc1s_from_layer`` on; while the decoded composite is over the
-    budget on a test sky, again with the ETC1S array starting one layer later, up to
+    budget on a test sky, with the ETC1S array starting one layer later, up to
     ``settings.etc1s_from_layer``, then with every layer UASTC (same rank and factors; the
     last try is kept whatever its error, as before). Each layer moved out of the ETC1S array
     is a UASTC layer (and its refinement) more: the first split within the budget is the
-    smallest (docs/benchmarks.md, "Downloads with the sun apart").
+    smallest (docs/benchmarks.md, "Downloads with the sun apart"). The tries share one
+    factorization and one UASTC encoding of each layer (``etc1s_tries``; until 2026-12-05
+    each try was a whole compression: docs/benchmarks.md, "The ETC1S splits from one UASTC
+    encoding").
     ``image``: (H, W, n, 3) or a :class:`bake.rowstore.StackStore`."""
-    tries = rms_etc1s_tries(settings)
     stack = as_stack(image)
     del image
     valid = stack.valid
@@ -477,27 +545,10 @@ def compress_rms_stack(image, name, out_dir, skies, S, S_inv, selection, setting
     let_go(stack)
     spectrum = Spectrum.of(M, np.ones(len(M), np.float32), S)
     del stack  # the spectrum holds the valid texels (a caller's reference keeps it, if any)
-    first, splits = None, set()
-    for j0 in tries:
-        if first is not None:  # a try that splits the rank as an earlier one did: the same files
-            split = _etc1s_split(first.entry["k"], replace(settings, etc1s_from_layer=j0))
-            if split in splits:
-                continue
-        result = compress_stack(
-            None, name, out_dir, skies, S, S_inv, selection,
-            replace(settings, etc1s_from_layer=j0), valid=valid, spectrum=spectrum,
-            rank=None if first is None else first.entry["k"],
-        )
-        splits.add(_etc1s_split(result.entry["k"], replace(settings, etc1s_from_layer=j0)))
-        if first is None:
-            first = result
-        else:  # the rank was fixed: keep the first try's truncation errors
-            result.entry["error"]["truncation"] = first.entry["error"]["truncation"]
-            result.factors.truncation_error = first.factors.truncation_error
-        if result.entry["error"]["max"] <= settings.budget or j0 is None:
-            break
-    if "etc1s" not in result.entry:  # an earlier try's ETC1S array
-        (out_dir / "ktx2" / f"{name}.etc1s.ktx2").unlink(missing_ok=True)
+    result = compress_stack(
+        None, name, out_dir, skies, S, S_inv, selection, settings, valid=valid,
+        spectrum=spectrum, etc1s_tries=rms_etc1s_tries(settings),
+    )
     spectrum.remove()
     return result
 

@@ -341,16 +341,37 @@ def factors(spec: Spectrum, k: int, S, S_inv, errors: dict) -> Factors:
     return Factors(k, U, (S_inv @ spec.Y[:, :k]).astype(np.float32), errors)
 
 
+# A texel's level is at least this share of its values' mean magnitude (texel_means): the
+# signed mean of a texel with values of both signs is the level of its composites, which its
+# shadow ratio is measured against, but it can fall to zero. A tenth keeps every demo texel at
+# its signed mean (the least share there was 0.15) and the palace's ground pair within its
+# budget, its ratio 0.09 off at worst against 0.29 with the magnitude itself, both at one of
+# its two texels whose signed mean is below zero (docs/benchmarks.md, "The palace's ground
+# pair").
+LEVEL_FLOOR = 0.1
+
+
 def gain_of(M: np.ndarray) -> np.ndarray:
-    """Per-texel gain (T,): the mean basis value over lights and channels, floored at a
-    millionth of its overall mean so that empty texels stay finite."""
+    """Per-texel gain (T,): the texel's level (:func:`texel_means`), floored at a millionth
+    of its overall mean so that empty texels stay finite."""
     return floored_gain(texel_means(M))
 
 
 def texel_means(M: np.ndarray) -> np.ndarray:
-    """Each texel's mean over lights and channels (T,) float64, of rows ``M`` (T, n, 3)
-    (row-wise: the same bits by blocks of rows)."""
-    return M.mean(axis=(1, 2), dtype=np.float64)
+    """Each texel's level (T,) float64, of rows ``M`` (T, n, 3) (row-wise: the same bits by
+    blocks of rows): the mean of its basis values over lights and channels, but never below
+    ``LEVEL_FLOOR`` times the mean of their magnitudes.
+
+    A texel moved onto a contact line holds its direct light extended along the chord to its
+    buried centre (bake.contact.extrapolate_direct), negative for the lights hidden at the
+    contact line, and its signed mean can be near zero or below it. Floored there by
+    :func:`floored_gain`, the gain was a millionth of the atlas's level, that texel's
+    normalized values millions, and every base layer's 8-bit range was theirs: the palace's
+    ground pair decoded 583 % off (docs/benchmarks.md, "The palace's ground pair"). Where no
+    value is negative the two means are equal, and the level is the mean, bit for bit."""
+    signed = M.mean(axis=(1, 2), dtype=np.float64)
+    magnitude = np.abs(M).mean(axis=(1, 2), dtype=np.float64)
+    return np.maximum(signed, LEVEL_FLOOR * magnitude)
 
 
 def floored_gain(g: np.ndarray) -> np.ndarray:
