@@ -5,24 +5,15 @@
 // `types` [{ratio, sunUp}] -> Perez's clearness and the CIE sky type the estimate takes.
 // For tests/web/test_phoneestimate_js.py.
 import { readFileSync } from 'node:fs';
-import * as THREE from 'three';
 import { skyClearness, skyTypeForRatio, unitSky } from '../../web/src/phoneestimate.js';
-import { Proxies } from '../../web/src/proxyrays.js';
+import { proxiesOf } from './proxymeshes.mjs';
 
 const c = JSON.parse(readFileSync(0, 'utf8'));
 const skies = c.skies.map(({ type, sun, dirs }) => {
   const s = unitSky(type, sun);
   return { rel: dirs.map((d) => s.rel(d)), toUnit: s.toUnit };
 });
-const meshes = c.cast.meshes.map((m) => {
-  const g = new THREE.BufferGeometry();
-  g.setAttribute('position', new THREE.Float32BufferAttribute(m.vertices.flat(), 3));
-  g.setIndex(m.faces.flat());
-  const mesh = new THREE.Mesh(g);
-  mesh.userData.albedo = new THREE.Vector3(...m.albedo);
-  return mesh;
-});
-const proxies = new Proxies(meshes);
+const proxies = proxiesOf(c.cast.meshes);
 const first = [];
 const any = [];
 c.cast.origins.forEach((o, i) => {

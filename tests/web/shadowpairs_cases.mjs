@@ -9,7 +9,7 @@
 import { readFileSync } from 'node:fs';
 import * as THREE from 'three';
 import { PAIR_RADIUS_PX, poolForPose, sunTerms } from '../../web/src/phoneestimate.js';
-import { Proxies } from '../../web/src/proxyrays.js';
+import { proxiesOf } from './proxymeshes.mjs';
 import { pairSun, shadowPairs } from '../../web/src/shadowpairs.js';
 
 const c = JSON.parse(readFileSync(0, 'utf8'));
@@ -24,15 +24,7 @@ if (c.pairSun) {
 }
 if (c.pool) {
   const p = c.pool;
-  const meshes = p.meshes.map((m) => {
-    const g = new THREE.BufferGeometry();
-    g.setAttribute('position', new THREE.Float32BufferAttribute(m.vertices.flat(), 3));
-    g.setIndex(m.faces.flat());
-    const mesh = new THREE.Mesh(g);
-    mesh.userData.albedo = new THREE.Vector3(...m.albedo);
-    return mesh;
-  });
-  const proxies = new Proxies(meshes);
+  const proxies = proxiesOf(p.meshes);
   const camera = new THREE.PerspectiveCamera(p.fovDeg, p.width / p.height, 0.1, 1000);
   camera.position.set(...p.eye);
   camera.lookAt(...p.target);

@@ -299,6 +299,22 @@ DEMO_POSE = ([30.0, 6.0, -45.0], (202.3, 84.6, 0.0))
 DEMO_SKIES = [("overcast", "14.5", 0.0, 150.0), ("clear", "14.5", 800.0, 80.0)]
 
 
+def _eight_estimates(browser, build, pose, frames) -> dict:
+    """{sky name: eight phone estimates} from camera mode on each of ``frames`` (pose_frames)
+    with ``?sky=phone`` and the client's clock at the render's time, stood at ``pose``."""
+    got = {}
+    for name, sky in frames.items():
+        rendered = sky["rendered"]
+        with _open(browser, build, sky["y4m"],
+                   f"&sky=phone&time={rendered.when_unix_s}") as (page, _, errors):
+            standpoint, orientation = pose
+            page.evaluate("(p) => window.daylit.debug.standAt(p)", standpoint)
+            orient(page, *orientation)
+            got[name] = [page.evaluate("window.daylit.debug.phoneEstimate()") for _ in range(8)]
+            assert not errors, errors
+    return got
+
+
 def test_no_phantom_sun_under_the_demo_s_overcast(browser, web_build, tmp_path):
     """On the demo's own real proxies (a site the phone's estimate was not tuned on) under
     Radiance's overcast sky at 14:30, no estimate keeps a sun of 5 % of the sky or more; under
@@ -307,16 +323,7 @@ def test_no_phantom_sun_under_the_demo_s_overcast(browser, web_build, tmp_path):
     kept a sun of 51-52 % of the sky on this frame: the whole-view fit took the CIE sky's
     error on the centre's sunward side for a sun, the overcast contrast test let it through."""
     frames = pose_frames(browser, web_build, DEMO_POSE, DEMO_SKIES, tmp_path, server=False)
-    got = {}
-    for name, sky in frames.items():
-        rendered = sky["rendered"]
-        with _open(browser, web_build, sky["y4m"],
-                   f"&sky=phone&time={rendered.when_unix_s}") as (page, _, errors):
-            standpoint, orientation = DEMO_POSE
-            page.evaluate("(p) => window.daylit.debug.standAt(p)", standpoint)
-            orient(page, *orientation)
-            got[name] = [page.evaluate("window.daylit.debug.phoneEstimate()") for _ in range(8)]
-            assert not errors, errors
+    got = _eight_estimates(browser, web_build, DEMO_POSE, frames)
     overcast, clear = got["overcast"], got["clear"]
     print("demo overcast ratios", [round(e["ratio"], 3) for e in overcast],
           "pairs", [(e.get("pairs"), e.get("pairRatio")) for e in overcast])
@@ -352,16 +359,7 @@ def test_a_thin_shadow_is_not_shade(browser, web_build, tmp_path):
     three of eight estimates drop the sun and read the sky ten times too bright, before these
     changes too; docs/web.md.)"""
     frames = pose_frames(browser, web_build, KIOSK_POSE, KIOSK_SKIES, tmp_path, server=False)
-    got = {}
-    for name, sky in frames.items():
-        rendered = sky["rendered"]
-        with _open(browser, web_build, sky["y4m"],
-                   f"&sky=phone&time={rendered.when_unix_s}") as (page, _, errors):
-            standpoint, orientation = KIOSK_POSE
-            page.evaluate("(p) => window.daylit.debug.standAt(p)", standpoint)
-            orient(page, *orientation)
-            got[name] = [page.evaluate("window.daylit.debug.phoneEstimate()") for _ in range(8)]
-            assert not errors, errors
+    got = _eight_estimates(browser, web_build, KIOSK_POSE, frames)
     err = {}
     for name, ests in got.items():
         rendered, exposure = frames[name]["rendered"], frames[name]["exposure"]
