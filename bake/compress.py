@@ -42,7 +42,6 @@ import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from bake.basisu import encode
@@ -52,15 +51,11 @@ from bake.lowrank import (
     Factors,
     Spectrum,
     factors,
-    floored_gain,
     prior_sqrt,
-    ratio_rank,
     rms_rank,
-    texel_means,
 )
 from bake.quantize import quantized_png, refinement_png
 from bake.refinement import RatioRefinement, layers_to_refine, layers_to_refine_within
-from bake.rowstore import as_stack, let_go, release_freed_memory, row_block, valid_rows
 from bake.testskies import TestSky, prior_skies, selectable_lights, test_skies
 from bake.uastclayers import UastcLayers
 from daylit.selection import Selection
@@ -112,10 +107,10 @@ class Settings:
     # The same for stacks judged by their RMS error alone (lightmap, views: no shadow ratio
     # to keep), tried first; while the decoded composite is over the budget on a test sky,
     # the stack is encoded again with the ETC1S array one layer later, up to
-    # ``etc1s_from_layer``, then with no ETC1S layer (:func:`compress_rms_stack`; straight
-    # from 4 to 8, the 400-light final lightmap fell back to 8 for 0.05 % over the budget
-    # where 5 was within it and 0.61 MB smaller). Measured: docs/benchmarks.md, "Downloads
-    # with the sun apart".
+    # ``etc1s_from_layer``, then with no ETC1S layer
+    # (:func:`bake.stackkinds.compress_rms_stack`; straight from 4 to 8, the 400-light final
+    # lightmap fell back to 8 for 0.05 % over the budget where 5 was within it and 0.61 MB
+    # smaller). Measured: docs/benchmarks.md, "Downloads with the sun apart".
     rms_etc1s_from_layer: int | None = 4
     # Which base layers of a stack judged by its RMS error alone are refined: the fewest
     # that keep its decoded composite within this share of the budget on every test sky
@@ -187,10 +182,11 @@ def compress_stack(
 that let go of the image holds one stack's valid texels, not its whole (H, W, n, 3) too).
 
     With a ``spectrum`` whose gain is not all ones (shadowing atlases, see
-    :func:`compress_ratio_pair`), every texel is divided by its gain ``g`` before factoring and
-    encoding and the client multiplies back: quantization error is then relative to the
-    texel's own level, as fine in a shadow as in the sun, which the per-texel shadow ratio
-    needs. Other stacks are judged by their RMS error and keep ``g = 1`` (no gain texture).
+    :func:`bake.stackkinds.compress_ratio_pair`), every texel is divided by its gain ``g``
+    before factoring and encoding and the client multiplies back: quantization error is then
+    relative to the texel's own level, as fine in a shadow as in the sun, which the per-texel
+    shadow ratio needs. Other stacks are judged by their RMS error and keep ``g = 1`` (no gain
+    texture).
 
     ``valid`` (H, W) selects the texels that count (default: those with any value), with
     ``spectrum`` their precomputed :class:`Spectrum` (and gain); ``min_k`` raises the rank
@@ -202,13 +198,14 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
     ``refine_mask`` (H, W) limits refinement to where it matters (default: everywhere);
     ``ratio`` (a stack of a shadowing pair) also refines the base layers the per-texel shadow
     ratio needs refined, and measures the RMS rule against the pair's ``d``;
-    ``etc1s_tries`` (a stack judged by its RMS error alone: :func:`compress_rms_stack`) the
-    first ETC1S layers to try in order, as :func:`rms_etc1s_tries` lists them: the first
-    split whose decoded composite is within ``settings.budget`` on every test sky is
-    written, else the last (default: ``settings.etc1s_from_layer`` alone). The UASTC
-    layers and their candidate refinements are encoded once for every split
-    (bake.uastclayers), each split's composite judged from the decoded bytes as the client
-    sums them; the written files are checked to decode to those bytes.
+    ``etc1s_tries`` (a stack judged by its RMS error alone:
+    :func:`bake.stackkinds.compress_rms_stack`) the first ETC1S layers to try in order, as
+    :func:`bake.stackkinds.rms_etc1s_tries` lists them: the first split whose decoded
+    composite is within ``settings.budget`` on every test sky is written, else the last
+    (default: ``settings.etc1s_from_layer`` alone). The UASTC layers and their candidate
+    refinements are encoded once for every split (bake.uastclayers), each split's composite
+    judged from the decoded bytes as the client sums them; the written files are checked to
+    decode to those bytes.
 
     Writes under ``out_dir``:
 
@@ -338,8 +335,8 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
                                                   refine),
                          "lights": lights, "error": {}}
             reader = CompactReader.decoded(out_dir, predicted, (H, W), f.V, raw)
-            reader.lights(_selected_by_any(skies, selection))
-            _record_errors(predicted, spectrum.absolute_truths(skies),
+            reader.lights(selected_by_any(skies, selection))
+            record_errors(predicted, spectrum.absolute_truths(skies),
                            lambda r, reader=reader: reader.composite(r, selection)[valid], skies)
             del reader
             if predicted["error"]["max"] <= settings.budget:
@@ -399,8 +396,8 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
     elif verify:
         # The decoded composite against the master on the test skies.
         reader = CompactReader(out_dir, entry, (H, W))
-        reader.lights(_selected_by_any(skies, selection))
-        _record_errors(
+        reader.lights(selected_by_any(skies, selection))
+        record_errors(
             entry,
             spectrum.absolute_truths(skies),
             lambda r: reader.composite(r, selection)[valid],
@@ -411,8 +408,8 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
 
 def _etc1s_heads(k: int, settings: Settings, tries: list[int | None] | None) -> list[int]:
     """How many of k base layers go to the UASTC array, for each ETC1S split tried in order
-    (``tries``: first ETC1S layers, as :func:`rms_etc1s_tries` lists them; None: the one
-    ``settings`` gives), each once."""
+    (``tries``: first ETC1S layers, as :func:`bake.stackkinds.rms_etc1s_tries` lists them;
+    None: the one ``settings`` gives), each once."""
     heads: list[int] = []
     for j0 in [settings.etc1s_from_layer] if tries is None else tries:
         head = _etc1s_split(k, replace(settings, etc1s_from_layer=j0))
@@ -496,190 +493,12 @@ def _refined_layers(f, arrays, head, lost, valid, uastc, spectrum, skies, select
     return [j for j in refine if j < head]
 
 
-def compress_stacks(images, prefix, out_dir, skies, S, S_inv, selection, settings):
-    """Compress the stacks of one atlas or view, ``images`` {name: (H, W, n, 3) array or
-    :class:`bake.rowstore.StackStore`}: ``I`` and ``d`` of a shadowing atlas together for
-    their ratio (:func:`compress_ratio_pair`), any other stack alone
-    (:func:`compress_rms_stack`, its refinements at the UASTC level
-    ``settings.rms_refine_level``), each named ``<prefix>.<name>``.
-
-    ``images`` is emptied as its stacks are taken: each is let go of once its valid texels
-    are gathered (a whole stack is lights x texels: holding them all through the encoding
-    was most of the write stage's peak memory, docs/benchmarks.md "A large site"). A stack
-    on disk is read by blocks of rows, and its valid texels (the spectrum) are written
-    beside it and read by rows too: no step holds a stack's lights x texels.
-
-    Returns ``[(name, CompactStack)]`` in sorted name order."""
-    names = sorted(images)
-    if names == ["I", "d"]:
-        results = compress_ratio_pair(
-            images.pop("I"), images.pop("d"), (f"{prefix}.I", f"{prefix}.d"), out_dir,
-            skies, S, S_inv, selection, settings,
-        )
-    else:
-        rms_settings = replace(settings, refine_level=settings.rms_refine_level)
-        results = [
-            compress_rms_stack(images.pop(name), f"{prefix}.{name}", out_dir, skies, S, S_inv,
-                               selection, rms_settings)
-            for name in names
-        ]
-    return list(zip(names, results, strict=True))
-
-
-def compress_rms_stack(image, name, out_dir, skies, S, S_inv, selection, settings):
-    """:func:`compress_stack` for a stack judged by its RMS error alone (lightmap, views):
-    ETC1S from ``settings.rms_etc1s_from_layer`` on; while the decoded composite is over the
-    budget on a test sky, with the ETC1S array starting one layer later, up to
-    ``settings.etc1s_from_layer``, then with every layer UASTC (same rank and factors; the
-    last try is kept whatever its error, as before). Each layer moved out of the ETC1S array
-    is a UASTC layer (and its refinement) more: the first split within the budget is the
-    smallest (docs/benchmarks.md, "Downloads with the sun apart"). The tries share one
-    factorization and one UASTC encoding of each layer (``etc1s_tries``; until 2026-12-05
-    each try was a whole compression: docs/benchmarks.md, "The ETC1S splits from one UASTC
-    encoding").
-    ``image``: (H, W, n, 3) or a :class:`bake.rowstore.StackStore`."""
-    stack = as_stack(image)
-    del image
-    valid = stack.valid
-    [M] = valid_rows([stack], valid, lambda rows, t: rows, [f"{name}.spectrum"])
-    let_go(stack)
-    spectrum = Spectrum.of(M, np.ones(len(M), np.float32), S)
-    del stack  # the spectrum holds the valid texels (a caller's reference keeps it, if any)
-    result = compress_stack(
-        None, name, out_dir, skies, S, S_inv, selection, settings, valid=valid,
-        spectrum=spectrum, etc1s_tries=rms_etc1s_tries(settings),
-    )
-    spectrum.remove()
-    return result
-
-
-def rms_etc1s_tries(settings: Settings) -> list[int | None]:
-    """The first layers of the ETC1S array that :func:`compress_rms_stack` tries, in order:
-    every one from ``settings.rms_etc1s_from_layer`` to ``settings.etc1s_from_layer``, then
-    None (every layer UASTC); only None without ``etc1s_from_layer``."""
-    last, first = settings.etc1s_from_layer, settings.rms_etc1s_from_layer
-    if last is None:
-        return [None]
-    first = last if first is None else min(first, last)
-    return [*range(first, last + 1), None]
-
-
-def compress_ratio_pair(I, d, names, out_dir, skies, S, S_inv, selection, settings):
-    """Compress a shadowing atlas's ``I`` and ``d`` (H, W, n, 3, or
-    :class:`bake.rowstore.StackStore` s) for their ratio.
-
-    What is encoded is ``d`` and ``delta = d - I``, the virtual objects' effect (the client
-    gets ``I = d - delta`` and the shadow's alpha ``1 - I/d = sum r delta / sum r d``). Errors
-    of ``d`` then largely cancel in the ratio, and where no virtual object has any effect
-    ``delta`` is zero in whole blocks, which every codec keeps exact: the real scene is never
-    darkened by compression noise. Both share one gain (it cancels in the ratio) and one
-    rank, chosen so that the ratio stays within ``RATIO_TRUNCATION`` at every texel before
-    encoding; base layers are refined where the ratio needs it (:class:`RatioRefinement`).
-    Returns the :class:`CompactStack` of ``I`` (whose entry says ``"encodes": "d - I"``) and
-    of ``d``, both checked against their masters.
-
-    Two passes over the stacks' rows: the per-texel gain and where the virtual objects have
-    an effect, then the normalized valid texels of ``d`` and ``delta`` (the spectra).
-    """
-    I, d = as_stack(I), as_stack(d)
-    valid = I.valid | d.valid
-    flat = valid.ravel()
-    step = row_block(d.n)
-    means_I, means_d, effect = [], [], np.zeros(flat.shape, dtype=bool)
-    for a in range(0, d.texels, step):
-        rows_I, rows_d = I.rows(a, a + step), d.rows(a, a + step)
-        b = a + len(rows_d)
-        # The ratio's error is -delta' / d + delta d' / d^2: where the virtual objects
-        # change nothing (delta = 0) the errors of d do not matter. Refine only near
-        # delta != 0.
-        effect[a:b] = (
-            np.abs(rows_d - rows_I).max(axis=(1, 2)) > 1e-4 * np.abs(rows_d).max(axis=(1, 2))
-        )
-        means_I.append(texel_means(rows_I[flat[a:b]]))
-        means_d.append(texel_means(rows_d[flat[a:b]]))
-        del rows_I, rows_d
-    gain = np.maximum(floored_gain(np.concatenate(means_d)),
-                      floored_gain(np.concatenate(means_I)))
-    del means_I, means_d
-    refine_mask = cv2.dilate(effect.reshape(valid.shape).astype(np.uint8),
-                             np.ones((9, 9), np.uint8)) > 0
-    del effect
-
-    def normalized(rows_d, rows_I, t):
-        # delta = d - I and d at the valid texels, divided by the gain in place.
-        g = gain[t : t + len(rows_d), None, None]
-        delta = rows_d - rows_I
-        delta /= g
-        rows_d /= g
-        return delta, rows_d
-
-    M_delta, M_d = valid_rows([d, I], valid, normalized,
-                               [f"{names[0]}.spectrum", f"{names[1]}.spectrum"])
-    let_go(I, d)
-    del I, d  # the spectra hold the valid texels: a whole stack is no longer held
-    release_freed_memory()
-    spec_delta = Spectrum.of(M_delta, gain, S)
-    spec_d = Spectrum.of(M_d, gain, S)
-    k_start = rms_rank(spec_d, S, S_inv, skies, selection, settings)[0]
-    k = ratio_rank(spec_delta, spec_d, k_start, S, S_inv, skies, selection, settings)
-    ratio_d, ratio_delta = RatioRefinement.pair(spec_d, spec_delta, skies, selection)
-    common = dict(valid=valid, rank=k, verify=False, refine_mask=refine_mask)
-    d_stack = compress_stack(
-        None, names[1], out_dir, skies, S, S_inv, selection, settings, spectrum=spec_d,
-        ratio=ratio_d, **common,
-    )
-    delta_stack = compress_stack(
-        None,
-        names[0],
-        out_dir,
-        skies,
-        S,
-        S_inv,
-        selection,
-        settings,
-        spectrum=spec_delta,
-        gain_file=d_stack.entry["gain"],
-        ratio=ratio_delta,
-        **common,
-    )
-    delta_stack.entry["encodes"] = "d - I"
-    H, W = valid.shape
-    readers = {
-        name: CompactReader(out_dir, s.entry, (H, W))
-        for name, s in (("d", d_stack), ("delta", delta_stack))
-    }
-    for reader in readers.values():
-        reader.lights(_selected_by_any(skies, selection))
-
-    # The masters' composites, one sky at a time: d's, and I's as d's minus delta's (the
-    # spectra keep them from choosing the rank; one gain for both).
-    def i_true():
-        return (d - delta for d, delta in zip(spec_d.absolute_truths(skies),
-                                              spec_delta.absolute_truths(skies), strict=True))
-
-    for stack, references, rebuild in (
-        (d_stack, spec_d.absolute_truths(skies), lambda r: readers["d"].composite(r, selection)),
-        (
-            delta_stack,
-            i_true(),
-            lambda r: (
-                readers["d"].composite(r, selection)
-                - readers["delta"].composite(r, selection)
-            ),
-        ),
-    ):
-        _record_errors(stack.entry, references, lambda r, f=rebuild: f(r)[valid], skies)
-    spec_d.remove()
-    spec_delta.remove()
-    return delta_stack, d_stack
-
-
-def _selected_by_any(skies, selection: Selection) -> list[int]:
+def selected_by_any(skies, selection: Selection) -> list[int]:
     """Every light that some test sky selects (decoded in one run)."""
     return sorted({int(i) for sky in skies for i in selection(sky.r)})
 
 
-def _record_errors(entry: dict, references: list[np.ndarray], composite, skies) -> None:
+def record_errors(entry: dict, references: list[np.ndarray], composite, skies) -> None:
     """RMS error over the mean of ``composite(r)`` (T, 3) against the master's composite
     ``references`` (one (T, 3) per sky) on every test sky, into ``entry["error"]``."""
     errors = {}

@@ -46,15 +46,15 @@ def encoder_problem() -> str | None:
 
 
 def compress_stacks_job(images, prefix, skies, S, S_inv, selection, settings):
-    """:func:`bake.compress.compress_stacks` into a folder of its own: ``(results, files)``,
+    """:func:`bake.stackkinds.compress_stacks` into a folder of its own: ``(results, files)``,
     the ``[(name, CompactStack)]`` (their ``files`` relative to the build) and
     ``{relative path: bytes}`` of every file written."""
-    from bake import compress
+    from bake import stackkinds
 
     set_blas_threads(1)  # as the baking process's write stage (bake.blasthreads)
     with tempfile.TemporaryDirectory(prefix="daylit-compress-") as tmp:
         out = Path(tmp)
-        results = compress.compress_stacks(
+        results = stackkinds.compress_stacks(
             images, prefix, out, skies, S, S_inv, selection, settings
         )
         for _, result in results:

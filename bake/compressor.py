@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from bake import basisu, compress, compressjobs, sunbounce, testskies
+from bake import basisu, compress, compressjobs, stackkinds, sunbounce, testskies
 from bake.dome import Dome
 from bake.downloads import download_bytes
 from bake.errors import BakeError
@@ -93,7 +93,7 @@ class Compressor:
         to call from several threads at once (each with its own stacks)."""
         try:
             if self.cluster is None:
-                results = compress.compress_stacks(
+                results = stackkinds.compress_stacks(
                     images, prefix, staging, self.skies, self.S, self.S_inv, self.selection,
                     self.settings,
                 )

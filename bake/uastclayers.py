@@ -1,7 +1,7 @@
 """A stack's base layers encoded in UASTC once, for every ETC1S split that is tried.
 
 A stack judged by its RMS error alone is tried with its ETC1S array starting at one layer,
-then the next, ... (bake.compress.compress_rms_stack): each try had encoded and decoded its
+then the next, ... (bake.stackkinds.compress_rms_stack): each try had encoded and decoded its
 UASTC layers again, coarse and every candidate refinement, though only the ETC1S array
 (one codebook for its layers) differs between tries. UASTC encodes each 4 x 4 block on its
 own (no rate-distortion optimization here), so a layer decodes to the same bytes whatever

@@ -40,7 +40,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from bake import compress  # noqa: E402
+from bake import compress, stackkinds  # noqa: E402
 from bake.downloads import download_bytes  # noqa: E402
 from bake.evaluate import Build  # noqa: E402
 from bake.pipeline import bake  # noqa: E402
@@ -137,7 +137,7 @@ def etc1s_comparison(build_dir: Path) -> list[dict]:
             stacks = {name: build.stack(entry["id"], name) for name in entry["stacks"]}
             started = time.perf_counter()
             skies, S, S_inv, selection = contexts[entry in m["views"]]
-            results = compress.compress_stacks(stacks, entry["id"], tmp, skies, S, S_inv,
+            results = stackkinds.compress_stacks(stacks, entry["id"], tmp, skies, S, S_inv,
                                                selection, settings)
             seconds = time.perf_counter() - started
             for name, r in results:

@@ -63,12 +63,12 @@ def _wrap(module, name: str, label) -> None:
 
 
 def _instrument() -> None:
-    from bake import compress, pipeline, sunbounce, writers
+    from bake import pipeline, stackkinds, sunbounce, writers
 
     _wrap(writers, "_assemble", lambda a, stack, *r: f"assemble {a.id}.{stack}")
     _wrap(writers, "_write_master", lambda path, store: f"master {Path(path).name}")
-    _wrap(compress, "compress_ratio_pair", lambda I, d, names, *r, **k: f"pair {names[1]}")
-    _wrap(compress, "compress_rms_stack", lambda image, name, *r, **k: f"rms {name}")
+    _wrap(stackkinds, "compress_ratio_pair", lambda I, d, names, *r, **k: f"pair {names[1]}")
+    _wrap(stackkinds, "compress_rms_stack", lambda image, name, *r, **k: f"rms {name}")
     _wrap(sunbounce, "compress_sun_bounce", lambda image, name, *r, **k: f"sun {name}")
     _wrap(pipeline, "write_view", lambda view, *r, **k: f"view {view.name}")
 

@@ -35,6 +35,7 @@ import bake.lowrank as lowrank  # noqa: E402
 import bake.pipeline as pipeline  # noqa: E402
 import bake.quantize as quantize  # noqa: E402
 import bake.refinement as refinement  # noqa: E402
+import bake.stackkinds as stackkinds  # noqa: E402
 import bake.sunbounce as sunbounce  # noqa: E402
 import bake.tracework as tracework  # noqa: E402
 import bake.writers as writers  # noqa: E402
@@ -109,9 +110,10 @@ def instrument() -> None:
     _wrap(contact, "continue_into_buried", writers)
     _wrap(writers.SunBounce, "image")
     _wrap(tracework.TracedResults, "load")
-    for name in ("compress_stack", "compress_rms_stack", "compress_ratio_pair",
-                 "_record_errors"):
-        _wrap(compress, name)
+    for name in ("compress_stack", "record_errors"):
+        _wrap(compress, name, stackkinds)
+    for name in ("compress_rms_stack", "compress_ratio_pair"):
+        _wrap(stackkinds, name)
     _wrap(sunbounce, "compress_sun_bounce")
     _wrap(writers, "write_atlas", pipeline)
     _wrap(writers, "write_view", pipeline)

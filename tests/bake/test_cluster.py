@@ -20,9 +20,9 @@ import pytest
 from bake import (
     basisu,
     chunkio,
-    compress,
     compressjobs,
     ktx2decoder,
+    stackkinds,
     sunbounce,
     tracework,
 )
@@ -77,7 +77,7 @@ def test_a_cluster_bake_writes_the_same_bytes_as_the_local_pool(
         raise AssertionError("compressed in the baking process, not on a worker")
 
     # The workers (other processes) compress; the baking process only writes their bytes.
-    monkeypatch.setattr(compress, "compress_stacks", not_here)
+    monkeypatch.setattr(stackkinds, "compress_stacks", not_here)
     monkeypatch.setattr(sunbounce, "compress_sun_bounce", not_here)
     from distributed import Client
 

@@ -24,6 +24,7 @@ from bake import (
     lowrank,
     quantize,
     refinement,
+    stackkinds,
     testskies,
 )
 from bake.evaluate import Build
@@ -122,7 +123,7 @@ def test_light_images_are_in_dome_order(build, tmp_path):
         selectable=build.selection.selectable, sun_in_patch=True,
     )
     master = build.stack(view, "O")
-    [(_, result)] = compress.compress_stacks(
+    [(_, result)] = stackkinds.compress_stacks(
         {"O": master}, "check", tmp_path, skies, S, S_inv, selection,
         compress.Settings(selected_lights=1),
     )
@@ -168,7 +169,7 @@ def test_ktx2_files_parse_with_an_independent_reader(build):
         if "d" in entry["stacks"]:  # a shadowing pair: ETC1S from layer 8
             assert tail == tail_from(settings.etc1s_from_layer, k), (atlas, name)
         else:  # judged by RMS: from layer 4, 5, ... or 8, or none if over the budget
-            tries = compress.rms_etc1s_tries(settings)
+            tries = stackkinds.rms_etc1s_tries(settings)
             assert tries == [4, 5, 6, 7, 8, None]
             assert tail in {tail_from(j0, k) for j0 in tries}, (atlas, name)
         files.append(build.dir / compact["ktx2"])
@@ -681,12 +682,12 @@ def test_a_stack_judged_by_rms_falls_back_to_uastc_when_etc1s_is_over_budget(bui
     )
     image = build.stack("lightmap", "I")
     strict = compress.Settings(selected_lights=0, budget=1e-5)
-    result = compress.compress_rms_stack(
+    result = stackkinds.compress_rms_stack(
         image, "strict.I", tmp_path, skies, S, S_inv, selection, strict)
     assert "etc1s" not in result.entry and result.entry["error"]["max"] > 1e-5
     assert not (tmp_path / "ktx2" / "strict.I.etc1s.ktx2").exists()
     assert len(result.entry["layers"]) >= result.entry["k"]
-    loose = compress.compress_rms_stack(
+    loose = stackkinds.compress_rms_stack(
         image, "loose.I", tmp_path, skies, S, S_inv, selection,
         compress.Settings(selected_lights=0))
     k = loose.entry["k"]
@@ -719,7 +720,7 @@ def test_a_stack_judged_by_rms_keeps_the_first_etc1s_split_within_the_budget(
     # first within the budget: what the tries must keep (since 2026-12-05 they share one
     # UASTC encoding inside one compress_stack, bake.uastclayers).
     alone = {}
-    for j0 in compress.rms_etc1s_tries(settings):
+    for j0 in stackkinds.rms_etc1s_tries(settings):
         alone[j0] = compress.compress_stack(
             image, f"alone{j0}.I", tmp_path, skies, S, S_inv, selection,
             dataclasses.replace(settings, budget=budget, etc1s_from_layer=j0),
@@ -730,7 +731,7 @@ def test_a_stack_judged_by_rms_keeps_the_first_etc1s_split_within_the_budget(
     assert alone[4] == pytest.approx(from4.entry["error"]["max"], rel=1e-3)
     assert all(alone[j0] > budget for j0 in before)  # each try before was over
     assert alone[last] <= budget and last != 4  # a later split is within the budget
-    result = compress.compress_rms_stack(
+    result = stackkinds.compress_rms_stack(
         image, "chain.I", tmp_path, skies, S, S_inv, selection,
         dataclasses.replace(settings, budget=budget))
     k = result.entry["k"]

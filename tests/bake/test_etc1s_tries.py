@@ -16,7 +16,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from bake import compress, testskies
+from bake import compress, stackkinds, testskies
 from bake.basisu import encode
 from bake.compact_reader import CompactReader
 from bake.dome import Dome
@@ -111,7 +111,7 @@ def test_the_tried_splits_write_the_first_split_within_budget(case):
     the manifest entry the same as that split's alone, and its composite within the budget
     of the master's under skies that chose nothing."""
     settings = case["settings"]
-    tries = compress.rms_etc1s_tries(replace(settings, rms_etc1s_from_layer=4))
+    tries = stackkinds.rms_etc1s_tries(replace(settings, rms_etc1s_from_layer=4))
     assert tries == [4, 5, 6, 7, 8, None]
     probe = 0.002
     errors = {j0: _alone(case, j0, probe)[0].entry["error"]["max"] for j0 in tries}

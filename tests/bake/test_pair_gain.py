@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bake import compress, lowrank, testskies
+from bake import compress, lowrank, stackkinds, testskies
 from bake.compact_reader import CompactReader
 from bake.dome import Dome
 
@@ -78,7 +78,7 @@ def pair(tmp_path_factory):
     skies, S, S_inv, selection = compress.prepare(
         SITE, dome.vertices, dome.solid_angles_sr, 0, selectable=selectable
     )
-    delta_stack, d_stack = compress.compress_ratio_pair(
+    delta_stack, d_stack = stackkinds.compress_ratio_pair(
         I.copy(), d.copy(), ("ground.I", "ground.d"), out, skies, S, S_inv, selection,
         compress.Settings(selected_lights=0),
     )

@@ -2,7 +2,7 @@
 of lights (bake.writers.LIGHT_BLOCK), its bounce fitted within each surface by blocks of
 channels (bake.denoise.FIT_BYTES), into the same bytes as made whole; a shadowing pair
 lets go of its whole (H, W, n, 3) stacks once their valid texels are gathered, before any
-encoding (bake.compress.compress_stacks); and a stack on disk is written (its compact pair,
+encoding (bake.stackkinds.compress_stacks); and a stack on disk is written (its compact pair,
 its EXR master, its sun-bounce images) holding far less than its lights x texels
 (bake.rowstore)."""
 
@@ -15,7 +15,7 @@ import weakref
 import numpy as np
 import pytest
 
-from bake import compress, denoise, writers
+from bake import compress, denoise, stackkinds, writers
 from bake.evaluate import Build
 from bake.pipeline import bake
 from tests.buildfiles import build_files
@@ -90,7 +90,7 @@ def test_a_shadowing_pair_lets_go_of_its_whole_stacks_before_encoding(whole, tmp
 
     monkeypatch.setattr(compress, "compress_stack", first_encoding)
     with pytest.raises(StopError):
-        compress.compress_stacks(images, "hull", tmp_path, skies, S, S_inv, selection,
+        stackkinds.compress_stacks(images, "hull", tmp_path, skies, S, S_inv, selection,
                                  compress.Settings())
     # By the first encoding the caller's dict is empty and neither whole stack is alive:
     # the pair's spectra (its valid texels, normalized) are all that is held of them.
@@ -192,7 +192,7 @@ def test_writing_a_stack_holds_far_less_than_its_lights_x_texels(tmp_path, monke
     results = {}
 
     def pair():
-        results["pair"] = compress.compress_stacks(
+        results["pair"] = stackkinds.compress_stacks(
             dict(maps), "hull", out, skies, S, S_inv, selection, compress.Settings()
         )
 
