@@ -165,7 +165,7 @@ def continued_labels(labels: np.ndarray, rings: int = RINGS) -> np.ndarray:
     return out
 
 
-def move_buried_samples(atlas, scene) -> None:
+def move_buried_samples(atlas, scene, overlaps: bool = True) -> None:
     """Move the sample points of buried texels next to visible ones onto the contact line
     (step 1 of the module's method); sets ``atlas.contact`` for :func:`extrapolate_direct`.
 
@@ -173,6 +173,8 @@ def move_buried_samples(atlas, scene) -> None:
     ----------
     atlas : bake.receivers.Atlas, its ``points`` (T, 3) changed in place for the moved texels
     scene : bake.raytrace.RayScene with everything that can bury a texel (configuration all)
+    overlaps : also find texels buried under overlapping solids (``MOST_BACK`` and the
+        crossing count); False: only texels all of whose probe rays meet back faces
 
     ``atlas.contact``: ``{"texel": (m,) int, "neighbour": (m,) int, "extrapolation": (m,)
     float}``: the moved texels, the visible neighbour each was moved toward, and
@@ -207,7 +209,7 @@ def move_buried_samples(atlas, scene) -> None:
     # foot for buried (solid_depth), so it only decides where MOST_BACK rays met back faces
     # (a texel centred on an edge between two solids meets about half).
     doubt = np.flatnonzero((back_count >= MOST_BACK) & ~buried)
-    if len(doubt):
+    if overlaps and len(doubt):
         buried[doubt] = buried_points(scene, points[doubt], normals[doubt])
     if not buried.any():
         return
