@@ -88,7 +88,7 @@ def test_a_shadowing_pair_lets_go_of_its_whole_stacks_before_encoding(whole, tmp
         seen.append((image, {name: ref() is not None for name, ref in alive.items()}))
         raise StopError
 
-    monkeypatch.setattr(compress, "compress_stack", first_encoding)
+    monkeypatch.setattr(stackkinds, "compress_stack", first_encoding)
     with pytest.raises(StopError):
         stackkinds.compress_stacks(images, "hull", tmp_path, skies, S, S_inv, selection,
                                  compress.Settings())
