@@ -399,6 +399,9 @@ def _run_units(units: list, at_once: int) -> list:
                 raise
     finally:
         close_decoders()
+        # every unit has stopped: encoding in this process may run again (a failed bake
+        # left it stopped, and the next compression outside a bake failed at once)
+        basisu.allow_encoding()
 
 
 def _check_output(out_dir: Path) -> None:

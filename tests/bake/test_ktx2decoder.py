@@ -185,3 +185,6 @@ def test_a_failing_bake_leaves_no_decoder_running(tmp_path, fresh, monkeypatch):
     assert fresh and all(d.process.returncode is not None for d in fresh)
     assert _running_decoders() == [] and ktx2decoder._idle == []
     assert not (tmp_path / "build").exists()  # nothing half-written in place
+    # and the process can encode again (the stop the failure raised is lifted once the
+    # write stage's units have stopped: a compression after it failed at once before)
+    basisu.check_not_stopped()
