@@ -208,9 +208,10 @@ def move_buried_samples(atlas, scene, overlaps: bool = True) -> None:
     # which counts overlapping solids right; alone it took a visible texel at the demo's hall
     # foot for buried (solid_depth), so it only decides where MOST_BACK rays met back faces
     # (a texel centred on an edge between two solids meets about half).
-    doubt = np.flatnonzero((back_count >= MOST_BACK) & ~buried)
-    if overlaps and len(doubt):
-        buried[doubt] = buried_points(scene, points[doubt], normals[doubt])
+    if overlaps:
+        doubt = np.flatnonzero((back_count >= MOST_BACK) & ~buried)
+        if len(doubt):
+            buried[doubt] = buried_points(scene, points[doubt], normals[doubt])
     if not buried.any():
         return
     index = np.full((atlas.height, atlas.width), -1, np.int64)
