@@ -1,6 +1,7 @@
 """The detector on held-out sequences (heldout.py: a camera model other than the detector's),
-512x256, against the generator's exact person and shadow masks; issue 18's goals where they
-are met at this size, the level reached where they are not (docs/occlusion.md)."""
+against the generator's exact person and shadow masks: issue 18's goals in every condition at
+1024x512, the size they are asked at; at 512x256 the goals where they are met at that size,
+the level reached where they are not (docs/occlusion.md)."""
 
 from __future__ import annotations
 
@@ -56,7 +57,7 @@ def _run(name: str, w: int = W, h: int = H):
 
 
 @pytest.mark.parametrize("name", list(GOALS))
-def test_people_without_their_shadows_on_heldout_frames(name):
+def test_people_without_their_shadows_at_half_size(name):
     iou_min, kept_max = GOALS[name]
     ious, phantoms, shadow, kept = _run(name)
     assert len(ious) >= 40 and len(phantoms) >= 5
@@ -66,13 +67,16 @@ def test_people_without_their_shadows_on_heldout_frames(name):
     assert phantoms == [0] * len(phantoms)
 
 
-@pytest.mark.parametrize("name", ["video H.264", "all at once, H.264"])
-def test_people_without_their_shadows_in_h264_as_a_site_camera_streams_it(name):
-    """H.264 as an IP camera streams it live (libx264 crf 28, 4:2:0, no B-frames; heldout.py),
-    decoded by OpenCV's FFmpeg as the server decodes RTSP, alone and with the noise, cloud
-    and shake of "all at once": issue 18's goals at 1024x512, the size they are asked at.
-    (With x264's default B-frames, which live cameras leave off for latency, the frame before
-    a walker enters carried a 34 px ghost of him.)"""
+@pytest.mark.parametrize("name", list(CONDITIONS))
+def test_issue_18s_goals_in_every_condition_at_1024x512(name):
+    """Issue 18's goals at the size they are asked at (the server's default ``max_width`` for
+    occlusion is 1024), in every held-out condition: person IoU at least 0.9 (median over the
+    frames with people), at most 10 % of the cast-shadow area kept, no phantom region in the
+    empty frames. Measured 2026-12-05: IoU 0.914 (all at once, H.264) to 0.987, shadow kept
+    0.0-1.6 %. H.264 is as an IP camera streams it live (libx264 crf 28, 4:2:0, no B-frames;
+    heldout.py), decoded by OpenCV's FFmpeg as the server decodes RTSP. (With x264's default
+    B-frames, which live cameras leave off for latency, the frame before a walker enters
+    carried a 34 px ghost of him.)"""
     ious, phantoms, shadow, kept = _run(name, 2 * W, 2 * H)
     assert len(ious) >= 40 and len(phantoms) >= 5
     assert shadow > 20000
