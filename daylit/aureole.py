@@ -148,38 +148,52 @@ class AureoleFit:
 
 
 GRID_FALLOFFS = tuple(np.round(np.arange(-6.0, -0.95, 0.1), 2))  # d, 1/rad
-GRID_GRADATION_B = tuple(np.round(np.arange(-1.0, -0.09, 0.05), 2))
+# b every 0.05 from -1 to -0.1, and the CIE clear sky's -0.32.
+GRID_GRADATION_B = tuple(sorted(set(np.round(np.arange(-1.0, -0.09, 0.05), 2)) | {-0.32}))
 
 
-def shape_grid(falloffs=GRID_FALLOFFS, gradation_b=GRID_GRADATION_B,
-               gradation_a: float = -1.0) -> list[AureoleShape]:
-    """Candidate shapes for :func:`fit`: every fall-off ``d`` with every gradation ``b`` (the
-    CIE clear skies' ``a = -1``; their ``b`` is -0.15 to -0.55, Perez's gendaylit skies
-    -0.2 to -0.6)."""
-    return [AureoleShape(float(d), (gradation_a, float(b))) for d in falloffs
-            for b in gradation_b]
+def shape_grid(falloffs=GRID_FALLOFFS, gradation_b=GRID_GRADATION_B) -> list[AureoleShape]:
+    """Candidate shapes for :func:`fit`: every fall-off ``d`` with every gradation ``b`` at
+    ``a = -1`` (the CIE clear and intermediate skies: ``b`` -0.15 to -0.55; Perez's gendaylit
+    skies about -0.2 to -0.6) and with no gradation (``a = 0``: CIE types 5-8)."""
+    return [AureoleShape(float(d), (-1.0, float(b))) for d in falloffs for b in gradation_b] + [
+        AureoleShape(float(d), (0.0, -1.0)) for d in falloffs]
 
 
 def fit(image, sun_dir, shapes=(AureoleShape(),), chi_deg=FIT_CHI_DEG,
         min_elevation_deg: float = FIT_MIN_ELEVATION_DEG) -> AureoleFit:
-    """Fit ``A`` from a sky map's pixels between ``chi_deg[0]`` and ``chi_deg[1]`` degrees from
-    the sun and at least ``min_elevation_deg`` up (the disc and the pixels the server fills in
-    for it left out; near the horizon a sky is hazy and a camera sees obstacles).
+    """:func:`fit_samples` over every pixel of a daylit equirectangular sky map."""
+    image = np.asarray(image, dtype=np.float64)
+    dirs, sr = equirect_directions(image.shape[0])
+    return fit_samples(dirs.reshape(-1, 3), image.reshape(-1, 3), sr.reshape(-1), sun_dir,
+                       shapes, chi_deg, min_elevation_deg)
+
+
+def fit_samples(dirs, radiance_rgb, solid_angle_sr, sun_dir, shapes=(AureoleShape(),),
+                chi_deg=FIT_CHI_DEG, min_elevation_deg: float = FIT_MIN_ELEVATION_DEG
+                ) -> AureoleFit:
+    """Fit ``A`` from sky samples (a map's pixels, a camera's unclipped pixels): unit
+    directions ``dirs`` (m, 3), linear radiance ``radiance_rgb`` (m, 3) W/(m^2 sr) and each
+    sample's solid angle (m,) sr. Only samples between ``chi_deg[0]`` and ``chi_deg[1]``
+    degrees from the sun and at least ``min_elevation_deg`` up count (the disc and the pixels
+    the server fills in for it left out; near the horizon a sky is hazy and a camera sees
+    obstacles); leave clipped pixels out of the samples.
 
     Per channel, least squares weighted by solid angle of
     ``L = A k phi/phi_s + B0 phi/phi_s + B1 phi/phi_s cos^2 chi`` (the rest of a CIE
     indicatrix, ``1 + e cos^2 chi``, as background), ``A`` kept >= 0, for each of ``shapes``
     (e.g. :func:`shape_grid`); the shape with the least residual (green channel) is kept.
     """
-    image = np.asarray(image, dtype=np.float64)
+    dirs = np.asarray(dirs, dtype=np.float64)
+    values = np.asarray(radiance_rgb, dtype=np.float64)
+    sr = np.asarray(solid_angle_sr, dtype=np.float64)
     s = _unit(sun_dir)
-    dirs, sr = equirect_directions(image.shape[0])
     chi = np.degrees(np.arccos(np.clip(dirs @ s, -1.0, 1.0)))
     keep = (chi >= chi_deg[0]) & (chi <= chi_deg[1])
-    keep &= dirs[..., 1] > max(np.sin(np.radians(min_elevation_deg)), 0.0)
+    keep &= dirs[:, 1] > max(np.sin(np.radians(min_elevation_deg)), 0.0)
     if keep.sum() < 16:
-        raise ValueError(f"too few sky pixels {chi_deg} degrees from the sun to fit its aureole")
-    d, w, y = dirs[keep], np.sqrt(sr[keep]), image[keep]
+        raise ValueError(f"too few sky samples {chi_deg} degrees from the sun to fit its aureole")
+    d, w, y = dirs[keep], np.sqrt(sr[keep]), values[keep]
     mean = float(np.sum(y[:, 1] * sr[keep]) / np.sum(sr[keep]))
     best = None
     for shape in shapes:

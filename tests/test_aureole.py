@@ -44,20 +44,22 @@ def test_irradiance_against_an_equirectangular_quadrature(az_el):
                                                                              rel=2e-3)
 
 
-def cie_clear_map(az, el, height=360, zenith=30.0):
-    """A CIE standard clear sky (type 12) as a grey equirectangular map, from daylit.sky."""
-    sky = CIESky(sky_type=12, sun_azimuth_deg=az, sun_elevation_deg=el)
+def cie_map(az, el, sky_type=12, height=360, zenith=30.0):
+    """A CIE general sky (type 12: the standard clear sky) as a grey equirectangular map, from
+    daylit.sky."""
+    sky = CIESky(sky_type=sky_type, sun_azimuth_deg=az, sun_elevation_deg=el)
     dirs, _ = aureole.equirect_directions(height)
     rel = sky.relative_luminance(dirs.reshape(-1, 3)).reshape(dirs.shape[:2])
     rel[dirs[..., 1] <= 0.0] = 0.0
     return zenith * np.repeat(rel[..., None], 3, axis=2), sky
 
 
-@pytest.mark.parametrize("az_el", [(237.0, 26.6), (133.4, 44.7), (200.0, 60.0)])
-def test_fit_recovers_the_cie_clear_skys_circumsolar_term(az_el):
+@pytest.mark.parametrize("sky_type,az_el", [(12, (237.0, 26.6)), (12, (133.4, 44.7)),
+                                             (12, (200.0, 60.0)), (7, (150.0, 35.0))])
+def test_fit_recovers_a_cie_skys_circumsolar_term(sky_type, az_el):
     zenith = 30.0
-    image, sky = cie_clear_map(*az_el, zenith=zenith)
-    a, b, c, d, e = CIE_SKY_TYPES[12]
+    image, sky = cie_map(*az_el, sky_type=sky_type, zenith=zenith)
+    a, b, c, d, e = CIE_SKY_TYPES[sky_type]
     z_sun = math.radians(90.0 - az_el[1])
     f_sun = 1 + c * (math.exp(d * z_sun) - math.exp(d * math.pi / 2)) + e * math.cos(z_sun) ** 2
     phi_sun = 1 + a * math.exp(b / math.cos(z_sun))
@@ -65,23 +67,24 @@ def test_fit_recovers_the_cie_clear_skys_circumsolar_term(az_el):
     # The CIE term c (exp(d chi) - exp(d pi/2)) phi(Z) / (f(Z_s) phi(0)) at the sun's centre.
     want = zenith * c * (1 - math.exp(d * math.pi / 2)) * phi_sun / (f_sun * phi_zenith)
     s = direction_from_azimuth_elevation(*az_el)
-    got = aureole.fit(image, s)
+    got = aureole.fit(image, s, [aureole.AureoleShape(d, (a, b))])
     assert got.amplitude == pytest.approx(np.full(3, want), rel=1e-6)
     assert got.rms_rel < 1e-6
-    # The shape fitted on a grid finds the CIE clear sky's d = -3 and b = -0.32.
-    shapes = aureole.shape_grid(np.arange(-5.0, -1.05, 0.25), np.arange(-0.6, -0.09, 0.04))
-    found = aureole.fit(image, s, shapes).shape
-    assert found.falloff == pytest.approx(d) and found.gradation[1] == pytest.approx(b)
+    # The shape fitted on the grid finds the sky's own (clear: d = -3, a = -1, b = -0.32;
+    # type 7: d = -2.5, no gradation).
+    found = aureole.fit(image, s, aureole.shape_grid()).shape
+    assert found.falloff == pytest.approx(d)
+    assert found.gradation[0] == a and (a == 0 or found.gradation[1] == pytest.approx(b))
     # Subtracted, what is left within 90 degrees of the sun is the CIE sky without its term:
     # (1 + e cos^2 chi) phi(Z) / (f(Z_s) phi(0)) times the zenith radiance.
-    rest = aureole.subtract(image, s, got.amplitude)
+    rest = aureole.subtract(image, s, got.amplitude, got.shape)
     dirs, _ = aureole.equirect_directions(image.shape[0])
     chi = np.arccos(np.clip(dirs @ s, -1, 1))
     keep = (chi < np.pi / 2 - 0.01) & (dirs[..., 1] > 0.01)
     phi = 1 + a * np.exp(b / dirs[..., 1][keep])
     without = zenith * (1 + e * np.cos(chi[keep]) ** 2) * phi / (f_sun * phi_zenith)
     assert np.allclose(rest[keep][:, 1], without, rtol=1e-6)
-    assert np.all(aureole.overshoot(image, s, got.amplitude) < 1e-9)
+    assert np.all(aureole.overshoot(image, s, got.amplitude, got.shape) < 1e-9)
 
 
 def test_no_aureole_below_the_horizon_or_beyond_90_degrees():
