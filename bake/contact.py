@@ -181,7 +181,7 @@ def move_buried_samples(atlas, scene, overlaps: bool = True) -> None:
     ``|o - b| / |o - c|`` (at least 1).
     """
     from bake import tracing_loops as loops
-    from bake.irradiance import lattice
+    from bake.cachepoints import lattice
     from bake.raytrace import RAY_OFFSET_M
 
     empty = {"texel": np.zeros(0, np.int64), "neighbour": np.zeros(0, np.int64),
@@ -354,7 +354,7 @@ def buried_points(scene, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
     not depend on the direction it is probed in, and a downward ray meets the ground (an
     open surface) and a part's underside on it in one place, either first."""
     from bake import tracing_loops as loops
-    from bake.irradiance import lattice
+    from bake.cachepoints import lattice
     from bake.raytrace import RAY_OFFSET_M
 
     m = len(points)
@@ -450,7 +450,7 @@ def _closed_in(scene, points: np.ndarray, normals: np.ndarray, range_m: float) -
     """(m,) bool: at least :data:`CLOSED_SHARE` of :data:`PROBE_RAYS` cosine-weighted rays
     from each point (m, 3) about its normal (m, 3) hit a surface within ``range_m``."""
     from bake import tracing_loops as loops
-    from bake.irradiance import lattice
+    from bake.cachepoints import lattice
     from bake.raytrace import RAY_OFFSET_M
 
     m = len(points)

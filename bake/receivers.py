@@ -292,8 +292,8 @@ def drop_buried(receivers: list[Receiver], scene, probes: int = 9, rays: int = 2
     point lies does not depend on the direction it is probed in.
     """
     from bake import tracing_loops as loops
+    from bake.cachepoints import lattice
     from bake.contact import solid_depth
-    from bake.irradiance import lattice
     from bake.raytrace import RAY_OFFSET_M
 
     uv = lattice(rays)

@@ -22,12 +22,12 @@ import numpy as np
 from tqdm import tqdm
 
 from bake import chunkio, contact
+from bake.cachepoints import cache_points
 from bake.irradiance import (
     BounceCache,
     Estimator,
     SceneSet,
     cache_bounces,
-    cache_points,
     write_shared_cache,
 )
 from bake.raytrace import RayScene

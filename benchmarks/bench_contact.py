@@ -164,8 +164,9 @@ def methods_on_the_analytic_wall() -> None:
 
 def demo_bounces() -> None:
     """Measurements 2 (the demo's added work) and 3 (the default)."""
+    from bake.cachepoints import cache_points
     from bake.dome import Dome
-    from bake.irradiance import BounceCache, Estimator, SceneSet, cache_bounces, cache_points
+    from bake.irradiance import BounceCache, Estimator, SceneSet, cache_bounces
     from bake.pipeline import _site_geometry
     from bake.scene import load_site
 

@@ -14,13 +14,13 @@ import numpy as np
 import pytest
 import trimesh
 
+from bake.cachepoints import cache_points
 from bake.dome import Dome
 from bake.irradiance import (
     BounceCache,
     Estimator,
     SceneSet,
     cache_bounces,
-    cache_points,
     write_shared_cache,
 )
 from bake.raytrace import Geometry

@@ -168,8 +168,8 @@ def test_the_bounce_cache_is_refined_at_contact_lines_outside_every_solid():
     reach (0.25 m spacing: within 0.18 m), where before the nearest lay up to about a metre
     out, in brighter light. The added points lie outside both walls by trimesh's
     point-in-mesh test (``contains``), and only near contact lines."""
+    from bake.cachepoints import cache_points
     from bake.contact import CACHE_REFINE, refine_cache
-    from bake.irradiance import cache_points
     from bake.raytrace import RayScene
     from tests.bake.test_contact import _courtyard
 
@@ -216,8 +216,9 @@ def test_no_direct_light_reaches_cache_points_inside_solids_as_trimesh_finds_the
     horizon whose samples all fell below it counted as unblocked (its exact, tiny value:
     about 0.001), and 37 of the 152 points inside read lit. Points outside change by at
     most 0.05 % of their total (those patches' own value)."""
+    from bake.cachepoints import cache_points
     from bake.dome import Dome
-    from bake.irradiance import Estimator, SceneSet, cache_points
+    from bake.irradiance import Estimator, SceneSet
     from tests.bake.test_contact import _courtyard
     from tests.sites import box
 
