@@ -365,11 +365,16 @@ export class PhoneEstimator {
     const sunlit = rows.filter((i) => terms[i].cosI > 0.05).length;
     let type = 12;
     let fit = null;
-    for (let iteration = 0; iteration < 3; iteration++) {
+    let settled = false;
+    for (let iteration = 0; iteration < 3 && !settled; iteration++) {
       fit = this._fit(type, rows, values, sun, sunlit);
       const next = skyTypeForRatio(luma(fit.sun) / Math.max(luma(fit.sky), 1e-12), sun[1]);
-      if (next === type) break;
+      settled = next === type;
       type = next;
+    }
+    if (!settled) {
+      this.last = null;
+      return null;
     }
     // The sky model's errors read as sun; the shadow edges alone say whether there is one
     // (shadowpairs.js; the server's pair_floor)
