@@ -344,7 +344,9 @@ export class PhoneEstimator {
    *   registration's [dx, dy], pixels of the copy), turnDeg (the camera's turn that puts the
    *   model on the picture: [left, up], degrees), fisher, fisherAtZero, pairs (the pose's
    *   shadow-edge pairs), pairRatio (the sun they read over the sky; null: no check)}; null
-   *   when the picture has too few usable pixels of known surfaces, or too few in shadow
+   *   when the picture has too few usable pixels of known surfaces, or too few in shadow, or
+   *   when the sky's type does not settle (the last fit's ratio gives another type: no shape
+   *   is borne out, the sun cannot be told from the sky)
    */
   estimate(rgba, w, h, camera, sun) {
     const shift = this.register(rgba, w, h, camera, sun);
