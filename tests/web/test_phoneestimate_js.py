@@ -182,3 +182,43 @@ def test_the_phone_pool_s_sun_share_and_pairs_against_python():
     assert {i for i, _ in js} == {i for i, _ in py}  # the same shaded patches pair
     print("pool", len(s), "partly", int(partly.sum()), "pairs", len(js), len(py), len(js ^ py))
     assert len(js ^ py) <= 0.1 * len(py), (len(js), len(py), len(js ^ py))
+
+
+def test_the_registration_takes_no_split_that_puts_shade_on_brighter_pixels():
+    """poseregister.js on a picture made here (the demo's kiosk view at 9:30 in miniature): sunlit
+    ground (albedo 0.3) and a small wall (albedo 0.1) in shade, its shade textured (30 %
+    noise), the picture shifted 3 px right and 1 down from the model. Shifted 19 px or more
+    sideways, the wall's pool pixels read the even sunlit ground, which per albedo is three
+    times brighter than the ground's own: a split far cleaner (Fisher's ratio about 1500) than
+    the true one (about 50), and the wrong way round, the model's shade brighter than its sun.
+    The registration must find the true shift; on main it took the far one (the kiosk view's
+    estimates then read sunlit ground for shade and dropped the sun). A flat grey picture (no
+    sun) splits only the wrong way at every shift: no shift is taken."""
+    from tests.radiance_frames import srgb_encode
+
+    rng = np.random.default_rng(3)
+    w, h = 192, 108
+    true_shift = (3, 1)
+    ground = [{"x": int(x), "y": int(y), "albedo": [0.3] * 3}
+              for x, y in zip(rng.integers(2, w - 2, 1500), rng.integers(60, h - 2, 1500),
+                              strict=True)]
+    wall = [{"x": x, "y": y, "albedo": [0.1] * 3} for x in range(80, 96) for y in range(20, 51, 2)]
+    pool = ground + wall
+    lit = [True] * len(ground) + [False] * len(wall)
+    linear = np.full((h, w), 0.5) * np.exp(rng.normal(0.0, 0.02, (h, w)))  # sunlit ground
+    shade = (slice(20 + true_shift[1], 51 + true_shift[1]),
+             slice(80 + true_shift[0], 96 + true_shift[0]))
+    linear[shade] = 0.02 * np.exp(rng.normal(0.0, 0.3, linear[shade].shape))
+    grey = np.full((h, w), 0.2) * np.exp(rng.normal(0.0, 0.02, (h, w)))
+    cases = [{"codes": np.round(255 * srgb_encode(np.repeat(pic[..., None], 3, axis=2)))
+              .astype(int).ravel().tolist(), "w": w, "h": h, "pool": pool, "lit": lit,
+              "fovDeg": 60.0} for pic in (linear, grey)]
+    out = subprocess.run([node_path(), str(ROOT / "tests" / "web" / "poseregister_cases.mjs")],
+                         input=json.dumps(cases), capture_output=True, text=True, timeout=60,
+                         check=True)
+    sunny, flat = json.loads(out.stdout)
+    print("registrations", sunny, flat)
+    assert (sunny["dx"], sunny["dy"]) == true_shift, sunny
+    assert sunny["fisher"] > 8, sunny
+    assert (flat["dx"], flat["dy"]) == (0, 0) and flat["turnDeg"] == [0, 0], flat
+    assert not flat["fisher"] > 8, flat

@@ -345,7 +345,8 @@ def test_no_phantom_sun_under_the_demo_s_overcast(browser, web_build, tmp_path):
 # of north), which sees the ground, the tree and its shadow, one or two pixels high at the
 # copy's 108 rows at 14:30, and no other shade.
 KIOSK_POSE = ([16.0, 3.2, 52.0], (17.1, 91.9, 0.0))
-KIOSK_SKIES = [("clear-9.5", "9.5", 800.0, 80.0), ("clear-14.5", "14.5", 800.0, 80.0)]
+KIOSK_SKIES = [("clear-9.5", "9.5", 800.0, 80.0), ("clear-14.5", "14.5", 800.0, 80.0),
+               ("overcast-9.5", "9.5", 0.0, 150.0)]
 
 
 def test_a_thin_shadow_is_not_shade(browser, web_build, tmp_path):
@@ -353,20 +354,44 @@ def test_a_thin_shadow_is_not_shade(browser, web_build, tmp_path):
     tree's shadow is thinner than a patch, so no pixel of the copy is mostly shaded and the phone
     makes no estimate (the sky cannot be told from the sun; the last light stays). Before
     (2026-12-05) the three pixels whose centres fell in the shadow counted as shaded while they
-    read mostly sunlit ground: the sky read 112-158 % too bright and the sun 21-30 % too dim. At
-    9:30 the same view sees the building's shade (some 25 usable pixels mostly in shadow) and
-    the floor lets every estimate be made. (Not a goal met there: with so little shade two or
-    three of eight estimates drop the sun and read the sky ten times too bright, before these
-    changes too; docs/web.md.)"""
+    read mostly sunlit ground: the sky read 112-158 % too bright and the sun 21-30 % too dim.
+
+    At 9:30 the same view sees the building's shade (some 25 usable pixels mostly in shadow):
+    every estimate is made and none is wildly wrong, the sun and the sky each within 25 % (the
+    issue's phone goal; measured 2026-12-05: sun -1.4 to +2.2 %, sky -8.7 to +12.7 %), and each
+    is read where the pose's registration puts the picture within 3 px of the geometry's shift
+    (measured 1.9 px at worst: the registration's landscape is flat over so few shaded pixels).
+    On main three of eight dropped the sun and read the sky ten times too bright: at the true
+    pose the registration took a shift of 15 px that put the model's shaded pixels, of the
+    building's darker albedo, on sunlit ground, a split cleaner than the true one but the wrong
+    way round (poseregister.js: the model's shade read brighter per albedo than its sun).
+
+    Under the overcast sky at 9:30 the view cannot tell a sun from the sky: no estimate keeps
+    a sun of 5 % of the sky or more (the issue's overcast goal; measured: no estimate, the
+    sky's shape never settles). On main five of eight kept one of 37-41 %: the clear shape's
+    fit asked for the overcast one, whose fit (a sun of 95 % of the sky) asked for the
+    intermediate one, whose fit asked for the overcast one again, and the last was kept."""
     frames = pose_frames(browser, web_build, KIOSK_POSE, KIOSK_SKIES, tmp_path, server=False)
     got = _eight_estimates(browser, web_build, KIOSK_POSE, frames)
     err = {}
     for name, ests in got.items():
         rendered, exposure = frames[name]["rendered"], frames[name]["exposure"]
+        if rendered.dni_w_m2 == 0.0:
+            continue
         err[name] = [None if e is None else (
             round(float(LUMA @ np.asarray(e["sunNormal"])) / exposure / rendered.dni_w_m2 - 1, 3),
             round(float(LUMA @ np.asarray(e["skyHorizontal"])) / exposure / rendered.dhi_w_m2
                   - 1, 3)) for e in ests]
-    print("kiosk view: (sun, sky) error per estimate", err)
+    shifts = [None if e is None else (e["shiftPx"], np.round(
+        copy_shift_px(frames["clear-9.5"]["pose"], e), 1).tolist()) for e in got["clear-9.5"]]
+    print("kiosk view: (sun, sky) error per estimate", err, "9:30 shifts (read, geometry's)",
+          shifts, "overcast ratios", [None if e is None else round(e["ratio"], 3)
+                                      for e in got["overcast-9.5"]])
     assert all(e is None for e in got["clear-14.5"]), err
     assert all(e is not None for e in got["clear-9.5"]), err
+    overcast = [e for e in got["overcast-9.5"] if e is not None]
+    assert all(e["ratio"] < 0.05 for e in overcast), [e["ratio"] for e in overcast]
+    # Goal: no estimate wildly wrong, sun and sky each within 25 %
+    assert all(abs(sun) < 0.25 and abs(sky) < 0.25 for sun, sky in err["clear-9.5"]), err
+    for read, geometry in shifts:
+        np.testing.assert_allclose(read, geometry, atol=3.0, err_msg=str(shifts))

@@ -344,7 +344,9 @@ export class PhoneEstimator {
    *   registration's [dx, dy], pixels of the copy), turnDeg (the camera's turn that puts the
    *   model on the picture: [left, up], degrees), fisher, fisherAtZero, pairs (the pose's
    *   shadow-edge pairs), pairRatio (the sun they read over the sky; null: no check)}; null
-   *   when the picture has too few usable pixels of known surfaces, or too few in shadow
+   *   when the picture has too few usable pixels of known surfaces, or too few in shadow, or
+   *   when the sky's type does not settle (the last fit's ratio gives another type: no shape
+   *   is borne out, the sun cannot be told from the sky)
    */
   estimate(rgba, w, h, camera, sun) {
     const shift = this.register(rgba, w, h, camera, sun);
@@ -365,11 +367,16 @@ export class PhoneEstimator {
     const sunlit = rows.filter((i) => terms[i].cosI > 0.05).length;
     let type = 12;
     let fit = null;
-    for (let iteration = 0; iteration < 3; iteration++) {
+    let settled = false;
+    for (let iteration = 0; iteration < 3 && !settled; iteration++) {
       fit = this._fit(type, rows, values, sun, sunlit);
       const next = skyTypeForRatio(luma(fit.sun) / Math.max(luma(fit.sky), 1e-12), sun[1]);
-      if (next === type) break;
+      settled = next === type;
       type = next;
+    }
+    if (!settled) {
+      this.last = null;
+      return null;
     }
     // The sky model's errors read as sun; the shadow edges alone say whether there is one
     // (shadowpairs.js; the server's pair_floor)
