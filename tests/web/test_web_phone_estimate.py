@@ -80,7 +80,11 @@ def pose_frames(browser, build, pose, skies, tmp, server=True):
     grey = tmp / "grey.y4m"
     write_y4m(grey, np.full((RENDER[1], RENDER[0], 3), 120, np.uint8))
     standpoint, orientation = pose
-    with _open(browser, build, grey, "&sky=phone") as (page, _, errors):
+    # ?register=off: the pose the phone tells, not one a registration turned on the grey
+    # picture (a flat picture of surfaces of different albedo splits "sun" from "shade" on the
+    # albedos alone; from the first estimate after the orientation came, which the page makes
+    # at once now that none is made before it, the eye pose's view was turned 31 px)
+    with _open(browser, build, grey, "&sky=phone&register=off") as (page, _, errors):
         page.evaluate("(p) => window.daylit.debug.standAt(p)", standpoint)
         orient(page, *orientation)
         drawn = page.evaluate("window.daylit.debug.cameraPose()")
