@@ -222,3 +222,27 @@ def test_the_registration_takes_no_split_that_puts_shade_on_brighter_pixels():
     assert sunny["fisher"] > 8, sunny
     assert (flat["dx"], flat["dy"]) == (0, 0) and flat["turnDeg"] == [0, 0], flat
     assert not flat["fisher"] > 8, flat
+
+
+def test_nothing_is_read_or_registered_before_the_device_s_orientation():
+    """lightfeed.js with the real camera-view.js in Node (lightfeed_cases.mjs): camera mode's
+    first seconds, the picture's reader standing in with a registration that turns the view 12
+    degrees left and 4 up each time (what the kiosk view's picture asked of the level,
+    north-facing placeholder the view has before the first deviceorientation event). Until the
+    device's orientation comes (a null event, as from a phone without sensors, does not count)
+    no picture is read and the view is not turned, with ?sky=phone and under a server sky; the
+    first read after it is at the device's pose, no registered turn. On main five reads turned
+    the view to the registration's limits (15 and 5 degrees), turns kept once the orientation
+    came: the demo's kiosk view at 9:30 under the intermediate sky then read its first estimate
+    14 px off, the sun +32 % and the sky -39 % (docs/web.md)."""
+    case = {"manifest": {"scene": {"latitude_deg": 34.68, "longitude_deg": 135.8}, "views": []},
+            "time": "2026-10-15T09:30:00+09:00",
+            "orientation": {"alpha": 17.1, "beta": 91.9, "gamma": 0.0}}
+    out = subprocess.run([node_path(), str(ROOT / "tests" / "web" / "lightfeed_cases.mjs")],
+                         input=json.dumps(case), capture_output=True, text=True, timeout=60,
+                         check=True)
+    got = json.loads(out.stdout)
+    print(got)
+    for source in ("phone", "server"):
+        assert got[source]["before"] == {"reads": 0, "turnsDeg": [0, 0]}, got
+        assert got[source]["first"] == {"headingDeg": 0, "tiltDeg": 0}, got

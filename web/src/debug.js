@@ -267,7 +267,7 @@ export function debugApi(app) {
     /** The phone estimate's pose registration (poseregister.js) on or off: the benchmark's
      * baseline. Takes effect from the next estimate. */
     registerPose: (on) => {
-      app.feed.estimate(performance.now() / 1000, true); // the estimator exists
+      app.feed.phoneReader(); // the estimator exists (before the orientation too)
       app.feed.phoneEstimator.registerPose = !!on;
     },
     /** Mean milliseconds of n phone estimates (the pose held: the pose's registration, pixels

@@ -149,6 +149,16 @@ export class LightFeed {
     app.hud.setMessage(`No live sky (offline?): the light of ${when}, kept from the last visit.`, 'warn');
   }
 
+  /** Whether camera mode knows the device's orientation (its first deviceorientation event with
+   * angles came). Before it the view is a placeholder, level and facing north: a picture read
+   * there is not of that pose, and a registration there turned the view by the placeholder's
+   * error, a turn kept (and stored with the alignment) once the orientation came. So the phone
+   * neither estimates nor registers until it is known; a device that never tells it (no
+   * sensors, iOS's permission refused) gets neither. */
+  posed() {
+    return !!this.app.view?.orientation;
+  }
+
   /** The reader of camera mode's video (estimates, registrations), or null outside it. */
   phoneReader() {
     const app = this.app;
@@ -173,7 +183,7 @@ export class LightFeed {
    * ESTIMATE_PERIOD_S (force: now), and draw with it as with a server's vector
    * (phoneestimate.js). Returns the estimate, or null when none was made. */
   estimate(nowS, force = false) {
-    if (!this.phoneWanted(nowS) || !this.phoneReader()?.due(nowS, force)) return null; // the pose and sun only when it reads
+    if (!this.phoneWanted(nowS) || !this.posed() || !this.phoneReader()?.due(nowS, force)) return null; // the pose and sun only when it reads
     const app = this.app;
     app.view.update(); // the pose the picture is read with
     const sun = this.sunNow();
@@ -193,7 +203,7 @@ export class LightFeed {
    * fisher}), or null when none was made (not camera mode, the phone's own light, not due,
    * the sun down). */
   register(nowS, force = false) {
-    if (this.phoneWanted(nowS) || !this.phoneReader()?.due(nowS, force)) return null;
+    if (this.phoneWanted(nowS) || !this.posed() || !this.phoneReader()?.due(nowS, force)) return null;
     const app = this.app;
     app.view.update();
     const sun = this.sunNow();
