@@ -72,6 +72,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
+from daylit.envmap import pixel_directions  # noqa: E402
 from daylit.sky import SUN_ANGULAR_RADIUS_DEG, direction_from_azimuth_elevation  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -350,15 +351,9 @@ def sky_map(sky: Sky, work: Path, env: dict, height: int = SKY_MAP_HEIGHT) -> np
 def map_irradiance(image: np.ndarray, normal: np.ndarray) -> np.ndarray:
     """Irradiance (3,) from an equirectangular map's upper hemisphere on a surface with a
     site-frame normal: the check that the map's orientation is Radiance's."""
-    h, w = image.shape[:2]
-    el_edges = 90.0 - 180.0 * np.arange(h + 1) / h
-    el = 0.5 * (el_edges[:-1] + el_edges[1:])
-    az = 360.0 * (np.arange(w) + 0.5) / w
-    sr = (2 * np.pi / w) * (np.sin(np.radians(el_edges[:-1])) - np.sin(np.radians(el_edges[1:])))
-    E, A = np.meshgrid(el, az, indexing="ij")
-    d = direction_from_azimuth_elevation(A, E)
-    cos = np.maximum(0.0, d @ normal) * (E > 0)
-    return np.einsum("hw,hwc->c", cos * sr[:, None], image)
+    d, sr = pixel_directions(image.shape[0])
+    cos = np.maximum(0.0, d @ normal) * (d[..., 1] > 0)
+    return np.einsum("hw,hwc->c", cos * sr, image)
 
 
 # ------------------------------------------------------------------------------------------

@@ -30,7 +30,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from daylit.sky import direction_from_azimuth_elevation
+from daylit.envmap import pixel_directions
+from daylit.spherical import normalize
 
 CIE_CLEAR_FALLOFF = -3.0  # d, 1/rad (CIE types 11-14)
 CIE_CLEAR_GRADATION = (-1.0, -0.32)  # (a, b), CIE type 12
@@ -47,8 +48,7 @@ class AureoleShape:
 
 
 def _unit(v) -> np.ndarray:
-    v = np.asarray(v, dtype=np.float64)
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+    return normalize(np.asarray(v, dtype=np.float64))
 
 
 def _phi(cos_z, gradation) -> np.ndarray:
@@ -124,17 +124,6 @@ def normal_irradiance(sun_dir, amplitude, shape: AureoleShape = AureoleShape()) 
     return irradiance_vector(s, shape)[1] / s[1] * np.asarray(amplitude, dtype=np.float64)
 
 
-def equirect_directions(height: int) -> tuple[np.ndarray, np.ndarray]:
-    """Pixel-centre directions (H, 2H, 3) and solid angles (H, 2H) sr of a daylit map."""
-    el_edges = 90.0 - 180.0 * np.arange(height + 1) / height
-    el = 0.5 * (el_edges[:-1] + el_edges[1:])
-    az = 360.0 * (np.arange(2 * height) + 0.5) / (2 * height)
-    E, A = np.meshgrid(el, az, indexing="ij")
-    band = (np.pi / height) * (np.sin(np.radians(el_edges[:-1])) - np.sin(np.radians(
-        el_edges[1:])))
-    return direction_from_azimuth_elevation(A, E), np.repeat(band[:, None], 2 * height, 1)
-
-
 @dataclass
 class AureoleFit:
     """A fitted aureole: amplitude ``A`` (3,) W/(m^2 sr), its shape, the background's two
@@ -164,7 +153,7 @@ def fit(image, sun_dir, shapes=(AureoleShape(),), chi_deg=FIT_CHI_DEG,
         min_elevation_deg: float = FIT_MIN_ELEVATION_DEG) -> AureoleFit:
     """:func:`fit_samples` over every pixel of a daylit equirectangular sky map."""
     image = np.asarray(image, dtype=np.float64)
-    dirs, sr = equirect_directions(image.shape[0])
+    dirs, sr = pixel_directions(image.shape[0])
     return fit_samples(dirs.reshape(-1, 3), image.reshape(-1, 3), sr.reshape(-1), sun_dir,
                        shapes, chi_deg, min_elevation_deg)
 
@@ -219,7 +208,7 @@ def subtract(image, sun_dir, amplitude, shape: AureoleShape = AureoleShape()) ->
 
 def _model_map(image, sun_dir, amplitude, shape) -> np.ndarray:
     image = np.asarray(image, dtype=np.float64)
-    dirs, _ = equirect_directions(image.shape[0])
+    dirs, _ = pixel_directions(image.shape[0])
     return radiance(dirs, sun_dir, np.broadcast_to(amplitude, (3,)), shape)
 
 
@@ -227,6 +216,6 @@ def overshoot(image, sun_dir, amplitude, shape: AureoleShape = AureoleShape()) -
     """The horizontal irradiance (3,) W/m^2 of where the model exceeds the sky map, which
     :func:`subtract` clips away (0 for a model that stays under the sky)."""
     image = np.asarray(image, dtype=np.float64)
-    dirs, sr = equirect_directions(image.shape[0])
+    dirs, sr = pixel_directions(image.shape[0])
     over = np.maximum(0.0, _model_map(image, sun_dir, amplitude, shape) - image)
     return np.einsum("hwc,hw->c", over, np.clip(dirs[..., 1], 0.0, None) * sr)

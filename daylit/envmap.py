@@ -85,6 +85,18 @@ def subdivision(height: int) -> int:
     return int(np.clip(-(-SUB_ROWS_TARGET // height), 1, MAX_SUBDIVISION))
 
 
+def pixel_directions(height: int) -> tuple[np.ndarray, np.ndarray]:
+    """A map ``height`` rows high (width ``2 height``): its pixel centres' unit directions
+    (H, 2H, 3) and their solid angles (H, 2H) sr (the conventions above)."""
+    el_edges_deg = 90.0 - 180.0 * np.arange(height + 1) / height
+    el_deg = 0.5 * (el_edges_deg[:-1] + el_edges_deg[1:])
+    az_deg = 360.0 * (np.arange(2 * height) + 0.5) / (2 * height)
+    el, az = np.meshgrid(el_deg, az_deg, indexing="ij")
+    band_sr = (np.pi / height) * (np.sin(np.radians(el_edges_deg[:-1]))
+                                  - np.sin(np.radians(el_edges_deg[1:])))
+    return direction_from_azimuth_elevation(az, el), np.repeat(band_sr[:, None], 2 * height, 1)
+
+
 def equirect_light_vector(image: np.ndarray, patch_vertices: np.ndarray) -> np.ndarray:
     """The light vector of a map: solid-angle weighted mean radiance per patch, ``(n, 3)``.
 

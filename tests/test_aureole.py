@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from daylit import aureole
+from daylit.envmap import pixel_directions
 from daylit.sky import CIE_SKY_TYPES, CIESky, direction_from_azimuth_elevation
 
 
@@ -35,7 +36,7 @@ def test_irradiance_against_an_equirectangular_quadrature(az_el):
     # against a sum over a 1440 x 720 map's pixel centres.
     s = direction_from_azimuth_elevation(*az_el)
     shape = aureole.AureoleShape()
-    dirs, sr = aureole.equirect_directions(720)
+    dirs, sr = pixel_directions(720)
     by_pixels = np.einsum("hw,hwc->c", aureole.kernel(dirs, s, shape) * sr, dirs)
     vector = aureole.irradiance_vector(s, shape)
     assert np.allclose(vector, by_pixels, rtol=0, atol=2e-3 * np.linalg.norm(by_pixels))
@@ -48,7 +49,7 @@ def cie_map(az, el, sky_type=12, height=360, zenith=30.0):
     """A CIE general sky (type 12: the standard clear sky) as a grey equirectangular map, from
     daylit.sky."""
     sky = CIESky(sky_type=sky_type, sun_azimuth_deg=az, sun_elevation_deg=el)
-    dirs, _ = aureole.equirect_directions(height)
+    dirs, _ = pixel_directions(height)
     rel = sky.relative_luminance(dirs.reshape(-1, 3)).reshape(dirs.shape[:2])
     rel[dirs[..., 1] <= 0.0] = 0.0
     return zenith * np.repeat(rel[..., None], 3, axis=2), sky
@@ -78,7 +79,7 @@ def test_fit_recovers_a_cie_skys_circumsolar_term(sky_type, az_el):
     # Subtracted, what is left within 90 degrees of the sun is the CIE sky without its term:
     # (1 + e cos^2 chi) phi(Z) / (f(Z_s) phi(0)) times the zenith radiance.
     rest = aureole.subtract(image, s, got.amplitude, got.shape)
-    dirs, _ = aureole.equirect_directions(image.shape[0])
+    dirs, _ = pixel_directions(image.shape[0])
     chi = np.arccos(np.clip(dirs @ s, -1, 1))
     keep = (chi < np.pi / 2 - 0.01) & (dirs[..., 1] > 0.01)
     phi = 1 + a * np.exp(b / dirs[..., 1][keep])
