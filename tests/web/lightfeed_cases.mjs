@@ -6,7 +6,8 @@
 // per source (?sky=phone's estimate; a server sky's registration alone) the reads and the
 // alignment's registered turns before the device's orientation came (a null event, as from a
 // phone without sensors, and none), and the first read after it: the registered turns of the
-// pose it read with. For tests/web/test_phoneestimate_js.py.
+// pose it read with; and what light is drawn before and after (offline: the kept light until
+// the phone's own estimate, and its note gone with it). For tests/web/test_phoneestimate_js.py.
 import { readFileSync } from 'node:fs';
 import * as THREE from 'three';
 import { CameraView } from '../../web/src/camera-view.js';
@@ -17,15 +18,18 @@ const element = () => ({ getContext: () => ({}), addEventListener() {}, removeEv
 globalThis.document = { createElement: element };
 globalThis.screen = { orientation: { angle: 0 } };
 
-function run(query) {
+function run(query, { server = !query.includes('sky=phone'), kept = null } = {}) {
   const camera = new THREE.PerspectiveCamera(60, 16 / 9, 0.1, 100);
   const view = new CameraView(camera, element(), input.manifest, { background: null }, { getTracks: () => [] });
   const app = {
     ready: true, mode: 'camera', view, camera, site: { nodes: { real: [], ground: [] } },
-    assets: { manifest: { ...input.manifest, dome: { lights: [], count: 0 } } }, startS: 0, hud: { setMessage() {} },
+    assets: { manifest: { ...input.manifest, dome: { lights: [], count: 0 } } }, startS: 0,
+    hud: { message: null, setMessage(text) { this.message = text; } },
   };
   const feed = new LightFeed(app, new URLSearchParams(query), () => {});
-  if (!query.includes('sky=phone')) feed.push({ rgb: new Float32Array(0), sun: null }); // a server sky
+  if (server) feed.push({ rgb: new Float32Array(0), sun: null }); // a server sky
+  if (kept) feed.keptLight = { load: () => kept, save() {} }; // the last visit's light (offline.js)
+  const drawn = () => ({ source: feed.light?.kept ? 'kept' : feed.light?.phone ? 'phone' : feed.light ? 'server' : null, note: app.hud.message !== null });
   const reads = [];
   const registration = () => {
     const a = view.alignment;
@@ -45,11 +49,17 @@ function run(query) {
   for (const t of [0.5, 2.5, 4.5]) feed.tick(t);
   view._onOrientation({ alpha: null, beta: null, gamma: null }); // no sensors (headless Chromium)
   for (const t of [6.5, 8.5]) feed.tick(t);
-  const before = { reads: reads.length, turnsDeg: turns() };
+  const before = { reads: reads.length, turnsDeg: turns(), drawn: drawn() };
   const { alpha, beta, gamma } = input.orientation;
   view._onOrientation({ alpha, beta, gamma });
   feed.tick(10.5);
-  return { before, first: reads[before.reads] ?? null };
+  return { before, first: reads[before.reads] ?? null, after: drawn() };
 }
 
-process.stdout.write(JSON.stringify({ phone: run(`sky=phone&time=${input.time}`), server: run(`time=${input.time}`) }));
+const kept = { rgb: [], sun: null, captureTime: Date.parse(input.time) / 1000 - 86400 };
+process.stdout.write(JSON.stringify({
+  phone: run(`sky=phone&time=${input.time}`),
+  server: run(`time=${input.time}`),
+  // An offline visit in camera mode: no server sky, the last visit's light kept on the phone.
+  offline: run(`time=${input.time}`, { server: false, kept }),
+}));

@@ -234,7 +234,9 @@ def test_nothing_is_read_or_registered_before_the_device_s_orientation():
     first read after it is at the device's pose, no registered turn. On main five reads turned
     the view to the registration's limits (15 and 5 degrees), turns kept once the orientation
     came: the demo's kiosk view at 9:30 under the intermediate sky then read its first estimate
-    14 px off, the sun +32 % and the sky -39 % (docs/web.md)."""
+    14 px off, the sun +32 % and the sky -39 % (docs/web.md). An offline visit draws the light
+    kept from the last visit meanwhile (main drew none: a device that never tells its
+    orientation stayed unlit)."""
     case = {"manifest": {"scene": {"latitude_deg": 34.68, "longitude_deg": 135.8}, "views": []},
             "time": "2026-10-15T09:30:00+09:00",
             "orientation": {"alpha": 17.1, "beta": 91.9, "gamma": 0.0}}
@@ -243,6 +245,12 @@ def test_nothing_is_read_or_registered_before_the_device_s_orientation():
                          check=True)
     got = json.loads(out.stdout)
     print(got)
-    for source in ("phone", "server"):
-        assert got[source]["before"] == {"reads": 0, "turnsDeg": [0, 0]}, got
+    for source in ("phone", "server", "offline"):
+        assert got[source]["before"]["reads"] == 0 and got[source]["before"]["turnsDeg"] == [0, 0], got
         assert got[source]["first"] == {"headingDeg": 0, "tiltDeg": 0}, got
+    # Offline in camera mode, before the orientation (it may never come): the last visit's
+    # light, with its note, not nothing (main drew no light); the phone's own estimate then
+    # replaces it and the note goes.
+    assert got["offline"]["before"]["drawn"] == {"source": "kept", "note": True}, got
+    assert got["offline"]["after"] == {"source": "phone", "note": False}, got
+    assert got["phone"]["after"]["source"] == "phone" and got["server"]["after"]["source"] == "server"

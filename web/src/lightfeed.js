@@ -65,9 +65,9 @@ export class LightFeed {
     if (!m.phone && !m.kept) {
       this.serverLights += 1;
       this.keptLight?.save(m);
-      if (this.light?.kept) this.app.hud.setMessage(null); // live again: the kept light's note goes
       if (this.phoneForced) return; // ?sky=phone: the phone's own estimate only
     }
+    if (this.light?.kept && !m.kept) this.app.hud.setMessage(null); // live or the phone's own: the kept light's note goes
     this.light = m;
     this.saturated = m.saturated;
     const sun = m.sun?.normalIrradiance ?? [0, 0, 0];
@@ -135,14 +135,16 @@ export class LightFeed {
     this.useKept(nowS);
   }
 
-  /** No live light NO_SERVER_SKY_AFTER_S after the start and none of the phone's own: draw the
-   * last live light kept on this phone (offline.js), once, and say how old it is. */
+  /** No live light NO_SERVER_SKY_AFTER_S after the start and none of the phone's own yet: draw
+   * the last live light kept on this phone (offline.js), once, and say how old it is. Camera
+   * mode draws it too until its own estimate comes, which may be never (a device that does not
+   * tell its orientation, a sky whose type does not settle): an old light beats none. */
   useKept(nowS) {
     const app = this.app;
     if (!app.ready || this.light || this.serverLights > 0 || this._keptLightTried
-      || nowS - app.startS <= NO_SERVER_SKY_AFTER_S || this.phoneWanted(nowS)) return;
+      || nowS - app.startS <= NO_SERVER_SKY_AFTER_S) return;
     this._keptLightTried = true;
-    const kept = this.keptLight.load();
+    const kept = this.keptLight?.load();
     if (!kept || kept.rgb.length !== 3 * app.assets.manifest.dome.count) return;
     this.push({ ...kept, saturated: null, sequence: 0, stale: true, flags: 0, kept: true });
     const when = new Date(kept.captureTime * 1000).toLocaleString([], { dateStyle: 'medium', timeStyle: 'short' });
