@@ -246,11 +246,13 @@ def test_nothing_is_read_or_registered_before_the_device_s_orientation():
     got = json.loads(out.stdout)
     print(got)
     for source in ("phone", "server", "offline"):
-        assert got[source]["before"]["reads"] == 0 and got[source]["before"]["turnsDeg"] == [0, 0], got
+        before = got[source]["before"]
+        assert before["reads"] == 0 and before["turnsDeg"] == [0, 0], got
         assert got[source]["first"] == {"headingDeg": 0, "tiltDeg": 0}, got
     # Offline in camera mode, before the orientation (it may never come): the last visit's
     # light, with its note, not nothing (main drew no light); the phone's own estimate then
     # replaces it and the note goes.
     assert got["offline"]["before"]["drawn"] == {"source": "kept", "note": True}, got
     assert got["offline"]["after"] == {"source": "phone", "note": False}, got
-    assert got["phone"]["after"]["source"] == "phone" and got["server"]["after"]["source"] == "server"
+    assert got["phone"]["after"]["source"] == "phone", got
+    assert got["server"]["after"]["source"] == "server", got
