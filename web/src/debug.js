@@ -170,7 +170,7 @@ export function debugApi(app) {
       gpuBytes: app.sunShadows?.gpuBytes ?? 0,
     }),
     targets: () => Object.keys(app.relighter.targets),
-    /** The relight targets' format (relight.js targetFormat) and whether the frame is linear HDR. */
+    /** The relight targets' format (passes.js targetFormat) and whether the frame is linear HDR. */
     formats: () => ({ rgbe: app.relighter.format.rgbe, linearFrame: !!app.site?.shared.linearOut.value }),
     /** The applied light vector and one target read back in the same instant. */
     /** GPU allocations (gpumemory.js) logged from gpuLog(true) to gpuLog(false), which

@@ -14,7 +14,7 @@
 // `without + S Vr` with the virtual objects' shading switched off (materials.glsl.js).
 import * as THREE from 'three';
 import { FLOAT_DECODE, RGBE_DECODE, RGBE_ENCODE } from './relight.glsl.js';
-import { FullscreenPass, makeTarget } from './relight.js';
+import { FullscreenPass, makeTarget } from './passes.js';
 
 /** out = max(a wa + b wb, 0) + c: the sum of three relight-format targets, texel by texel. */
 function sumFragment(rgbe) {

@@ -4,7 +4,7 @@
 // (issue 6), each mask paired with the frame of the same capture time.
 import * as THREE from 'three';
 import { LINEAR_OF_CODE, luminance } from './colour.js';
-import { FullscreenPass, makeTarget } from './relight.js';
+import { FullscreenPass, makeTarget } from './passes.js';
 import { RATIO_FLOOR_SCENE } from './display.glsl.js';
 import { FLOAT_DECODE, RGBE_DECODE } from './relight.glsl.js';
 import { kioskFragment, kioskVertex } from './kiosk.glsl.js';

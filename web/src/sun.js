@@ -20,7 +20,7 @@ import * as THREE from 'three';
 import {
   CELL, coarseFragment, MAP_SIZE, NORMAL_FRAGMENT, NORMAL_VERTEX, PHONE_MAP_SIZE, visibilityFragment,
 } from './sun.glsl.js';
-import { FullscreenPass } from './relight.js';
+import { FullscreenPass } from './passes.js';
 
 export const LAYER = { virtual: 1, real: 2 }; // caster layers; the 'all' map sees both
 const MIN_FIT_ELEVATION_SIN = Math.sin(3 * Math.PI / 180); // shadows of a lower sun are clipped

@@ -10,7 +10,7 @@
 import * as THREE from 'three';
 import { patchContaining } from './lightmath.js';
 import { RGBE_ENCODE } from './relight.glsl.js';
-import { FullscreenPass, makeTarget } from './relight.js';
+import { FullscreenPass, makeTarget } from './passes.js';
 
 const CACHE_PER_STACK = 4; // the sun stays tens of minutes in a patch
 
