@@ -15,11 +15,12 @@ Shapes as in :mod:`bake.lowrank`: ``U`` (T, 3, k), ``V`` (n, k), losses (k, T, 3
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from bake.lowrank import RATIO_UNREFINED, Factors, Spectrum, ratio_checks
-from bake.rowstore import ROW_BLOCK_BYTES
+from bake.rowstore import ROW_BLOCK_BYTES, RowFile
 
 
 def layers_to_refine(losses, f, skies, selection, settings, means=None) -> list[int]:
@@ -167,10 +168,69 @@ class RatioRefinement:
         return sorted(refine)
 
 
+class BaseResiduals:
+    """What :func:`layers_to_refine_within` takes from each test sky that no encoding of the
+    base layers changes, made once for every ETC1S split of a stack that is tried
+    (bake.compress): the sky's coefficients ``c = V^T r'`` (k, 3) float32, the uncoded base
+    composite's error ``truth - U c`` (T, 3) float32 and the master's mean. Each split's
+    choice then adds only its layers' losses (``sum_j c_j e_j``) to that error: the same
+    operations on the same values as the rule made alone, so the same layers.
+
+    Kept in memory, or with ``folder`` in a file there (skies x texels: as large as the
+    spectrum's composites, which a large atlas keeps on disk too)."""
+
+    def __init__(self, f: Factors, skies, selection, truths, folder=None):
+        self.cs, self.means = [], []
+        T = len(f.U)
+        self._store = None if folder is None else RowFile.create(
+            Path(folder) / f"residuals-{id(self)}.npy", (len(skies) * T, 3))
+        self._held = []
+        for s, (c, a, mean) in enumerate(_sky_terms(f, skies, selection, truths)):
+            self.cs.append(c)
+            self.means.append(mean)
+            if self._store is None:
+                self._held.append(a)
+            else:
+                self._store.write(s * T, a)
+        self.T = T
+
+    def __iter__(self):
+        """Each sky's ``(c, truth - U c, mean)``, in the skies' order."""
+        return ((c, self.residual(s), mean)
+                for s, (c, mean) in enumerate(zip(self.cs, self.means, strict=True)))
+
+    def __len__(self) -> int:
+        return len(self.cs)
+
+    def residual(self, s: int) -> np.ndarray:
+        """Sky ``s``'s ``truth - U c`` (T, 3) float32."""
+        if self._store is None:
+            return self._held[s]
+        return self._store.read(s * self.T, (s + 1) * self.T)
+
+    def remove(self) -> None:
+        """Let go of the errors (and their file)."""
+        if self._store is not None:
+            self._store.remove()
+        self._held = []
+
+
+def _sky_terms(f: Factors, skies, selection, truths):
+    """Per sky, one at a time: ``c = V^T r'`` (k, 3) float32, ``truth - U c`` (T, 3) float32
+    and the master's mean (at least 1e-30)."""
+    for sky, truth in zip(skies, truths, strict=True):
+        rest = sky.r.copy()
+        rest[selection(sky.r)] = 0.0
+        c = (f.V.T @ rest).astype(np.float32)  # (k, 3)
+        a = truth.astype(np.float32) - np.einsum("tck,kc->tc", f.U, c)
+        yield c, a, max(float(truth.mean()), 1e-30)
+
+
 def layers_to_refine_within(losses, f, skies, selection, truths, target: float,
-                            refinable: int | None = None, restored=None) -> list[int]:
+                            refinable: int | None = None, restored=None,
+                            base: BaseResiduals | None = None) -> list[int]:
     """The fewest base layers to refine so that the *decoded* composite stays within
-    ``target`` (RMS error over the mean, as :func:`bake.compress._record_errors` judges it)
+    ``target`` (RMS error over the mean, as :func:`bake.stackerrors.record_errors` judges it)
     on every test sky: the RMS-judged stacks' budget-driven rule (the per-layer rule,
     :func:`layers_to_refine`, refines every layer whose own loss passes a tenth of the
     budget on some sky, whether or not the sum needs it: docs/compact-assets.md,
@@ -192,24 +252,25 @@ def layers_to_refine_within(losses, f, skies, selection, truths, target: float,
     lowers the worst sky's error most (ties: the lower index), until every sky is within
     ``target``, or, where refining every refinable layer would not bring it there, within
     1 % of what that would give. The errors come from Gram matrices (R x R per
-    channel, R per sky and channel), so each step is cheap."""
+    channel, R per sky and channel), so each step is cheap.
+
+    ``base`` (for the same factors, skies and selection) replaces ``truths``: each sky's
+    ``c``, ``truth - U c`` and mean as made once for all the splits tried."""
     k = f.k
     refinable = k if refinable is None else min(refinable, k)
     if refinable == 0 or not skies:
         return []
     restored = losses[:refinable] if restored is None else restored[:refinable]
     G = np.einsum("jtc,ltc->cjl", restored, restored, dtype=np.float64)  # (3, R, R)
+    if base is not None and len(base) != len(skies):
+        raise ValueError("the base residuals are for other skies")
     A, P, C, means = [], [], [], []
-    for sky, truth in zip(skies, truths, strict=True):
-        rest = sky.r.copy()
-        rest[selection(sky.r)] = 0.0
-        c = (f.V.T @ rest).astype(np.float32)  # (k, 3)
-        a = truth.astype(np.float32) - np.einsum("tck,kc->tc", f.U, c)
-        a += np.einsum("ktc,kc->tc", losses, c)
+    for c, a, mean in _sky_terms(f, skies, selection, truths) if base is None else base:
+        a = a + np.einsum("ktc,kc->tc", losses, c)
         A.append((a.astype(np.float64) ** 2).sum(axis=0))  # (3,)
         P.append(np.einsum("tc,jtc->cj", a, restored, dtype=np.float64))  # (3, R)
         C.append(c[:refinable].T.astype(np.float64))  # (3, R)
-        means.append(max(float(truth.mean()), 1e-30))
+        means.append(mean)
     A, P, C, means = np.array(A), np.array(P), np.array(C), np.array(means)
     count = losses.shape[1] * 3  # the texel values the RMS is over
 
