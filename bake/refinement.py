@@ -94,6 +94,11 @@ def _composite_means(U: np.ndarray, cs: np.ndarray) -> tuple[np.ndarray, np.ndar
     return means, slack
 
 
+# The new summed moves a layer tested for the shadow ratio keeps, at most (beside the sums
+# themselves, skies x lit texels: the demo's hull pair's fit, a large site's do not).
+KEPT_SUMS_BYTES = 2 * ROW_BLOCK_BYTES
+
+
 @dataclass
 class RatioRefinement:
     """Which base layers of one stack of a shadowing pair need their refinement for the
@@ -134,37 +139,56 @@ class RatioRefinement:
         change = (losses[j] * (V[:, j] @ rest).astype(np.float32))[lit]
         return change / D if self.role == "delta" else -X * change / D**2
 
-    def layers(self, losses: np.ndarray, f: Factors) -> list[int]:
+    def layers(self, losses: np.ndarray, f: Factors, keep_bytes: int = KEPT_SUMS_BYTES
+               ) -> list[int]:
         """The layers to refine, given their coarse ``losses`` (k, T, 3).
 
         One layer's move on one sky is held at a time, besides the summed moves of the
         layers left unrefined: all k at once were k x skies x texels values, which raised
         the bake's peak memory (docs/benchmarks.md, "Figures behind choices in the code"),
-        and a layer's moves on every sky are skies x texels (the same sums either way)."""
+        and a layer's moves on every sky are skies x texels (the same sums either way).
+
+        Each move is made once for the layers' order, and its largest value kept: until a
+        layer is left unrefined, a layer is tested on its own moves, whose largest values
+        those are (no move made again). A layer tested against the summed moves keeps its
+        new sums, up to ``keep_bytes`` of them, for the skies where it is within the
+        tolerance: if it is left unrefined they are the new sums (made again past
+        ``keep_bytes``). The same values and tests as each move made for each use."""
 
         def largest(m) -> float:
             return float(np.abs(m).max(initial=0.0))
 
         skies = range(len(self.rests))
-        worst = [
-            max((largest(self.move(losses, f.V, j, s)) for s in skies), default=0.0)
-            for j in range(f.k)
-        ]
+        worst, alone = [], []  # per layer: its largest move; whether each sky's is within
+        for j in range(f.k):
+            each = [largest(self.move(losses, f.V, j, s)) for s in skies]
+            worst.append(max(each, default=0.0))
+            alone.append(all(m <= self.tolerance for m in each))
         total = None
         refine = []
         for j in np.argsort(worst, kind="stable"):
-            fits = all(
-                largest(self.move(losses, f.V, j, s) if total is None
-                        else total[s] + self.move(losses, f.V, j, s)) <= self.tolerance
-                for s in skies
-            )
+            if total is None:
+                if alone[j]:
+                    total = [self.move(losses, f.V, j, s) for s in skies]
+                else:
+                    refine.append(int(j))
+                continue
+            sums, held, fits = [], 0, True
+            for s in skies:
+                new = total[s] + self.move(losses, f.V, j, s)
+                if not largest(new) <= self.tolerance:  # (a NaN fails, as it did)
+                    fits = False
+                    break
+                if held + new.nbytes <= keep_bytes and len(sums) == s:
+                    sums.append(new)
+                    held += new.nbytes
+                del new
             if not fits:
                 refine.append(int(j))
-            elif total is None:
-                total = [self.move(losses, f.V, j, s) for s in skies]
-            else:
-                for s in skies:
-                    total[s] = total[s] + self.move(losses, f.V, j, s)
+                continue
+            for s in skies:
+                total[s] = sums[s] if s < len(sums) else total[s] + self.move(losses, f.V, j, s)
+            del sums
         return sorted(refine)
 
 

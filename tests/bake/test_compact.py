@@ -399,6 +399,53 @@ def test_ratio_refinement_leaves_unrefined_only_what_the_ratio_can_afford():
     assert _ratio_refinement("d", X=2.0).layers(_layer_major(losses), f) == [0, 2, 3]
 
 
+def _ratio_layers_as_stated(rule: refinement.RatioRefinement, losses, f) -> list[int]:
+    """The shadow ratio's layer rule as its docstring states it, every move of every layer
+    on every sky held at once: layers in the order of their largest move, each left
+    unrefined while the moves of those left unrefined, summed, stay within the tolerance on
+    every sky."""
+    moves = [[rule.move(losses, f.V, j, s) for s in range(len(rule.rests))]
+             for j in range(f.k)]
+    worst = [max((float(np.abs(m).max(initial=0.0)) for m in layer), default=0.0)
+             for layer in moves]
+    total, refine = None, []
+    for j in np.argsort(worst, kind="stable"):
+        trial = moves[j] if total is None else [t + m for t, m in zip(total, moves[j],
+                                                                        strict=True)]
+        if all(float(np.abs(t).max(initial=0.0)) <= rule.tolerance for t in trial):
+            total = trial
+        else:
+            refine.append(int(j))
+    return sorted(refine)
+
+
+@pytest.mark.parametrize("keep_bytes", [0, 1000, refinement.KEPT_SUMS_BYTES])
+def test_ratio_refinement_makes_each_move_once_for_the_same_layers(keep_bytes):
+    """``RatioRefinement.layers`` (each move made once for the order, a tested layer's sums
+    kept up to ``keep_bytes``) against the rule stated with every move held: the same
+    layers, for many random pairs whose choices differ (a first layer over the tolerance
+    on its own, sums that cancel, layers that fit only after others)."""
+    rng = np.random.default_rng(5)
+    seen = set()
+    for case in range(40):
+        k, T, skies, n = 8, 50, 3, 5
+        lit = [rng.uniform(size=(T, 3)) < 0.7 for _ in range(skies)]
+        rule = refinement.RatioRefinement(
+            "delta" if case % 2 else "d",
+            [rng.uniform(0.0, 1.0, (n, 3)) for _ in range(skies)], lit,
+            [rng.uniform(0.5, 2.0, int(m.sum())).astype(np.float32) for m in lit],
+            [rng.uniform(0.0, 1.0, int(m.sum())).astype(np.float32) for m in lit],
+            [1.0] * skies, tolerance=0.02)
+        f = lowrank.Factors(k, np.zeros((T, 3, k), np.float32),
+                            rng.uniform(-1.0, 1.0, (n, k)).astype(np.float32), {})
+        scale = rng.uniform(0.0005, 0.006, (k, 1, 1)) * {4: 0.05, 9: 20.0}.get(case % 10, 1.0)
+        losses = (rng.normal(size=(k, T, 3)) * scale).astype(np.float32)
+        expected = _ratio_layers_as_stated(rule, losses, f)
+        assert rule.layers(losses, f, keep_bytes=keep_bytes) == expected, case
+        seen.add(tuple(expected))
+    assert len(seen) >= 10 and () in seen and tuple(range(8)) in seen
+
+
 def _budget_case(layer_losses, k=3, T=400, layers=(1.0, 0.0, 0.0)):
     """A stack with no truncation error (the master is exactly ``U V^T r``), layer ``j``
     constant at ``layers[j]``, one sky with ``c_j = 1`` for every layer (mean 1 over its
