@@ -785,3 +785,49 @@ def test_a_stack_judged_by_rms_keeps_the_first_etc1s_split_within_the_budget(
     head = compress._etc1s_split(k, dataclasses.replace(settings, etc1s_from_layer=last))
     assert result.entry.get("etc1s", {"layers": 0})["layers"] == k - head
     assert result.entry["error"]["max"] == alone[last]
+
+
+def test_a_ratio_rank_over_the_bound_is_rejected_at_its_first_texels_over_it(monkeypatch):
+    """``lowrank.ratio_error(..., above=b)`` is over ``b`` exactly when the whole maximum
+    is, for every rank of random shadowing pairs and bounds around their errors; over the
+    bound it checks fewer composites than the whole maximum does (so ``ratio_rank``, which
+    asks only that, rejects a rank at its first texels over the bound)."""
+    from bake.dome import Dome
+
+    dome = Dome.for_light_count(40)
+    site = {"timezone": "Europe/Paris", "latitude_deg": 48.85, "longitude_deg": 2.35,
+            "elevation_m": 35.0}
+    sky_list, S, S_inv, selection = compress.prepare(site, dome.vertices,
+                                                     dome.solid_angles_sr, 0)
+    settings = compress.Settings()
+    rng = np.random.default_rng(8)
+    T, n = 400, dome.count
+    calls = []
+    composite = lowrank.Spectrum.composite
+
+    def counted(self, *args):
+        calls.append(1)
+        return composite(self, *args)
+
+    monkeypatch.setattr(lowrank.Spectrum, "composite", counted)
+    verdicts, fewer = set(), 0
+    for case in range(2):
+        d = (1.0 + 0.3 * rng.random((T, 1, 1))) * (0.2 + rng.random((1, n, 3)))
+        shade = rng.random((T, n, 1)) < 0.2 + 0.2 * case  # the virtual objects' shadows
+        I = d * np.where(shade, 0.1, 1.0)
+        gain = np.ones(T, np.float32)
+        spec_d = lowrank.Spectrum.of(d.astype(np.float32), gain, S)
+        spec_delta = lowrank.Spectrum.of((d - I).astype(np.float32), gain, S)
+        for k in (1, 4, 12):
+            args = (spec_delta, spec_d, k, S, S_inv, sky_list, selection, settings)
+            calls.clear()
+            whole = lowrank.ratio_error(*args)
+            every = len(calls)
+            for bound in (0.5 * whole, 0.999 * whole, whole, 1.001 * whole):
+                calls.clear()
+                early = lowrank.ratio_error(*args, above=bound)
+                assert (early <= bound) == (whole <= bound), (case, k, bound)
+                assert early <= whole
+                verdicts.add(whole <= bound)
+                fewer += len(calls) < every
+    assert verdicts == {True, False} and fewer >= 6
