@@ -211,7 +211,7 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
     (default: ``settings.etc1s_from_layer`` alone). The UASTC layers and their candidate
     refinements are encoded once for every split (bake.uastclayers), each split's composite
     judged from the decoded bytes as the client sums them; the written files are checked to
-    decode to those bytes.
+    decode to those bytes; a split over the budget is judged up to its first sky over it.
 
     Writes under ``out_dir``:
 
@@ -325,9 +325,10 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
         # What the refinement rule takes from each sky whatever the split: made once for
         # every split tried (on disk beside the spectrum's composites, if they are).
         base = (BaseResiduals(f, skies, selection, spectrum.absolute_truths(skies),
-                              spectrum.work) if len(heads) > 1 else None)
+                              spectrum.work)
+                if len(heads) > 1 and settings.rms_refine_target is not None else None)
         predicted, first = None, 0
-        for attempt, head in enumerate(heads):
+        for attempt, head in (enumerate(heads) if base is None else base.held(heads)):
             tail = []
             if head < f.k:
                 encode([q.path for q in base_q[head:]], tail_file,
@@ -357,9 +358,7 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
             if within:
                 break
             predicted = raw = None
-        if base is not None:
-            base.remove()
-            del base
+        del base
         if head == f.k:  # an earlier try's ETC1S array
             tail_file.unlink(missing_ok=True)
         refine_q = [

@@ -232,6 +232,13 @@ class BaseResiduals:
             return self._held[s]
         return self._store.read(s * self.T, (s + 1) * self.T)
 
+    def held(self, items):
+        """``enumerate(items)``, these errors removed when it ends or is left."""
+        try:
+            yield from enumerate(items)
+        finally:
+            self.remove()
+
     def remove(self) -> None:
         """Let go of the errors (and their file)."""
         if self._store is not None:

@@ -248,5 +248,7 @@ def test_the_splits_share_each_skys_base_residual(tmp_path, on_disk):
     assert len(choices) >= 4 and wrong_differs  # the targets move the choice
     if on_disk:
         assert list(tmp_path.iterdir())
-    base.remove()
-    assert not list(tmp_path.iterdir())
+    for _attempt, head in base.held([4, 6, f.k]):  # as compress_stack tries the splits
+        if head == 6:
+            break  # a split within the budget: the errors go with the loop
+    assert not list(tmp_path.iterdir()) and not base._held
