@@ -55,7 +55,13 @@ from bake.lowrank import (
     rms_rank,
 )
 from bake.quantize import quantized_png, refinement_png
-from bake.refinement import RatioRefinement, layers_to_refine, layers_to_refine_within
+from bake.refinement import (
+    BaseResiduals,
+    RatioRefinement,
+    layers_to_refine,
+    layers_to_refine_within,
+)
+from bake.stackerrors import record_errors, selected_by_any, within_budget
 from bake.testskies import TestSky, prior_skies, selectable_lights, test_skies
 from bake.uastclayers import UastcLayers
 from daylit.selection import Selection
@@ -205,7 +211,7 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
     (default: ``settings.etc1s_from_layer`` alone). The UASTC layers and their candidate
     refinements are encoded once for every split (bake.uastclayers), each split's composite
     judged from the decoded bytes as the client sums them; the written files are checked to
-    decode to those bytes.
+    decode to those bytes; a split over the budget is judged up to its first sky over it.
 
     Writes under ``out_dir``:
 
@@ -316,8 +322,13 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
         # the UASTC ones encoded once for all splits (bake.uastclayers), its ETC1S array;
         # which of its layers are refined.
         uastc = UastcLayers(base_q, lost, encode_array, tmp, refine_mask)
-        predicted = None
-        for attempt, head in enumerate(heads):
+        # What the refinement rule takes from each sky whatever the split: made once for
+        # every split tried (on disk beside the spectrum's composites, if they are).
+        base = (BaseResiduals(f, skies, selection, spectrum.absolute_truths(skies),
+                              spectrum.work)
+                if len(heads) > 1 and settings.rms_refine_target is not None else None)
+        predicted, first = None, 0
+        for attempt, head in (enumerate(heads) if base is None else base.held(heads)):
             tail = []
             if head < f.k:
                 encode([q.path for q in base_q[head:]], tail_file,
@@ -325,10 +336,12 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
                 tail = list(decode([tail_file])[0])
             arrays = uastc.coarse(head) + tail  # each layer's decoded bytes, (H, W, 4)
             refine = _refined_layers(f, arrays, head, lost, valid, uastc, spectrum, skies,
-                                     selection, settings, ratio, refine_all)
+                                     selection, settings, ratio, refine_all, base)
             if attempt == len(heads) - 1:
                 break
-            # This split's composite as the client will decode it, from the same bytes.
+            # This split's composite as the client will decode it, from the same bytes,
+            # judged from the sky that rejected the split before (a rejected split stops at
+            # its first sky over the budget; bake.stackerrors.within_budget).
             raw = arrays[:head] + [uastc.candidates(head)[1][j] for j in refine] + tail
             candidates = uastc.candidates(head)[0]
             predicted = {"layers": _layer_entries(base_q, [candidates[j] for j in refine], head,
@@ -336,12 +349,16 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
                          "lights": lights, "error": {}}
             reader = CompactReader.decoded(out_dir, predicted, (H, W), f.V, raw)
             reader.lights(selected_by_any(skies, selection))
-            record_errors(predicted, spectrum.absolute_truths(skies),
-                           lambda r, reader=reader: reader.composite(r, selection)[valid], skies)
+            within, first = within_budget(
+                predicted, lambda sky: next(spectrum.absolute_truths([sky])),
+                lambda r, reader=reader: reader.composite(r, selection)[valid], skies,
+                settings.budget, first,
+            )
             del reader
-            if predicted["error"]["max"] <= settings.budget:
+            if within:
                 break
             predicted = raw = None
+        del base
         if head == f.k:  # an earlier try's ETC1S array
             tail_file.unlink(missing_ok=True)
         refine_q = [
@@ -456,9 +473,10 @@ def _light_refinements(name, lit, normalized, coarse_lights, light_q, coarse_dir
 
 
 def _refined_layers(f, arrays, head, lost, valid, uastc, spectrum, skies, selection, settings,
-                    ratio, refine_all) -> list[int]:
+                    ratio, refine_all, base=None) -> list[int]:
     """Which base layers are refined, given each layer's coarse decoded bytes ``arrays``
-    (the first ``head`` UASTC, the rest ETC1S): :func:`compress_stack`'s rules."""
+    (the first ``head`` UASTC, the rest ETC1S): :func:`compress_stack`'s rules (``base``
+    the skies' :class:`BaseResiduals` shared by the splits tried, if any)."""
     if refine_all:
         return list(range(f.k))
     losses = np.empty((f.k, len(f.U), 3), dtype=np.float32)  # a block per layer
@@ -478,6 +496,7 @@ def _refined_layers(f, arrays, head, lost, valid, uastc, spectrum, skies, select
         refine = layers_to_refine_within(
             losses, f, skies, selection, spectrum.absolute_truths(skies),
             settings.rms_refine_target * settings.budget, refinable=head, restored=restored,
+            base=base,
         )
         del restored
     else:
@@ -491,24 +510,6 @@ def _refined_layers(f, arrays, head, lost, valid, uastc, spectrum, skies, select
     # unrefined they keep the stacks within the budget and the ground's ratio within 0.02
     # (docs/benchmarks.md, "Downloads with the sun apart").
     return [j for j in refine if j < head]
-
-
-def selected_by_any(skies, selection: Selection) -> list[int]:
-    """Every light that some test sky selects (decoded in one run)."""
-    return sorted({int(i) for sky in skies for i in selection(sky.r)})
-
-
-def record_errors(entry: dict, references: list[np.ndarray], composite, skies) -> None:
-    """RMS error over the mean of ``composite(r)`` (T, 3) against the master's composite
-    ``references`` (one (T, 3) per sky) on every test sky, into ``entry["error"]``."""
-    errors = {}
-    for sky, reference in zip(skies, references, strict=True):
-        approx = composite(sky.r)
-        errors[sky.name] = float(
-            np.sqrt(((approx - reference) ** 2).mean()) / max(reference.mean(), 1e-30)
-        )
-    entry["error"]["encoded"] = {k: round(v, 6) for k, v in errors.items()}
-    entry["error"]["max"] = round(max(errors.values()), 6)
 
 
 def _etc1s_split(k: int, settings: Settings) -> int:

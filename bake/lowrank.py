@@ -274,7 +274,8 @@ def ratio_checks(spec_d: Spectrum, spec_delta: Spectrum, skies):
 
 
 def ratio_error(
-    spec_delta: Spectrum, spec_d: Spectrum, k: int, S, S_inv, skies, selection, settings
+    spec_delta: Spectrum, spec_d: Spectrum, k: int, S, S_inv, skies, selection, settings,
+    above: float | None = None,
 ) -> float:
     """Worst per-texel error of ``sum r I / sum r d`` at rank k over the skies, where
     ``sum r d`` is not tiny (above ``RATIO_FLOOR`` of its mean), with ``I = d - delta``. The
@@ -282,7 +283,11 @@ def ratio_error(
 
     By blocks of texel rows (the two spectra's projections of a block, then every sky),
     with each sky's threshold from its whole composite first: the same maximum as over
-    whole arrays, without holding texels x rank or texels x skies."""
+    whole arrays, without holding texels x rank or texels x skies.
+
+    With ``above``, the search stops at the first block and sky whose error passes it and
+    returns the worst found so far: over ``above`` exactly when the whole maximum is (a
+    rank being tested needs no more; :func:`ratio_rank`)."""
     floors = [RATIO_FLOOR * d.mean() for d in spec_d.absolute_truths(skies)]
     spec_delta.truths(skies)  # computed once, read by blocks below
     chosen = [selection(sky.r) for sky in skies]
@@ -304,6 +309,8 @@ def ratio_error(
                     I_k / np.maximum(d_k, 1e-12) - I_true / np.maximum(d_true, 1e-12)
                 )
                 worst = max(worst, float(error[lit].max()))
+                if above is not None and worst > above:
+                    return worst
     return worst
 
 
@@ -312,9 +319,10 @@ def ratio_rank(spec_I, spec_d, k_start, S, S_inv, skies, selection, settings) ->
     is within ``RATIO_TRUNCATION`` at every texel on the skies; at most ``max_rank``."""
     top = min(settings.max_rank, spec_I.n)
 
-    def ok(k):
+    def ok(k):  # a rank over the bound is rejected at its first texels over it
         return (
-            ratio_error(spec_I, spec_d, k, S, S_inv, skies, selection, settings)
+            ratio_error(spec_I, spec_d, k, S, S_inv, skies, selection, settings,
+                        above=RATIO_TRUNCATION)
             <= RATIO_TRUNCATION
         )
 

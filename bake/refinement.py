@@ -15,11 +15,12 @@ Shapes as in :mod:`bake.lowrank`: ``U`` (T, 3, k), ``V`` (n, k), losses (k, T, 3
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from bake.lowrank import RATIO_UNREFINED, Factors, Spectrum, ratio_checks
-from bake.rowstore import ROW_BLOCK_BYTES
+from bake.rowstore import ROW_BLOCK_BYTES, RowFile
 
 
 def layers_to_refine(losses, f, skies, selection, settings, means=None) -> list[int]:
@@ -93,6 +94,11 @@ def _composite_means(U: np.ndarray, cs: np.ndarray) -> tuple[np.ndarray, np.ndar
     return means, slack
 
 
+# The new summed moves a layer tested for the shadow ratio keeps, at most (beside the sums
+# themselves, skies x lit texels: the demo's hull pair's fit, a large site's do not).
+KEPT_SUMS_BYTES = 2 * ROW_BLOCK_BYTES
+
+
 @dataclass
 class RatioRefinement:
     """Which base layers of one stack of a shadowing pair need their refinement for the
@@ -133,44 +139,129 @@ class RatioRefinement:
         change = (losses[j] * (V[:, j] @ rest).astype(np.float32))[lit]
         return change / D if self.role == "delta" else -X * change / D**2
 
-    def layers(self, losses: np.ndarray, f: Factors) -> list[int]:
+    def layers(self, losses: np.ndarray, f: Factors, keep_bytes: int = KEPT_SUMS_BYTES
+               ) -> list[int]:
         """The layers to refine, given their coarse ``losses`` (k, T, 3).
 
         One layer's move on one sky is held at a time, besides the summed moves of the
         layers left unrefined: all k at once were k x skies x texels values, which raised
         the bake's peak memory (docs/benchmarks.md, "Figures behind choices in the code"),
-        and a layer's moves on every sky are skies x texels (the same sums either way)."""
+        and a layer's moves on every sky are skies x texels (the same sums either way).
+
+        Each move is made once for the layers' order, and its largest value kept: until a
+        layer is left unrefined, a layer is tested on its own moves, whose largest values
+        those are (no move made again). A layer tested against the summed moves keeps its
+        new sums, up to ``keep_bytes`` of them, for the skies where it is within the
+        tolerance: if it is left unrefined they are the new sums (made again past
+        ``keep_bytes``). The same values and tests as each move made for each use."""
 
         def largest(m) -> float:
             return float(np.abs(m).max(initial=0.0))
 
         skies = range(len(self.rests))
-        worst = [
-            max((largest(self.move(losses, f.V, j, s)) for s in skies), default=0.0)
-            for j in range(f.k)
-        ]
+        worst, alone = [], []  # per layer: its largest move; whether each sky's is within
+        for j in range(f.k):
+            each = [largest(self.move(losses, f.V, j, s)) for s in skies]
+            worst.append(max(each, default=0.0))
+            alone.append(all(m <= self.tolerance for m in each))
         total = None
         refine = []
         for j in np.argsort(worst, kind="stable"):
-            fits = all(
-                largest(self.move(losses, f.V, j, s) if total is None
-                        else total[s] + self.move(losses, f.V, j, s)) <= self.tolerance
-                for s in skies
-            )
+            if total is None:
+                if alone[j]:
+                    total = [self.move(losses, f.V, j, s) for s in skies]
+                else:
+                    refine.append(int(j))
+                continue
+            sums, held, fits = [], 0, True
+            for s in skies:
+                new = total[s] + self.move(losses, f.V, j, s)
+                if not largest(new) <= self.tolerance:  # (a NaN fails, as it did)
+                    fits = False
+                    break
+                if held + new.nbytes <= keep_bytes and len(sums) == s:
+                    sums.append(new)
+                    held += new.nbytes
+                del new
             if not fits:
                 refine.append(int(j))
-            elif total is None:
-                total = [self.move(losses, f.V, j, s) for s in skies]
-            else:
-                for s in skies:
-                    total[s] = total[s] + self.move(losses, f.V, j, s)
+                continue
+            for s in skies:
+                total[s] = sums[s] if s < len(sums) else total[s] + self.move(losses, f.V, j, s)
+            del sums
         return sorted(refine)
 
 
+class BaseResiduals:
+    """What :func:`layers_to_refine_within` takes from each test sky that no encoding of the
+    base layers changes, made once for every ETC1S split of a stack that is tried
+    (bake.compress): the sky's coefficients ``c = V^T r'`` (k, 3) float32, the uncoded base
+    composite's error ``truth - U c`` (T, 3) float32 and the master's mean. Each split's
+    choice then adds only its layers' losses (``sum_j c_j e_j``) to that error: the same
+    operations on the same values as the rule made alone, so the same layers.
+
+    Kept in memory, or with ``folder`` in a file there (skies x texels: as large as the
+    spectrum's composites, which a large atlas keeps on disk too)."""
+
+    def __init__(self, f: Factors, skies, selection, truths, folder=None):
+        self.cs, self.means = [], []
+        T = len(f.U)
+        self._store = None if folder is None else RowFile.create(
+            Path(folder) / f"residuals-{id(self)}.npy", (len(skies) * T, 3))
+        self._held = []
+        for s, (c, a, mean) in enumerate(_sky_terms(f, skies, selection, truths)):
+            self.cs.append(c)
+            self.means.append(mean)
+            if self._store is None:
+                self._held.append(a)
+            else:
+                self._store.write(s * T, a)
+        self.T = T
+
+    def __iter__(self):
+        """Each sky's ``(c, truth - U c, mean)``, in the skies' order."""
+        return ((c, self.residual(s), mean)
+                for s, (c, mean) in enumerate(zip(self.cs, self.means, strict=True)))
+
+    def __len__(self) -> int:
+        return len(self.cs)
+
+    def residual(self, s: int) -> np.ndarray:
+        """Sky ``s``'s ``truth - U c`` (T, 3) float32."""
+        if self._store is None:
+            return self._held[s]
+        return self._store.read(s * self.T, (s + 1) * self.T)
+
+    def held(self, items):
+        """``enumerate(items)``, these errors removed when it ends or is left."""
+        try:
+            yield from enumerate(items)
+        finally:
+            self.remove()
+
+    def remove(self) -> None:
+        """Let go of the errors (and their file)."""
+        if self._store is not None:
+            self._store.remove()
+        self._held = []
+
+
+def _sky_terms(f: Factors, skies, selection, truths):
+    """Per sky, one at a time: ``c = V^T r'`` (k, 3) float32, ``truth - U c`` (T, 3) float32
+    and the master's mean (at least 1e-30)."""
+    for sky, truth in zip(skies, truths, strict=True):
+        rest = sky.r.copy()
+        rest[selection(sky.r)] = 0.0
+        c = (f.V.T @ rest).astype(np.float32)  # (k, 3)
+        a = truth.astype(np.float32) - np.einsum("tck,kc->tc", f.U, c)
+        yield c, a, max(float(truth.mean()), 1e-30)
+
+
 def layers_to_refine_within(losses, f, skies, selection, truths, target: float,
-                            refinable: int | None = None, restored=None) -> list[int]:
+                            refinable: int | None = None, restored=None,
+                            base: BaseResiduals | None = None) -> list[int]:
     """The fewest base layers to refine so that the *decoded* composite stays within
-    ``target`` (RMS error over the mean, as :func:`bake.compress._record_errors` judges it)
+    ``target`` (RMS error over the mean, as :func:`bake.stackerrors.record_errors` judges it)
     on every test sky: the RMS-judged stacks' budget-driven rule (the per-layer rule,
     :func:`layers_to_refine`, refines every layer whose own loss passes a tenth of the
     budget on some sky, whether or not the sum needs it: docs/compact-assets.md,
@@ -192,24 +283,25 @@ def layers_to_refine_within(losses, f, skies, selection, truths, target: float,
     lowers the worst sky's error most (ties: the lower index), until every sky is within
     ``target``, or, where refining every refinable layer would not bring it there, within
     1 % of what that would give. The errors come from Gram matrices (R x R per
-    channel, R per sky and channel), so each step is cheap."""
+    channel, R per sky and channel), so each step is cheap.
+
+    ``base`` (for the same factors, skies and selection) replaces ``truths``: each sky's
+    ``c``, ``truth - U c`` and mean as made once for all the splits tried."""
     k = f.k
     refinable = k if refinable is None else min(refinable, k)
     if refinable == 0 or not skies:
         return []
     restored = losses[:refinable] if restored is None else restored[:refinable]
     G = np.einsum("jtc,ltc->cjl", restored, restored, dtype=np.float64)  # (3, R, R)
+    if base is not None and len(base) != len(skies):
+        raise ValueError("the base residuals are for other skies")
     A, P, C, means = [], [], [], []
-    for sky, truth in zip(skies, truths, strict=True):
-        rest = sky.r.copy()
-        rest[selection(sky.r)] = 0.0
-        c = (f.V.T @ rest).astype(np.float32)  # (k, 3)
-        a = truth.astype(np.float32) - np.einsum("tck,kc->tc", f.U, c)
-        a += np.einsum("ktc,kc->tc", losses, c)
+    for c, a, mean in _sky_terms(f, skies, selection, truths) if base is None else base:
+        a = a + np.einsum("ktc,kc->tc", losses, c)
         A.append((a.astype(np.float64) ** 2).sum(axis=0))  # (3,)
         P.append(np.einsum("tc,jtc->cj", a, restored, dtype=np.float64))  # (3, R)
         C.append(c[:refinable].T.astype(np.float64))  # (3, R)
-        means.append(max(float(truth.mean()), 1e-30))
+        means.append(mean)
     A, P, C, means = np.array(A), np.array(P), np.array(C), np.array(means)
     count = losses.shape[1] * 3  # the texel values the RMS is over
 

@@ -18,10 +18,11 @@ import cv2
 import numpy as np
 
 from bake.compact_reader import CompactReader
-from bake.compress import Settings, compress_stack, record_errors, selected_by_any
+from bake.compress import Settings, compress_stack
 from bake.lowrank import Spectrum, floored_gain, ratio_rank, rms_rank, texel_means
 from bake.refinement import RatioRefinement
 from bake.rowstore import as_stack, let_go, release_freed_memory, row_block, valid_rows
+from bake.stackerrors import record_errors, selected_by_any
 
 
 def compress_stacks(images, prefix, out_dir, skies, S, S_inv, selection, settings):

@@ -35,6 +35,7 @@ import bake.lowrank as lowrank  # noqa: E402
 import bake.pipeline as pipeline  # noqa: E402
 import bake.quantize as quantize  # noqa: E402
 import bake.refinement as refinement  # noqa: E402
+import bake.stackerrors as stackerrors  # noqa: E402
 import bake.stackkinds as stackkinds  # noqa: E402
 import bake.sunbounce as sunbounce  # noqa: E402
 import bake.tracework as tracework  # noqa: E402
@@ -110,8 +111,10 @@ def instrument() -> None:
     _wrap(contact, "continue_into_buried", writers)
     _wrap(writers.SunBounce, "image")
     _wrap(tracework.TracedResults, "load")
-    for name in ("compress_stack", "record_errors"):
-        _wrap(compress, name, stackkinds)
+    _wrap(compress, "compress_stack", stackkinds)
+    for name in ("record_errors", "within_budget"):
+        _wrap(stackerrors, name, compress, stackkinds)
+    _wrap(refinement, "layers_to_refine_within", compress)
     for name in ("compress_rms_stack", "compress_ratio_pair"):
         _wrap(stackkinds, name)
     _wrap(sunbounce, "compress_sun_bounce")

@@ -399,6 +399,53 @@ def test_ratio_refinement_leaves_unrefined_only_what_the_ratio_can_afford():
     assert _ratio_refinement("d", X=2.0).layers(_layer_major(losses), f) == [0, 2, 3]
 
 
+def _ratio_layers_as_stated(rule: refinement.RatioRefinement, losses, f) -> list[int]:
+    """The shadow ratio's layer rule as its docstring states it, every move of every layer
+    on every sky held at once: layers in the order of their largest move, each left
+    unrefined while the moves of those left unrefined, summed, stay within the tolerance on
+    every sky."""
+    moves = [[rule.move(losses, f.V, j, s) for s in range(len(rule.rests))]
+             for j in range(f.k)]
+    worst = [max((float(np.abs(m).max(initial=0.0)) for m in layer), default=0.0)
+             for layer in moves]
+    total, refine = None, []
+    for j in np.argsort(worst, kind="stable"):
+        trial = moves[j] if total is None else [t + m for t, m in zip(total, moves[j],
+                                                                        strict=True)]
+        if all(float(np.abs(t).max(initial=0.0)) <= rule.tolerance for t in trial):
+            total = trial
+        else:
+            refine.append(int(j))
+    return sorted(refine)
+
+
+@pytest.mark.parametrize("keep_bytes", [0, 1000, refinement.KEPT_SUMS_BYTES])
+def test_ratio_refinement_makes_each_move_once_for_the_same_layers(keep_bytes):
+    """``RatioRefinement.layers`` (each move made once for the order, a tested layer's sums
+    kept up to ``keep_bytes``) against the rule stated with every move held: the same
+    layers, for many random pairs whose choices differ (a first layer over the tolerance
+    on its own, sums that cancel, layers that fit only after others)."""
+    rng = np.random.default_rng(5)
+    seen = set()
+    for case in range(40):
+        k, T, skies, n = 8, 50, 3, 5
+        lit = [rng.uniform(size=(T, 3)) < 0.7 for _ in range(skies)]
+        rule = refinement.RatioRefinement(
+            "delta" if case % 2 else "d",
+            [rng.uniform(0.0, 1.0, (n, 3)) for _ in range(skies)], lit,
+            [rng.uniform(0.5, 2.0, int(m.sum())).astype(np.float32) for m in lit],
+            [rng.uniform(0.0, 1.0, int(m.sum())).astype(np.float32) for m in lit],
+            [1.0] * skies, tolerance=0.02)
+        f = lowrank.Factors(k, np.zeros((T, 3, k), np.float32),
+                            rng.uniform(-1.0, 1.0, (n, k)).astype(np.float32), {})
+        scale = rng.uniform(0.0005, 0.006, (k, 1, 1)) * {4: 0.05, 9: 20.0}.get(case % 10, 1.0)
+        losses = (rng.normal(size=(k, T, 3)) * scale).astype(np.float32)
+        expected = _ratio_layers_as_stated(rule, losses, f)
+        assert rule.layers(losses, f, keep_bytes=keep_bytes) == expected, case
+        seen.add(tuple(expected))
+    assert len(seen) >= 10 and () in seen and tuple(range(8)) in seen
+
+
 def _budget_case(layer_losses, k=3, T=400, layers=(1.0, 0.0, 0.0)):
     """A stack with no truncation error (the master is exactly ``U V^T r``), layer ``j``
     constant at ``layers[j]``, one sky with ``c_j = 1`` for every layer (mean 1 over its
@@ -738,3 +785,49 @@ def test_a_stack_judged_by_rms_keeps_the_first_etc1s_split_within_the_budget(
     head = compress._etc1s_split(k, dataclasses.replace(settings, etc1s_from_layer=last))
     assert result.entry.get("etc1s", {"layers": 0})["layers"] == k - head
     assert result.entry["error"]["max"] == alone[last]
+
+
+def test_a_ratio_rank_over_the_bound_is_rejected_at_its_first_texels_over_it(monkeypatch):
+    """``lowrank.ratio_error(..., above=b)`` is over ``b`` exactly when the whole maximum
+    is, for every rank of random shadowing pairs and bounds around their errors; over the
+    bound it checks fewer composites than the whole maximum does (so ``ratio_rank``, which
+    asks only that, rejects a rank at its first texels over the bound)."""
+    from bake.dome import Dome
+
+    dome = Dome.for_light_count(40)
+    site = {"timezone": "Europe/Paris", "latitude_deg": 48.85, "longitude_deg": 2.35,
+            "elevation_m": 35.0}
+    sky_list, S, S_inv, selection = compress.prepare(site, dome.vertices,
+                                                     dome.solid_angles_sr, 0)
+    settings = compress.Settings()
+    rng = np.random.default_rng(8)
+    T, n = 400, dome.count
+    calls = []
+    composite = lowrank.Spectrum.composite
+
+    def counted(self, *args):
+        calls.append(1)
+        return composite(self, *args)
+
+    monkeypatch.setattr(lowrank.Spectrum, "composite", counted)
+    verdicts, fewer = set(), 0
+    for case in range(2):
+        d = (1.0 + 0.3 * rng.random((T, 1, 1))) * (0.2 + rng.random((1, n, 3)))
+        shade = rng.random((T, n, 1)) < 0.2 + 0.2 * case  # the virtual objects' shadows
+        I = d * np.where(shade, 0.1, 1.0)
+        gain = np.ones(T, np.float32)
+        spec_d = lowrank.Spectrum.of(d.astype(np.float32), gain, S)
+        spec_delta = lowrank.Spectrum.of((d - I).astype(np.float32), gain, S)
+        for k in (1, 4, 12):
+            args = (spec_delta, spec_d, k, S, S_inv, sky_list, selection, settings)
+            calls.clear()
+            whole = lowrank.ratio_error(*args)
+            every = len(calls)
+            for bound in (0.5 * whole, 0.999 * whole, whole, 1.001 * whole):
+                calls.clear()
+                early = lowrank.ratio_error(*args, above=bound)
+                assert (early <= bound) == (whole <= bound), (case, k, bound)
+                assert early <= whole
+                verdicts.add(whole <= bound)
+                fewer += len(calls) < every
+    assert verdicts == {True, False} and fewer >= 6

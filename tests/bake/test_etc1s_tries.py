@@ -11,17 +11,19 @@ within the budget of the master's summed here."""
 from __future__ import annotations
 
 import hashlib
+import json
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from bake import compress, stackkinds, testskies
+from bake import compress, lowrank, refinement, stackerrors, stackkinds, testskies
 from bake.basisu import encode
 from bake.compact_reader import CompactReader
 from bake.dome import Dome
 from bake.ktx2decoder import decode
 from bake.quantize import quantized_png
+from daylit.selection import Selection
 
 SITE = {"timezone": "Europe/Paris", "latitude_deg": 48.85, "longitude_deg": 2.35,
         "elevation_m": 35.0}
@@ -141,3 +143,112 @@ def test_the_tried_splits_write_the_first_split_within_budget(case):
         decoded = reader.composite(sky.r, case["selection"])
         error = np.sqrt(((decoded - truth) ** 2).mean()) / truth.mean()
         assert error <= budget, (sky.name, error)
+
+
+def test_a_split_judged_stops_at_its_first_sky_over_the_budget():
+    """``stackerrors.within_budget`` gives the verdict that the errors of every sky recorded
+    by ``record_errors`` give (the entry's rounded maximum against the budget, at the
+    rounding's edge too), records the same entry when within, and judges a rejected split
+    only up to its first sky over the budget, from the sky it is told to start at."""
+    T = 64
+    reference = np.ones((T, 3), np.float32)
+
+    def case(errors):
+        skies = [testskies.TestSky(f"sky {s}", np.full((4, 3), float(s)))
+                 for s in range(len(errors))]
+        calls = []
+
+        def composite(r):  # an error of exactly errors[s] of the mean under sky s
+            s = int(r[0, 0])
+            calls.append(s)
+            out = reference.copy()
+            out[: T // 2] += errors[s]
+            out[T // 2 :] -= errors[s]
+            return out
+
+        return skies, composite, calls
+
+    for errors, budget in (([0.004, 0.012, 0.003, 0.02, 0.009], 0.01),
+                           ([0.004, 0.012, 0.003, 0.02, 0.009], 0.03),
+                           ([0.004, 0.0100004, 0.003], 0.01),  # rounds to the budget: within
+                           ([0.004, 0.0100006, 0.003], 0.01)):  # rounds over it
+        skies, composite, calls = case(errors)
+        full = {"error": {}}
+        stackerrors.record_errors(full, [reference] * len(skies), composite, skies)
+        expected = full["error"]["max"] <= budget
+        for first in range(len(skies)):
+            calls.clear()
+            entry = {"error": {}}
+            within, decided = stackerrors.within_budget(entry, lambda sky: reference,
+                                                        composite, skies, budget, first)
+            assert within == expected, (errors, budget, first)
+            order = list(range(first, len(skies))) + list(range(first))
+            if within:
+                assert decided == first and sorted(calls) == list(range(len(skies)))
+                assert json.dumps(entry) == json.dumps(full)  # the same errors, same order
+            else:
+                over = [s for s in order if round(errors[s], 6) > budget]
+                assert decided == over[0] and calls == order[: order.index(decided) + 1]
+                assert entry == {"error": {}}
+    # On a rejected split the judgement ends at the first sky over the budget.
+    skies, composite, calls = case([0.004, 0.012, 0.003, 0.02, 0.009])
+    assert stackerrors.within_budget({"error": {}}, lambda sky: reference, composite, skies,
+                                     0.01, 3) == (False, 3)
+    assert calls == [3]
+
+
+def _refinement_case(rng, T=300, k=10, n=12, skies=6):
+    """Random factors (T, 3, k) and (n, k), skies, masters near ``U V^T r``, and losses."""
+    U = (1.0 + 0.3 * rng.normal(size=(T, 3, k))).astype(np.float32)
+    V = rng.uniform(0.0, 1.0, (n, k)).astype(np.float32)
+    f = lowrank.Factors(k, U, V, {})
+    sky_list = [testskies.TestSky(f"s{s}", rng.uniform(0.2, 1.0, (n, 3))) for s in range(skies)]
+    truths = [np.einsum("tck,kc->tc", U, (V.T @ sky.r).astype(np.float32))
+              + rng.normal(scale=0.02, size=(T, 3)).astype(np.float32) for sky in sky_list]
+    losses = rng.normal(scale=0.05, size=(k, T, 3)).astype(np.float32)
+    return f, sky_list, truths, losses
+
+
+@pytest.mark.parametrize("on_disk", [False, True])
+def test_the_splits_share_each_skys_base_residual(tmp_path, on_disk):
+    """``refinement.BaseResiduals``, made once for every split tried: each sky's ``truth - U
+    c`` the very values the rule makes alone, and the rule given it chooses the same layers
+    as alone, for splits whose ETC1S layers lose differently, at targets where the choice
+    changes (a residual missing ``U c``, or another sky's, chooses others)."""
+    rng = np.random.default_rng(11)
+    f, sky_list, truths, losses = _refinement_case(rng)
+    nothing = Selection(np.zeros(f.V.shape[0]), 0)
+    base = refinement.BaseResiduals(f, sky_list, nothing, iter(truths),
+                                    tmp_path if on_disk else None)
+    for s, (sky, truth) in enumerate(zip(sky_list, truths, strict=True)):
+        c = (f.V.T @ sky.r).astype(np.float32)
+        assert np.array_equal(base.cs[s], c)
+        assert np.array_equal(base.residual(s),
+                              truth.astype(np.float32) - np.einsum("tck,kc->tc", f.U, c))
+    rule = refinement.layers_to_refine_within
+    wrong = refinement.BaseResiduals(f, sky_list, nothing, iter(truths))
+    wrong._held = [truth.astype(np.float32) for truth in truths]  # U c left out
+    choices, wrong_differs = set(), False
+    for head in (4, 6, f.k):
+        split = losses.copy()
+        split[head:] = rng.normal(scale=0.08, size=split[head:].shape)  # this split's ETC1S
+        restored = split[:head] * rng.uniform(0.3, 1.0, (head, 1, 1)).astype(np.float32)
+        everything = rule(split, f, sky_list, nothing, truths, 0.0, refinable=head,
+                          restored=restored)
+        for target in np.linspace(0.0, 0.03, 13):
+            alone = rule(split, f, sky_list, nothing, truths, target, refinable=head,
+                         restored=restored)
+            shared = rule(split, f, sky_list, nothing, None, target, refinable=head,
+                          restored=restored, base=base)
+            assert shared == alone, (head, target)
+            choices.add(tuple(alone))
+            wrong_differs |= rule(split, f, sky_list, nothing, None, target, refinable=head,
+                                  restored=restored, base=wrong) != alone
+        assert everything  # the case is one where layers are refined
+    assert len(choices) >= 4 and wrong_differs  # the targets move the choice
+    if on_disk:
+        assert list(tmp_path.iterdir())
+    for _attempt, head in base.held([4, 6, f.k]):  # as compress_stack tries the splits
+        if head == 6:
+            break  # a split within the budget: the errors go with the loop
+    assert not list(tmp_path.iterdir()) and not base._held
