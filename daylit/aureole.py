@@ -173,30 +173,62 @@ def fit_samples(dirs, radiance_rgb, solid_angle_sr, sun_dir, shapes=(AureoleShap
     indicatrix, ``1 + e cos^2 chi``, as background), ``A`` kept >= 0, for each of ``shapes``
     (e.g. :func:`shape_grid`); the shape with the least residual (green channel) is kept.
     """
-    dirs = np.asarray(dirs, dtype=np.float64)
-    values = np.asarray(radiance_rgb, dtype=np.float64)
-    sr = np.asarray(solid_angle_sr, dtype=np.float64)
-    s = _unit(sun_dir)
-    chi = np.degrees(np.arccos(np.clip(dirs @ s, -1.0, 1.0)))
-    keep = (chi >= chi_deg[0]) & (chi <= chi_deg[1])
-    keep &= dirs[:, 1] > max(np.sin(np.radians(min_elevation_deg)), 0.0)
-    if keep.sum() < 16:
-        raise ValueError(f"too few sky samples {chi_deg} degrees from the sun to fit its aureole")
-    d, w, y = dirs[keep], np.sqrt(sr[keep]), values[keep]
-    mean = float(np.sum(y[:, 1] * sr[keep]) / np.sum(sr[keep]))
+    ring = Ring.of(dirs, radiance_rgb, solid_angle_sr, sun_dir, chi_deg, min_elevation_deg)
+    d, w, y, s = ring.dirs, ring.weight, ring.values, ring.sun
     best = None
     for shape in shapes:
-        g = _phi(d[:, 1], shape.gradation) / _phi(max(s[1], 0.0), shape.gradation)
-        basis = np.stack([kernel(d, s, shape), g, g * (d @ s) ** 2], axis=1)
+        basis = fit_basis(d, s, shape)
         coef = np.linalg.lstsq(basis * w[:, None], y * w[:, None], rcond=None)[0]  # (3, 3)
         for c in np.flatnonzero(coef[0] < 0.0):  # no aureole in a channel: refit without it
             sub = np.linalg.lstsq(basis[:, 1:] * w[:, None], y[:, c] * w, rcond=None)[0]
             coef[:, c] = [0.0, *sub]
-        resid = (basis @ coef[:, 1] - y[:, 1]) * w
-        rel = float(np.sqrt(np.sum(resid**2) / np.sum(sr[keep]))) / max(mean, 1e-12)
+        rel = ring.rms_rel(basis @ coef[:, 1])
         if best is None or rel < best.rms_rel:
             best = AureoleFit(coef[0], shape, coef[1:], rel)
     return best
+
+
+@dataclass
+class Ring:
+    """The sky samples a fit reads: those between ``chi_deg[0]`` and ``chi_deg[1]`` degrees
+    from the sun and above ``min_elevation_deg``. ``dirs`` (m, 3), ``values`` (m, 3)
+    W/(m^2 sr), ``weight`` (m,) the square roots of their solid angles, ``sun`` the unit sun
+    direction, ``mean`` the green radiance's solid-angle mean."""
+
+    dirs: np.ndarray
+    values: np.ndarray
+    weight: np.ndarray
+    sun: np.ndarray
+    mean: float
+
+    @classmethod
+    def of(cls, dirs, radiance_rgb, solid_angle_sr, sun_dir, chi_deg=FIT_CHI_DEG,
+           min_elevation_deg: float = FIT_MIN_ELEVATION_DEG) -> Ring:
+        dirs = np.asarray(dirs, dtype=np.float64)
+        values = np.asarray(radiance_rgb, dtype=np.float64)
+        sr = np.asarray(solid_angle_sr, dtype=np.float64)
+        s = _unit(sun_dir)
+        chi = np.degrees(np.arccos(np.clip(dirs @ s, -1.0, 1.0)))
+        keep = (chi >= chi_deg[0]) & (chi <= chi_deg[1])
+        keep &= dirs[:, 1] > max(np.sin(np.radians(min_elevation_deg)), 0.0)
+        if keep.sum() < 16:
+            raise ValueError(
+                f"too few sky samples {chi_deg} degrees from the sun to fit its aureole")
+        y = values[keep]
+        mean = float(np.sum(y[:, 1] * sr[keep]) / np.sum(sr[keep]))
+        return cls(dirs[keep], y, np.sqrt(sr[keep]), s, mean)
+
+    def rms_rel(self, model_green: np.ndarray) -> float:
+        """A model's (m,) solid-angle weighted RMS residual in green, of the ring's mean."""
+        resid = (model_green - self.values[:, 1]) * self.weight
+        return float(np.sqrt(np.sum(resid**2) / np.sum(self.weight**2))) / max(self.mean, 1e-12)
+
+
+def fit_basis(dirs, sun_dir, shape: AureoleShape) -> np.ndarray:
+    """(m, 3) the fit's columns at unit directions ``dirs`` (m, 3): the aureole's kernel
+    ``k``, and the background ``phi/phi_s`` and ``phi/phi_s cos^2 chi`` (``sun_dir`` unit)."""
+    g = _phi(dirs[:, 1], shape.gradation) / _phi(max(sun_dir[1], 0.0), shape.gradation)
+    return np.stack([kernel(dirs, sun_dir, shape), g, g * (dirs @ sun_dir) ** 2], axis=1)
 
 
 def subtract(image, sun_dir, amplitude, shape: AureoleShape = AureoleShape()) -> np.ndarray:

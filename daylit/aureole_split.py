@@ -36,6 +36,7 @@ import numpy as np
 from daylit import aureole
 from daylit.aureole import AureoleFit, AureoleShape, kernel
 from daylit.envmap import pixel_directions
+from daylit.spherical import normalize
 
 ACCEPT_RMS_REL = 0.03  # the free fit's residual, of the ring's mean radiance
 ACCEPT_OVERSHOOT = 0.002  # the free model above the sky, of the sky's horizontal irradiance
@@ -66,7 +67,7 @@ class Split:
 
 
 def _select(dirs, sun_dir, chi_deg, min_elevation_deg):
-    s = aureole._unit(sun_dir)
+    s = normalize(np.asarray(sun_dir, dtype=np.float64))
     chi = np.degrees(np.arccos(np.clip(dirs @ s, -1.0, 1.0)))
     keep = (chi >= chi_deg[0]) & (chi < 90.0)
     keep &= dirs[:, 1] > max(np.sin(np.radians(min_elevation_deg)), 0.0)
@@ -115,30 +116,19 @@ def held_fit(dirs, radiance_rgb, solid_angle_sr, sun_dir, shapes=None,
     Its model is nowhere above the samples :func:`envelope` reads."""
     dirs = np.asarray(dirs, dtype=np.float64)
     values = np.asarray(radiance_rgb, dtype=np.float64)
-    sr = np.asarray(solid_angle_sr, dtype=np.float64)
     shapes = held_grid() if shapes is None else shapes
-    s, _ = _select(dirs, sun_dir, chi_deg, min_elevation_deg)
-    chi = np.degrees(np.arccos(np.clip(dirs @ s, -1.0, 1.0)))
-    ring = (chi >= chi_deg[0]) & (chi <= chi_deg[1])
-    ring &= dirs[:, 1] > max(np.sin(np.radians(min_elevation_deg)), 0.0)
-    if ring.sum() < 16:
-        raise ValueError(f"too few sky samples {chi_deg} degrees from the sun to fit its aureole")
-    d, w, y = dirs[ring], np.sqrt(sr[ring]), values[ring]
-    mean = float(np.sum(y[:, 1] * sr[ring]) / np.sum(sr[ring]))
+    ring = aureole.Ring.of(dirs, values, solid_angle_sr, sun_dir, chi_deg, min_elevation_deg)
+    d, w, y, s = ring.dirs, ring.weight, ring.values, ring.sun
     best = None
     for shape in shapes:
-        g = aureole._phi(d[:, 1], shape.gradation) / aureole._phi(max(s[1], 0.0),
-                                                                  shape.gradation)
-        k = kernel(d, s, shape)
-        background = np.stack([g, g * (d @ s) ** 2], axis=1)
-        basis = np.column_stack([k, background])
+        basis = aureole.fit_basis(d, s, shape)
+        k, background = basis[:, 0], basis[:, 1:]
         coef = np.linalg.lstsq(basis * w[:, None], y * w[:, None], rcond=None)[0]  # (3, 3)
         amplitude = np.clip(coef[0], 0.0, envelope(dirs, values, s, shape, chi_deg[0],
                                                    min_elevation_deg))
         rest = y - np.outer(k, amplitude)
         bg = np.linalg.lstsq(background * w[:, None], rest * w[:, None], rcond=None)[0]
-        resid = (background @ bg[:, 1] - rest[:, 1]) * w
-        rel = float(np.sqrt(np.sum(resid**2) / np.sum(sr[ring]))) / max(mean, 1e-12)
+        rel = ring.rms_rel(background @ bg[:, 1] + k * amplitude[1])
         if best is None or rel < best.rms_rel:
             best = AureoleFit(amplitude, shape, bg, rel)
     return best
