@@ -22,7 +22,10 @@ Under heavy cloud sunlit and shadowed surfaces look alike and ``E_sun`` goes to 
 
 The sky's angular distribution is a CIE general sky (``daylit.sky.CIESky``) chosen by the
 estimated sun/sky ratio (:func:`sky_type_for_ratio`) and solved again with that shape, blended
-with an isotropic part whose share is fitted from the pixels (followed across frames). Under any
+with an isotropic part whose share is fitted from the pixels (followed across frames); under a
+clear sky then Perez's all-weather sky (``server.perezsky``) for the clearness and brightness
+that fit measured, fitted once more and taken whole. A sample's open sky is found on a fixed
+fine grid (``SceneSamples.sky_weight``), its bounce through its own jittered directions. Under any
 sky the sun is kept only when it explains the pixels clearly better than the sky alone
 (``sun_significance``; a view that shows almost no shade cannot tell a sun from the sky, and a
 fit with a free sun there reads noise as one), and only when pairs of patches across the model's

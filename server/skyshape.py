@@ -1,10 +1,12 @@
 """The model sky's shape for the scene estimate (server.sceneestimate, issue 16).
 
 The scene estimate measures only the sky's brightness; its angular distribution is a CIE general
-sky (``daylit.sky.CIESky``) chosen by the estimated ratio of the sun's normal irradiance to the
-sky's horizontal irradiance (:func:`sky_type_for_ratio`), scaled to an open horizontal
-irradiance of 1 (:func:`unit_sky`). :func:`tilted_irradiance` gives what that sky puts on an
-unobstructed surface of any tilt (the one-bounce term: a wall lit by an overcast sky).
+sky (``daylit.sky.CIESky``; under a clear sky the estimator then takes Perez's all-weather sky,
+``server.perezsky``, through :func:`unit_sky`'s ``perez``) chosen by the estimated ratio of
+the sun's normal irradiance to the sky's horizontal irradiance (:func:`sky_type_for_ratio`),
+scaled to an open horizontal irradiance of 1 (:func:`unit_sky`). :func:`tilted_irradiance`
+gives what that sky puts on an unobstructed surface of any tilt (the one-bounce term: a wall lit
+by an overcast sky).
 
 Directions are site-frame unit vectors (+X east, +Y up, -Z north); irradiances per unit of the
 open horizontal irradiance.
