@@ -20,9 +20,17 @@ import numpy as np
 import trimesh
 
 from daylit.spherical import normalize
+from server.skyshape import upper_hemisphere_grid
 from server.surfacescale import surfaces_by_albedo
 
 SURFACE_OFFSET_M = 0.01  # rays leave a surface this far along its normal
+# Zenith steps of the fixed sky grid each sample's open sky is found on (twice as many in
+# azimuth: 3.75 degree cells, 1152 directions). The sky term is the model sky's radiance over
+# it: a clear sky's circumsolar peak is some 20 degrees wide, and the 96 cosine-distributed
+# directions of the hemisphere (the same for every sample of one tilt) put 0.93 to 1.06 of the
+# horizontal irradiance on an open horizontal plane, depending on where the sun fell between
+# them, and misread what a tree or a building blocks near the sun (docs/server.md).
+SKY_GRID_STEPS = 24
 
 
 class SceneEstimateError(ValueError):
@@ -54,15 +62,17 @@ class PinholeView:
         return origins, dirs
 
 
-def cosine_directions(count: int, seed: int = 0) -> np.ndarray:
-    """``count`` cosine-distributed unit directions (count, 3) about +Z (stratified)."""
+def cosine_directions(count: int, seed: int = 0, sets: int | None = None) -> np.ndarray:
+    """``count`` cosine-distributed unit directions (count, 3) about +Z (stratified); with
+    ``sets``, that many independently jittered sets (sets, count, 3)."""
     rng = np.random.default_rng(seed)
     side = max(1, int(math.sqrt(count)))
-    u = (np.arange(count) % side + rng.random(count)) / side
-    v = (np.arange(count) // side + rng.random(count)) / math.ceil(count / side)
+    shape = (count,) if sets is None else (sets, count)
+    u = (np.arange(count) % side + rng.random(shape)) / side
+    v = (np.arange(count) // side + rng.random(shape)) / math.ceil(count / side)
     r = np.sqrt(np.clip(u, 0.0, 1.0))
     phi = 2.0 * math.pi * np.clip(v, 0.0, 1.0)
-    return np.column_stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(1.0 - r * r)])
+    return np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(1.0 - r * r)], axis=-1)
 
 
 def _frames_about(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -101,11 +111,15 @@ class SceneSamples:
     bounce_albedo: np.ndarray
     bounce_sample: np.ndarray
     surface: np.ndarray
+    sky_grid_dirs: np.ndarray
+    sky_grid_sr: np.ndarray
+    sky_weight: np.ndarray
 
     @property
     def sky_view(self) -> np.ndarray:
-        """(m,) cosine-weighted fraction of each hemisphere that sees open sky."""
-        return self.sky_visible.mean(axis=1)
+        """(m,) cosine-weighted fraction of each hemisphere that sees open sky (on the sky
+        grid: an isotropic sky's irradiance per unit of an open horizontal plane's)."""
+        return self.sky_weight.sum(axis=1, dtype=np.float64) / math.pi
 
     def bounce_terms(self, bounce_lit: np.ndarray, bounce_sky: np.ndarray | None = None
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -194,9 +208,12 @@ def prepare_samples(mesh: trimesh.Trimesh, face_albedo: np.ndarray, view: Pinhol
     points[ray_idx] = loc
     normals = face_normals[idx]
     t, b = _frames_about(normals)
-    local = cosine_directions(hemisphere_count, seed + 1)
-    hemi = (local[None, :, 0:1] * t[:, None] + local[None, :, 1:2] * b[:, None]
-            + local[None, :, 2:3] * normals[:, None])
+    # each sample its own jittered set: one set shared by all samples of a tilt put the
+    # same quadrature error on all of them (a bounce from a shadow's edge seen through a few
+    # directions), which the fit reads as sky (up to 18 % between pools, docs/server.md)
+    local = cosine_directions(hemisphere_count, seed + 1, sets=len(idx))
+    hemi = (local[:, :, 0:1] * t[:, None] + local[:, :, 1:2] * b[:, None]
+            + local[:, :, 2:3] * normals[:, None])
     m, k = hemi.shape[:2]
     start = np.repeat(points + SURFACE_OFFSET_M * normals, k, axis=0)
     flat = hemi.reshape(-1, 3)
@@ -213,6 +230,7 @@ def prepare_samples(mesh: trimesh.Trimesh, face_albedo: np.ndarray, view: Pinhol
     far = np.flatnonzero((first < 0) & (flat[:, 1] <= 0.0))
     bounce_rays = np.concatenate([hits, far])
     env = np.full(3, environment_albedo)
+    grid_dirs, grid_sr, sky_weight = open_sky_weights(hit, points, normals)
     return SceneSamples(
         pixels_xy=np.column_stack([xs[idx], ys[idx]]),
         points_m=points, normals=normals, albedo=face_albedo[face[idx]],
@@ -223,4 +241,28 @@ def prepare_samples(mesh: trimesh.Trimesh, face_albedo: np.ndarray, view: Pinhol
         bounce_albedo=np.vstack([face_albedo[first[hits]], np.tile(env, (len(far), 1))]),
         bounce_sample=bounce_rays // k,
         surface=surfaces_by_albedo(face_albedo)[face[idx]],
+        sky_grid_dirs=grid_dirs, sky_grid_sr=grid_sr, sky_weight=sky_weight,
     )
+
+
+def open_sky_weights(hit, points_m: np.ndarray, normals: np.ndarray,
+                     steps: int = SKY_GRID_STEPS
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The sky grid (``upper_hemisphere_grid(steps)``: (G, 3) directions, (G,) solid angles
+    sr) and (m, G) float32
+    each cell's ``d_omega * cos`` to the unit ``normals`` (m, 3) where a ray from ``points_m``
+    (m, 3) that way hits nothing of the mesh (``hit``: its intersector), else 0."""
+    dirs, d_omega = upper_hemisphere_grid(steps)
+    cos = normals @ dirs.T
+    front = np.argwhere(cos > 0.0)
+    start = points_m[front[:, 0]] + SURFACE_OFFSET_M * normals[front[:, 0]]
+    blocked = np.zeros(len(front), bool)
+    chunk = 500_000
+    for k in range(0, len(front), chunk):
+        blocked[k:k + chunk] = hit.intersects_any(start[k:k + chunk],
+                                                  dirs[front[k:k + chunk, 1]])
+    weight = np.zeros(cos.shape, np.float32)
+    open_ = front[~blocked]
+    weight[open_[:, 0], open_[:, 1]] = (cos[open_[:, 0], open_[:, 1]]
+                                        * d_omega[open_[:, 1]])
+    return dirs, d_omega, weight

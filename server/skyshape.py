@@ -1,10 +1,12 @@
 """The model sky's shape for the scene estimate (server.sceneestimate, issue 16).
 
 The scene estimate measures only the sky's brightness; its angular distribution is a CIE general
-sky (``daylit.sky.CIESky``) chosen by the estimated ratio of the sun's normal irradiance to the
-sky's horizontal irradiance (:func:`sky_type_for_ratio`), scaled to an open horizontal
-irradiance of 1 (:func:`unit_sky`). :func:`tilted_irradiance` gives what that sky puts on an
-unobstructed surface of any tilt (the one-bounce term: a wall lit by an overcast sky).
+sky (``daylit.sky.CIESky``; under a clear sky the estimator then takes Perez's all-weather sky,
+``server.perezsky``, through :func:`unit_sky`'s ``perez``) chosen by the estimated ratio of
+the sun's normal irradiance to the sky's horizontal irradiance (:func:`sky_type_for_ratio`),
+scaled to an open horizontal irradiance of 1 (:func:`unit_sky`). :func:`tilted_irradiance`
+gives what that sky puts on an unobstructed surface of any tilt (the one-bounce term: a wall lit
+by an overcast sky).
 
 Directions are site-frame unit vectors (+X east, +Y up, -Z north); irradiances per unit of the
 open horizontal irradiance.
@@ -17,6 +19,7 @@ import math
 import numpy as np
 
 from daylit.sky import CIESky, azimuth_elevation_from_direction
+from server.perezsky import PerezShape
 
 OVERCAST_RATIO = 0.5  # E_sun / k below this: one of the overcast CIE skies (OVERCAST_TYPES)
 # CIE overcast with steep gradation: uniform in azimuth (1, the CIE standard overcast) or with
@@ -51,16 +54,21 @@ def sky_type_for_ratio(sun_to_sky: float, sun_elevation_deg: float = 90.0) -> in
     return 12 if sky_clearness(sun_to_sky, sun_elevation_deg) >= CLEAR_CLEARNESS else 7
 
 
-def unit_sky(sky_type: int, sun_dir: np.ndarray) -> tuple[CIESky, float]:
-    """A grey CIE sky of this type for the sun direction, and the factor that scales its
-    radiance to an open horizontal irradiance of 1 W/m^2 (sun excluded)."""
+def unit_sky(sky_type: int, sun_dir: np.ndarray, perez: tuple[float, float] | None = None
+             ) -> tuple[CIESky | PerezShape, float]:
+    """A grey CIE sky of this type for the sun direction (or, with ``perez`` = (clearness,
+    brightness), the Perez all-weather sky of that state: ``server.perezsky``), and the factor
+    that scales its radiance to an open horizontal irradiance of 1 W/m^2 (sun excluded)."""
+    if perez is not None:
+        sky = PerezShape(perez[0], perez[1], np.asarray(sun_dir, float))
+        return sky, 1.0 / _horizontal_irradiance(sky)
     az, el = azimuth_elevation_from_direction(sun_dir)
     sky = CIESky(sky_type=sky_type, sun_azimuth_deg=float(az),
                  sun_elevation_deg=float(max(el, 0.0)), zenith_radiance=(1.0, 1.0, 1.0))
     return sky, 1.0 / _horizontal_irradiance(sky)
 
 
-def _upper_hemisphere_grid(steps: int = 48) -> tuple[np.ndarray, np.ndarray]:
+def upper_hemisphere_grid(steps: int = 48) -> tuple[np.ndarray, np.ndarray]:
     """Midpoint directions (N, 3) over the upper hemisphere and their solid angles (N,) sr."""
     dz = (math.pi / 2) / steps
     da = 2 * math.pi / (2 * steps)
@@ -71,9 +79,9 @@ def _upper_hemisphere_grid(steps: int = 48) -> tuple[np.ndarray, np.ndarray]:
     return dirs.reshape(-1, 3), (np.sin(zz) * dz * da).ravel()
 
 
-def _horizontal_irradiance(sky: CIESky, steps: int = 48) -> float:
+def _horizontal_irradiance(sky: CIESky | PerezShape, steps: int = 48) -> float:
     """An open horizontal plane's irradiance from a sky's relative luminance (midpoint grid)."""
-    dirs, d_omega = _upper_hemisphere_grid(steps)
+    dirs, d_omega = upper_hemisphere_grid(steps)
     return float((d_omega * dirs[:, 1]) @ sky.relative_luminance(dirs))
 
 
@@ -82,7 +90,7 @@ def _horizontal_irradiance(sky: CIESky, steps: int = 48) -> float:
 SH9_COSINE = np.array([math.pi] + [2.0 * math.pi / 3.0] * 3 + [math.pi / 4.0] * 5)
 
 
-def tilted_irradiance(sky: CIESky, to_unit: float, normals: np.ndarray) -> np.ndarray:
+def tilted_irradiance(sky: CIESky | PerezShape, to_unit: float, normals: np.ndarray) -> np.ndarray:
     """(n,) the irradiance of unobstructed surfaces of unit ``normals`` (n, 3) under a sky
     scaled to an open horizontal irradiance of 1 (``unit_sky``), nothing from below the
     horizon. By the sky's spherical harmonics to l = 2 (exact for an isotropic sky's
@@ -91,6 +99,6 @@ def tilted_irradiance(sky: CIESky, to_unit: float, normals: np.ndarray) -> np.nd
     irradiance, not the isotropic 0.5."""
     from daylit.spherical import sh9_basis
 
-    dirs, d_omega = _upper_hemisphere_grid(24)
+    dirs, d_omega = upper_hemisphere_grid(24)
     coeff = (d_omega * sky.relative_luminance(dirs) * to_unit) @ sh9_basis(dirs)
     return sh9_basis(np.asarray(normals, float)) @ (SH9_COSINE * coeff)

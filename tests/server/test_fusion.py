@@ -107,10 +107,15 @@ def renders(scene_build):
     pytest.importorskip("pyradiance")
     from benchmarks.bench_fidelity import SkySpec
     from daylit import manifest as manifest_io
-    from tests.radiance_frames import render_build_view, render_sky_camera
+    from tests.radiance_frames import (
+        ACCURATE_CAMERA_RAYS,
+        render_build_view,
+        render_sky_camera,
+    )
 
     spec = SkySpec(*SKY)
-    site_view, _ = render_build_view(scene_build, spec, 320, 180)
+    site_view, _ = render_build_view(scene_build, spec, 320, 180, procs=2,
+                                     rays=ACCURATE_CAMERA_RAYS)
     sky_image, sky = render_sky_camera(spec, manifest_io.load(scene_build), 256)
     return site_view, sky_image, sky
 
@@ -189,8 +194,8 @@ async def test_a_clipped_sun_streams_the_scene_estimate(
     model = float(np.mean(SunPath(34.47, 135.82, 100.0).at(site_view.when_unix_s).dni_rgb_w_m2))
     assert abs(model / truth - 1.0) > 0.15
     # the two agree on the sky: no warning
-    # (the estimate's sky runs about 17 % low on this sky, its sun 4 % high: the
-    # circumsolar sky partly taken for the sun; docs/benchmarks.md)
+    # (with the CIE clear sky the estimate's sky ran about 17 % low on this sky, its sun 4 %
+    # high: the circumsolar sky partly taken for the sun; docs/benchmarks.md)
     assert 1 / 1.3 < fusion["sky_ratio"] < 1.3 and fusion["warning"] is None, fusion
     # the finer check: the sky camera's own sky fitted to the site's pixels needs no scale
     status = await _status_when(client, lambda b: b["fusion"].get("scene_estimates", 0) >= 12
@@ -210,8 +215,11 @@ async def test_a_drifting_sky_camera_is_reported(
         aiohttp_client, scene_build, tmp_path, renders, drift):
     """A sky camera whose frames read the sky x0.7 (a fogged lens) or x1.4 (a gain change).
     The sky camera's gain against the site's pixels (server.skycheck, drift factor 1.25)
-    reports both; the comparison with the scene estimate's own sky (factor 1.3) misses the
-    fogged lens (its sky runs 17-20 % low on this sky, so the ratio reads 0.7 x 1.2)."""
+    reports both; so does the comparison with the scene estimate's own sky (factor 1.3),
+    since that sky is Perez's clear sky: with the CIE clear sky it ran 17-20 % low on this sky,
+    the ratio read 0.7 x 1.2 and missed the fogged lens. (The site's frame is rendered without
+    Radiance's ambient cache, whose brightened shade reads as too much sky: with it the
+    estimate's sky read 39 % above the sky camera's.)"""
     client = await aiohttp_client(_app(scene_build, tmp_path, renders, drift))
     status = await _status_when(client, lambda b: b["fusion"].get("scene_estimates", 0) >= 12
                                 and b["fusion"].get("sky_camera_gain") is not None
@@ -220,8 +228,7 @@ async def test_a_drifting_sky_camera_is_reported(
     assert fusion["sky_camera_gain"] == pytest.approx(drift, rel=0.12), fusion
     assert not 1 / 1.25 <= fusion["sky_camera_gain"] <= 1.25, fusion
     assert "sky camera gain" in fusion["warning"], fusion
-    if drift < 1:
-        assert 1 / 1.3 <= fusion["sky_ratio"] <= 1.3, fusion
+    assert fusion["sky_ratio"] == pytest.approx(drift, rel=0.12), fusion
     # the sky camera measured the drifted sky (the drift is in its frames)
     assert np.mean(fusion["sky_camera"]["sky_horizontal_irradiance_W_m2"]) == pytest.approx(
         drift * 110.0, rel=0.10)

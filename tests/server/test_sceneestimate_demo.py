@@ -84,16 +84,17 @@ def test_overcast_sun_below_five_percent_of_the_sky_on_the_demo(demo_streams):
 
 
 @pytest.mark.slow
-def test_clear_sky_within_a_quarter_on_the_demo(demo_streams):
-    """The clear sky's horizontal irradiance (a tenth of the light) within 25 %. The issue's
-    10 % is not met on this site: over 40 streams per hour it was up to 22 % off at 12:00 (17
-    of 40 beyond 10 %; 9 of 40 at 320x180, up to 15 %), within 10 % at 14:30 and 9:30 in all
-    but 1-2 (docs/benchmarks.md, "On a site it was not tuned on")."""
+def test_clear_sky_within_ten_percent_on_the_demo(demo_streams):
+    """The clear sky's horizontal irradiance (a tenth of the light) within the issue's 10 %.
+    Before the clear sky's shape was the Perez all-weather sky of the measured state, with
+    the open sky found on a fine grid per sample (server/perezsky.py, server/scenesamples.py),
+    this failed: the CIE clear sky and 96 directions shared by every sample read it up to
+    22 % off at 12:00 (docs/benchmarks.md, "On a site it was not tuned on")."""
     for hour in HOURS:
         rendered, lasts = demo_streams["clear", hour]
         for seed, last in zip(SEEDS, lasts, strict=True):
             err = _grey(last.sky_horizontal_irradiance) / rendered.dhi_w_m2 - 1.0
-            assert abs(err) < 0.25, (hour, seed, err, last)
+            assert abs(err) < 0.10, (hour, seed, err, last)
 
 
 KIOSK_SIZE = (160, 90)
