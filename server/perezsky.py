@@ -27,6 +27,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import pvlib
 
 SOLAR_CONSTANT_W_M2 = 1367.0  # E0 without the year's +-3.4 %: the estimate knows no date
 # Lower edges of Perez's eight clearness bins (the last open above)
@@ -62,9 +63,9 @@ PEREZ_1993 = np.array([
 
 
 def air_mass(sun_elevation_deg: float) -> float:
-    """Kasten & Young's (1989) relative optical air mass (38 at the horizon)."""
-    el = min(max(sun_elevation_deg, 0.0), 90.0)
-    return 1.0 / (math.sin(math.radians(el)) + 0.50572 * (el + 6.07995) ** -1.6364)
+    """Kasten & Young's (1989) relative optical air mass (pvlib's; 38 at the horizon)."""
+    zenith_deg = 90.0 - min(max(sun_elevation_deg, 0.0), 90.0)
+    return float(pvlib.atmosphere.get_relative_airmass(zenith_deg, model="kastenyoung1989"))
 
 
 def sky_brightness(sky_horizontal_w_m2: float, sun_elevation_deg: float) -> float:
@@ -107,8 +108,7 @@ class PerezShape:
         # (the parameters jump at the bins' edges: a blend of the two bins' shapes within
         # 10 % of an edge read the tests' small site's clear sky 14:30 sky 8-12 % low, where
         # the published bins alone read it 5-8 % low)
-        self.bins = [(perez_parameters(self.clearness, self.brightness, self.sun_zenith_rad),
-                      1.0)]
+        self.params = perez_parameters(self.clearness, self.brightness, self.sun_zenith_rad)
 
     @staticmethod
     def _lv(params, cos_zenith: np.ndarray, gamma: np.ndarray) -> np.ndarray:
@@ -121,8 +121,5 @@ class PerezShape:
         callers keep to the upper hemisphere), never negative."""
         cos_z = np.clip(dirs[:, 1], 1e-2, 1.0)
         gamma = np.arccos(np.clip(dirs @ self.sun_dir, -1.0, 1.0))
-        out = np.zeros(len(dirs))
-        for params, w in self.bins:
-            zenith = self._lv(params, np.ones(1), np.array([self.sun_zenith_rad]))[0]
-            out += w * np.clip(self._lv(params, cos_z, gamma) / max(zenith, 1e-9), 0.0, None)
-        return out
+        zenith = self._lv(self.params, np.ones(1), np.array([self.sun_zenith_rad]))[0]
+        return np.clip(self._lv(self.params, cos_z, gamma) / max(zenith, 1e-9), 0.0, None)
