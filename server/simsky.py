@@ -14,11 +14,7 @@ measuring code meets the real problems (a clipped sun, quantisation, a response 
 :meth:`SimulatedSky.sky_at` gives the exact sky, whose patch integrals are the truth the tests
 compare with (``daylit.sky.patch_mean_radiance``).
 
-The clock (``[sim] start``): ``auto``, the default, keeps the demo in daylight whenever it is
-run: it starts now if the sun is up at the site (at least ``DAYLIGHT_ELEVATION_DEG``), else at
-the next ``MORNING_HOUR`` o'clock local time there, and when the simulated sun sets it goes on
-at the next morning's ``MORNING_HOUR`` again. ``now`` and an ISO date-time follow the clock
-through the night.
+The clock (``[sim] start``) is server.simclock's; the clouds are server.clouds'.
 """
 
 from __future__ import annotations
@@ -29,10 +25,9 @@ import math
 import time
 from dataclasses import dataclass, field
 from functools import cached_property
-from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
+from zoneinfo import ZoneInfo
 
 import numpy as np
-from scipy import ndimage
 
 from daylit.sky import (
     SUN_ANGULAR_RADIUS_DEG,
@@ -51,210 +46,17 @@ from daylit.sun import (
     day_of_year,
     sun_colour,
 )
+from server.clouds import CloudLayer, CloudySky
 from server.fisheye import FisheyeCamera
 from server.measure import Frame
 from server.photometry import Photometry, inverse_response_table
+from server.simclock import SimClock, daylight_start, next_morning, parse_start, sunset_after
 
 # Linear value of unit radiance at the camera's longest exposure: full scale at 1 W/(m^2 sr),
 # about a hundredth of a daylight sky.
 MAX_EXPOSURE = 1.0
 
-# The "auto" clock: the sun counts as up from this elevation (the simulated sky is in full
-# daylight from 2 degrees), and a new day starts at this local hour.
-DAYLIGHT_ELEVATION_DEG = 5.0
-MORNING_HOUR = 10
-
 log = logging.getLogger("daylit.simsky")
-
-
-@dataclass
-class SimClock:
-    """Simulated time: ``start_s`` (Unix seconds) at wall time ``wall_start_s``, running at
-    ``speed`` simulated seconds per wall second."""
-
-    start_s: float
-    speed: float = 1.0
-    wall_start_s: float = field(default_factory=time.time)
-
-    def now(self, wall_s: float | None = None) -> float:
-        wall = time.time() if wall_s is None else wall_s
-        return self.start_s + self.speed * (wall - self.wall_start_s)
-
-    def jump(self, sky_time_s: float, wall_s: float | None = None) -> None:
-        """Go on from ``sky_time_s`` at wall time ``wall_s`` (now), at the same speed."""
-        self.start_s = sky_time_s
-        self.wall_start_s = time.time() if wall_s is None else wall_s
-
-
-def _site_zone(timezone: str) -> ZoneInfo:
-    try:
-        return ZoneInfo(timezone)
-    except (ZoneInfoNotFoundError, ValueError):
-        raise ValueError(f"unknown time zone {timezone!r} in the manifest") from None
-
-
-def _elevations(latitude_deg: float, longitude_deg: float, elevation_m: float,
-                times_s: np.ndarray) -> np.ndarray:
-    """Apparent sun elevation (degrees) at the site at Unix times (vectorised SPA)."""
-    import pandas as pd
-
-    from daylit.sky import sun_positions
-
-    times = pd.DatetimeIndex(pd.to_datetime(np.asarray(times_s, dtype=np.float64), unit="s",
-                                            utc=True))
-    return sun_positions(latitude_deg, longitude_deg, elevation_m, times)[1]
-
-
-def next_morning(latitude_deg: float, longitude_deg: float, elevation_m: float,
-                 timezone: str, after_s: float) -> float:
-    """The first ``MORNING_HOUR`` o'clock local time at the site after ``after_s``.
-
-    Where the sun is below ``DAYLIGHT_ELEVATION_DEG`` then (a polar winter), the time of that
-    day's highest sun instead: the brightest the day gets.
-    """
-    zone = _site_zone(timezone)
-    local = dt.datetime.fromtimestamp(after_s, zone)
-    morning = dt.datetime.combine(local.date(), dt.time(MORNING_HOUR), zone)
-    if morning.timestamp() <= after_s:
-        morning = dt.datetime.combine(local.date() + dt.timedelta(days=1), dt.time(MORNING_HOUR),
-                                      zone)
-    start_s = morning.timestamp()
-    if _elevations(latitude_deg, longitude_deg, elevation_m, [start_s])[0] >= \
-            DAYLIGHT_ELEVATION_DEG:
-        return start_s
-    midnight_s = dt.datetime.combine(morning.date(), dt.time(0), zone).timestamp()
-    times = midnight_s + np.arange(0.0, 86400.0, 600.0)
-    return float(times[np.argmax(_elevations(latitude_deg, longitude_deg, elevation_m, times))])
-
-
-def daylight_start(latitude_deg: float, longitude_deg: float, elevation_m: float,
-                   timezone: str, now_s: float | None = None) -> float:
-    """``start = "auto"``: now if the sun is up at the site, else the next morning there."""
-    now_s = time.time() if now_s is None else now_s
-    if _elevations(latitude_deg, longitude_deg, elevation_m, [now_s])[0] >= \
-            DAYLIGHT_ELEVATION_DEG:
-        return now_s
-    return next_morning(latitude_deg, longitude_deg, elevation_m, timezone, now_s)
-
-
-def sunset_after(latitude_deg: float, longitude_deg: float, elevation_m: float,
-                 start_s: float, horizon_s: float = 2 * 86400.0, step_s: float = 300.0) -> float:
-    """When the sun, up at some time after ``start_s``, next goes below
-    ``DAYLIGHT_ELEVATION_DEG`` (to ``step_s``); +inf when it does not set within ``horizon_s``
-    (midnight sun) or never rises (polar night)."""
-    times = start_s + np.arange(0.0, horizon_s, step_s)
-    up = _elevations(latitude_deg, longitude_deg, elevation_m, times) >= DAYLIGHT_ELEVATION_DEG
-    if not up.any():
-        return math.inf
-    first_up = int(np.argmax(up))
-    down = np.flatnonzero(~up[first_up:])
-    return math.inf if down.size == 0 else float(times[first_up + down[0]])
-
-
-def parse_start(text: str | None, timezone: str) -> float:
-    """Unix time from ``"now"``/None or an ISO date-time; a naive time is local at the site.
-
-    (``"auto"`` depends on the site's sun: :func:`daylight_start`.)
-    """
-    if text is None or text == "now":
-        return time.time()
-    try:
-        when = dt.datetime.fromisoformat(text)
-    except ValueError:
-        raise ValueError(
-            f"sim start {text!r} is not an ISO date-time such as 2026-06-21T10:00"
-        ) from None
-    if when.tzinfo is None:
-        when = when.replace(tzinfo=_site_zone(timezone))
-    return when.timestamp()
-
-
-@dataclass
-class CloudLayer:
-    """A flat cloud deck at ``height_m`` whose opacity pattern drifts with the wind.
-
-    The pattern is band-limited noise (a sum of blurred random fields on a periodic grid of
-    ``tile_m`` metres), thresholded so that about ``cover`` of the sky is cloud, with soft edges.
-    """
-
-    cover: float = 0.3
-    height_m: float = 2000.0
-    wind_mps: float = 12.0
-    wind_toward_deg: float = 70.0  # azimuth the clouds move toward
-    tile_m: float = 20000.0
-    seed: int = 0
-    softness: float = 0.12
-
-    @cached_property
-    def _field(self) -> np.ndarray:
-        """(256, 256) noise in [0, 1], uniformly distributed (so ``cover`` is a fraction)."""
-        rng = np.random.default_rng(self.seed)
-        size = 256
-        total = np.zeros((size, size))
-        for sigma, amp in ((24.0, 1.0), (10.0, 0.5), (4.0, 0.2)):
-            layer = ndimage.gaussian_filter(rng.standard_normal((size, size)), sigma, mode="wrap")
-            total += amp * layer / layer.std()
-        ranks = np.argsort(np.argsort(total.ravel()))
-        return (ranks / (ranks.size - 1)).reshape(size, size)
-
-    def opacity(self, dirs: np.ndarray, sky_time_s: float) -> np.ndarray:
-        """Cloud opacity in [0, 1] for unit site directions ``(m, 3)`` at a simulated time."""
-        if self.cover <= 0.0:
-            return np.zeros(dirs.shape[0])
-        up = np.maximum(dirs[:, 1], 0.03)  # keep the horizon finite: a far deck looks uniform
-        x = dirs[:, 0] * self.height_m / up
-        z = dirs[:, 2] * self.height_m / up
-        drift = self.wind_mps * sky_time_s
-        a = math.radians(self.wind_toward_deg)
-        # The deck moves toward azimuth a; sample the pattern at the point that arrived here.
-        x = x - drift * math.sin(a)
-        z = z + drift * math.cos(a)
-        size = self._field.shape[0]
-        coords = np.stack([(z / self.tile_m * size) % size, (x / self.tile_m * size) % size])
-        noise = ndimage.map_coordinates(self._field, coords, order=1, mode="grid-wrap")
-        edge = (noise - (1.0 - self.cover)) / self.softness
-        near = np.clip(0.5 + edge, 0.0, 1.0)
-        # Toward the horizon the deck's detail shrinks below what any camera resolves: blend
-        # into its mean, as a distant deck looks like haze.
-        w = np.clip((dirs[:, 1] - 0.08) / 0.25, 0.0, 1.0)
-        return (w * near + (1.0 - w) * self.cover) * (dirs[:, 1] > 0.0)
-
-
-@dataclass
-class CloudySky(Sky):
-    """A clear CIE sky with a cloud layer over it at one instant (a ``daylit.sky.Sky``).
-
-    Clouds are lit white-grey, brighter toward the sun (forward scattering); the sun disk's
-    radiance falls as ``exp(-4 opacity)`` where a cloud covers it.
-    """
-
-    clear: CIESky | None = None
-    clouds: CloudLayer | None = None
-    sky_time_s: float = 0.0
-    daylight: float = 1.0  # 0 at night, 1 in full day (twilight in between)
-
-    def __post_init__(self):
-        sun = self.clear.sun if self.clear is not None else None
-        if sun is not None:
-            tau = self.clouds.opacity(sun.direction[None, :], self.sky_time_s)[0]
-            self.sun = Sun(sun.direction, sun.radiance * math.exp(-4.0 * tau) * self.daylight)
-            self.sun_opacity = float(tau)
-        else:
-            self.sun = None
-            self.sun_opacity = 0.0
-
-    def radiance(self, dirs: np.ndarray) -> np.ndarray:
-        clear = self.clear.radiance(dirs)
-        tau = self.clouds.opacity(dirs, self.sky_time_s)[:, None]
-        sun_dir = self.clear._sun_dir
-        near_sun = np.clip(dirs @ sun_dir, 0.0, 1.0) ** 16
-        # A thicker deck (more cover) lets less light through: overcast days are dimmer.
-        thickness = 1.2 - 0.8 * self.clouds.cover
-        grey = thickness * 1.6 * float(np.mean(self.clear.zenith_radiance)) * (1.0 + 6.0 * near_sun)
-        cloud = grey[:, None] * np.array([1.0, 1.0, 1.02])
-        out = ((1.0 - tau) * clear + tau * cloud) * self.daylight
-        out[dirs[:, 1] < 0.0] = 0.0
-        return out
 
 
 def hemisphere_grid(zenith_steps: int = 90, azimuth_steps: int = 180):

@@ -1,7 +1,7 @@
 """daylit.aureole_split, the server's rule for the aureole drawn apart, against skies built in
 the test with a known aureole: CIE general skies (daylit.sky, whose indicatrix holds the same
 circumsolar term, amplitude in closed form), with clouds drawn by another model (the
-simulated sky's drifting deck, server.simsky.CloudLayer, lit grey with a cos^16 forward glow,
+simulated sky's drifting deck, server.clouds.CloudLayer, lit grey with a cos^16 forward glow,
 not the CIE term) or a dark cloud whose bound on the amplitude is known."""
 
 import math
@@ -12,7 +12,7 @@ import pytest
 from daylit import aureole, aureole_split
 from daylit.envmap import pixel_directions
 from daylit.sky import CIE_SKY_TYPES, CIESky, direction_from_azimuth_elevation
-from server.simsky import CloudLayer
+from server.clouds import CloudLayer
 
 HEIGHT = 180
 ZENITH = 30.0  # W/(m^2 sr)

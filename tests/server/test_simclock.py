@@ -9,13 +9,13 @@ from aiohttp import WSMsgType
 from server import protocol
 from server.app import create_app
 from server.config import ConfigError, load_settings
-from server.simsky import (
+from server.simclock import (
     DAYLIGHT_ELEVATION_DEG,
-    SimulatedSky,
-    _elevations,
     daylight_start,
+    sun_elevations_deg,
     sunset_after,
 )
+from server.simsky import SimulatedSky
 from tests.server.helpers import settings_for
 
 NARA = (34.4686, 135.8194, 100.0)  # the test build's site
@@ -59,7 +59,7 @@ def test_after_sunset_the_auto_clock_goes_on_the_next_morning():
     assert local(sim.now(wall + 4.0)) == dt.datetime(2026, 6, 22, 11, 0, tzinfo=TOKYO)
     for k in range(5, 60):  # days later: never in the dark
         t = sim.now(wall + k)
-        assert _elevations(*NARA, [t])[0] > DAYLIGHT_ELEVATION_DEG - 2.0, local(t)
+        assert sun_elevations_deg(*NARA, [t])[0] > DAYLIGHT_ELEVATION_DEG - 2.0, local(t)
     # "now" and a fixed start do not jump: night is night.
     sim.keep_daylight = False
     assert sim.now(wall + 100.0) == sim.clock.now(wall + 100.0)
