@@ -90,6 +90,8 @@ export class PhoneEstimator {
     this.rand = null; // the estimate's random draws, seeded afresh for each view (_poolFor)
     this.last = null; // the last estimate
     this.registerPose = true; // poseregister.js (benchmarks switch it off for a baseline)
+    this.poolSeed = 1; // the pool's random draws (phonepool.js; benchmarks vary it)
+    this.perezClear = true; // the clear sky's Perez fit (benchmarks switch it off for a baseline)
   }
 
   /** The view was turned (its registration): the next estimate makes the pool of the new pose,
@@ -110,7 +112,7 @@ export class PhoneEstimator {
       // A new view starts afresh: its pool, its random draws and its followed shares depend on
       // the pose alone, not on how many views or estimates came before (a test's result must
       // not depend on how many estimates the machine managed before the pose was set).
-      this.pool = poolForPose(this.proxies, camera, w, h, this.farAlbedo);
+      this.pool = poolForPose(this.proxies, camera, w, h, this.farAlbedo, this.poolSeed);
       this._pose = { m, fov: camera.fov, aspect: camera.aspect, w, h };
       this._sun = null;
       this._share.clear();
@@ -228,7 +230,7 @@ export class PhoneEstimator {
     // again with it, once, and taken whole (share 1): the CIE clear sky is one fixed shape,
     // which put a shaded north wall 0.47-0.54 of the horizontal irradiance where the
     // all-weather sky gives 0.56-0.60 (docs/server.md)
-    if (type === CLEAR_TYPE && Math.max(...fit.sun) > 0) {
+    if (this.perezClear && type === CLEAR_TYPE && Math.max(...fit.sun) > 0) {
       const ratio = luma(fit.sun) / Math.max(luma(fit.sky), 1e-12);
       fit = this._fit(type, rows, values, sun, sunlit, true, perezState(skyClearness(ratio, sun[1]), ratio, sun[1]));
     }
