@@ -94,13 +94,16 @@ def open_irradiance_truth(spec, build_dir: Path, normals=COMPOSITE_NORMALS) -> n
 
 def open_irradiance_estimated(estimate: dict, sun_dir, normals=COMPOSITE_NORMALS) -> np.ndarray:
     """(n,) the irradiance of the same surfaces from the phone's estimate (its sun, and its sky:
-    ``modelShare`` of the CIE sky of its type, the rest isotropic; server/skyshape.py's
-    tilted_irradiance), in the estimate's own (uncalibrated) units."""
+    ``modelShare`` of the CIE sky of its type, or of the Perez sky of its ``perez`` state, the
+    rest isotropic; server/skyshape.py's tilted_irradiance), in the estimate's own
+    (uncalibrated) units."""
     from server.skyshape import tilted_irradiance, unit_sky
 
     sun = float(LUMA @ np.asarray(estimate["sunNormal"], float))
     k = float(LUMA @ np.asarray(estimate["skyHorizontal"], float))
-    shape, to_unit = unit_sky(int(estimate["skyType"]), np.asarray(sun_dir, float))
+    perez = estimate.get("perez")
+    shape, to_unit = unit_sky(int(estimate["skyType"]), np.asarray(sun_dir, float),
+                              None if perez is None else (float(perez[0]), float(perez[1])))
     share = float(estimate["modelShare"])
     sky = share * tilted_irradiance(shape, to_unit, normals) + (1.0 - share) * 0.5 * (
         1.0 + normals[:, 1])

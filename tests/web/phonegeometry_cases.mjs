@@ -2,10 +2,14 @@
 // `skies` [{type, sun, dirs}] -> the CIE sky's relative luminance at dirs and its factor to a
 // unit horizontal irradiance; `cast` {meshes [{vertices, faces, albedo}], origins, dirs} ->
 // the first triangle each ray meets (its distance, -1 for none) and whether any is met;
-// `types` [{ratio, sunUp}] -> Perez's clearness and the CIE sky type the estimate takes.
+// `types` [{ratio, sunUp}] -> Perez's clearness and the CIE sky type the estimate takes;
+// `perez` [{clearness, brightness, sun, dirs}] -> perezsky.js's all-weather sky's relative
+// luminance at dirs, its parameters and skyshape.js's factor to a unit horizontal irradiance;
+// `airMass` [elevation degrees] -> perezsky.js's air mass.
 // For tests/web/test_phoneestimate_js.py.
 import { readFileSync } from 'node:fs';
-import { skyClearness, skyTypeForRatio, unitSky } from '../../web/src/phoneestimate.js';
+import { airMass, perezParameters, perezShape } from '../../web/src/perezsky.js';
+import { skyClearness, skyTypeForRatio, unitSky } from '../../web/src/skyshape.js';
 import { proxiesOf } from './proxymeshes.mjs';
 
 const c = JSON.parse(readFileSync(0, 'utf8'));
@@ -24,4 +28,12 @@ c.cast.origins.forEach((o, i) => {
 const types = (c.types ?? []).map(({ ratio, sunUp }) => ({
   clearness: skyClearness(ratio, sunUp), type: skyTypeForRatio(ratio, sunUp),
 }));
-console.log(JSON.stringify({ skies, first, any, types }));
+const perez = (c.perez ?? []).map(({ clearness, brightness, sun, dirs }) => {
+  const rel = perezShape(clearness, brightness, sun);
+  return {
+    rel: dirs.map((d) => rel(d)), toUnit: unitSky(12, sun, [clearness, brightness]).toUnit,
+    params: perezParameters(clearness, brightness, Math.acos(Math.min(Math.max(sun[1], 0), 1))),
+  };
+});
+const air = (c.airMass ?? []).map(airMass);
+console.log(JSON.stringify({ skies, first, any, types, perez, airMass: air }));

@@ -4,11 +4,15 @@
 // `pairSun` {radianceShaded, radianceLit, skyShaded, skyLit, sunShaded, sunLit} -> the sun read;
 // `pool` {meshes [{vertices, faces, albedo}], eye, target, fovDeg, width, height, farAlbedo,
 // sun} -> the camera's world matrix, and per pool sample its pixel, point, normal, albedo, sky
-// view, patch share in sun and the centre's flag, with the pool's own pairs.
+// view, patch share in sun and the centre's flag, with the pool's own pairs (and with
+// `perez` [clearness, brightness], each sample's irradiance from the open sky it sees under
+// that Perez sky per unit open horizontal irradiance, phonepool.js skyTerms).
 // For tests/web/test_phoneestimate_js.py.
 import { readFileSync } from 'node:fs';
 import * as THREE from 'three';
-import { PAIR_RADIUS_PX, poolForPose, sunTerms } from '../../web/src/phoneestimate.js';
+import { PAIR_RADIUS_PX } from '../../web/src/phoneestimate.js';
+import { poolForPose, skyTerms, sunTerms } from '../../web/src/phonepool.js';
+import { unitSky } from '../../web/src/skyshape.js';
 import { proxiesOf } from './proxymeshes.mjs';
 import { pairSun, shadowPairs } from '../../web/src/shadowpairs.js';
 
@@ -32,11 +36,13 @@ if (c.pool) {
   const pool = poolForPose(proxies, camera, p.width, p.height, p.farAlbedo);
   const terms = sunTerms(proxies, pool, p.sun);
   const pairs = shadowPairs(pool, terms.map((t) => t.share), p.sun, { radiusPx: PAIR_RADIUS_PX });
+  const sky = p.perez ? skyTerms(pool, unitSky(12, p.sun, p.perez)) : null;
   out.pool = {
     matrixWorld: camera.matrixWorld.toArray(),
     samples: pool.map((s, i) => ({
       x: s.x, y: s.y, point: s.point, normal: s.normal, albedo: s.albedo, skyView: s.skyView,
       share: terms[i].share, litCentre: terms[i].litCentre, cosI: terms[i].cosI,
+      skyTerm: sky?.[i],
     })),
     pairs,
   };

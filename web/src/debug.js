@@ -270,6 +270,16 @@ export function debugApi(app) {
       app.feed.phoneReader(); // the estimator exists (before the orientation too)
       app.feed.phoneEstimator.registerPose = !!on;
     },
+    /** The seed of the phone estimate's pool (its pixels and their bounce directions;
+     * phonepool.js poolForPose): the benchmarks' spread over seeds; with `perezClear` false,
+     * the clear sky's CIE shape without the Perez fit (their baseline). Takes effect from the
+     * next estimate, with a new pool. */
+    phonePoolSeed: (seed, perezClear = true) => {
+      app.feed.phoneReader();
+      app.feed.phoneEstimator.poolSeed = seed;
+      app.feed.phoneEstimator.perezClear = perezClear;
+      app.feed.phoneEstimator.forgetPose();
+    },
     /** Mean milliseconds of n phone estimates (the pose held: the pose's registration, pixels
      * and the fit), of n without the registration, and of one with the pool of the pose made
      * again; and of n picture meter readings, the same-run baseline (both read the video into

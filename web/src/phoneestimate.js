@@ -17,31 +17,38 @@
 //
 // A phone's camera is not calibrated: its exposure and gain are unknown, so the fit's absolute
 // level is in the picture's units. What it must get right is the sun/sky ratio and the sky's
-// shape (a CIE sky of the type the ratio gives, server/skyshape.py's rule, blended with an
-// isotropic sky by a share fitted and followed across estimates); the level is set
-// to a nominal one (NOMINAL_GLOBAL_W_M2) and the picture meter (picturemeter.js) exposes the
-// hall at the picture's level, which removes any common scale.
+// shape (skyshape.js: a CIE sky of the type the ratio gives, server/skyshape.py's rule,
+// blended with an isotropic sky by a share fitted and followed across estimates; under a
+// clear sky then Perez's all-weather sky for the clearness that fit measured, perezsky.js,
+// fitted once more and taken whole, as the server's); the level is set to a nominal one
+// (NOMINAL_GLOBAL_W_M2) and the picture meter (picturemeter.js) exposes the hall at the
+// picture's level, which removes any common scale.
 //
-// Costs: what depends on the pose (the pool of pixels, their surfaces, hemisphere rays) is
-// computed again only when the pose moved (POSE_TOLERANCE_*); what depends on the sun when
-// it moved; an estimate reads its share of the pool's pixels and solves a small robust fit
-// (robustfit.js). The rays are cast against the proxies' triangles by proxyrays.js.
+// Costs: what depends on the pose (the pool of pixels, their surfaces, their open sky on a
+// fixed grid and their bounce rays: phonepool.js) is computed again only when the pose moved
+// (POSE_TOLERANCE_*); what depends on the sun when it moved; an estimate reads its share of
+// the pool's pixels and solves a small robust fit (robustfit.js), two more under a clear sky
+// (the Perez sky's terms again when its state moved). The rays are cast against the proxies'
+// triangles by proxyrays.js.
 // Directions: site-frame unit vectors (+X east, +Y up, -Z north); irradiances W/m^2.
 import * as THREE from 'three';
 import { LINEAR_OF_CODE, luminance } from './colour.js';
+import { perezState } from './perezsky.js';
+import { dot, mulberry32, poolForPose, skyTerms, sunTerms } from './phonepool.js';
 import { registerShift } from './poseregister.js';
 import { Proxies } from './proxyrays.js';
 import { robustFit } from './robustfit.js';
 import { pairSunRatio, shadowPairs } from './shadowpairs.js';
+import { CLEAR_TYPE, OVERCAST_TYPE, skyClearness, skyTypeForRatio, unitSky } from './skyshape.js';
+
+// (the pool's and the sky shape's parts, from their modules, for the Node cases)
+export { PATCH_PX, POOL_SIZE, poolForPose, sunTerms } from './phonepool.js';
+export { skyClearness, skyTypeForRatio, unitSky } from './skyshape.js';
 
 /** The estimated copy of the picture, pixels (w, h). */
 export const ESTIMATE_SIZE = [192, 108];
 /** A new estimate at most this often, seconds (the sky changes over minutes; a phone's CPU). */
 export const ESTIMATE_PERIOD_S = 2;
-export const POOL_SIZE = 2000; // candidate pixels of known surfaces per pose
-const HEMISPHERE_RAYS = 64; // per sample: sky view factor and one bounce
-const EDGE_PX = 1.5; // a pixel's corners this far away must see the same plane
-const SURFACE_OFFSET_M = 0.01;
 const MIN_SAMPLES = 30; // fewer usable pixels: no estimate
 const MIN_SUNLIT = 10; // fewer sunlit ones: the sun cannot be told from the sky
 // Fewer usable pixels mostly in shadow (a share in sun below 0.5): no estimate, the sky cannot
@@ -54,182 +61,15 @@ const DARK_CODE = 3;
 const POSE_TOLERANCE_DEG = 1.0;
 const POSE_TOLERANCE_M = 0.2;
 const SUN_TOLERANCE_DEG = 0.1;
-// A sample's sun is the share in sun of the (2 PATCH_PX + 1)^2 pixel centres about it
-// (server/sceneestimate.py in_sun): the pixel is read where the registration puts it, which is
-// within about a pixel of the copy, so a pixel next to a shadow edge, or on a shadow a pixel or
-// two wide, is partly sun; and a patch counts as wholly shaded or sunlit for the shadow-edge
-// pairs only when it stays so a pixel either way.
-export const PATCH_PX = 1;
 // The shadow-edge pairs' check (shadowpairs.js): a sun the pairs read below PAIR_FLOOR of the
 // sky is dropped (the server's pair_floor). The server pairs patches less than 12 px apart at
 // 320 x 180 through 75 degrees (3.3 degrees at the centre); camera mode's 60-degree vertical
 // field over the copy's 108 rows has 94 px per radian there, so the same angle is 5.4 px: 6.
 export const PAIR_FLOOR = 0.05;
 export const PAIR_RADIUS_PX = 6;
-// server/skyshape.py: the CIE sky by the sun/sky ratio (overcast) and Perez's sky clearness
-// (clear from 4.5, the lower edge of Perez's clear bins; a ratio of 3 called Radiance's
-// intermediate sky clear once the clear sky's shape had read it high: docs/web.md)
-const OVERCAST_RATIO = 0.5;
-const CLEAR_CLEARNESS = 4.5;
-const OVERCAST_TYPE = 2;
 const SHARE_MEMORY = 0.8; // per estimate, the weight of the past in the model sky's share
 /** The level the estimate is scaled to: a sun and sky giving this on open ground. */
 export const NOMINAL_GLOBAL_W_M2 = 500;
-// CIE general skies (ISO 15469; daylit/sky.py CIE_SKY_TYPES): a, b, c, d, e
-const CIE = { 2: [4.0, -0.7, 2.0, -1.5, 0.15], 7: [0.0, -1.0, 5.0, -2.5, 0.3], 12: [-1.0, -0.32, 10.0, -3.0, 0.45] };
-
-/** Perez's sky clearness ((DHI + DNI) / DHI + 1.041 Z^3) / (1 + 1.041 Z^3), Z the sun's zenith
- * angle (radians), for a ratio DNI / DHI and the sun's unit direction's up component. */
-export function skyClearness(ratio, sunUp) {
-  const z = Math.acos(Math.min(1, Math.max(0, sunUp)));
-  const k = 1.041 * z ** 3;
-  return (1 + Math.max(ratio, 0) + k) / (1 + k);
-}
-
-/** The CIE sky type for a ratio of sun normal irradiance to sky horizontal irradiance and the
- * sun's up component (server/skyshape.py sky_type_for_ratio). */
-export function skyTypeForRatio(ratio, sunUp = 1) {
-  if (ratio < OVERCAST_RATIO) return OVERCAST_TYPE;
-  return skyClearness(ratio, sunUp) >= CLEAR_CLEARNESS ? 12 : 7;
-}
-
-/**
- * A CIE general sky's luminance relative to its zenith, and the factor to an open horizontal
- * irradiance of 1.
- * @returns {{rel: (d: number[]) => number, toUnit: number}}
- */
-export function unitSky(type, sun) {
-  const [a, b, c, d, e] = CIE[type];
-  const zSun = Math.acos(Math.max(-1, Math.min(1, Math.max(sun[1], 0))));
-  const grad = (cz) => 1 + a * Math.exp(b / cz);
-  const ind = (x) => 1 + c * (Math.exp(d * x) - Math.exp(d * Math.PI / 2)) + e * Math.cos(x) ** 2;
-  const norm = ind(zSun) * grad(1);
-  const sunUp = sun[1] > 0 ? sun : normalized([sun[0], 0, sun[2]]);
-  const rel = (v) => {
-    const cz = Math.max(v[1], 1e-6);
-    const chi = Math.acos(Math.max(-1, Math.min(1, v[0] * sunUp[0] + v[1] * sunUp[1] + v[2] * sunUp[2])));
-    return ind(chi) * grad(cz) / norm;
-  };
-  // horizontal irradiance by a midpoint grid (as server/skyshape.py)
-  const steps = 24;
-  let sum = 0;
-  for (let i = 0; i < steps; i++) {
-    const z = (i + 0.5) * Math.PI / 2 / steps;
-    for (let j = 0; j < 2 * steps; j++) {
-      const az = (j + 0.5) * Math.PI / steps;
-      const v = [Math.sin(z) * Math.sin(az), Math.cos(z), -Math.sin(z) * Math.cos(az)];
-      sum += rel(v) * Math.cos(z) * Math.sin(z) * (Math.PI / 2 / steps) * (Math.PI / steps);
-    }
-  }
-  return { rel, toUnit: 1 / sum };
-}
-
-/**
- * The pool of pixels of a pose: which pixels of the copy see a known surface away from its
- * edges, their surface points, normals, albedos, and what their hemispheres see.
- * @param {Proxies} proxies
- * @param {THREE.Camera} camera the pose (world) and projection of the picture
- * @param {number} w copy width, pixels
- * @param {number} h copy height
- * @param {number[]} farAlbedo the open ground past the proxies (the build's ground albedo)
- * @returns {object[]} samples {x, y, point, normal, albedo, skyDirs: number[][], bounce:
- *   [{point|null, normal, albedo}], patch: the (2 PATCH_PX + 1)^2 points about the pixel on its
- *   plane, skyView: the cosine-weighted open-sky fraction}
- */
-export function poolForPose(proxies, camera, w, h, farAlbedo, seed = 1) {
-  camera.updateMatrixWorld();
-  const origin = new THREE.Vector3().setFromMatrixPosition(camera.matrixWorld).toArray();
-  const ray = new THREE.Vector3();
-  const rayAt = (x, y) => ray.set(x / w * 2 - 1, 1 - y / h * 2, 0.5).unproject(camera)
-    .sub(new THREE.Vector3(...origin)).normalize().toArray();
-  const rand = mulberry32(seed);
-  const hemi = cosineDirections(HEMISPHERE_RAYS, rand);
-  const pool = [];
-  for (let tries = 0; tries < 4 * POOL_SIZE && pool.length < POOL_SIZE; tries++) {
-    const x = 2 + Math.floor(rand() * (w - 4));
-    const y = 2 + Math.floor(rand() * (h - 4));
-    const d = rayAt(x + 0.5, y + 0.5);
-    const tri = proxies.cast(origin, d);
-    if (tri < 0) continue;
-    const n = proxies.normalOf(tri);
-    if (dot(n, d) > -0.05) continue; // seen from behind or edge-on
-    const point = add(origin, d, proxies.hitT);
-    let same = true;
-    for (const [dx, dy] of [[-1, -1], [1, -1], [-1, 1], [1, 1]]) {
-      const dc = rayAt(x + 0.5 + dx * EDGE_PX, y + 0.5 + dy * EDGE_PX);
-      const t2 = proxies.cast(origin, dc);
-      if (t2 < 0 || dot(proxies.normalOf(t2), n) < 0.999
-        || Math.abs(proxies.planeDistance(tri, add(origin, dc, proxies.hitT))) > 0.02) {
-        same = false;
-        break;
-      }
-    }
-    if (!same) continue;
-    const start = add(point, n, SURFACE_OFFSET_M);
-    const [t1, t2] = tangents(n);
-    const skyDirs = [];
-    const bounce = [];
-    for (const l of hemi) {
-      const dir = [0, 1, 2].map((c) => l[0] * t1[c] + l[1] * t2[c] + l[2] * n[c]);
-      const hit = proxies.cast(start, dir);
-      if (hit >= 0) {
-        bounce.push({ point: add(start, dir, proxies.hitT), normal: proxies.normalOf(hit), albedo: proxies.albedoOf(hit) });
-      } else if (dir[1] > 0) {
-        skyDirs.push(dir);
-      } else {
-        bounce.push({ point: null, normal: [0, 1, 0], albedo: farAlbedo }); // the open ground far off
-      }
-    }
-    // the points seen through the patch's pixel centres, on the sample's plane (the corner
-    // rays above keep the patch on it: server/scenesamples.py patch_points_m)
-    const patch = [];
-    for (let dy = -PATCH_PX; dy <= PATCH_PX; dy++) {
-      for (let dx = -PATCH_PX; dx <= PATCH_PX; dx++) {
-        const dp = rayAt(x + 0.5 + dx, y + 0.5 + dy);
-        patch.push(add(origin, dp, dot(sub(point, origin), n) / dot(dp, n)));
-      }
-    }
-    pool.push({
-      x, y, point, normal: n, albedo: proxies.albedoOf(tri), skyDirs, bounce, patch,
-      skyView: skyDirs.length / HEMISPHERE_RAYS,
-    });
-  }
-  return pool;
-}
-
-/** The terms of the model that depend on the sun, per sample: share, the share of its patch
- * in sun (0 to 1); cosI, the sun's cosine times that share; litCentre, whether the pixel's own
- * point is in sun (the registration's split); and the one bounce per unit sun normal
- * irradiance and per unit sky irradiance (RGB). */
-export function sunTerms(proxies, pool, sun) {
-  const up = sun[1] > 0;
-  const lit = (point, normal) => {
-    const c = dot(normal, sun);
-    if (!up || c <= 0) return 0;
-    if (point === null) return c;
-    return proxies.cast(add(point, normal, SURFACE_OFFSET_M), sun, true) < 0 ? c : 0;
-  };
-  return pool.map((s) => {
-    const bSun = [0, 0, 0];
-    const bSky = [0, 0, 0];
-    for (const b of s.bounce) {
-      const l = lit(b.point, b.normal);
-      const tilt = 0.5 * (1 + b.normal[1]); // an isotropic sky on the bounce surface's tilt
-      for (let c = 0; c < 3; c++) {
-        bSun[c] += b.albedo[c] * l / HEMISPHERE_RAYS;
-        bSky[c] += b.albedo[c] * tilt / HEMISPHERE_RAYS;
-      }
-    }
-    const share = s.patch.reduce((acc, p) => acc + (lit(p, s.normal) > 0 ? 1 : 0), 0) / s.patch.length;
-    return { cosI: Math.max(dot(s.normal, sun), 0) * share, share, litCentre: lit(s.point, s.normal) > 0, bSun, bSky };
-  });
-}
-
-/** Per sample, the model sky's irradiance per unit horizontal irradiance over the open sky it
- * sees (pi x the cosine-weighted mean of the relative radiance). */
-export function skyTerms(pool, sky) {
-  return pool.map((s) => Math.PI * s.skyDirs.reduce((acc, d) => acc + sky.rel(d), 0) / HEMISPHERE_RAYS * sky.toUnit);
-}
 
 /** Reads a camera picture and estimates its sun and sky (camera mode without a server sky). */
 export class PhoneEstimator {
@@ -250,6 +90,8 @@ export class PhoneEstimator {
     this.rand = null; // the estimate's random draws, seeded afresh for each view (_poolFor)
     this.last = null; // the last estimate
     this.registerPose = true; // poseregister.js (benchmarks switch it off for a baseline)
+    this.poolSeed = 1; // the pool's random draws (phonepool.js; benchmarks vary it)
+    this.perezClear = true; // the clear sky's Perez fit (benchmarks switch it off for a baseline)
   }
 
   /** The view was turned (its registration): the next estimate makes the pool of the new pose,
@@ -270,7 +112,7 @@ export class PhoneEstimator {
       // A new view starts afresh: its pool, its random draws and its followed shares depend on
       // the pose alone, not on how many views or estimates came before (a test's result must
       // not depend on how many estimates the machine managed before the pose was set).
-      this.pool = poolForPose(this.proxies, camera, w, h, this.farAlbedo);
+      this.pool = poolForPose(this.proxies, camera, w, h, this.farAlbedo, this.poolSeed);
       this._pose = { m, fov: camera.fov, aspect: camera.aspect, w, h };
       this._sun = null;
       this._share.clear();
@@ -289,12 +131,17 @@ export class PhoneEstimator {
     return this._sunTerms;
   }
 
-  _skyFor(type, sun) {
-    if (!this._skies.has(type)) {
-      const sky = unitSky(type, sun);
-      this._skies.set(type, { sky, terms: skyTerms(this.pool, sky) });
+  /** The model sky of CIE type `type` (or with `perez` = [clearness, brightness] Perez's
+   * all-weather sky of that state) and its terms per pool sample; kept while the sun holds
+   * (the Perez sky's while its state does too). */
+  _skyFor(type, sun, perez = null) {
+    const key = perez ? `perez ${perez[0]} ${perez[1]}` : type;
+    if (!this._skies.has(key)) {
+      if (perez) for (const k of this._skies.keys()) if (typeof k === 'string') this._skies.delete(k);
+      const sky = unitSky(type, sun, perez);
+      this._skies.set(key, { sky, terms: skyTerms(this.pool, sky) });
     }
-    return this._skies.get(type);
+    return this._skies.get(key);
   }
 
   /** Pool indices, as many mostly in sun (share from 0.5) as mostly in shadow where the pool
@@ -365,7 +212,7 @@ export class PhoneEstimator {
       return null;
     }
     const sunlit = rows.filter((i) => terms[i].cosI > 0.05).length;
-    let type = 12;
+    let type = CLEAR_TYPE;
     let fit = null;
     let settled = false;
     for (let iteration = 0; iteration < 3 && !settled; iteration++) {
@@ -378,6 +225,15 @@ export class PhoneEstimator {
       this.last = null;
       return null;
     }
+    // Under a clear sky the shape is Perez's all-weather sky for the state the CIE clear sky's
+    // fit measured (its clearness from the sun/sky ratio; server/sceneestimate.py), fitted
+    // again with it, once, and taken whole (share 1): the CIE clear sky is one fixed shape,
+    // which put a shaded north wall 0.47-0.54 of the horizontal irradiance where the
+    // all-weather sky gives 0.56-0.60 (docs/server.md)
+    if (this.perezClear && type === CLEAR_TYPE && Math.max(...fit.sun) > 0) {
+      const ratio = luma(fit.sun) / Math.max(luma(fit.sky), 1e-12);
+      fit = this._fit(type, rows, values, sun, sunlit, true, perezState(skyClearness(ratio, sun[1]), ratio, sun[1]));
+    }
     // The sky model's errors read as sun; the shadow edges alone say whether there is one
     // (shadowpairs.js; the server's pair_floor)
     let pairRatio = null;
@@ -388,7 +244,7 @@ export class PhoneEstimator {
     const inliers = fit.weights.filter((x) => x > 0.5).length;
     this.last = {
       sunNormal: fit.sun, skyHorizontal: fit.sky, ratio: luma(fit.sun) / Math.max(luma(fit.sky), 1e-12),
-      skyType: fit.type, modelShare: fit.share, used: rows.length, sunlit, inlierFraction: inliers / rows.length, pool: pool.length,
+      skyType: fit.type, perez: fit.perez, modelShare: fit.share, used: rows.length, sunlit, inlierFraction: inliers / rows.length, pool: pool.length,
       shiftPx: [shift.dx, shift.dy], turnDeg: shift.turnDeg, fisher: shift.fisher, fisherAtZero: shift.fisherAtZero,
       pairs: this._pairs.shaded.length, pairRatio,
     };
@@ -396,11 +252,13 @@ export class PhoneEstimator {
   }
 
   /** The robust fit (robustfit.js) of the samples `rows` (pool indices) and their linear
-   * `values` with the sky's shape of CIE type `type`; without a sun where allowSun is false. */
-  _fit(type, rows, values, sun, sunlit, allowSun = true) {
+   * `values` with the sky's shape of CIE type `type` (blended with an isotropic sky by a share
+   * followed across estimates), or with `perez` that Perez sky whole; without a sun where
+   * allowSun is false. */
+  _fit(type, rows, values, sun, sunlit, allowSun = true, perez = null) {
     const pool = this.pool;
     const terms = this._sunTerms;
-    const { terms: sky } = this._skyFor(type, sun);
+    const { terms: sky } = this._skyFor(type, sun, perez);
     const sunCol = rows.map((i) => [0, 1, 2].map((c) => (sunlit < MIN_SUNLIT ? 0
       : pool[i].albedo[c] * (terms[i].cosI + terms[i].bSun[c]) / Math.PI)));
     const skyCol = rows.map((i) => [0, 1, 2].map((c) => pool[i].albedo[c] * (sky[i] + terms[i].bSky[c]) / Math.PI));
@@ -408,10 +266,12 @@ export class PhoneEstimator {
     // sky the same way); its share beside the model's is followed across estimates
     const isoCol = rows.map((i) => [0, 1, 2].map((c) => pool[i].albedo[c] * (pool[i].skyView + terms[i].bSky[c]) / Math.PI));
     const previous = this._share.get(type);
-    const fit = robustFit(values, sunCol, skyCol, isoCol, this.rand, type === OVERCAST_TYPE,
-      (share) => (previous === undefined ? share : SHARE_MEMORY * previous + (1 - SHARE_MEMORY) * share), allowSun);
-    this._share.set(type, fit.share);
+    const follow = perez ? () => 1
+      : (share) => (previous === undefined ? share : SHARE_MEMORY * previous + (1 - SHARE_MEMORY) * share);
+    const fit = robustFit(values, sunCol, skyCol, isoCol, this.rand, type === OVERCAST_TYPE, follow, allowSun);
+    if (!perez) this._share.set(type, fit.share);
     fit.type = type;
+    fit.perez = perez;
     return fit;
   }
 
@@ -429,7 +289,7 @@ export class PhoneEstimator {
    * @returns {{rgb: Float32Array, sun: {direction, normalIrradiance, source, estimated}}}
    */
   lightVector(estimate, lights, sun) {
-    const { rel, toUnit } = unitSky(estimate.skyType, sun);
+    const { rel, toUnit } = unitSky(estimate.skyType, sun, estimate.perez);
     const share = estimate.modelShare;
     const raw = lights.map((l) => (l.centroid[1] > 0 ? share * rel(l.centroid) * toUnit + (1 - share) / Math.PI : 0));
     const open = raw.reduce((s, v, i) => s + v * lights[i].cosine_weighted_sr, 0);
@@ -463,53 +323,4 @@ function readPixel(rgba, w, h, sample, shift) {
 
 function luma(rgb) {
   return luminance(rgb[0], rgb[1], rgb[2]);
-}
-
-function dot(p, q) {
-  return p[0] * q[0] + p[1] * q[1] + p[2] * q[2];
-}
-
-function sub(p, q) {
-  return [p[0] - q[0], p[1] - q[1], p[2] - q[2]];
-}
-
-function add(p, d, t) {
-  return [p[0] + d[0] * t, p[1] + d[1] * t, p[2] + d[2] * t];
-}
-
-function normalized(v) {
-  const l = Math.hypot(...v) || 1;
-  return v.map((x) => x / l);
-}
-
-function tangents(n) {
-  const helper = Math.abs(n[1]) < 0.9 ? [0, 1, 0] : [1, 0, 0];
-  const t = normalized([helper[1] * n[2] - helper[2] * n[1], helper[2] * n[0] - helper[0] * n[2], helper[0] * n[1] - helper[1] * n[0]]);
-  return [t, [n[1] * t[2] - n[2] * t[1], n[2] * t[0] - n[0] * t[2], n[0] * t[1] - n[1] * t[0]]];
-}
-
-/** Stratified cosine-distributed directions about +Z, (count, 3). */
-function cosineDirections(count, rand) {
-  const side = Math.max(1, Math.floor(Math.sqrt(count)));
-  const rows = Math.ceil(count / side);
-  const out = [];
-  for (let i = 0; i < count; i++) {
-    const u = ((i % side) + rand()) / side;
-    const v = (Math.floor(i / side) + rand()) / rows;
-    const r = Math.sqrt(u);
-    out.push([r * Math.cos(2 * Math.PI * v), r * Math.sin(2 * Math.PI * v), Math.sqrt(Math.max(0, 1 - u))]);
-  }
-  return out;
-}
-
-/** A small seeded generator (the pool is the same for the same pose: reproducible tests). */
-function mulberry32(seed) {
-  let a = seed >>> 0;
-  return () => {
-    a = (a + 0x6d2b79f5) >>> 0;
-    let t = a;
-    t = Math.imul(t ^ (t >>> 15), t | 1);
-    t ^= t + Math.imul(t ^ (t >>> 7), t | 61);
-    return ((t ^ (t >>> 14)) >>> 0) / 4294967296;
-  };
 }
