@@ -72,6 +72,12 @@ class Compressor:
         self.display_skies = sunbounce.DisplaySkies.of_dome(
             dome.vertices, dome.solid_angles_sr, self.selection.selectable, site.elevation_m
         )
+        # Neighbouring sun-path patches sharing one sun-bounce image (docs/sun.md, "Shared
+        # images"); None: one image per patch.
+        self.shared = sunbounce.SharedImages.of_dome(
+            dome.kind, dome.frequency, self.selection.selectable,
+            getattr(self.settings, "sun_bounce_share", 1.0),
+        )
         self.log(
             f"  {len(self.selection.selectable)} of {dome.count} lights can be selected "
             "(the sun's path and the brightest patches of the site's skies): only they get "
@@ -140,14 +146,16 @@ class Compressor:
         try:
             if self.cluster is None:
                 result = sunbounce.compress_sun_bounce(
-                    image, name, staging, self.selection.selectable, self.settings, sky, skies
+                    image, name, staging, self.selection.selectable, self.settings, sky, skies,
+                    self.shared,
                 )
             else:
                 image = as_stack(image).array()
                 sky = None if sky is None else as_stack(sky).array()
                 result, files = self.cluster.compress(
                     compressjobs.sun_bounce_job, image, name, self.selection.selectable,
-                    self.settings, sky, skies, label=f"the sun-bounce stack {name}",
+                    self.settings, sky, skies, self.shared,
+                    label=f"the sun-bounce stack {name}",
                 )
                 compressjobs.write_files(staging, files)
                 if result is not None:
