@@ -76,7 +76,7 @@ class Compressor:
         # images"); None: one image per patch.
         self.shared = sunbounce.SharedImages.of_dome(
             dome.kind, dome.frequency, self.selection.selectable,
-            getattr(self.settings, "sun_bounce_share", 1.0),
+            getattr(self.settings, "sun_bounce_lights", None),
         )
         self.log(
             f"  {len(self.selection.selectable)} of {dome.count} lights can be selected "

@@ -97,7 +97,7 @@ class _Cosine:
 class SharedImages:
     """Which sun-path lights share one sun-bounce image: ``groups`` {representative light:
     its members, sorted, the representative first}. A group is the sun-path patches whose
-    centroids lie in one patch of a coarser dome of the same kind (:meth:`of_dome`); its
+    centroids lie in one patch of a coarser dome (:meth:`of_dome`); its
     image is its members' columns summed and scaled to the representative's solid angle,
     ``omega_rep / sum(omega_q) * sum_q B_q``, so that with the sun in any member ``p`` the
     client's ``E_sun / omega_p * column_p`` (``column_p``: the shared image scaled by
@@ -110,28 +110,29 @@ class SharedImages:
     frequency: int  # the coarser dome's
 
     @classmethod
-    def of_dome(cls, kind: str, frequency: int, lights, share: float) -> SharedImages | None:
+    def of_dome(cls, kind: str, frequency: int, lights, max_lights: int | None
+                ) -> SharedImages | None:
         """The groups of ``lights`` (the sun-path patches) of a ``kind`` dome of this
-        ``frequency`` by the coarser dome of frequency ``frequency / share`` (rounded; even
-        for an icosahedral dome), or None when that is not coarser (``share`` at most 1, or
-        too few subdivisions)."""
+        ``frequency`` by the patches of the dome of about ``max_lights`` lights
+        (:meth:`bake.dome.Dome.for_light_count`), or None when the build's dome has no more
+        lights than that (or ``max_lights`` is None): the sun's bounce is kept at no finer an
+        angular step than that dome's."""
         from bake.dome import Dome
         from daylit.spherical import PatchLookup
 
-        coarse = int(round(frequency / share)) if share and share > 1 else frequency
-        if kind == "icosahedral":
-            coarse = 2 * max(1, coarse // 2)
-        coarse = max(coarse, 1)
-        if coarse >= frequency:
+        fine = Dome.build(kind, frequency)
+        if not max_lights or fine.count <= max_lights:
             return None
-        fine, rough = Dome.build(kind, frequency), Dome.build(kind, coarse)
+        rough = Dome.for_light_count(max_lights)
+        if rough.count >= fine.count:
+            return None
         owner = PatchLookup(rough.vertices)(fine.centroids)
         by_patch: dict[int, list[int]] = {}
         for p in sorted(int(i) for i in lights):
             key = int(owner[p]) if owner[p] >= 0 else -1 - p  # outside every coarse patch: alone
             by_patch.setdefault(key, []).append(p)
         groups = {members[0]: members for members in by_patch.values()}
-        return cls(groups, fine.solid_angles_sr, kind, coarse)
+        return cls(groups, fine.solid_angles_sr, rough.kind, rough.frequency)
 
     @property
     def representatives(self) -> list[int]:
