@@ -246,8 +246,10 @@ class Compressor:
                 f"  the sun's bounce: one light's images per stack, fetched for the sun's "
                 f"patch: {per_light / 1e3:.0f} kB per patch without the hull, "
                 f"{mb('sun_bounce_visit')} over the visit ({sizes['visit_sun_patches']} "
-                f"patches), {mb('sun_bounce_day')} over a day ({sizes['day_sun_patches']}); "
-                f"hull-plane mode adds {mb('sun_bounce_hull_visit')} over the visit"
+                f"patches, {sizes['visit_sun_images']} images per stack), "
+                f"{mb('sun_bounce_day')} over a day ({sizes['day_sun_patches']}); "
+                f"hull-plane mode adds {mb('sun_bounce_hull_visit')} over the visit; a phone "
+                f"over the visit with it: {sizes['phone_visit_with_sun_bounce'] / 1e6:.2f} MB"
             )
             self.log(
                 f"  the sun's bounce on the server: {total / 1e6:.2f} MB of light images, "
