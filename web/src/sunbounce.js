@@ -135,10 +135,12 @@ export class SunBounce {
    * @param {THREE.WebGLRenderer} renderer
    * @param {import('./assets.js').Assets} assets with its manifest loaded
    * @param {{rgbe: boolean, type: number}} format the relight targets' format
-   * @param {{view?: object}} [options] view: a fixed view of the manifest (the kiosk's):
-   *   its O and S stacks' bounce (`views[i].sun_bounce`, radiance) instead of the atlases'
+   * @param {{view?: object, deferred?: string[]}} [options] view: a fixed view of the manifest
+   *   (the kiosk's): its O and S stacks' bounce (`views[i].sun_bounce`, radiance) instead of
+   *   the atlases'; deferred: stacks ('hull.I', 'hull.d') whose images are neither fetched nor
+   *   drawn until `activate` (the hull planes' serve only hull-plane mode)
    */
-  constructor(renderer, assets, format, { view = null } = {}) {
+  constructor(renderer, assets, format, { view = null, deferred = [] } = {}) {
     this.renderer = renderer;
     this.lights = assets.manifest.dome.lights;
     this.stacks = new Map();
@@ -151,6 +153,15 @@ export class SunBounce {
     }
     this.patch = null;
     this._asked = 0;
+    this.deferred = new Set(deferred);
+    this._sun = null;
+  }
+
+  /** Fetch and draw the bounce of `keys` too from now on (hull-plane mode chosen): as
+   * `update` with the last sun (null when drawn at once, else a Promise). */
+  activate(keys) {
+    for (const key of keys) this.deferred.delete(key);
+    return this.update(this._sun);
   }
 
   /** The target of an atlas or view stack ('ground.I', 'kiosk.O'), or null when the build
@@ -170,8 +181,9 @@ export class SunBounce {
     const p = up ? patchContaining(this.lights, sun.direction) : -1;
     const weight = p >= 0 ? sun.normalIrradiance.map((e) => e / this.lights[p].solid_angle_sr) : null;
     const asked = ++this._asked;
+    this._sun = sun;
     const stacks = [...this.stacks.values()];
-    const lights = stacks.map((s) => (p >= 0 && s.has(p) ? p : null));
+    const lights = stacks.map((s) => (p >= 0 && s.has(p) && !this.deferred.has(s.key) ? p : null));
     const draw = (images) => {
       stacks.forEach((s, j) => s.render(this.renderer, lights[j], images[j], weight));
       this.patch = p;
