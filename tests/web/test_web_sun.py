@@ -431,6 +431,42 @@ def test_sun_bounce_from_an_image_shared_with_a_neighbouring_patch(new_page, sun
     assert not errors, errors
 
 
+def test_hull_sun_bounce_only_once_hull_plane_mode_is_chosen(new_page, sun_build,
+                                                              sun_reference):
+    """In lightmap mode the client fetches no hull-plane sun-bounce image (they serve only
+    hull-plane mode; before 2026-12-06 a phone's visit fetched them for nothing) and the hull
+    planes' bounce target stays zero; once hull-plane mode is chosen it fetches the sun's
+    patch's images and draws them: the target is E_sun / solid_angle_p times the column the
+    compact reader decodes from the same files."""
+    from tests.web.harness import decode_floats
+
+    build, _ = sun_reference
+    s, r = sun_and_sky(build)
+    p = build.sun_patch(s)
+    with StubServer(sun_build) as server:
+        page = open_page(new_page, server)
+        SunPage(page, build, s, r)
+        assert page.page.evaluate("window.daylit.debug.sunBounce()") == p
+        bounce = [f for f in server.served if ".sun_bounce." in f]
+        assert bounce and not any(f.startswith("build/ktx2/hull.") for f in bounce), bounce
+        before = decode_floats(page.page.evaluate("window.daylit.debug.readSunBounce('hull.I')"))
+        assert np.abs(before[..., :3]).max() == 0.0
+        page.page.select_option(".shadingmode", "hull")
+        page.wait("window.daylit.status.shadingMode === 'hull'", 60000)
+        for _ in range(300):
+            after = decode_floats(
+                page.page.evaluate("window.daylit.debug.readSunBounce('hull.I')"))[..., :3]
+            if np.abs(after).max() > 0:
+                break
+            page.page.wait_for_timeout(100)
+        assert any(f.startswith(f"build/ktx2/hull.sun_bounce.I.L{p:04d}") for f in server.served)
+        assert not page.errors, page.errors
+    column = build.sun_bounce_compact("hull", "I").lights([p])[p]
+    want = column * (SUN_DNI / build.solid_angles[p])
+    err = np.abs(after - want).max() / np.abs(want).max()
+    assert err < 0.01, err
+
+
 @pytest.mark.parametrize("profile", ["desktop", "phone"])
 def test_shadow_edge_on_a_model_face(new_page, sun_build, sun_reference, profile):
     """The real box's shadow across the virtual box's sunlit east face (its top edge 3.5 m
