@@ -40,6 +40,7 @@ class Compressor:
             encoding=c["encoding"],
             selected_lights=c["selected_lights"],
             sun_bounce_budget=c["sun_bounce_budget"],
+            sun_bounce_lights=int(c.get("sun_bounce_lights", 196)) or None,
         )
         self.display_skies = None  # set by start()
         self.log = log
