@@ -16,8 +16,10 @@ def build_manifest(site, dome, nodes, atlases, views, compressor, bake_info) -> 
     return {
         "format": "daylit-build",
         # 2 since a stack's base layers may be split into a UASTC and an ETC1S array
-        # (compact.etc1s), which a version-1 client would not sum (docs/manifest.md).
-        "version": 2,
+        # (compact.etc1s), which a version-1 client would not sum; 3 since neighbouring
+        # sun-path patches share one sun-bounce image (lights.image), which a version-2
+        # client would ask for under each patch's own name (docs/manifest.md).
+        "version": 3,
         "scene": {
             "id": site.scene_id,
             "name": site.name,

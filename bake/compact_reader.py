@@ -83,7 +83,10 @@ class CompactReader:
         # Light i has len(scale[i]) levels, the first of the ``ktx2`` patterns (a sun-bounce
         # image may have no refinement: bake.sunbounce).
         levels = {i: len(table["scale"][i]) for i in missing}
-        files = [self.dir / pattern.format(index=i) for i in missing
+        # A sun-bounce light may share another's image (``image[i]``, since 2026-12-06:
+        # bake.sunbounce.SharedImages), read with its own scale and offset.
+        holder = table.get("image") or list(range(len(table["scale"])))
+        files = [self.dir / pattern.format(index=holder[i]) for i in missing
                  for pattern in table["ktx2"][: levels[i]]]
         decoded = iter(decode(files))
         for i in missing:

@@ -99,6 +99,13 @@ class Settings:
     # centre) gets no refinement (bake.sunbounce; docs/compact-assets.md, "The sun's bounce").
     # None: every image keeps its refinement, as before 2026-11-25.
     sun_bounce_budget: float | None = 0.01
+    # The sun's bounce is kept at no finer an angular step than a dome of about this many
+    # lights: on a finer dome neighbouring sun-path patches share one sun-bounce image, their
+    # solid-angle mean (the patches whose centroids lie in one patch of that dome;
+    # bake.sunbounce.SharedImages). None: one image per patch, as before 2026-12-06. At 400
+    # lights a two-hour visit then fetches 3 images per stack instead of 6 (docs/sun.md,
+    # "Shared images"; what it costs in fidelity: docs/benchmarks.md).
+    sun_bounce_lights: int | None = 196
     # Zstandard supercompression of the UASTC blocks (lossless): level 19 for arrays (the
     # base layers every phone downloads: 15 made them larger), 15 for separate light images
     # (less encode time for a fraction of a per cent more bytes).

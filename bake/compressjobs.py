@@ -62,7 +62,7 @@ def compress_stacks_job(images, prefix, skies, S, S_inv, selection, settings):
         return results, read_files(out)
 
 
-def sun_bounce_job(image, name, lights, settings, sky=None, skies=None):
+def sun_bounce_job(image, name, lights, settings, sky=None, skies=None, shared=None):
     """:func:`bake.sunbounce.compress_sun_bounce` into a folder of its own: ``(result or
     None, {relative path: bytes})``."""
     from bake import sunbounce
@@ -70,7 +70,8 @@ def sun_bounce_job(image, name, lights, settings, sky=None, skies=None):
     set_blas_threads(1)
     with tempfile.TemporaryDirectory(prefix="daylit-compress-") as tmp:
         out = Path(tmp)
-        result = sunbounce.compress_sun_bounce(image, name, out, lights, settings, sky, skies)
+        result = sunbounce.compress_sun_bounce(image, name, out, lights, settings, sky, skies,
+                                               shared)
         if result is not None:
             result.files = [p.relative_to(out) for p in result.files]
         return result, read_files(out)

@@ -40,6 +40,7 @@ class Compressor:
             encoding=c["encoding"],
             selected_lights=c["selected_lights"],
             sun_bounce_budget=c["sun_bounce_budget"],
+            sun_bounce_lights=int(c.get("sun_bounce_lights", 196)) or None,
         )
         self.display_skies = None  # set by start()
         self.log = log
@@ -71,6 +72,12 @@ class Compressor:
         # The clear skies each sun-bounce image is judged under as displayed.
         self.display_skies = sunbounce.DisplaySkies.of_dome(
             dome.vertices, dome.solid_angles_sr, self.selection.selectable, site.elevation_m
+        )
+        # Neighbouring sun-path patches sharing one sun-bounce image (docs/sun.md, "Shared
+        # images"); None: one image per patch.
+        self.shared = sunbounce.SharedImages.of_dome(
+            dome.kind, dome.frequency, self.selection.selectable,
+            getattr(self.settings, "sun_bounce_lights", None),
         )
         self.log(
             f"  {len(self.selection.selectable)} of {dome.count} lights can be selected "
@@ -140,14 +147,16 @@ class Compressor:
         try:
             if self.cluster is None:
                 result = sunbounce.compress_sun_bounce(
-                    image, name, staging, self.selection.selectable, self.settings, sky, skies
+                    image, name, staging, self.selection.selectable, self.settings, sky, skies,
+                    self.shared,
                 )
             else:
                 image = as_stack(image).array()
                 sky = None if sky is None else as_stack(sky).array()
                 result, files = self.cluster.compress(
                     compressjobs.sun_bounce_job, image, name, self.selection.selectable,
-                    self.settings, sky, skies, label=f"the sun-bounce stack {name}",
+                    self.settings, sky, skies, self.shared,
+                    label=f"the sun-bounce stack {name}",
                 )
                 compressjobs.write_files(staging, files)
                 if result is not None:
@@ -238,8 +247,10 @@ class Compressor:
                 f"  the sun's bounce: one light's images per stack, fetched for the sun's "
                 f"patch: {per_light / 1e3:.0f} kB per patch without the hull, "
                 f"{mb('sun_bounce_visit')} over the visit ({sizes['visit_sun_patches']} "
-                f"patches), {mb('sun_bounce_day')} over a day ({sizes['day_sun_patches']}); "
-                f"hull-plane mode adds {mb('sun_bounce_hull_visit')} over the visit"
+                f"patches, {sizes['visit_sun_images']} images per stack), "
+                f"{mb('sun_bounce_day')} over a day ({sizes['day_sun_patches']}); "
+                f"hull-plane mode adds {mb('sun_bounce_hull_visit')} over the visit; a phone "
+                f"over the visit with it: {sizes['phone_visit_with_sun_bounce'] / 1e6:.2f} MB"
             )
             self.log(
                 f"  the sun's bounce on the server: {total / 1e6:.2f} MB of light images, "

@@ -4,7 +4,9 @@ Per stack it relights, a client fetches the base (and gain) textures and ``V`` o
 own images of the lights it selects as they become selected (docs/compact-assets.md); the
 sun moves one patch in tens of minutes, so the longer a visit, the more light images. The
 sun's bounce is one light's images per sun-bounce stack, of the sun's patch (docs/sun.md,
-item 5), counted apart. The manifest counts as the server sends it: gzipped.
+item 5), counted apart; where neighbouring patches share one image (since 2026-12-06,
+``lights.image``), that image is fetched once. The manifest and the GLB count as the server
+sends them: gzipped (server/routes.py).
 """
 
 from __future__ import annotations
@@ -81,20 +83,37 @@ def sun_patches_over(manifest: dict, start: str, end: str, step: str = STEP) -> 
     return list(dict.fromkeys(int(p) for p in patches))
 
 
-def sun_bounce_bytes(manifest: dict, atlases: list[dict], patches: list[int]) -> int:
-    """Bytes of the sun-bounce images a client fetches for the sun in each of ``patches``:
-    light ``p``'s files (each level it has: ``len(scale[p])``) of every sun-bounce stack of
-    ``atlases`` (atlas or view entries)."""
-    sizes = {f["path"]: f["bytes"] for f in manifest["files"]}
-    total = 0
+def sun_bounce_files(manifest: dict, atlases: list[dict], patches: list[int]) -> set[str]:
+    """The sun-bounce files a client fetches for the sun in each of ``patches``: of every
+    sun-bounce stack of ``atlases`` (atlas or view entries), the files of the light that
+    holds patch ``p``'s image (``lights.image[p]``; absent: ``p`` itself), each level ``p``
+    has (``len(scale[p])``). A set: an image shared by several patches is fetched once."""
+    files: set[str] = set()
     for atlas in atlases:
         for stack in atlas.get("sun_bounce", {}).values():
             table = stack["compact"]["lights"]
             for p in patches:
                 if table["scale"][p] is not None:
                     levels = table["ktx2"][: len(table["scale"][p])]
-                    total += sum(sizes[pattern.format(index=p)] for pattern in levels)
-    return total
+                    (holder,) = _holders(table, [p])
+                    files |= {pattern.format(index=holder) for pattern in levels}
+    return files
+
+
+def sun_bounce_bytes(manifest: dict, atlases: list[dict], patches: list[int]) -> int:
+    """Bytes of the sun-bounce images a client fetches for the sun in each of ``patches``
+    (:func:`sun_bounce_files`)."""
+    sizes = {f["path"]: f["bytes"] for f in manifest["files"]}
+    return sum(sizes[f] for f in sun_bounce_files(manifest, atlases, patches))
+
+
+def sent_bytes(build_dir: Path, path: str, listed: int) -> int:
+    """Bytes the server sends for a gzip-compressed file (the manifest, the GLB: JSON and GLB
+    at gzip level 6, server/routes.py); ``listed`` (its size) when it is not on disk."""
+    file = Path(build_dir) / path
+    if not file.is_file():
+        return listed
+    return len(gzip.compress(file.read_bytes(), 6, mtime=0))
 
 
 def download_bytes(manifest: dict, build_dir: Path, visit_lights: int | None = None,
@@ -102,9 +121,10 @@ def download_bytes(manifest: dict, build_dir: Path, visit_lights: int | None = N
                    day_sun: list[int] | None = None) -> dict:
     """Bytes a client fetches, by kind of client:
 
-    - ``phone``: the manifest, the GLB, the ground/wall and lightmap atlases (the default
-      shading) with the images of each stack's selected lights (:func:`stack_selected_lights`,
-      at their average size; none since 2026-11-24);
+    - ``phone``: the manifest, the GLB (both gzipped, as the server sends them), the
+      ground/wall and lightmap atlases (the default shading) with the images of each
+      stack's selected lights (:func:`stack_selected_lights`, at their average size; none
+      since 2026-11-24);
     - ``phone_visit``: the same over a two-hour visit (:data:`VISIT`): the images of every
       light selected meanwhile (``visit_lights`` of them per stack that selects any;
       computed if not given);
@@ -119,6 +139,9 @@ def download_bytes(manifest: dict, build_dir: Path, visit_lights: int | None = N
       sun is in over the visit (``visit_sun``: the patches, computed if not given);
       ``sun_bounce_day`` from sunrise to sunset (``day_sun``); ``sun_bounce_hull_visit`` what
       hull-plane mode adds over the visit. Zero for a build without sun-bounce stacks.
+      ``visit_sun_images``: how many images per stack that is (fewer than the patches where
+      neighbouring patches share one); ``phone_visit_with_sun_bounce``: ``phone_visit`` plus
+      ``sun_bounce_visit``, the figure issue 15's 4 MB is about.
       ``kiosk_sun_bounce_start`` and ``kiosk_sun_bounce_day``: the same for the kiosk (the
       fixed views' ``O`` and ``S``, at sunrise's patch and from sunrise to sunset); zero for
       a build made before 2026-11-25.
@@ -128,7 +151,7 @@ def download_bytes(manifest: dict, build_dir: Path, visit_lights: int | None = N
     sizes = {f["path"]: f["bytes"] for f in manifest["files"]}
     # The server sends JSON gzipped at level 6 (server/routes.py), the binaries as they are.
     manifest_bytes = len(gzip.compress((Path(build_dir) / "manifest.json").read_bytes(), 6))
-    glb = sizes[manifest["model"]["path"]]
+    glb = sent_bytes(build_dir, manifest["model"]["path"], sizes[manifest["model"]["path"]])
     per_light = {row["stack"]: row["light_bytes_per_light"]
                  for row in manifest["compression"]["report"]}
     hull = [a for a in manifest["atlases"] if a["id"] == "hull"]
@@ -174,9 +197,15 @@ def download_bytes(manifest: dict, build_dir: Path, visit_lights: int | None = N
         if day_sun is None:
             day_sun = sun_patches_over(manifest, *KIOSK_DAY)
     visit_sun, day_sun = visit_sun or [], day_sun or []
+    visit_images = max((len(_holders(stack["compact"]["lights"], visit_sun))
+                        for o in default for stack in o.get("sun_bounce", {}).values()),
+                       default=0)
+    phone_visit = round(manifest_bytes + glb + owner_bytes(default, visit_lights))
+    sun_bounce_visit = sun_bounce_bytes(manifest, default, visit_sun)
     return {
         "phone": round(phone),
-        "phone_visit": round(manifest_bytes + glb + owner_bytes(default, visit_lights)),
+        "phone_visit": phone_visit,
+        "phone_visit_with_sun_bounce": phone_visit + sun_bounce_visit,
         "phone_hull": round(phone + owner_bytes(hull, None)),
         "kiosk": round(manifest_bytes + glb + owner_bytes(manifest["views"], None)),
         "kiosk_day": round(manifest_bytes + glb + owner_bytes(manifest["views"], day_lights)),
@@ -184,11 +213,20 @@ def download_bytes(manifest: dict, build_dir: Path, visit_lights: int | None = N
         "visit_lights": visit_lights,
         "day_lights": day_lights,
         "sun_bounce_start": sun_bounce_bytes(manifest, default, visit_sun[:1]),
-        "sun_bounce_visit": sun_bounce_bytes(manifest, default, visit_sun),
+        "sun_bounce_visit": sun_bounce_visit,
         "sun_bounce_day": sun_bounce_bytes(manifest, default, day_sun),
         "sun_bounce_hull_visit": sun_bounce_bytes(manifest, hull, visit_sun),
         "kiosk_sun_bounce_start": sun_bounce_bytes(manifest, manifest["views"], day_sun[:1]),
         "kiosk_sun_bounce_day": sun_bounce_bytes(manifest, manifest["views"], day_sun),
         "visit_sun_patches": len(visit_sun),
+        "visit_sun_images": visit_images,
         "day_sun_patches": len(day_sun),
     }
+
+
+def _holders(table: dict, patches: list[int]) -> set[int]:
+    """The lights whose files hold the images of ``patches`` in a sun-bounce ``lights``
+    table (``image[p]``, absent: ``p``), for the patches that have one."""
+    image = table.get("image")
+    return {p if image is None or image[p] is None else image[p]
+            for p in patches if table["scale"][p] is not None}

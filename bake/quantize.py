@@ -39,11 +39,11 @@ class Quantized:
 
     @property
     def scale_list(self) -> list[float]:
-        return _float32_list(self.scale)
+        return float32_list(self.scale)
 
     @property
     def offset_list(self) -> list[float]:
-        return _float32_list(self.offset)
+        return float32_list(self.offset)
 
     def entry(self, coefficient: int) -> dict:
         return {"scale": self.scale_list, "offset": self.offset_list, "coefficient": coefficient}
@@ -55,7 +55,7 @@ class Quantized:
         ) + self.offset.astype(np.float32)
 
 
-def _float32_list(values: np.ndarray) -> list[float]:
+def float32_list(values: np.ndarray) -> list[float]:
     """Scales and offsets for the manifest, as the shortest decimals of their float32 values:
     every decoder (GPU, three.js, :class:`bake.compact_reader.CompactReader`) reads them as
     float32, so nothing is lost (what it saves: docs/compact-assets.md)."""

@@ -212,7 +212,9 @@ class ArrayStack:
 def as_stack(stack):
     """A :class:`StackStore` or :class:`ArrayStack` as it is; an array (H, W, n, 3) as an
     :class:`ArrayStack`."""
-    return stack if isinstance(stack, (StackStore, ArrayStack)) else ArrayStack(stack)
+    if isinstance(stack, (StackStore, ArrayStack)) or hasattr(stack, "columns"):
+        return stack  # a stack read by columns (bake.sunbounce.SharedColumns) as well
+    return ArrayStack(stack)
 
 
 def valid_blocks(stacks, valid: np.ndarray):

@@ -273,6 +273,7 @@ def _load_settings(
         "encoding": compression_t.string("encoding"),
         "selected_lights": compression_t.number("selected_lights"),
         "sun_bounce_budget": compression_t.number("sun_bounce_budget"),
+        "sun_bounce_lights": compression_t.number("sun_bounce_lights"),
     }
 
     q = levels[chosen]

@@ -180,6 +180,12 @@ SCHEMA: dict = _table({
                                   "disc plus the sun's bounce, under a clear sky with the sun "
                                   "at the patch's centre (0: every image keeps it; "
                                   "docs/compact-assets.md, \"The sun's bounce\")", 0.0, 0.5),
+        "sun_bounce_lights": _num(196, "on a dome of more lights than this, neighbouring "
+                                  "sun patches share one sun-bounce image: those in one patch "
+                                  "of the dome of about this many lights (their mean; a visit "
+                                  "at 400 lights fetches 3 images per stack instead of 6). 0: "
+                                  "one image per patch (docs/sun.md, \"Shared images\")", 0,
+                                  20000, integer=True),
     }),
     "virtual": _array_of(_table({
         "name": _str(None, "unique"),

@@ -1,7 +1,8 @@
 """Compression of the sun-bounce stacks (docs/sun.md, item 5): one image per light the sun
 can be in, each its column as it is (no base, no gain), encoded and checked as the client
 decodes it; a light's refinement image is kept only where its coarse image alone would show
-(:class:`DisplaySkies`).
+(:class:`DisplaySkies`). Neighbouring patches may share one image, their solid-angle mean
+(:class:`SharedImages`; docs/sun.md, "Shared images").
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from bake.basisu import encode
 from bake.compact_reader import CompactReader
 from bake.compress import CompactStack
 from bake.ktx2decoder import decode
-from bake.quantize import quantized_png, refinement_png
+from bake.quantize import float32_list, quantized_png, refinement_png
 from bake.rowstore import RowFile, as_stack, valid_blocks
 
 SUN_BOUNCE_DECODE_CHUNK = 16  # light images decoded at a time (memory: the lightmap is large)
@@ -92,6 +93,113 @@ class _Cosine:
         return np.repeat(np.clip(dirs @ self.normal, 0.0, None)[:, None], 3, axis=1)
 
 
+@dataclass
+class SharedImages:
+    """Which sun-path lights share one sun-bounce image: ``groups`` {representative light:
+    its members, sorted, the representative first}. A group is the sun-path patches whose
+    centroids lie in one patch of a coarser dome (:meth:`of_dome`); its
+    image is its members' columns summed and scaled to the representative's solid angle,
+    ``omega_rep / sum(omega_q) * sum_q B_q``, so that with the sun in any member ``p`` the
+    client's ``E_sun / omega_p * column_p`` (``column_p``: the shared image scaled by
+    ``omega_p / omega_rep``) is ``E_sun * sum_q B_q / sum_q omega_q``: the sun's bounce
+    averaged over the group's patches."""
+
+    groups: dict[int, list[int]]
+    solid_angles_sr: np.ndarray  # (n,) the dome's
+    kind: str
+    frequency: int  # the coarser dome's
+
+    @classmethod
+    def of_dome(cls, kind: str, frequency: int, lights, max_lights: int | None
+                ) -> SharedImages | None:
+        """The groups of ``lights`` (the sun-path patches) of a ``kind`` dome of this
+        ``frequency`` by the patches of the dome of about ``max_lights`` lights
+        (:meth:`bake.dome.Dome.for_light_count`), or None when the build's dome has no more
+        lights than that (or ``max_lights`` is None): the sun's bounce is kept at no finer an
+        angular step than that dome's."""
+        from bake.dome import Dome
+        from daylit.spherical import PatchLookup
+
+        fine = Dome.build(kind, frequency)
+        if not max_lights or fine.count <= max_lights:
+            return None
+        rough = Dome.for_light_count(max_lights)
+        if rough.count >= fine.count:
+            return None
+        owner = PatchLookup(rough.vertices)(fine.centroids)
+        by_patch: dict[int, list[int]] = {}
+        for p in sorted(int(i) for i in lights):
+            key = int(owner[p]) if owner[p] >= 0 else -1 - p  # outside every coarse patch: alone
+            by_patch.setdefault(key, []).append(p)
+        groups = {members[0]: members for members in by_patch.values()}
+        return cls(groups, fine.solid_angles_sr, rough.kind, rough.frequency)
+
+    @property
+    def representatives(self) -> list[int]:
+        return sorted(self.groups)
+
+    def image_of(self, n: int) -> list:
+        """(n,) the light whose files hold each light's image; None for lights without."""
+        out: list = [None] * n
+        for rep, members in self.groups.items():
+            for q in members:
+                out[q] = rep
+        return out
+
+    def ratio(self, light: int, rep: int) -> float:
+        """``omega_light / omega_rep``: a member's scale and offset over its image's."""
+        return float(self.solid_angles_sr[light] / self.solid_angles_sr[rep])
+
+
+class SharedColumns:
+    """A sun-bounce stack (a :mod:`bake.rowstore` stack) read as :class:`SharedImages` store
+    it: a representative's column is its group's, ``omega_rep / sum(omega_q) * sum_q B_q``;
+    any other light's its own."""
+
+    def __init__(self, image, shared: SharedImages):
+        self.image = as_stack(image)
+        self.shared = shared
+        self.shape = self.image.shape
+        self.valid = self.image.valid
+        self.work = getattr(self.image, "work", None)
+
+    def columns(self, lights) -> np.ndarray:
+        out = []
+        omega = self.shared.solid_angles_sr
+        for p in lights:
+            members = self.shared.groups.get(int(p), [int(p)])
+            total = np.zeros(self.shape[:2] + (3,), dtype=np.float64)
+            for column in self.image.columns(members):
+                total += column
+            out.append((total * (omega[p] / omega[members].sum())).astype(np.float32))
+        return np.stack(out)
+
+    def column(self, light: int) -> np.ndarray:
+        return self.columns([light])[0]
+
+
+def share_entry(entry: dict, shared: SharedImages, n: int) -> dict:
+    """A sun-bounce entry whose ``lights`` hold the representatives' images, extended to
+    every member: ``scale``/``offset`` the representative's times ``omega_p / omega_rep``,
+    ``image[p]`` the representative (whose files hold the image), and ``shared``: the
+    coarser dome and how many images."""
+    table = entry["lights"]
+    for rep, members in shared.groups.items():
+        for q in members:
+            if q == rep:
+                continue
+            f = shared.ratio(q, rep)
+            table["scale"][q] = [float32_list(np.asarray(level) * f)
+                                 for level in table["scale"][rep]]
+            table["offset"][q] = [float32_list(np.asarray(level) * f)
+                                  for level in table["offset"][rep]]
+    table["image"] = shared.image_of(n)
+    entry["shared"] = {"kind": shared.kind, "frequency": shared.frequency,
+                       "images": len(shared.groups),
+                       "lights": sum(len(m) for m in shared.groups.values())}
+    return entry
+
+
 class DisplayCheck:
     """The error a decoded sun-bounce column makes in what the client shows, for one stack:
     the sky stack ``sky`` (H, W, n, 3, the same atlas's or view's, an array or a
@@ -160,7 +268,8 @@ class DisplayCheck:
 
 
 def compress_sun_bounce(image, name, out_dir, lights, settings, sky=None,
-                        skies: DisplaySkies | None = None) -> CompactStack | None:
+                        skies: DisplaySkies | None = None,
+                        shared: SharedImages | None = None) -> CompactStack | None:
     """Compress a sun-bounce stack ``image`` (H, W, n, 3), whose columns outside ``lights``
     (the patches the sun can be in) are zero, into one image per light of ``lights``: its
     column, as it is (no base, no gain, no ``d - I``).
@@ -184,6 +293,11 @@ def compress_sun_bounce(image, name, out_dir, lights, settings, sky=None,
     master: RMS error over the stack's valid texels relative to the column's mean there, and
     as displayed.
 
+    With ``shared`` (:class:`SharedImages`) the lights of a group share one image, their
+    group's (:class:`SharedColumns`): only the representatives are encoded and judged (each
+    against its group's column, under its own display sky), and the entry lists every
+    member (:func:`share_entry`).
+
     Writes ``ktx2/<name>.L<i>.ktx2`` for each light ``i`` of ``lights`` and
     ``ktx2/<name>.L<i>r.ktx2`` for those that keep a refinement. Returns the
     :class:`CompactStack` (entry ``{"k": 0, "lights", "error"}``: ``lights.ktx2`` one pattern
@@ -198,12 +312,22 @@ def compress_sun_bounce(image, name, out_dir, lights, settings, sky=None,
     valid = image.valid
     if not valid.any() or len(lights) == 0:
         return None
+    if shared is not None:
+        shared = SharedImages({rep: [q for q in members if q in set(lights.tolist())]
+                               for rep, members in shared.groups.items()
+                               if rep in set(lights.tolist())},
+                              shared.solid_angles_sr, shared.kind, shared.frequency)
+        image = SharedColumns(image, shared)
+        lights = np.asarray(shared.representatives, dtype=int)
     budget = getattr(settings, "sun_bounce_budget", None)
     check = (DisplayCheck(sky, skies, lights) if sky is not None and skies is not None
              else None)
     try:
-        return _compress_columns(image, name, out_dir, lights, settings, check, budget,
-                                 started)
+        result = _compress_columns(image, name, out_dir, lights, settings, check, budget,
+                                   started)
+        if result is not None and shared is not None:
+            share_entry(result.entry, shared, n)
+        return result
     finally:
         if check is not None:
             check.remove()

@@ -14,10 +14,11 @@ from pathlib import Path
 
 
 def recompress_sun_bounce(build_dir: Path, copy: Path, budget: float,
-                          second_level: int | None = None) -> Path:
+                          second_level: int | None = None, shared=None) -> Path:
     """Copy ``build_dir`` to ``copy`` and compress its atlases' and views' sun-bounce stacks
     again, judged with ``budget`` (and ``Settings.sun_bounce_level`` ``second_level``, by
-    default the baker's); returns ``copy``."""
+    default the baker's), their lights grouped by ``shared`` (a
+    ``bake.sunbounce.SharedImages``; None: one image per light); returns ``copy``."""
     from bake.compress import Settings
     from bake.evaluate import Build
     from bake.sunbounce import DisplaySkies, compress_sun_bounce
@@ -39,7 +40,7 @@ def recompress_sun_bounce(build_dir: Path, copy: Path, budget: float,
             result = compress_sun_bounce(
                 read_stack_exr(copy / entry["master"]), f"{owner['id']}.sun_bounce.{stack}",
                 copy, lights, settings, read_stack_exr(copy / owner["stacks"][stack]["master"]),
-                skies,
+                skies, shared,
             )
             entry["compact"] = result.entry
     files = [f for f in manifest["files"] if ".sun_bounce." not in f["path"]

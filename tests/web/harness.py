@@ -105,6 +105,7 @@ class StubServer:
         self.fail_paths = set(fail_paths)
         self.clients: set[web.WebSocketResponse] = set()
         self.received: list[str] = []
+        self.served: list[str] = []  # the build's paths asked for ("build/ktx2/...")
         self.last: list[bytes] = []  # sent again to every client that connects
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
@@ -145,6 +146,8 @@ class StubServer:
     def _static(self, root: Path, prefix: str | None):
         async def handle(request: web.Request):
             tail = request.match_info["tail"] or "index.html"
+            if prefix:
+                self.served.append(prefix + tail)
             if prefix and prefix + tail in self.fail_paths:
                 raise web.HTTPNotFound()
             path = (root / tail).resolve()

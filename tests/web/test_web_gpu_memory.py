@@ -63,12 +63,15 @@ def sun_bytes(maps: int, size: int) -> int:
     return maps * (4 * texels + 4 * texels + ground + coarse) + 4 * texels
 
 
-def bounce_bytes(manifest: dict, patch: int) -> int:
+def bounce_bytes(manifest: dict, patch: int, hull: bool = False) -> int:
     """The sun-bounce images of one sun patch the visit holds: every atlas stack's with an image
     for that patch (its scale not null), each of its levels (one or two: ``len(scale[p])``)
-    decoded to RGBA8 (UASTC)."""
+    decoded to RGBA8 (UASTC); the hull planes' only in hull-plane mode (``hull``; since
+    2026-12-06 the client fetches them only then)."""
     total = 0
     for atlas in manifest["atlases"]:
+        if atlas["id"] == "hull" and not hull:
+            continue
         for stack in atlas.get("sun_bounce", {}).values():
             lights = stack["compact"]["lights"]
             if lights["scale"][patch] is not None:

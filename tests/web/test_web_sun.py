@@ -310,12 +310,15 @@ def test_shadow_maps_follow_the_sun_not_the_frames(new_page, sun_build, sun_refe
         assert not page.errors, page.errors
 
 
-def shaded_face_shown(new_page, build_dir, build, casters):
+def shaded_face_shown(new_page, build_dir, build, casters, served: list | None = None):
     """The virtual box's west face in the visit of ``build_dir`` (read by ``build``): the
     displayed codes, what the compact oracle expects, the sky-only codes, the sun bounce's
-    share of the face's light and the page's errors."""
+    share of the face's light and the page's errors; ``served`` gets the build's paths the
+    page asked for."""
     s, r = sun_and_sky(build)
     with StubServer(build_dir) as server:
+        if served is not None:
+            served_now = server.served
         page = open_page(new_page, server)
         sp = SunPage(page, build, s, r)
         assert page.page.evaluate("window.daylit.debug.sunBounce()") >= 0
@@ -329,6 +332,8 @@ def shaded_face_shown(new_page, build_dir, build, casters):
                                              atlases=("lightmap",))
         no_bounce = srgb_codes(neutral_tone_map(albedo / math.pi * sky * EXPOSURE))  # sky only
         share = sun.sum(axis=1) / (sun + sky).sum(axis=1)
+        if served is not None:
+            served.extend(served_now)
         return shown, expected, no_bounce, share, list(page.errors)
 
 
@@ -380,6 +385,86 @@ def test_sun_bounce_with_and_without_refinement_files(new_page, sun_build, sun_r
     assert np.abs(shown - expected).max() <= 3.0, (shown, expected)
     assert (shown.mean(axis=1) > no_bounce.mean(axis=1) + 3.0).all(), (shown, no_bounce)
     assert not errors, errors
+
+
+def test_sun_bounce_from_an_image_shared_with_a_neighbouring_patch(new_page, sun_build,
+                                                                   sun_reference, tmp_path):
+    """A build whose sun-bounce images are shared (manifest version 3, ``lights.image``):
+    the sun's patch p grouped with its nearest sun-path neighbour q of lower index, whose
+    files hold the pair's image (bake.sunbounce.SharedImages). The client fetches q's files
+    and never p's (there are none), and shows the shaded face as that build's compact oracle
+    says (q's image with p's own scale), clearly brighter than the sky alone; in lightmap mode
+    it fetches no hull-plane sun-bounce image. (A client that asked for p's own files, as
+    before version 3, got 404 and no bounce.)"""
+    from bake.evaluate import Build
+    from bake.sunbounce import SharedImages
+    from tests.sunbounce_levels import recompress_sun_bounce
+
+    build = Build(sun_build)
+    s, _ = sun_and_sky(build)
+    p = build.sun_patch(s)
+    lights = build.selection.selectable.tolist()
+    centroid = np.array([light["centroid"] for light in build.manifest["dome"]["lights"]])
+    lower = [q for q in lights if q < p]
+    assert lower, (p, lights)  # a precondition: p has a lower-indexed sun-path neighbour
+    q = max(lower, key=lambda i: float(centroid[i] @ centroid[p]))
+    groups = {i: [i] for i in lights if i not in (p, q)}
+    groups[q] = [q, p]
+    shared = SharedImages(groups, build.solid_angles, "test", 0)
+    pair = recompress_sun_bounce(sun_build, tmp_path / "shared", 0.01, shared=shared)
+    pair_build = Build(pair)
+    table = pair_build.manifest["atlases"][0]["sun_bounce"]["I"]["compact"]["lights"]
+    assert table["image"][p] == q and table["image"][q] == q
+    _, casters = sun_reference
+    served: list[str] = []
+    shown, expected, no_bounce, share, errors = shaded_face_shown(new_page, pair, pair_build,
+                                                                  casters, served)
+    bounce_files = [f for f in served if ".sun_bounce." in f]
+    print(f"patch {p} shares patch {q}'s image; fetched {bounce_files}")
+    assert any(f.endswith(f".L{q:04d}.ktx2") for f in bounce_files), bounce_files
+    assert not any(f".L{p:04d}" in f for f in bounce_files), bounce_files
+    # Lightmap mode: the hull planes' sun bounce is not fetched (only once hull-plane mode is
+    # chosen; before 2026-12-06 a phone's visit fetched it for nothing).
+    assert not any(f.startswith("build/ktx2/hull.") for f in bounce_files), bounce_files
+    assert np.abs(shown - expected).max() <= 3.0, (shown, expected)
+    assert (shown.mean(axis=1) > no_bounce.mean(axis=1) + 3.0).all(), (shown, no_bounce)
+    assert not errors, errors
+
+
+def test_hull_sun_bounce_only_once_hull_plane_mode_is_chosen(new_page, sun_build,
+                                                              sun_reference):
+    """In lightmap mode the client fetches no hull-plane sun-bounce image (they serve only
+    hull-plane mode; before 2026-12-06 a phone's visit fetched them for nothing) and the hull
+    planes' bounce target stays zero; once hull-plane mode is chosen it fetches the sun's
+    patch's images and draws them: the target is E_sun / solid_angle_p times the column the
+    compact reader decodes from the same files."""
+    from tests.web.harness import decode_floats
+
+    build, _ = sun_reference
+    s, r = sun_and_sky(build)
+    p = build.sun_patch(s)
+    with StubServer(sun_build) as server:
+        page = open_page(new_page, server)
+        SunPage(page, build, s, r)
+        assert page.page.evaluate("window.daylit.debug.sunBounce()") == p
+        bounce = [f for f in server.served if ".sun_bounce." in f]
+        assert bounce and not any(f.startswith("build/ktx2/hull.") for f in bounce), bounce
+        before = decode_floats(page.page.evaluate("window.daylit.debug.readSunBounce('hull.I')"))
+        assert np.abs(before[..., :3]).max() == 0.0
+        page.page.select_option(".shadingmode", "hull")
+        page.wait("window.daylit.status.shadingMode === 'hull'", 60000)
+        for _ in range(300):
+            after = decode_floats(
+                page.page.evaluate("window.daylit.debug.readSunBounce('hull.I')"))[..., :3]
+            if np.abs(after).max() > 0:
+                break
+            page.page.wait_for_timeout(100)
+        assert any(f.startswith(f"build/ktx2/hull.sun_bounce.I.L{p:04d}") for f in server.served)
+        assert not page.errors, page.errors
+    column = build.sun_bounce_compact("hull", "I").lights([p])[p]
+    want = column * (SUN_DNI / build.solid_angles[p])
+    err = np.abs(after - want).max() / np.abs(want).max()
+    assert err < 0.01, err
 
 
 @pytest.mark.parametrize("profile", ["desktop", "phone"])

@@ -73,8 +73,8 @@ export class Assets {
       throw new AssetError(this.manifestUrl, 'not JSON');
     }
     // Version 2 (2026-11-24): a stack's base may also have an ETC1S array (compact.etc1s).
-    if (manifest.format !== 'daylit-build' || ![1, 2].includes(manifest.version)) {
-      throw new AssetError(this.manifestUrl, `not a daylit build of version 1 or 2 (${manifest.format} ${manifest.version})`);
+    if (manifest.format !== 'daylit-build' || ![1, 2, 3].includes(manifest.version)) {
+      throw new AssetError(this.manifestUrl, `not a daylit build of version 1, 2 or 3 (${manifest.format} ${manifest.version})`);
     }
     this.manifest = manifest;
     this.files = new Map(manifest.files.map((f) => [f.path, f]));

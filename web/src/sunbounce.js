@@ -6,7 +6,9 @@
 // (the bounce is smooth over neighbouring patches, so spreading the sun over its patch is
 // harmless here, unlike for its direct term). One image per stack (its coarse level, and a
 // refinement where the bake kept one) is fetched when the sun enters a patch; its target is
-// rendered once per sun update.
+// rendered once per sun update. Neighbouring patches may share one image (manifest version 3:
+// `lights.image[p]`, the light whose files hold patch p's image, read with p's own scale and
+// offset; docs/sun.md, "Shared images"): it is fetched once for all of them.
 import * as THREE from 'three';
 import { patchContaining } from './lightmath.js';
 import { RGBE_ENCODE } from './relight.glsl.js';
@@ -58,28 +60,39 @@ class BounceStack {
     return Array.isArray(this.compact.lights.scale[light]);
   }
 
+  /** The light whose files hold `light`'s image (itself unless shared). */
+  holder(light) {
+    return this.compact.lights.image?.[light] ?? light;
+  }
+
+  /** The textures of `light`'s image once they arrived, else undefined. */
+  loadedFor(light) {
+    return this.loaded.get(this.holder(light));
+  }
+
   fetch(light) {
-    if (!this.images.has(light)) {
+    const key = this.holder(light); // images are cached by the light whose files hold them
+    if (!this.images.has(key)) {
       // The light's own levels (len(scale[light])): a sun-bounce image whose coarse level
       // suffices as displayed has no refinement file (docs/compact-assets.md).
       const levels = this.compact.lights.scale[light].length;
-      const files = this.compact.lights.ktx2.slice(0, levels).map((pattern) => pattern.replace('{index:04d}', String(light).padStart(4, '0')));
+      const files = this.compact.lights.ktx2.slice(0, levels).map((pattern) => pattern.replace('{index:04d}', String(key).padStart(4, '0')));
       const promise = Promise.all(files.map((f) => this.assets.texture(f))).then((textures) => {
         for (const t of textures) t.minFilter = t.magFilter = THREE.NearestFilter;
-        if (this.images.get(light) === promise) this.loaded.set(light, textures);
+        if (this.images.get(key) === promise) this.loaded.set(key, textures);
         return textures;
       });
-      promise.catch(() => this.images.delete(light)); // retried with the next sun
-      this.images.set(light, promise);
+      promise.catch(() => this.images.delete(key)); // retried with the next sun
+      this.images.set(key, promise);
       for (const [old, p] of this.images) {
         if (this.images.size <= CACHE_PER_STACK) break;
-        if (old === light) continue;
+        if (old === key) continue;
         p.then((textures) => textures.forEach((t) => t.dispose()), () => {});
         this.images.delete(old);
         this.loaded.delete(old);
       }
     }
-    return this.images.get(light);
+    return this.images.get(key);
   }
 
   /** Render weight (RGB: E_sun / solid angle) times light `light`'s images (`textures`, from
@@ -122,10 +135,12 @@ export class SunBounce {
    * @param {THREE.WebGLRenderer} renderer
    * @param {import('./assets.js').Assets} assets with its manifest loaded
    * @param {{rgbe: boolean, type: number}} format the relight targets' format
-   * @param {{view?: object}} [options] view: a fixed view of the manifest (the kiosk's):
-   *   its O and S stacks' bounce (`views[i].sun_bounce`, radiance) instead of the atlases'
+   * @param {{view?: object, deferred?: string[]}} [options] view: a fixed view of the manifest
+   *   (the kiosk's): its O and S stacks' bounce (`views[i].sun_bounce`, radiance) instead of
+   *   the atlases'; deferred: stacks ('hull.I', 'hull.d') whose images are neither fetched nor
+   *   drawn until `activate` (the hull planes' serve only hull-plane mode)
    */
-  constructor(renderer, assets, format, { view = null } = {}) {
+  constructor(renderer, assets, format, { view = null, deferred = [] } = {}) {
     this.renderer = renderer;
     this.lights = assets.manifest.dome.lights;
     this.stacks = new Map();
@@ -138,6 +153,15 @@ export class SunBounce {
     }
     this.patch = null;
     this._asked = 0;
+    this.deferred = new Set(deferred);
+    this._sun = null;
+  }
+
+  /** Fetch and draw the bounce of `keys` too from now on (hull-plane mode chosen): as
+   * `update` with the last sun (null when drawn at once, else a Promise). */
+  activate(keys) {
+    for (const key of keys) this.deferred.delete(key);
+    return this.update(this._sun);
   }
 
   /** The target of an atlas or view stack ('ground.I', 'kiosk.O'), or null when the build
@@ -157,13 +181,14 @@ export class SunBounce {
     const p = up ? patchContaining(this.lights, sun.direction) : -1;
     const weight = p >= 0 ? sun.normalIrradiance.map((e) => e / this.lights[p].solid_angle_sr) : null;
     const asked = ++this._asked;
+    this._sun = sun;
     const stacks = [...this.stacks.values()];
-    const lights = stacks.map((s) => (p >= 0 && s.has(p) ? p : null));
+    const lights = stacks.map((s) => (p >= 0 && s.has(p) && !this.deferred.has(s.key) ? p : null));
     const draw = (images) => {
       stacks.forEach((s, j) => s.render(this.renderer, lights[j], images[j], weight));
       this.patch = p;
     };
-    const here = stacks.map((s, j) => (lights[j] === null ? null : s.loaded.get(lights[j])));
+    const here = stacks.map((s, j) => (lights[j] === null ? null : s.loadedFor(lights[j])));
     if (here.every((images, j) => lights[j] === null || images)) {
       draw(here);
       return null;

@@ -1,0 +1,129 @@
+"""Neighbouring sun-path patches sharing one sun-bounce image (docs/sun.md, "Shared images";
+bake/sunbounce.py ``SharedImages``): the layout, the columns a client decodes against the
+group's mean computed here from the EXR masters, and what a visit downloads
+(bake/downloads.py).
+
+The tests' sun site baked at 400 lights (octahedral, frequency 10): its sun-path patches are
+grouped by the patches of the 196-light dome (octahedral, frequency 7; one to three fine
+patches each)."""
+
+from __future__ import annotations
+
+import gzip
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bake import downloads
+from bake.evaluate import Build
+
+LIGHTS = 400
+
+
+@pytest.fixture(scope="module")
+def shared_build(tmp_path_factory) -> Path:
+    """The sun site (tests/conftest.py) baked at draft quality with 400 lights (~1 min)."""
+    from bake.pipeline import bake
+    from tests.conftest import SUN_SHED, SUN_WALL_SIZE_M
+    from tests.sites import box, make_site, real_box
+
+    root = tmp_path_factory.mktemp("shared")
+    wall = box(list(SUN_WALL_SIZE_M), [0.0, 0.0, 0.0])
+    scene = make_site(root / "scene", virtual=[("wall", wall, (0.5, 0.5, 0.5))],
+                      real=real_box(**SUN_SHED), ground_m=60.0)
+    bake(scene, root / "build", lights=LIGHTS, progress=False, log=lambda msg: None)
+    return root / "build"
+
+
+def _groups(table: dict) -> dict[int, list[int]]:
+    """{light whose files hold the image: the lights that read it}."""
+    groups: dict[int, list[int]] = {}
+    for p, holder in enumerate(table["image"]):
+        if holder is not None:
+            groups.setdefault(holder, []).append(p)
+    return groups
+
+
+def test_neighbouring_patches_read_one_image_their_groups_mean(shared_build):
+    """Every sun-path light has an image, held by one light of its group; only the holders
+    have files; a group's lights are neighbours (within 25 degrees of each other); a light's
+    decoded column is its group's solid-angle mean of the masters, ``omega_p * sum_q B_q /
+    sum_q omega_q`` (computed here from the EXR masters and the manifest's dome), as close
+    as its holder's own (the same image, scaled) and within what the bake recorded."""
+    build = Build(shared_build)
+    manifest = build.manifest
+    assert manifest["version"] == 3
+    lights = build.selection.selectable.tolist()
+    omega = np.array([light["solid_angle_sr"] for light in manifest["dome"]["lights"]])
+    centroid = np.array([light["centroid"] for light in manifest["dome"]["lights"]])
+    for atlas_id, atlas in build.atlases.items():
+        for stack, entry in atlas["sun_bounce"].items():
+            compact = entry["compact"]
+            table = compact["lights"]
+            groups = _groups(table)
+            assert sorted(p for members in groups.values() for p in members) == lights
+            assert len(groups) < 0.7 * len(lights), (atlas_id, stack, len(groups))
+            assert compact["shared"]["images"] == len(groups)
+            assert compact["error"]["test_lights"] == len(groups)
+            for p in lights:  # files for the holders alone
+                path = shared_build / table["ktx2"][0].format(index=p)
+                assert path.is_file() == (p in groups), (atlas_id, stack, p)
+            for members in groups.values():
+                cos = centroid[members] @ centroid[members].T
+                assert np.degrees(np.arccos(np.clip(cos.min(), -1, 1))) < 25.0, members
+            master = build.sun_bounce_stack(atlas_id, stack)
+            reader = build.sun_bounce_compact(atlas_id, stack)
+            valid = np.any(master != 0, axis=(2, 3))
+            worst = 0.0
+            for holder, members in groups.items():
+                mean = master[:, :, members].sum(axis=2) / omega[members].sum()
+                errors = []
+                for p in members:
+                    truth = (omega[p] * mean)[valid]
+                    got = reader.lights([p])[p][valid]
+                    errors.append(np.sqrt(((got - truth) ** 2).mean()) / truth.mean())
+                # one image, each light's own scale: the same relative error
+                assert np.ptp(errors) <= 1e-4 + 1e-3 * max(errors), (holder, errors)
+                worst = max(worst, max(errors))
+                reader.forget_lights()
+            assert worst == pytest.approx(compact["error"]["max"], abs=1e-4), (atlas_id, stack)
+
+
+def test_a_visit_fetches_one_image_per_group(shared_build):
+    """bake/downloads.py over the two-hour visit: the sun crosses more patches than groups,
+    and the sun's bounce over the visit is the sizes of the distinct holders' files (counted
+    here from the patches and the tables); the GLB counts as the server sends it, gzipped."""
+    import json
+
+    manifest = json.loads((shared_build / "manifest.json").read_text())
+    got = downloads.download_bytes(manifest, shared_build)
+    patches = downloads.sun_patches_over(manifest, *downloads.VISIT)
+    assert got["visit_sun_patches"] == len(patches)
+    sizes = {f["path"]: f["bytes"] for f in manifest["files"]}
+    files, per_stack = set(), []
+    for atlas in manifest["atlases"]:
+        if atlas["id"] == "hull":
+            continue
+        for entry in atlas["sun_bounce"].values():
+            table = entry["compact"]["lights"]
+            holders = {table["image"][p] for p in patches}
+            per_stack.append(len(holders))
+            for h in holders:
+                files |= {pattern.format(index=h)
+                          for pattern in table["ktx2"][: len(table["scale"][h])]}
+    assert got["visit_sun_images"] == max(per_stack) < len(patches), (per_stack, patches)
+    assert got["sun_bounce_visit"] == sum(sizes[f] for f in files)
+    assert got["phone_visit_with_sun_bounce"] == got["phone_visit"] + got["sun_bounce_visit"]
+    glb = (shared_build / manifest["model"]["path"]).read_bytes()
+    sent = len(gzip.compress((shared_build / "manifest.json").read_bytes(), 6))
+    base = set()  # the default atlases' base files, V and gain
+    for atlas in manifest["atlases"]:
+        if atlas["id"] != "hull":
+            for entry in atlas["stacks"].values():
+                c = entry["compact"]
+                base |= {c["ktx2"], c["v"]["path"]} | {c[k]["ktx2"] for k in ("etc1s", "gain")
+                                                      if c.get(k)}
+    gzipped = len(gzip.compress(glb, 6, mtime=0))
+    assert gzipped < len(glb)
+    assert got["phone"] == sent + gzipped + sum(sizes[f] for f in base)
