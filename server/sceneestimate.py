@@ -78,7 +78,9 @@ from server.scenesamples import (  # noqa: F401 (PinholeView, SceneEstimateError
     intersector,
     patch_points_m,
     prepare_samples,
+    samples_at,
 )
+from server.shadepool import ViewHits, view_hits, wholly_shaded_pixels
 from server.shadowpairs import ShadowPairs, pair_sun_ratio, shadow_pairs
 from server.shapefit import FrameSamples, ShapeFits, perez_state
 from server.skyshape import (  # noqa: F401 (sky_type_for_ratio, unit_sky: used by tests)
@@ -113,6 +115,9 @@ class SceneEstimator(ShapeFits, FrameSampling):
     pair_floor : a sun is dropped when the pairs across the model's shadow edges read less
         than this fraction of the sky's horizontal irradiance (server.shadowpairs; 0: no
         check)
+    shade_top_up : when the pool has fewer than half of ``samples`` in shadow for the sun,
+        up to that many single pixels wholly in the model's shadow are added to each
+        estimate (``server.shadepool``; False: the pool alone)
     """
 
     mesh: trimesh.Trimesh
@@ -130,6 +135,7 @@ class SceneEstimator(ShapeFits, FrameSampling):
     learn_albedo: bool = True
     pair_floor: float = 0.05
     perez_clear: bool = True
+    shade_top_up: bool = True
     _pool: SceneSamples | None = field(default=None, init=False, repr=False)
     _surface_scales: SurfaceScales | None = field(default=None, init=False, repr=False)
     _sun_cache: tuple | None = field(default=None, init=False, repr=False)
@@ -140,6 +146,9 @@ class SceneEstimator(ShapeFits, FrameSampling):
     _sky_cache: dict = field(default_factory=dict, init=False, repr=False)
     _share: dict = field(default_factory=dict, init=False, repr=False)
     _shape_misfit: dict = field(default_factory=dict, init=False, repr=False)
+    _view_hits: ViewHits | None = field(default=None, init=False, repr=False)
+    _shade_cache: tuple | None = field(default=None, init=False, repr=False)
+    _shade_sky_cache: dict = field(default_factory=dict, init=False, repr=False)
 
     @property
     def pool_samples(self) -> SceneSamples:
@@ -187,6 +196,15 @@ class SceneEstimator(ShapeFits, FrameSampling):
         m, k = points.shape[:2]
         lit = self._unblocked(points.reshape(-1, 3), np.repeat(p.normals, k, axis=0),
                               sun_dir).reshape(m, k).mean(axis=1)
+        bounce_sun, bounce_sky = self._sun_bounce(p, sun_dir)
+        self._sun_cache = (sun_dir, lit, bounce_sun, bounce_sky)
+        return lit, bounce_sun, bounce_sky
+
+    def _sun_bounce(self, p: SceneSamples, sun_dir: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+        """(m, 3) and (m, 3): the bounce terms of samples ``p`` per unit sun normal irradiance
+        and per unit sky irradiance (:meth:`SceneSamples.bounce_terms`), each bounce point lit
+        where the mesh does not shade it."""
         cos_h = np.clip(p.bounce_normals @ sun_dir, 0.0, None)
         far = ~np.isfinite(p.bounce_points_m[:, 0])
         bounce = np.zeros(len(cos_h))
@@ -195,8 +213,35 @@ class SceneEstimator(ShapeFits, FrameSampling):
                                                     p.bounce_normals[near], sun_dir)
         bounce[far] = cos_h[far] if sun_dir[1] > 0.0 else 0.0
         bounce_sun, bounce_sky, _ = p.bounce_terms(bounce)
-        self._sun_cache = (sun_dir, lit, bounce_sun, bounce_sky)
-        return lit, bounce_sun, bounce_sky
+        return bounce_sun, bounce_sky
+
+    def shade_samples(self, sun_dir: np.ndarray
+                      ) -> tuple[SceneSamples | None, np.ndarray, np.ndarray]:
+        """For a sun direction: the samples of pixels wholly in the model's shadow
+        (:func:`server.shadepool.wholly_shaded_pixels`; up to ``samples`` of them, at random),
+        or None when the view has none, and their bounce terms (k, 3) per unit sun normal
+        irradiance and per unit sky irradiance. Cached like :meth:`in_sun`."""
+        sun_dir = normalize(np.asarray(sun_dir, float))
+        if self._shade_cache is not None and float(self._shade_cache[0] @ sun_dir) >= math.cos(
+                math.radians(self.sun_cache_deg)):
+            return self._shade_cache[1:]
+        if self._hit is None:
+            self._hit = intersector(self.mesh)
+        if self._view_hits is None:
+            self._view_hits = view_hits(self.mesh, self.view, self._hit)
+        pixels = wholly_shaded_pixels(self._view_hits, self._hit, sun_dir)
+        found: tuple = (None, np.zeros((0, 3)), np.zeros((0, 3)))
+        if len(pixels):
+            rng = np.random.default_rng(self.seed + 5)
+            pixels = pixels[rng.choice(len(pixels), min(len(pixels), self.samples),
+                                       replace=False)]
+            shade = samples_at(self.mesh, self.face_albedo, self.view, pixels, self._hit,
+                               self.hemisphere_count, self.seed + 5,
+                               environment_albedo=self.environment_albedo)
+            found = (shade, *self._sun_bounce(shade, sun_dir))
+        self._shade_cache = (sun_dir, *found)
+        self._shade_sky_cache.clear()
+        return found
 
     def _patch_points_m(self) -> np.ndarray:
         """(m, P, 3): :func:`server.scenesamples.patch_points_m` of the pool, kept."""
@@ -240,17 +285,26 @@ class SceneEstimator(ShapeFits, FrameSampling):
         if key is not None and float(key[0] @ sun_dir) >= math.cos(
                 math.radians(self.sun_cache_deg)) and key[3] == perez:
             return key[1], key[2]
-        p = self.pool_samples
-        shape, to_unit = unit_sky(sky_type, sun_dir, perez)
-        # on the pool's sky grid, normalised on the same grid: an open horizontal plane gets 1
-        rel = shape.relative_luminance(p.sky_grid_dirs)
-        open_horizontal = float((p.sky_grid_dirs[:, 1] * p.sky_grid_sr) @ rel)
-        term = (p.sky_weight @ rel.astype(np.float32)).astype(np.float64) / open_horizontal
-        # (the bounce surfaces' own obstruction is left out, as for the isotropic part)
-        tilt = np.clip(tilted_irradiance(shape, to_unit, p.bounce_normals), 0.0, None)
-        bounce = p.bounce_terms(np.zeros(len(tilt)), tilt)[1]
+        term, bounce = _sky_term_of(self.pool_samples, sky_type, sun_dir, perez)
         self._sky_cache[slot] = (sun_dir, term, bounce, perez)
         return term, bounce
+
+    def frame_sky_term(self, sky_type: int, sun_dir: np.ndarray, frame: FrameSamples,
+                       perez: tuple[float, float] | None = None
+                       ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`sky_term` for a frame's samples: (n,) and (n, 3), the pool's picks then the
+        shade samples' (:meth:`shade_samples` of the same sun)."""
+        s, b = self.sky_term(sky_type, sun_dir, perez)
+        if not len(frame.shade_pick):
+            return s[frame.pick], b[frame.pick]
+        shade = self._shade_cache[1]
+        slot = (sky_type if perez is None else "perez", perez)
+        if slot not in self._shade_sky_cache:
+            self._shade_sky_cache[slot] = _sky_term_of(shade, sky_type,
+                                                       self._shade_cache[0], perez)
+        s_shade, b_shade = self._shade_sky_cache[slot]
+        return (np.concatenate([s[frame.pick], s_shade[frame.shade_pick]]),
+                np.vstack([b[frame.pick], b_shade[frame.shade_pick]]))
 
     def _unblocked(self, points: np.ndarray, normals: np.ndarray, sun_dir: np.ndarray):
         """(m,) bool: the points face the sun, it is up, and no face of the mesh is between."""
@@ -283,15 +337,39 @@ class SceneEstimator(ShapeFits, FrameSampling):
         sun_dir = normalize(np.asarray(sun_dir, float))
         p = self.pool_samples
         lit, bounce_sun, bounce_sky = self.in_sun(sun_dir)
-        pick = self._pick(lit)
-        xy = p.pixels_xy[pick]
-        values, usable = self.read_usable(linear, xy, to_linear, clip_level, ignore_mask)
-        pick, values = pick[usable], values[usable] * radiance_per_unit
-        if len(pick) < 8:
-            raise SceneEstimateError(f"only {len(pick)} usable samples in the frame")
+        # the pool's shade, topped up from pixels wholly in the model's shadow where it has
+        # less than half the samples in shade (server.shadepool)
+        top_up = 0
+        shade, shade_sun, shade_sky = None, None, None
+        pool_shaded = int(np.sum(lit < 0.5))
+        if self.shade_top_up and pool_shaded < self.samples // 2:
+            shade, shade_sun, shade_sky = self.shade_samples(sun_dir)
+            top_up = 0 if shade is None else min(len(shade.pixels_xy),
+                                                 self.samples // 2 - pool_shaded)
+        pick = self._pick(lit, self.samples - top_up)
+        values, usable = self.read_usable(linear, p.pixels_xy[pick], to_linear, clip_level,
+                                          ignore_mask)
+        pick, values = pick[usable], values[usable]
         cos_i = np.clip(p.normals[pick] @ sun_dir, 0.0, None) * lit[pick]
-        frame = FrameSamples(pick, values, cos_i, bounce_sun[pick], bounce_sky[pick],
-                              p.albedo[pick], p.surface[pick], p.sky_view[pick])
+        terms = [cos_i, bounce_sun[pick], bounce_sky[pick], p.albedo[pick], p.surface[pick],
+                 p.sky_view[pick]]
+        shade_pick = np.zeros(0, int)
+        if top_up:
+            # single pixels: a wholly shaded pixel's neighbours may be other faces
+            shade_pick = self._rng.choice(len(shade.pixels_xy), top_up, replace=False)
+            shade_values, usable = self.read_usable(
+                linear, shade.pixels_xy[shade_pick], to_linear, clip_level, ignore_mask,
+                patch_px=0)
+            shade_pick = shade_pick[usable]
+            values = np.vstack([values, shade_values[usable]])
+            more = [np.zeros(len(shade_pick)), shade_sun[shade_pick], shade_sky[shade_pick],
+                    shade.albedo[shade_pick], shade.surface[shade_pick],
+                    shade.sky_view[shade_pick]]
+            terms = [np.concatenate([a, b]) for a, b in zip(terms, more, strict=True)]
+        values = values * radiance_per_unit
+        if len(values) < 8:
+            raise SceneEstimateError(f"only {len(values)} usable samples in the frame")
+        frame = FrameSamples(pick, values, *terms, shade_pick=shade_pick)
         sky_type = 12
         result = None
         sun_elevation_deg = math.degrees(math.asin(min(float(sun_dir[1]), 1.0)))
@@ -325,3 +403,16 @@ class SceneEstimator(ShapeFits, FrameSampling):
             self._scales.end_frame()
         return result
 
+
+def _sky_term_of(p: SceneSamples, sky_type: int, sun_dir: np.ndarray,
+                 perez: tuple[float, float] | None) -> tuple[np.ndarray, np.ndarray]:
+    """:meth:`SceneEstimator.sky_term` of samples ``p``, uncached: (m,) and (m, 3)."""
+    shape, to_unit = unit_sky(sky_type, sun_dir, perez)
+    # on the pool's sky grid, normalised on the same grid: an open horizontal plane gets 1
+    rel = shape.relative_luminance(p.sky_grid_dirs)
+    open_horizontal = float((p.sky_grid_dirs[:, 1] * p.sky_grid_sr) @ rel)
+    term = (p.sky_weight @ rel.astype(np.float32)).astype(np.float64) / open_horizontal
+    # (the bounce surfaces' own obstruction is left out, as for the isotropic part)
+    tilt = np.clip(tilted_irradiance(shape, to_unit, p.bounce_normals), 0.0, None)
+    bounce = p.bounce_terms(np.zeros(len(tilt)), tilt)[1]
+    return term, bounce

@@ -31,6 +31,8 @@ class SceneLight:
     model_share : the model sky's share of the sky irradiance; the rest is isotropic
     perez : (clearness, brightness) of the Perez all-weather sky that gave the shape (under a
         clear sky, ``server.perezsky``), or None: the CIE sky of ``sky_type``
+    shaded : of ``used``, the samples wholly in the model's shadow (what tells the sky from
+        the sun; few, and a clear sky's estimate is the sky model's guess)
     """
 
     sun_normal_irradiance: np.ndarray
@@ -42,6 +44,7 @@ class SceneLight:
     inlier_fraction: float
     model_share: float = 1.0
     perez: tuple[float, float] | None = None
+    shaded: int = 0
 
     def sky(self) -> EstimatedSky:
         """The estimated sky (a ``daylit.sky.Sky``: radiance over directions, and the sun)."""

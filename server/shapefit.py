@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import copy
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -27,10 +27,11 @@ MIN_SUNLIT = 10  # fewer usable sunlit samples: the sun cannot be told from the 
 
 @dataclass
 class FrameSamples:
-    """One frame's usable samples: pool indices ``pick`` (n,), linear radiances ``values``
-    (n, 3) W/(m^2 sr), and the pool's terms for them: ``cos_i`` (n,) the sun's cosine where
-    in sun (else 0), ``bounce_sun`` and ``bounce_sky`` (n, 3), stated ``albedo`` (n, 3),
-    ``surface`` (n,) int and ``sky_view`` (n,)."""
+    """One frame's usable samples: pool indices ``pick`` (n0,) and indices ``shade_pick`` (n1,)
+    into the shade samples of the sun (``SceneEstimator.shade_samples``), n = n0 + n1, in that
+    order; linear radiances ``values`` (n, 3) W/(m^2 sr), and the terms for them: ``cos_i``
+    (n,) the sun's cosine where in sun (else 0), ``bounce_sun`` and ``bounce_sky`` (n, 3),
+    stated ``albedo`` (n, 3), ``surface`` (n,) int and ``sky_view`` (n,)."""
 
     pick: np.ndarray
     values: np.ndarray
@@ -40,6 +41,7 @@ class FrameSamples:
     albedo: np.ndarray
     surface: np.ndarray
     sky_view: np.ndarray
+    shade_pick: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
 
 
 def perez_state(light: SceneLight, sun_elevation_deg: float) -> tuple[float, float]:
@@ -111,9 +113,8 @@ class ShapeFits:
         """The sun and sky with the sky's shape of CIE type ``sky_type``, and the weighted
         mean squared residual the sky alone leaves with that shape (what tells one overcast
         shape from another)."""
-        s, b_model = self.sky_term(sky_type, sun_dir, perez)
+        s, b_model = self.frame_sky_term(sky_type, sun_dir, frame, perez)
         share_key = sky_type if perez is None else "perez"
-        s, b_model = s[frame.pick], b_model[frame.pick]
         values = frame.values
         y_sum = values.sum(axis=1)
         # (n, 3): radiance per unit sun normal irradiance and albedo, per unit sky irradiance
@@ -130,9 +131,16 @@ class ShapeFits:
         (a_rgb, c_rgb, u_rgb), A_sum = _albedo_terms(
             stated_albedo * self._scales.of(surface)[:, None], per_albedo)
         inliers = ransac_fit(A_sum[:, 0], A_sum[:, 1], y_sum, self._rng)
+        # The shade samples are single dark pixels (server.shadepool), 10-30 % noise each
+        # through a JPEG where a patch in sun has 1-2 %: they start as inliers and have their
+        # own residual scale. Judged on the sunlit patches' scale nearly all were dropped and
+        # the few kept set the sky (up to +40 % on the demo's kiosk view).
+        groups = np.zeros(len(y_sum), int)
+        groups[len(frame.pick):] = 1
+        inliers = inliers | (groups == 1)
         # The weights come from the channel sum (a person in a red coat is an outlier in
         # every channel); each channel is then one weighted least-squares solve.
-        x_sum, weights = robust_linear_fit(A_sum, y_sum, inliers)
+        x_sum, weights = robust_linear_fit(A_sum, y_sum, inliers, groups=groups)
         if self.learn_albedo:
             # a wrong albedo on one surface: its scale from these samples, then the fit
             # again with it. The sky as one term of this fit's shape: the model and the
@@ -144,7 +152,7 @@ class ShapeFits:
             self._scales.refit(surface, np.column_stack([sun_t, sky_t.sum(axis=1)]), y_sum)
             (a_rgb, c_rgb, u_rgb), A_sum = _albedo_terms(
                 stated_albedo * self._scales.of(surface)[:, None], per_albedo)
-            x_sum, weights = robust_linear_fit(A_sum, y_sum, weights)
+            x_sum, weights = robust_linear_fit(A_sum, y_sum, weights, groups=groups)
         model_share = self._model_share(share_key, x_sum)
         sky_col = model_share * c_rgb + (1.0 - model_share) * u_rgb
         sun_rgb, sky_rgb, with_sun = np.zeros(3), np.zeros(3), 0.0
@@ -167,7 +175,8 @@ class ShapeFits:
             # overcast sky there; the estimate then falls to an overcast type.
             sun_rgb, sky_rgb = np.zeros(3), sky_alone_rgb
         self._share[share_key] = model_share
-        return SceneLight(sun_rgb, sky_rgb, sky_type, sun_dir, sunlit_count >= MIN_SUNLIT,
-                          len(frame.pick), float(np.mean(weights > 0.5)),
-                          float(model_share), perez), sky_alone
+        return (SceneLight(sun_rgb, sky_rgb, sky_type, sun_dir, sunlit_count >= MIN_SUNLIT,
+                           len(frame.values), float(np.mean(weights > 0.5)),
+                           float(model_share), perez, int(np.sum(frame.cos_i <= 0.0))),
+                sky_alone)
 

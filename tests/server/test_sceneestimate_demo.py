@@ -145,3 +145,54 @@ def test_overcast_sun_below_five_percent_on_a_view_without_shade(kiosk_overcast_
             sky = _grey(last.sky_horizontal_irradiance)
             assert _grey(last.sun_normal_irradiance) < 0.05 * sky, (hour, seed, last)
             assert sky == pytest.approx(rendered.dhi_w_m2, rel=0.10), (hour, seed, last)
+
+
+KIOSK_CLEAR_SIZE = (320, 180)  # the tree's shaded canopy is a few dozen pixels here
+KIOSK_CLEAR_HOUR = "12"
+
+
+@pytest.fixture(scope="module")
+def kiosk_clear_noon(demo_draft_build):
+    """The demo's kiosk view (the build's first fixed view) under the clear sky at 12:00,
+    rendered by Radiance without the ambient cache: (rendered, sun direction, estimator
+    arguments). The view sees sunlit ground, the tree's shadow 1-2 px wide and its canopy of
+    faces a few pixels across: no 3 x 3 patch of the pool is in shadow."""
+    from benchmarks.bench_fidelity import SkySpec
+    from daylit import manifest as manifest_io
+    from daylit.sun import sun_position
+    from server.scenemeter import real_proxies
+    from tests.radiance_frames import ACCURATE_CAMERA_RAYS, render_build_view
+
+    manifest = manifest_io.load(demo_draft_build)
+    mesh, albedo = real_proxies(demo_draft_build, manifest)
+    ground = float(np.mean(manifest["ground"]["albedo"]))
+    scene = manifest["scene"]
+    dni, dhi = SKIES["clear"]
+    rendered, view = render_build_view(
+        demo_draft_build, SkySpec("clear", 10, 15, KIOSK_CLEAR_HOUR, dni, dhi),
+        *KIOSK_CLEAR_SIZE, procs=2, rays=ACCURATE_CAMERA_RAYS)
+    sun = sun_position(scene["latitude_deg"], scene["longitude_deg"], scene["elevation_m"],
+                       [rendered.when_unix_s]).direction[0]
+    return rendered, sun, {"mesh": mesh, "face_albedo": albedo, "view": view,
+                           "environment_albedo": ground}
+
+
+@pytest.mark.slow
+def test_the_kiosk_views_clear_sky_separates_with_the_shade_top_up(kiosk_clear_noon):
+    """On the render's own radiance (no camera), the sky within 10 % and the sun within 5 %.
+    Before the pool was topped up with single pixels wholly in the model's shadow
+    (server/shadepool.py) this failed: with no sample in shade the fit read the sky from
+    sunlit ground, where sun and sky are nearly collinear, +10 to +17 % in three of these
+    four pools (and through the camera model up to +70 %, docs/benchmarks.md)."""
+    from server.sceneestimate import SceneEstimator
+
+    rendered, sun, kwargs = kiosk_clear_noon
+    for seed in range(4):
+        est = SceneEstimator(**kwargs, seed=seed)
+        for _ in range(3):
+            light = est.estimate(rendered.image(), sun)
+        assert light.shaded >= 50, (seed, light)
+        sky = _grey(light.sky_horizontal_irradiance) / rendered.dhi_w_m2 - 1.0
+        sun_err = _grey(light.sun_normal_irradiance) / rendered.dni_w_m2 - 1.0
+        assert abs(sky) < 0.10, (seed, sky, light)
+        assert abs(sun_err) < 0.05, (seed, sun_err, light)
