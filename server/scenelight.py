@@ -16,6 +16,11 @@ from daylit.sky import SUN_SOLID_ANGLE_SR, Sky, Sun
 from server.skyshape import unit_sky
 
 LUMINANCE_RGB = np.array([0.2126, 0.7152, 0.0722])
+# The sky's relative standard error (SceneLight.sky_uncertainty) above which the view is said
+# not to separate the sky from the sun. On the demo's kiosk view (320x180, clear sky, noise,
+# JPEG 85) it was 0.014-0.024 where 179-245 shaded pixels read the sky, and 0.036-0.065 at
+# 9:30 with 17, where the sky's errors reached +10 to +15 % (docs/server.md).
+SKY_UNCERTAIN = 0.03
 
 
 @dataclass
@@ -33,6 +38,9 @@ class SceneLight:
         clear sky, ``server.perezsky``), or None: the CIE sky of ``sky_type``
     shaded : of ``used``, the samples wholly in the model's shadow (what tells the sky from
         the sun; few, and a clear sky's estimate is the sky model's guess)
+    sky_uncertainty : the sky's relative standard error from the fit's own residuals (on the
+        channel sum; inf when the sky is not determined): above ``SKY_UNCERTAIN`` the view
+        cannot tell this sky from the sun (``sky_separable``)
     """
 
     sun_normal_irradiance: np.ndarray
@@ -45,6 +53,14 @@ class SceneLight:
     model_share: float = 1.0
     perez: tuple[float, float] | None = None
     shaded: int = 0
+    sky_uncertainty: float = 0.0
+
+    @property
+    def sky_separable(self) -> bool:
+        """Whether the frame's samples tell this sky from the sun (``sky_uncertainty`` at most
+        ``SKY_UNCERTAIN``); when not, the sky (and with it the sun) is the fit's best guess on
+        a view with too little shade."""
+        return self.sky_uncertainty <= SKY_UNCERTAIN
 
     def sky(self) -> EstimatedSky:
         """The estimated sky (a ``daylit.sky.Sky``: radiance over directions, and the sun)."""

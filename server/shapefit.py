@@ -174,9 +174,31 @@ class ShapeFits:
             # clear type to an intermediate one on noise and kept a sun of up to 94 % of an
             # overcast sky there; the estimate then falls to an overcast type.
             sun_rgb, sky_rgb = np.zeros(3), sky_alone_rgb
+        columns = [sky_col.sum(axis=1)] if not sun_rgb.any() else [a_rgb.sum(axis=1),
+                                                                    sky_col.sum(axis=1)]
         self._share[share_key] = model_share
         return (SceneLight(sun_rgb, sky_rgb, sky_type, sun_dir, sunlit_count >= MIN_SUNLIT,
                            len(frame.values), float(np.mean(weights > 0.5)),
-                           float(model_share), perez, int(np.sum(frame.cos_i <= 0.0))),
+                           float(model_share), perez, int(np.sum(frame.cos_i <= 0.0)),
+                           _sky_uncertainty(np.column_stack(columns), y_sum, weights)),
                 sky_alone)
 
+
+def _sky_uncertainty(A: np.ndarray, y: np.ndarray, weights: np.ndarray) -> float:
+    """The relative standard error of the last unknown (the sky) of the weighted fit
+    ``y ~ A x`` (A (n, p), y (n,), weights (n,)): the sandwich (heteroscedasticity-consistent,
+    HC0) covariance, since single shaded pixels and sunlit patches differ in noise. inf when
+    the sky is not determined (no sky, or the columns collinear)."""
+    x = weighted_nonneg(A, y, weights)
+    if x[-1] <= 0.0:
+        return math.inf
+    r = y - A @ x
+    bread = A.T @ (weights[:, None] * A)
+    score = A * (weights * r)[:, None]
+    meat = score.T @ score
+    try:
+        inv = np.linalg.inv(bread)
+    except np.linalg.LinAlgError:
+        return math.inf
+    var = float((inv @ meat @ inv)[-1, -1])
+    return math.sqrt(max(var, 0.0)) / float(x[-1])

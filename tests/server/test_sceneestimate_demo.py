@@ -178,21 +178,21 @@ def kiosk_clear_noon(demo_draft_build):
 
 
 @pytest.mark.slow
-def test_the_kiosk_views_clear_sky_separates_with_the_shade_top_up(kiosk_clear_noon):
-    """On the render's own radiance (no camera), the sky within 10 % and the sun within 5 %.
-    Before the pool was topped up with single pixels wholly in the model's shadow
-    (server/shadepool.py) this failed: with no sample in shade the fit read the sky from
-    sunlit ground, where sun and sky are nearly collinear, +10 to +17 % in three of these
-    four pools (and through the camera model up to +70 %, docs/benchmarks.md)."""
+def test_the_kiosk_views_clear_sky_within_ten_percent(kiosk_clear_noon):
+    """Streams of camera frames (noise, JPEG 85) of the kiosk view at noon: the sun and the
+    sky within the issue's 10 %, from samples of which many are wholly in shadow, and the
+    estimate says the sky is separable. Before the pool was topped up with single pixels
+    wholly in the model's shadow (server/shadepool.py) this failed: with no sample in shade
+    the fit read the sky from sunlit ground, where sun and sky are nearly collinear (seeds 1
+    and 2: +29 % and +11 %; over 40 streams 22 off by up to 70 %, docs/benchmarks.md)."""
     from server.sceneestimate import SceneEstimator
+    from tests.radiance_frames import last_estimate
 
     rendered, sun, kwargs = kiosk_clear_noon
-    for seed in range(4):
-        est = SceneEstimator(**kwargs, seed=seed)
-        for _ in range(3):
-            light = est.estimate(rendered.image(), sun)
-        assert light.shaded >= 50, (seed, light)
+    for seed in SEEDS:
+        light = last_estimate(SceneEstimator(**kwargs, seed=seed), rendered, sun, seed, FRAMES)
         sky = _grey(light.sky_horizontal_irradiance) / rendered.dhi_w_m2 - 1.0
         sun_err = _grey(light.sun_normal_irradiance) / rendered.dni_w_m2 - 1.0
+        assert light.shaded >= 50 and light.sky_separable, (seed, light)
         assert abs(sky) < 0.10, (seed, sky, light)
-        assert abs(sun_err) < 0.05, (seed, sun_err, light)
+        assert abs(sun_err) < 0.10, (seed, sun_err, light)
