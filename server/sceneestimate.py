@@ -424,6 +424,7 @@ def _sky_term_of(p: SceneSamples, sky_type: int, sun_dir: np.ndarray,
     open_horizontal = float((p.sky_grid_dirs[:, 1] * p.sky_grid_sr) @ rel)
     term = (p.sky_weight @ rel.astype(np.float32)).astype(np.float64) / open_horizontal
     # (the bounce surfaces' own obstruction is left out, as for the isotropic part)
-    tilt = np.clip(tilted_irradiance(shape, to_unit, p.bounce_normals), 0.0, None)
+    normals, index = p.bounce_normal_groups
+    tilt = np.clip(tilted_irradiance(shape, to_unit, normals), 0.0, None)[index]
     bounce = p.bounce_terms(np.zeros(len(tilt)), tilt)[1]
     return term, bounce

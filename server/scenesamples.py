@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import trimesh
@@ -130,12 +131,20 @@ class SceneSamples:
         the fraction of each hemisphere that bounces. ``bounce_lit`` (n,) float:
         ``cos_h * in_sun_h`` of each bounce point."""
         m, k = self.sky_visible.shape
-        sun = np.zeros((m, 3))
-        sky = np.zeros((m, 3))
-        np.add.at(sun, self.bounce_sample, self.bounce_albedo * bounce_lit[:, None])
         view = 0.5 * (1.0 + self.bounce_normals[:, 1]) if bounce_sky is None else bounce_sky
-        np.add.at(sky, self.bounce_sample, self.bounce_albedo * view[:, None])
+        sun = np.column_stack([np.bincount(self.bounce_sample, self.bounce_albedo[:, c]
+                                           * bounce_lit, minlength=m) for c in range(3)])
+        sky = np.column_stack([np.bincount(self.bounce_sample, self.bounce_albedo[:, c] * view,
+                                           minlength=m) for c in range(3)])
         return sun / k, sky / k, np.bincount(self.bounce_sample, minlength=m) / k
+
+    @cached_property
+    def bounce_normal_groups(self) -> tuple[np.ndarray, np.ndarray]:
+        """(u, 3) the distinct bounce normals and (n,) each bounce's index into them (the
+        faces' normals: a few hundred distinct among up to 10^5 bounces, so a sky's tilted
+        irradiance is evaluated once for each)."""
+        unique, inverse = np.unique(self.bounce_normals, axis=0, return_inverse=True)
+        return unique, inverse.reshape(-1)
 
 
 def patch_points_m(samples: SceneSamples, view: PinholeView, patch_px: int) -> np.ndarray:

@@ -148,15 +148,15 @@ def test_overcast_sun_below_five_percent_on_a_view_without_shade(kiosk_overcast_
 
 
 KIOSK_CLEAR_SIZE = (320, 180)  # the tree's shaded canopy is a few dozen pixels here
-KIOSK_CLEAR_HOUR = "12"
 
 
 @pytest.fixture(scope="module")
-def kiosk_clear_noon(demo_draft_build):
-    """The demo's kiosk view (the build's first fixed view) under the clear sky at 12:00,
-    rendered by Radiance without the ambient cache: (rendered, sun direction, estimator
-    arguments). The view sees sunlit ground, the tree's shadow 1-2 px wide and its canopy of
-    faces a few pixels across: no 3 x 3 patch of the pool is in shadow."""
+def kiosk_clear(demo_draft_build):
+    """The demo's kiosk view (the build's first fixed view) under the clear sky at 12:00 and
+    9:30, rendered by Radiance without the ambient cache: {hour: (rendered, sun direction,
+    estimator arguments)}. The view sees sunlit ground, the tree's shadow 1-2 px wide and its
+    canopy of faces a few pixels across: no 3 x 3 patch of the pool is in shadow; 179 single
+    pixels are wholly in the model's shadow at 12:00, 17 at 9:30."""
     from benchmarks.bench_fidelity import SkySpec
     from daylit import manifest as manifest_io
     from daylit.sun import sun_position
@@ -168,17 +168,20 @@ def kiosk_clear_noon(demo_draft_build):
     ground = float(np.mean(manifest["ground"]["albedo"]))
     scene = manifest["scene"]
     dni, dhi = SKIES["clear"]
-    rendered, view = render_build_view(
-        demo_draft_build, SkySpec("clear", 10, 15, KIOSK_CLEAR_HOUR, dni, dhi),
-        *KIOSK_CLEAR_SIZE, procs=2, rays=ACCURATE_CAMERA_RAYS)
-    sun = sun_position(scene["latitude_deg"], scene["longitude_deg"], scene["elevation_m"],
-                       [rendered.when_unix_s]).direction[0]
-    return rendered, sun, {"mesh": mesh, "face_albedo": albedo, "view": view,
-                           "environment_albedo": ground}
+    out = {}
+    for hour in ("12", "9.5"):
+        rendered, view = render_build_view(
+            demo_draft_build, SkySpec("clear", 10, 15, hour, dni, dhi), *KIOSK_CLEAR_SIZE,
+            procs=2, rays=ACCURATE_CAMERA_RAYS)
+        sun = sun_position(scene["latitude_deg"], scene["longitude_deg"],
+                           scene["elevation_m"], [rendered.when_unix_s]).direction[0]
+        out[hour] = (rendered, sun, {"mesh": mesh, "face_albedo": albedo, "view": view,
+                                     "environment_albedo": ground})
+    return out
 
 
 @pytest.mark.slow
-def test_the_kiosk_views_clear_sky_within_ten_percent(kiosk_clear_noon):
+def test_the_kiosk_views_clear_sky_within_ten_percent(kiosk_clear):
     """Streams of camera frames (noise, JPEG 85) of the kiosk view at noon: the sun and the
     sky within the issue's 10 %, from samples of which many are wholly in shadow, and the
     estimate says the sky is separable. Before the pool was topped up with single pixels
@@ -188,7 +191,7 @@ def test_the_kiosk_views_clear_sky_within_ten_percent(kiosk_clear_noon):
     from server.sceneestimate import SceneEstimator
     from tests.radiance_frames import last_estimate
 
-    rendered, sun, kwargs = kiosk_clear_noon
+    rendered, sun, kwargs = kiosk_clear["12"]
     for seed in SEEDS:
         light = last_estimate(SceneEstimator(**kwargs, seed=seed), rendered, sun, seed, FRAMES)
         sky = _grey(light.sky_horizontal_irradiance) / rendered.dhi_w_m2 - 1.0
@@ -196,3 +199,20 @@ def test_the_kiosk_views_clear_sky_within_ten_percent(kiosk_clear_noon):
         assert light.shaded >= 50 and light.sky_separable, (seed, light)
         assert abs(sky) < 0.10, (seed, sky, light)
         assert abs(sun_err) < 0.10, (seed, sun_err, light)
+
+
+@pytest.mark.slow
+def test_the_kiosk_view_says_when_its_shade_cannot_separate_the_sky(kiosk_clear):
+    """At 9:30 the kiosk view has 17 pixels wholly in shade: the sun stays within 10 % but the
+    sky may not (over 40 streams 10 were 10-29 % off, docs/benchmarks.md), and the estimate
+    says so: every stream's sky is flagged not separable, while at noon none is (the test
+    above). On main there was no such flag (and the sky was up to 63 % off)."""
+    from server.sceneestimate import SceneEstimator
+    from tests.radiance_frames import last_estimate
+
+    rendered, sun, kwargs = kiosk_clear["9.5"]
+    for seed in SEEDS:
+        light = last_estimate(SceneEstimator(**kwargs, seed=seed), rendered, sun, seed, FRAMES)
+        sun_err = _grey(light.sun_normal_irradiance) / rendered.dni_w_m2 - 1.0
+        assert abs(sun_err) < 0.10, (seed, sun_err, light)
+        assert not light.sky_separable, (seed, light)
