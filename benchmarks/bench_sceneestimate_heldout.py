@@ -12,7 +12,9 @@ known bias, docs/web.md); ``--accurate`` renders without it (``ACCURATE_CAMERA_R
 minute a 320x180 frame here). Printed per sky and hour, over ``--seeds`` streams: the largest
 error of the sun's normal irradiance (under overcast: the sun over the sky), how many streams
 miss the issue's goal (10 %; overcast: the sun below 5 % of the sky), the largest error of the
-sky's horizontal irradiance and the CIE types chosen.
+sky's horizontal irradiance, how many streams miss 10 % there and how many of those the
+estimate itself flagged as not separating the sky from the sun (``sky_separable`` false), how
+many it flagged in all, and the CIE types chosen.
 
 Usage::
 
@@ -103,7 +105,9 @@ def stream_errors(build: Path, manifest: dict, rendered, view, seed: int,
     sun_err = e_sun / rendered.dni_w_m2 - 1.0 if rendered.dni_w_m2 > 0 else e_sun / max(
         e_sky, 1e-9)
     return {"sun_err": sun_err, "sky_err": e_sky / rendered.dhi_w_m2 - 1.0,
-            "sky_type": light.sky_type}
+            "sky_type": light.sky_type,
+            # an estimator without the flag (an older checkout) claims every sky separable
+            "separable": bool(getattr(light, "sky_separable", True))}
 
 
 def main() -> None:
@@ -146,7 +150,7 @@ def main() -> None:
         estimators["baseline"] = estimator_class(args.baseline_repo)
     rows = []
     print("estimator  sky           hour  sun: max |err|  streams off goal  sky: max |err|"
-          "  streams sky > 10 %  CIE types")
+          "  streams sky > 10 %  of them flagged  flagged  CIE types")
     for (name, hour), (rendered, _) in sorted(renders.items()):
         for label, cls in estimators.items():
             errs = [stream_errors(args.build, manifest, rendered, view, seed, cls)
@@ -158,11 +162,15 @@ def main() -> None:
                    "sun_max_abs_err": float(sun.max()),
                    "streams_off_goal": int((sun > goal).sum()), "streams": len(errs),
                    "sky_max_abs_err": float(sky.max()), "sky_off_10": int((sky > 0.1).sum()),
-                   "sky_types": sorted({e["sky_type"] for e in errs})}
+                   "sky_types": sorted({e["sky_type"] for e in errs}),
+                   "flagged": int(sum(not e["separable"] for e in errs)),
+                   "off_10_flagged": int(sum(not e["separable"] and abs(e["sky_err"]) > 0.1
+                                             for e in errs))}
             rows.append(row)
             print(f"{label:9s}  {name:12s}  {hour:4s}  {row['sun_max_abs_err']:13.3f}  "
                   f"{row['streams_off_goal']:7d} of {len(errs):<7d}  "
                   f"{row['sky_max_abs_err']:13.3f}  {row['sky_off_10']:17d}  "
+                  f"{row['off_10_flagged']:16d}  {row['flagged']:7d}  "
                   f"{row['sky_types']}", flush=True)
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))

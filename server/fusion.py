@@ -259,6 +259,7 @@ class SceneFusion:
                 "sky_horizontal_irradiance_W_m2": rgb(light.sky_horizontal_irradiance),
                 "sky_type": light.sky_type,
                 "sun_observable": light.sun_observable,
+                "sky_separable": light.sky_separable,
             },
             "sun_ratio": None if sun_ratio is None else round(sun_ratio, 4),
             "sky_ratio": None if sky_ratio is None else round(sky_ratio, 4),

@@ -13,19 +13,28 @@ import numpy as np
 
 
 def robust_linear_fit(A: np.ndarray, y: np.ndarray, weights0: np.ndarray | None = None,
-                      iterations: int = 12, tukey: float = 4.685) -> tuple[np.ndarray, np.ndarray]:
+                      iterations: int = 12, tukey: float = 4.685,
+                      groups: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Fit ``y ~ A x`` (A (n, p), y (n,)) with ``x >= 0`` by IRLS with Tukey's biweight on
-    residuals relative to the fitted value; returns x (p,) and the final weights (n,)."""
+    residuals relative to the fitted value; returns x (p,) and the final weights (n,).
+    ``groups`` (n,) int: samples of another noise level (single pixels among patches' means,
+    dark among bright) each get their own residual scale (the median absolute deviation of
+    their group's), so one group's noise does not make the other's samples outliers."""
     w = np.ones_like(y) if weights0 is None else weights0.astype(float).copy()
     x = np.zeros(A.shape[1])
     floor = 1e-9 + 0.02 * float(np.median(np.abs(y)))
+    groups = np.zeros(len(y), int) if groups is None else np.asarray(groups, int)
     for _ in range(iterations):
         x = weighted_nonneg(A, y, w)
         fit = A @ x
         rel = (y - fit) / np.maximum(np.abs(fit), floor)
         good = w > 0
-        scale = 1.4826 * np.median(np.abs(rel[good])) if good.any() else 1.0
-        scale = max(scale, 0.01)
+        scale = np.ones(len(y))
+        for g in np.unique(groups):
+            mine = groups == g
+            ok = good & mine
+            scale[mine] = 1.4826 * np.median(np.abs(rel[ok])) if ok.any() else 1.0
+        scale = np.maximum(scale, 0.01)
         u = rel / (tukey * scale)
         w = np.where(np.abs(u) < 1.0, (1.0 - u * u) ** 2, 0.0)
     return x, w

@@ -47,6 +47,14 @@ which hemisphere directions see open sky) is computed once by :class:`SceneSampl
 depends on the sun (in sun or not) once per sun position (cached until it moves
 ``sun_cache_deg``); the per-frame cost is reading pixels and a small solve.
 
+A view whose shade is too thin or broken for the pool's one-plane patches (fewer than half an
+estimate's samples in shade) is topped up, per sun position, with single pixels wholly in the
+model's shadow (``server/shadepool.py``), which the robust fit judges on their own residual
+scale; the result's ``sky_uncertainty`` says how well the frame determined the sky.
+
+The estimate's result is ``server/scenelight.py``'s :class:`SceneLight`; the solve for one sky
+shape is ``server/shapefit.py``'s; which pixels a frame reads, ``server/framesampling.py``'s.
+
 Directions are site-frame unit vectors (+X east, +Y up, -Z north); irradiances W/m^2; radiances
 W/(m^2 sr). Cameras follow the manifest's views: 3x3 ``K`` (OpenCV: +X right, +Y down, +Z
 forward, pixel centres at +0.5) and 4x4 ``world_from_camera``.
@@ -54,17 +62,19 @@ forward, pixel centres at +0.5) and 4x4 ``world_from_camera``.
 
 from __future__ import annotations
 
-import copy
 import math
 from dataclasses import dataclass, field
 
 import numpy as np
 import trimesh
 
-from daylit.sky import SUN_SOLID_ANGLE_SR, Sky, Sun
 from daylit.spherical import normalize
-from server.perezsky import sky_brightness
-from server.robustfit import ransac_fit, robust_linear_fit, weighted_nonneg
+from server.framesampling import FrameSampling
+from server.scenelight import (  # noqa: F401 (LUMINANCE_RGB, EstimatedSky: the API)
+    LUMINANCE_RGB,
+    EstimatedSky,
+    SceneLight,
+)
 from server.scenesamples import (  # noqa: F401 (PinholeView, SceneEstimateError: the API)
     SURFACE_OFFSET_M,
     PinholeView,
@@ -73,75 +83,28 @@ from server.scenesamples import (  # noqa: F401 (PinholeView, SceneEstimateError
     intersector,
     patch_points_m,
     prepare_samples,
+    samples_at,
 )
+from server.shadepool import ViewHits, view_hits, wholly_shaded_pixels
 from server.shadowpairs import ShadowPairs, pair_sun_ratio, shadow_pairs
+from server.shapefit import FrameSamples, ShapeFits, perez_state
 from server.skyshape import (  # noqa: F401 (sky_type_for_ratio, unit_sky: used by tests)
     OVERCAST_TYPES,
-    sky_clearness,
     sky_type_for_ratio,
     tilted_irradiance,
     unit_sky,
 )
 from server.surfacescale import SurfaceScales
 
-LUMINANCE_RGB = np.array([0.2126, 0.7152, 0.0722])
-MIN_SUNLIT = 10  # fewer usable sunlit samples: the sun cannot be told from the sky
+# A shaded pixel's light is mostly the bounce from the sunlit ground it sees (about two
+# thirds under the demo's tree at noon): its bounce is traced through this many times the
+# pool's directions (there are at most ``samples`` of them). With the pool's 96, four pools
+# read the kiosk view's noon sky +1 to +6 % on the render's own radiance; with 480, -1 to +3 %.
+SHADE_HEMISPHERE_FACTOR = 5
 
 
 @dataclass
-class SceneLight:
-    """One estimate.
-
-    sun_normal_irradiance : (3,) RGB W/m^2 (0 when the sun is down or unseen)
-    sky_horizontal_irradiance : (3,) RGB W/m^2 of an open horizontal plane, sun excluded
-    sky_type : the CIE general sky the shape was taken from
-    sun_direction : (3,) unit site direction
-    sun_observable : False when too few usable samples were in sun to tell the sun from the sky
-    used : samples that entered the solve; inlier_fraction : of them, weight > 0.5
-    model_share : the model sky's share of the sky irradiance; the rest is isotropic
-    perez : (clearness, brightness) of the Perez all-weather sky that gave the shape (under a
-        clear sky, ``server.perezsky``), or None: the CIE sky of ``sky_type``
-    """
-
-    sun_normal_irradiance: np.ndarray
-    sky_horizontal_irradiance: np.ndarray
-    sky_type: int
-    sun_direction: np.ndarray
-    sun_observable: bool
-    used: int
-    inlier_fraction: float
-    model_share: float = 1.0
-    perez: tuple[float, float] | None = None
-
-    def sky(self) -> EstimatedSky:
-        """The estimated sky (a ``daylit.sky.Sky``: radiance over directions, and the sun)."""
-        return EstimatedSky(self)
-
-
-class EstimatedSky(Sky):
-    """A :class:`SceneLight` as a sky: ``model_share`` of the CIE sky of its type plus the
-    rest uniform, scaled per channel to the estimated horizontal irradiance; the sun a disc of
-    the estimated normal irradiance (none when it is 0)."""
-
-    def __init__(self, light: SceneLight):
-        self.light = light
-        self._shape, self._to_unit = unit_sky(light.sky_type, light.sun_direction,
-                                              light.perez)
-        e_sun = np.asarray(light.sun_normal_irradiance, float)
-        self.sun = Sun(light.sun_direction, e_sun / SUN_SOLID_ANGLE_SR) \
-            if e_sun.max() > 0.0 and light.sun_direction[1] > 0.0 else None
-
-    def radiance(self, dirs: np.ndarray) -> np.ndarray:
-        share = self.light.model_share
-        rel = share * self._shape.relative_luminance(dirs) * self._to_unit + (1.0 - share) / \
-            math.pi
-        out = rel[:, None] * np.asarray(self.light.sky_horizontal_irradiance, float)[None]
-        out[dirs[:, 1] < 0.0] = 0.0
-        return out
-
-
-@dataclass
-class SceneEstimator:
+class SceneEstimator(ShapeFits, FrameSampling):
     """Estimates the sun and sky from linear frames of one fixed view.
 
     Parameters
@@ -163,6 +126,9 @@ class SceneEstimator:
     pair_floor : a sun is dropped when the pairs across the model's shadow edges read less
         than this fraction of the sky's horizontal irradiance (server.shadowpairs; 0: no
         check)
+    shade_top_up : when the pool has fewer than half of ``samples`` in shadow for the sun,
+        up to that many single pixels wholly in the model's shadow are added to each
+        estimate (``server.shadepool``; False: the pool alone)
     """
 
     mesh: trimesh.Trimesh
@@ -180,6 +146,7 @@ class SceneEstimator:
     learn_albedo: bool = True
     pair_floor: float = 0.05
     perez_clear: bool = True
+    shade_top_up: bool = True
     _pool: SceneSamples | None = field(default=None, init=False, repr=False)
     _surface_scales: SurfaceScales | None = field(default=None, init=False, repr=False)
     _sun_cache: tuple | None = field(default=None, init=False, repr=False)
@@ -190,6 +157,9 @@ class SceneEstimator:
     _sky_cache: dict = field(default_factory=dict, init=False, repr=False)
     _share: dict = field(default_factory=dict, init=False, repr=False)
     _shape_misfit: dict = field(default_factory=dict, init=False, repr=False)
+    _view_hits: ViewHits | None = field(default=None, init=False, repr=False)
+    _shade_cache: tuple | None = field(default=None, init=False, repr=False)
+    _shade_sky_cache: dict = field(default_factory=dict, init=False, repr=False)
 
     @property
     def pool_samples(self) -> SceneSamples:
@@ -237,6 +207,15 @@ class SceneEstimator:
         m, k = points.shape[:2]
         lit = self._unblocked(points.reshape(-1, 3), np.repeat(p.normals, k, axis=0),
                               sun_dir).reshape(m, k).mean(axis=1)
+        bounce_sun, bounce_sky = self._sun_bounce(p, sun_dir)
+        self._sun_cache = (sun_dir, lit, bounce_sun, bounce_sky)
+        return lit, bounce_sun, bounce_sky
+
+    def _sun_bounce(self, p: SceneSamples, sun_dir: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+        """(m, 3) and (m, 3): the bounce terms of samples ``p`` per unit sun normal irradiance
+        and per unit sky irradiance (:meth:`SceneSamples.bounce_terms`), each bounce point lit
+        where the mesh does not shade it."""
         cos_h = np.clip(p.bounce_normals @ sun_dir, 0.0, None)
         far = ~np.isfinite(p.bounce_points_m[:, 0])
         bounce = np.zeros(len(cos_h))
@@ -245,8 +224,35 @@ class SceneEstimator:
                                                     p.bounce_normals[near], sun_dir)
         bounce[far] = cos_h[far] if sun_dir[1] > 0.0 else 0.0
         bounce_sun, bounce_sky, _ = p.bounce_terms(bounce)
-        self._sun_cache = (sun_dir, lit, bounce_sun, bounce_sky)
-        return lit, bounce_sun, bounce_sky
+        return bounce_sun, bounce_sky
+
+    def shade_samples(self, sun_dir: np.ndarray
+                      ) -> tuple[SceneSamples | None, np.ndarray, np.ndarray]:
+        """For a sun direction: the samples of pixels wholly in the model's shadow
+        (:func:`server.shadepool.wholly_shaded_pixels`; up to ``samples`` of them, at random),
+        or None when the view has none, and their bounce terms (k, 3) per unit sun normal
+        irradiance and per unit sky irradiance. Cached like :meth:`in_sun`."""
+        sun_dir = normalize(np.asarray(sun_dir, float))
+        if self._shade_cache is not None and float(self._shade_cache[0] @ sun_dir) >= math.cos(
+                math.radians(self.sun_cache_deg)):
+            return self._shade_cache[1:]
+        if self._hit is None:
+            self._hit = intersector(self.mesh)
+        if self._view_hits is None:
+            self._view_hits = view_hits(self.mesh, self.view, self._hit)
+        pixels = wholly_shaded_pixels(self._view_hits, self._hit, sun_dir)
+        found: tuple = (None, np.zeros((0, 3)), np.zeros((0, 3)))
+        if len(pixels):
+            rng = np.random.default_rng(self.seed + 5)
+            pixels = pixels[rng.choice(len(pixels), min(len(pixels), self.samples),
+                                       replace=False)]
+            shade = samples_at(self.mesh, self.face_albedo, self.view, pixels, self._hit,
+                               SHADE_HEMISPHERE_FACTOR * self.hemisphere_count, self.seed + 5,
+                               environment_albedo=self.environment_albedo)
+            found = (shade, *self._sun_bounce(shade, sun_dir))
+        self._shade_cache = (sun_dir, *found)
+        self._shade_sky_cache.clear()
+        return found
 
     def _patch_points_m(self) -> np.ndarray:
         """(m, P, 3): :func:`server.scenesamples.patch_points_m` of the pool, kept."""
@@ -290,17 +296,26 @@ class SceneEstimator:
         if key is not None and float(key[0] @ sun_dir) >= math.cos(
                 math.radians(self.sun_cache_deg)) and key[3] == perez:
             return key[1], key[2]
-        p = self.pool_samples
-        shape, to_unit = unit_sky(sky_type, sun_dir, perez)
-        # on the pool's sky grid, normalised on the same grid: an open horizontal plane gets 1
-        rel = shape.relative_luminance(p.sky_grid_dirs)
-        open_horizontal = float((p.sky_grid_dirs[:, 1] * p.sky_grid_sr) @ rel)
-        term = (p.sky_weight @ rel.astype(np.float32)).astype(np.float64) / open_horizontal
-        # (the bounce surfaces' own obstruction is left out, as for the isotropic part)
-        tilt = np.clip(tilted_irradiance(shape, to_unit, p.bounce_normals), 0.0, None)
-        bounce = p.bounce_terms(np.zeros(len(tilt)), tilt)[1]
+        term, bounce = _sky_term_of(self.pool_samples, sky_type, sun_dir, perez)
         self._sky_cache[slot] = (sun_dir, term, bounce, perez)
         return term, bounce
+
+    def frame_sky_term(self, sky_type: int, sun_dir: np.ndarray, frame: FrameSamples,
+                       perez: tuple[float, float] | None = None
+                       ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`sky_term` for a frame's samples: (n,) and (n, 3), the pool's picks then the
+        shade samples' (:meth:`shade_samples` of the same sun)."""
+        s, b = self.sky_term(sky_type, sun_dir, perez)
+        if not len(frame.shade_pick):
+            return s[frame.pick], b[frame.pick]
+        shade = self._shade_cache[1]
+        slot = (sky_type if perez is None else "perez", perez)
+        if slot not in self._shade_sky_cache:
+            self._shade_sky_cache[slot] = _sky_term_of(shade, sky_type,
+                                                       self._shade_cache[0], perez)
+        s_shade, b_shade = self._shade_sky_cache[slot]
+        return (np.concatenate([s[frame.pick], s_shade[frame.shade_pick]]),
+                np.vstack([b[frame.pick], b_shade[frame.shade_pick]]))
 
     def _unblocked(self, points: np.ndarray, normals: np.ndarray, sun_dir: np.ndarray):
         """(m,) bool: the points face the sun, it is up, and no face of the mesh is between."""
@@ -313,148 +328,6 @@ class SceneEstimator:
                 self._hit = intersector(self.mesh)
             lit[idx] = ~self._hit.intersects_any(start, np.broadcast_to(sun_dir, start.shape))
         return lit
-
-    def _model_share(self, sky_type: int | str, x_sum: np.ndarray) -> float:
-        """The sky's shape, the model's share against the isotropic part, from a fit ``x_sum``
-        (sun, model sky, isotropic sky) of the channel sum; per channel only the sun and the
-        sky's scale are solved. The share is poorly determined by one frame's samples (the two
-        columns are nearly collinear) and the sky's shape changes slowly: it is followed across
-        frames (kept by :meth:`estimate`). The Perez sky (key ``"perez"``) is taken whole,
-        share 1: its shape follows the measured clearness and brightness, and the isotropic
-        part that made up for the CIE clear sky's one fixed shape put the demo's visitor
-        centre view's clear sky 3-9 % low in every stream, against 0-7 % low taken whole."""
-        if sky_type == "perez":
-            return 1.0
-        share = x_sum[1] / max(x_sum[1] + x_sum[2], 1e-12) if x_sum[1:].sum() > 0 else 1.0
-        previous = self._share.get(sky_type)
-        return float(share if previous is None else (
-            self.share_memory * previous + (1.0 - self.share_memory) * share))
-
-    def _best_overcast_fit(self, sun_dir: np.ndarray, frame: _FrameSamples,
-                           allow_sun: bool = True) -> SceneLight:
-        """The overcast shape that explains the frames best without a sun (the sky-alone
-        residual, followed across frames), fitted with it; the surfaces' albedo scales as that
-        fit left them (each shape's fit starts from the same scales: one shape's refit must
-        not steer the other's)."""
-        before = copy.deepcopy(self._surface_scales)
-        fits = []
-        for sky_type in OVERCAST_TYPES:
-            self._surface_scales = copy.deepcopy(before)
-            light, sky_alone = self._fit_shape(sky_type, sun_dir, frame, allow_sun)
-            # followed across frames like the share: the sky's shape changes slowly, one
-            # frame's residuals are noisy
-            previous = self._shape_misfit.get(sky_type, sky_alone)
-            self._shape_misfit[sky_type] = (self.share_memory * previous
-                                            + (1.0 - self.share_memory) * sky_alone)
-            fits.append((self._shape_misfit[sky_type], light, self._surface_scales))
-        _, light, self._surface_scales = min(fits, key=lambda fit: fit[0])
-        return light
-
-    def _fit_shape(self, sky_type: int, sun_dir: np.ndarray, frame: _FrameSamples,
-                   allow_sun: bool = True, perez: tuple[float, float] | None = None
-                   ) -> tuple[SceneLight, float]:
-        """The sun and sky with the sky's shape of CIE type ``sky_type``, and the weighted
-        mean squared residual the sky alone leaves with that shape (what tells one overcast
-        shape from another)."""
-        s, b_model = self.sky_term(sky_type, sun_dir, perez)
-        share_key = sky_type if perez is None else "perez"
-        s, b_model = s[frame.pick], b_model[frame.pick]
-        values = frame.values
-        y_sum = values.sum(axis=1)
-        # (n, 3): radiance per unit sun normal irradiance and albedo, per unit sky irradiance
-        # and albedo; the last the isotropic part of the sky: what a uniform sky of unit
-        # horizontal irradiance gives (the sky view factor; Perez and Hay-Davies split the sky
-        # the same way)
-        per_albedo = [(frame.cos_i[:, None] + frame.bounce_sun) / math.pi,
-                      (s[:, None] + b_model) / math.pi,
-                      (frame.sky_view[:, None] + frame.bounce_sky) / math.pi]
-        sunlit_count = int(np.sum(frame.cos_i > 0.05))
-        if sunlit_count < MIN_SUNLIT:
-            per_albedo[0] = np.zeros_like(per_albedo[0])
-        stated_albedo, surface = frame.albedo, frame.surface
-        (a_rgb, c_rgb, u_rgb), A_sum = _albedo_terms(
-            stated_albedo * self._scales.of(surface)[:, None], per_albedo)
-        inliers = ransac_fit(A_sum[:, 0], A_sum[:, 1], y_sum, self._rng)
-        # The weights come from the channel sum (a person in a red coat is an outlier in
-        # every channel); each channel is then one weighted least-squares solve.
-        x_sum, weights = robust_linear_fit(A_sum, y_sum, inliers)
-        if self.learn_albedo:
-            # a wrong albedo on one surface: its scale from these samples, then the fit
-            # again with it. The sky as one term of this fit's shape: the model and the
-            # isotropic sky differ most on walls, and two free sky terms would let a
-            # wall's scale take up the difference.
-            share = self._model_share(share_key, x_sum)
-            sun_t = (stated_albedo * per_albedo[0]).sum(axis=1)
-            sky_t = (stated_albedo * (share * per_albedo[1] + (1.0 - share) * per_albedo[2]))
-            self._scales.refit(surface, np.column_stack([sun_t, sky_t.sum(axis=1)]), y_sum)
-            (a_rgb, c_rgb, u_rgb), A_sum = _albedo_terms(
-                stated_albedo * self._scales.of(surface)[:, None], per_albedo)
-            x_sum, weights = robust_linear_fit(A_sum, y_sum, weights)
-        model_share = self._model_share(share_key, x_sum)
-        sky_col = model_share * c_rgb + (1.0 - model_share) * u_rgb
-        sun_rgb, sky_rgb, with_sun = np.zeros(3), np.zeros(3), 0.0
-        sky_alone_rgb, sky_alone = np.zeros(3), 0.0
-        for ch in range(3):
-            both = np.column_stack([a_rgb[:, ch], sky_col[:, ch]])
-            sun_rgb[ch], sky_rgb[ch] = weighted_nonneg(both, values[:, ch], weights)
-            with_sun += _weighted_mse(values[:, ch], both @ [sun_rgb[ch], sky_rgb[ch]],
-                                      weights)
-            sky_alone_rgb[ch] = weighted_nonneg(sky_col[:, ch:ch + 1], values[:, ch],
-                                                weights)[0]
-            sky_alone += _weighted_mse(values[:, ch], sky_alone_rgb[ch] * sky_col[:, ch],
-                                       weights)
-        sun_needed = with_sun < (1.0 - self.sun_significance) * sky_alone
-        if not allow_sun or not sun_needed:
-            # A sun that explains little more than the sky alone is the sky model's error or
-            # noise, not a sun (Jensen et al.: under heavy cloud, none). Under every type: a
-            # view with almost no shade (the demo's kiosk: a tree's thin shadow) went from the
-            # clear type to an intermediate one on noise and kept a sun of up to 94 % of an
-            # overcast sky there; the estimate then falls to an overcast type.
-            sun_rgb, sky_rgb = np.zeros(3), sky_alone_rgb
-        self._share[share_key] = model_share
-        return SceneLight(sun_rgb, sky_rgb, sky_type, sun_dir, sunlit_count >= MIN_SUNLIT,
-                          len(frame.pick), float(np.mean(weights > 0.5)),
-                          float(model_share), perez), sky_alone
-
-    def _pick(self, lit: np.ndarray) -> np.ndarray:
-        """``samples`` pool indices, half mostly in sun and half mostly in shadow (``lit``,
-        the share in sun, from 0.5 or below it) where the pool has them (the shadowed ones are
-        what tells the sky from the sun)."""
-        groups = [np.flatnonzero(lit >= 0.5), np.flatnonzero(lit < 0.5)]
-        want = self.samples // 2
-        small = min(groups, key=len)
-        large = max(groups, key=len)
-        take_small = min(len(small), want)
-        take_large = min(len(large), self.samples - take_small)
-        return np.concatenate([self._rng.choice(small, take_small, replace=False),
-                               self._rng.choice(large, take_large, replace=False)])
-
-    def read_pixels(self, image: np.ndarray, pixels_xy: np.ndarray,
-                    to_linear=None) -> np.ndarray:
-        """The ``(2 patch_px + 1)^2`` pixels about each pixel, (k, m, 3) linear RGB:
-        ``image`` (H, W, >=3) as it is, or through ``to_linear`` (codes (..., 3) -> linear),
-        which then runs on these pixels only, never on the whole frame."""
-        r = self.patch_px
-        dy, dx = np.mgrid[-r:r + 1, -r:r + 1]
-        ys = pixels_xy[None, :, 1] + dy.ravel()[:, None]
-        xs = pixels_xy[None, :, 0] + dx.ravel()[:, None]
-        raw = image[ys, xs, :3]
-        return (to_linear(raw) if to_linear is not None else raw).astype(np.float64)
-
-    def read_usable(self, image: np.ndarray, pixels_xy: np.ndarray, to_linear=None,
-                    clip_level: float | None = None, ignore_mask: np.ndarray | None = None
-                    ) -> tuple[np.ndarray, np.ndarray]:
-        """Each sample's patch mean (m, 3) linear (:meth:`read_pixels`) and (m,) bool whether
-        it is usable: finite, not negative, no pixel of its patch at ``clip_level``, not
-        marked by ``ignore_mask`` (H, W bool)."""
-        patches = self.read_pixels(image, pixels_xy, to_linear)
-        values = patches.mean(axis=0)
-        usable = np.all(np.isfinite(values), axis=1) & (values.min(axis=1) >= 0.0)
-        if clip_level is not None:
-            usable &= patches.max(axis=(0, 2)) < clip_level
-        if ignore_mask is not None:
-            usable &= ~np.asarray(ignore_mask, bool)[pixels_xy[:, 1], pixels_xy[:, 0]]
-        return values, usable
 
     def estimate(self, linear: np.ndarray, sun_dir: np.ndarray, radiance_per_unit: float = 1.0,
                  clip_level: float | None = None, ignore_mask: np.ndarray | None = None,
@@ -475,15 +348,39 @@ class SceneEstimator:
         sun_dir = normalize(np.asarray(sun_dir, float))
         p = self.pool_samples
         lit, bounce_sun, bounce_sky = self.in_sun(sun_dir)
-        pick = self._pick(lit)
-        xy = p.pixels_xy[pick]
-        values, usable = self.read_usable(linear, xy, to_linear, clip_level, ignore_mask)
-        pick, values = pick[usable], values[usable] * radiance_per_unit
-        if len(pick) < 8:
-            raise SceneEstimateError(f"only {len(pick)} usable samples in the frame")
+        # the pool's shade, topped up from pixels wholly in the model's shadow where it has
+        # less than half the samples in shade (server.shadepool)
+        top_up = 0
+        shade, shade_sun, shade_sky = None, None, None
+        pool_shaded = int(np.sum(lit < 0.5))
+        if self.shade_top_up and pool_shaded < self.samples // 2:
+            shade, shade_sun, shade_sky = self.shade_samples(sun_dir)
+            top_up = 0 if shade is None else min(len(shade.pixels_xy),
+                                                 self.samples // 2 - pool_shaded)
+        pick = self._pick(lit, self.samples - top_up)
+        values, usable = self.read_usable(linear, p.pixels_xy[pick], to_linear, clip_level,
+                                          ignore_mask)
+        pick, values = pick[usable], values[usable]
         cos_i = np.clip(p.normals[pick] @ sun_dir, 0.0, None) * lit[pick]
-        frame = _FrameSamples(pick, values, cos_i, bounce_sun[pick], bounce_sky[pick],
-                              p.albedo[pick], p.surface[pick], p.sky_view[pick])
+        terms = [cos_i, bounce_sun[pick], bounce_sky[pick], p.albedo[pick], p.surface[pick],
+                 p.sky_view[pick]]
+        shade_pick = np.zeros(0, int)
+        if top_up:
+            # single pixels: a wholly shaded pixel's neighbours may be other faces
+            shade_pick = self._rng.choice(len(shade.pixels_xy), top_up, replace=False)
+            shade_values, usable = self.read_usable(
+                linear, shade.pixels_xy[shade_pick], to_linear, clip_level, ignore_mask,
+                patch_px=0)
+            shade_pick = shade_pick[usable]
+            values = np.vstack([values, shade_values[usable]])
+            more = [np.zeros(len(shade_pick)), shade_sun[shade_pick], shade_sky[shade_pick],
+                    shade.albedo[shade_pick], shade.surface[shade_pick],
+                    shade.sky_view[shade_pick]]
+            terms = [np.concatenate([a, b]) for a, b in zip(terms, more, strict=True)]
+        values = values * radiance_per_unit
+        if len(values) < 8:
+            raise SceneEstimateError(f"only {len(values)} usable samples in the frame")
+        frame = FrameSamples(pick, values, *terms, shade_pick=shade_pick)
         sky_type = 12
         result = None
         sun_elevation_deg = math.degrees(math.asin(min(float(sun_dir[1]), 1.0)))
@@ -505,7 +402,7 @@ class SceneEstimator:
             # clearness, whose shape reads the sky lower still: on the tests' small site at
             # 14:30 -8 to -12 % after one pass, -19 to -22 % after four)
             result = self._fit_shape(12, sun_dir, frame,
-                                     perez=_perez_state(result, sun_elevation_deg))[0]
+                                     perez=perez_state(result, sun_elevation_deg))[0]
         if self.pair_floor > 0.0 and float(np.max(result.sun_normal_irradiance)) > 0.0:
             # the sky model's errors read as sun; the shadow edges alone say whether there is
             # one (server.shadowpairs)
@@ -518,42 +415,16 @@ class SceneEstimator:
         return result
 
 
-@dataclass
-class _FrameSamples:
-    """One frame's usable samples: pool indices ``pick`` (n,), linear radiances ``values``
-    (n, 3) W/(m^2 sr), and the pool's terms for them: ``cos_i`` (n,) the sun's cosine where
-    in sun (else 0), ``bounce_sun`` and ``bounce_sky`` (n, 3), stated ``albedo`` (n, 3),
-    ``surface`` (n,) int and ``sky_view`` (n,)."""
-
-    pick: np.ndarray
-    values: np.ndarray
-    cos_i: np.ndarray
-    bounce_sun: np.ndarray
-    bounce_sky: np.ndarray
-    albedo: np.ndarray
-    surface: np.ndarray
-    sky_view: np.ndarray
-
-
-def _perez_state(light: SceneLight, sun_elevation_deg: float) -> tuple[float, float]:
-    """(clearness, brightness) of the Perez all-weather sky for an estimate's sun and sky
-    (luminance-weighted grey; W/m^2 for a camera whose ``radiance_per_unit`` is absolute),
-    rounded so that a state that barely moved reuses the cached sky term."""
-    sky = max(float(LUMINANCE_RGB @ light.sky_horizontal_irradiance), 1e-9)
-    sun = float(LUMINANCE_RGB @ light.sun_normal_irradiance)
-    return (round(sky_clearness(sun / sky, sun_elevation_deg), 2),
-            round(sky_brightness(sky, sun_elevation_deg), 3))
-
-
-def _weighted_mse(values: np.ndarray, model: np.ndarray, weights: np.ndarray) -> float:
-    """The weighted mean of squared residuals (n,): comparable between fits whose robust
-    weights differ."""
-    return float(weights @ (values - model) ** 2) / max(float(weights.sum()), 1e-12)
-
-
-def _albedo_terms(albedo: np.ndarray, per_albedo: list[np.ndarray]):
-    """The fit's terms for the samples' albedos (n, 3): each of ``per_albedo``'s (n, 3)
-    radiances per unit light and albedo times the albedo, and (n, 3) their channel sums as
-    the columns of the fit over the channel sum."""
-    terms = [albedo * t for t in per_albedo]
-    return terms, np.column_stack([t.sum(axis=1) for t in terms])
+def _sky_term_of(p: SceneSamples, sky_type: int, sun_dir: np.ndarray,
+                 perez: tuple[float, float] | None) -> tuple[np.ndarray, np.ndarray]:
+    """:meth:`SceneEstimator.sky_term` of samples ``p``, uncached: (m,) and (m, 3)."""
+    shape, to_unit = unit_sky(sky_type, sun_dir, perez)
+    # on the pool's sky grid, normalised on the same grid: an open horizontal plane gets 1
+    rel = shape.relative_luminance(p.sky_grid_dirs)
+    open_horizontal = float((p.sky_grid_dirs[:, 1] * p.sky_grid_sr) @ rel)
+    term = (p.sky_weight @ rel.astype(np.float32)).astype(np.float64) / open_horizontal
+    # (the bounce surfaces' own obstruction is left out, as for the isotropic part)
+    normals, index = p.bounce_normal_groups
+    tilt = np.clip(tilted_irradiance(shape, to_unit, normals), 0.0, None)[index]
+    bounce = p.bounce_terms(np.zeros(len(tilt)), tilt)[1]
+    return term, bounce

@@ -13,6 +13,7 @@ SUN_ESTIMATED. Nothing is clipped from the vector's point of view: ``saturated``
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -192,6 +193,10 @@ class SceneMeter:
                                                    for v in light.sky_horizontal_irradiance],
                 "sky_type": light.sky_type,
                 "sun_observable": light.sun_observable,
+                "sky_separable": light.sky_separable,
+                "sky_uncertainty": (round(light.sky_uncertainty, 4)
+                                    if math.isfinite(light.sky_uncertainty) else None),
+                "shaded_samples": light.shaded,
                 "samples_used": light.used,
                 "inlier_fraction": round(light.inlier_fraction, 3),
                 "surfaces": self.estimator.surface_report(),

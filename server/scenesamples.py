@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import trimesh
@@ -130,12 +131,20 @@ class SceneSamples:
         the fraction of each hemisphere that bounces. ``bounce_lit`` (n,) float:
         ``cos_h * in_sun_h`` of each bounce point."""
         m, k = self.sky_visible.shape
-        sun = np.zeros((m, 3))
-        sky = np.zeros((m, 3))
-        np.add.at(sun, self.bounce_sample, self.bounce_albedo * bounce_lit[:, None])
         view = 0.5 * (1.0 + self.bounce_normals[:, 1]) if bounce_sky is None else bounce_sky
-        np.add.at(sky, self.bounce_sample, self.bounce_albedo * view[:, None])
+        sun = np.column_stack([np.bincount(self.bounce_sample, self.bounce_albedo[:, c]
+                                           * bounce_lit, minlength=m) for c in range(3)])
+        sky = np.column_stack([np.bincount(self.bounce_sample, self.bounce_albedo[:, c] * view,
+                                           minlength=m) for c in range(3)])
         return sun / k, sky / k, np.bincount(self.bounce_sample, minlength=m) / k
+
+    @cached_property
+    def bounce_normal_groups(self) -> tuple[np.ndarray, np.ndarray]:
+        """(u, 3) the distinct bounce normals and (n,) each bounce's index into them (the
+        faces' normals: a few hundred distinct among up to 10^5 bounces, so a sky's tilted
+        irradiance is evaluated once for each)."""
+        unique, inverse = np.unique(self.bounce_normals, axis=0, return_inverse=True)
+        return unique, inverse.reshape(-1)
 
 
 def patch_points_m(samples: SceneSamples, view: PinholeView, patch_px: int) -> np.ndarray:
@@ -202,16 +211,34 @@ def prepare_samples(mesh: trimesh.Trimesh, face_albedo: np.ndarray, view: Pinhol
     idx = np.flatnonzero(ok)[:count]
     if len(idx) == 0:
         raise SceneEstimateError("the view sees no surface of the real proxies")
+    return samples_at(mesh, face_albedo, view, np.column_stack([xs[idx], ys[idx]]), hit,
+                      hemisphere_count, seed, environment_albedo)
+
+
+def samples_at(mesh: trimesh.Trimesh, face_albedo: np.ndarray, view: PinholeView,
+               pixels_xy: np.ndarray, hit=None, hemisphere_count: int = 96, seed: int = 0,
+               environment_albedo: float = 0.2) -> SceneSamples:
+    """The samples of given pixels ``pixels_xy`` (m, 2) int (column, row) of ``view``, each of
+    which must see a face of ``mesh`` from its front (the caller's choice: no edge check here):
+    what the geometry says of the surface through each pixel's centre. ``hit``: the mesh's
+    intersector (made when None)."""
+    face_albedo = np.asarray(face_albedo, float)
+    hit = intersector(mesh) if hit is None else hit
+    pixels_xy = np.asarray(pixels_xy, int).reshape(-1, 2)
+    origins, dirs = view.rays(pixels_xy.astype(float) + 0.5)
+    face = hit.intersects_first(origins, dirs)
+    if np.any(face < 0):
+        raise SceneEstimateError("a pixel given to samples_at sees no face of the mesh")
     # Hit points of the kept centres.
-    loc, ray_idx, _ = hit.intersects_location(origins[idx], dirs[idx], multiple_hits=False)
-    points = np.empty((len(idx), 3))
+    loc, ray_idx, _ = hit.intersects_location(origins, dirs, multiple_hits=False)
+    points = np.empty((len(pixels_xy), 3))
     points[ray_idx] = loc
-    normals = face_normals[idx]
+    normals = mesh.face_normals[face]
     t, b = _frames_about(normals)
     # each sample its own jittered set: one set shared by all samples of a tilt put the
     # same quadrature error on all of them (a bounce from a shadow's edge seen through a few
     # directions), which the fit reads as sky (up to 18 % between pools, docs/server.md)
-    local = cosine_directions(hemisphere_count, seed + 1, sets=len(idx))
+    local = cosine_directions(hemisphere_count, seed + 1, sets=len(pixels_xy))
     hemi = (local[:, :, 0:1] * t[:, None] + local[:, :, 1:2] * b[:, None]
             + local[:, :, 2:3] * normals[:, None])
     m, k = hemi.shape[:2]
@@ -232,15 +259,15 @@ def prepare_samples(mesh: trimesh.Trimesh, face_albedo: np.ndarray, view: Pinhol
     env = np.full(3, environment_albedo)
     grid_dirs, grid_sr, sky_weight = open_sky_weights(hit, points, normals)
     return SceneSamples(
-        pixels_xy=np.column_stack([xs[idx], ys[idx]]),
-        points_m=points, normals=normals, albedo=face_albedo[face[idx]],
+        pixels_xy=pixels_xy,
+        points_m=points, normals=normals, albedo=face_albedo[face],
         hemisphere_dirs=hemi, sky_visible=sky_visible,
         bounce_points_m=np.vstack([hit_points, np.full((len(far), 3), np.nan)]),
         bounce_normals=np.vstack([mesh.face_normals[first[hits]],
                                   np.tile([0.0, 1.0, 0.0], (len(far), 1))]),
         bounce_albedo=np.vstack([face_albedo[first[hits]], np.tile(env, (len(far), 1))]),
         bounce_sample=bounce_rays // k,
-        surface=surfaces_by_albedo(face_albedo)[face[idx]],
+        surface=surfaces_by_albedo(face_albedo)[face],
         sky_grid_dirs=grid_dirs, sky_grid_sr=grid_sr, sky_weight=sky_weight,
     )
 

@@ -145,3 +145,74 @@ def test_overcast_sun_below_five_percent_on_a_view_without_shade(kiosk_overcast_
             sky = _grey(last.sky_horizontal_irradiance)
             assert _grey(last.sun_normal_irradiance) < 0.05 * sky, (hour, seed, last)
             assert sky == pytest.approx(rendered.dhi_w_m2, rel=0.10), (hour, seed, last)
+
+
+KIOSK_CLEAR_SIZE = (320, 180)  # the tree's shaded canopy is a few dozen pixels here
+
+
+@pytest.fixture(scope="module")
+def kiosk_clear(demo_draft_build):
+    """The demo's kiosk view (the build's first fixed view) under the clear sky at 12:00 and
+    9:30, rendered by Radiance without the ambient cache: {hour: (rendered, sun direction,
+    estimator arguments)}. The view sees sunlit ground, the tree's shadow 1-2 px wide and its
+    canopy of faces a few pixels across: no 3 x 3 patch of the pool is in shadow; 179 single
+    pixels are wholly in the model's shadow at 12:00, 17 at 9:30."""
+    from benchmarks.bench_fidelity import SkySpec
+    from daylit import manifest as manifest_io
+    from daylit.sun import sun_position
+    from server.scenemeter import real_proxies
+    from tests.radiance_frames import ACCURATE_CAMERA_RAYS, render_build_view
+
+    manifest = manifest_io.load(demo_draft_build)
+    mesh, albedo = real_proxies(demo_draft_build, manifest)
+    ground = float(np.mean(manifest["ground"]["albedo"]))
+    scene = manifest["scene"]
+    dni, dhi = SKIES["clear"]
+    out = {}
+    for hour in ("12", "9.5"):
+        rendered, view = render_build_view(
+            demo_draft_build, SkySpec("clear", 10, 15, hour, dni, dhi), *KIOSK_CLEAR_SIZE,
+            procs=2, rays=ACCURATE_CAMERA_RAYS)
+        sun = sun_position(scene["latitude_deg"], scene["longitude_deg"],
+                           scene["elevation_m"], [rendered.when_unix_s]).direction[0]
+        out[hour] = (rendered, sun, {"mesh": mesh, "face_albedo": albedo, "view": view,
+                                     "environment_albedo": ground})
+    return out
+
+
+@pytest.mark.slow
+def test_the_kiosk_views_clear_sky_within_ten_percent(kiosk_clear):
+    """Streams of camera frames (noise, JPEG 85) of the kiosk view at noon: the sun and the
+    sky within the issue's 10 %, from samples of which many are wholly in shadow, and the
+    estimate says the sky is separable. Before the pool was topped up with single pixels
+    wholly in the model's shadow (server/shadepool.py) this failed: with no sample in shade
+    the fit read the sky from sunlit ground, where sun and sky are nearly collinear (seeds 1
+    and 2: +29 % and +11 %; over 40 streams 22 off by up to 70 %, docs/benchmarks.md)."""
+    from server.sceneestimate import SceneEstimator
+    from tests.radiance_frames import last_estimate
+
+    rendered, sun, kwargs = kiosk_clear["12"]
+    for seed in SEEDS:
+        light = last_estimate(SceneEstimator(**kwargs, seed=seed), rendered, sun, seed, FRAMES)
+        sky = _grey(light.sky_horizontal_irradiance) / rendered.dhi_w_m2 - 1.0
+        sun_err = _grey(light.sun_normal_irradiance) / rendered.dni_w_m2 - 1.0
+        assert light.shaded >= 50 and light.sky_separable, (seed, light)
+        assert abs(sky) < 0.10, (seed, sky, light)
+        assert abs(sun_err) < 0.10, (seed, sun_err, light)
+
+
+@pytest.mark.slow
+def test_the_kiosk_view_says_when_its_shade_cannot_separate_the_sky(kiosk_clear):
+    """At 9:30 the kiosk view has 17 pixels wholly in shade: the sun stays within 10 % but the
+    sky may not (over 40 streams 10 were 10-29 % off, docs/benchmarks.md), and the estimate
+    says so: every stream's sky is flagged not separable, while at noon none is (the test
+    above). On main there was no such flag (and the sky was up to 63 % off)."""
+    from server.sceneestimate import SceneEstimator
+    from tests.radiance_frames import last_estimate
+
+    rendered, sun, kwargs = kiosk_clear["9.5"]
+    for seed in SEEDS:
+        light = last_estimate(SceneEstimator(**kwargs, seed=seed), rendered, sun, seed, FRAMES)
+        sun_err = _grey(light.sun_normal_irradiance) / rendered.dni_w_m2 - 1.0
+        assert abs(sun_err) < 0.10, (seed, sun_err, light)
+        assert not light.sky_separable, (seed, light)
