@@ -114,7 +114,7 @@ def renders(scene_build):
     )
 
     spec = SkySpec(*SKY)
-    site_view, _ = render_build_view(scene_build, spec, 320, 180, procs=2,
+    site_view, _ = render_build_view(scene_build, spec, 320, 180, procs=1,
                                      rays=ACCURATE_CAMERA_RAYS)
     sky_image, sky = render_sky_camera(spec, manifest_io.load(scene_build), 256)
     return site_view, sky_image, sky

@@ -45,7 +45,7 @@ async def test_scene_source_streams_the_estimated_sun_and_sky(aiohttp_client, sc
     # Perez clear sky, whose shape no longer makes up for it)
     rendered, view = render_build_view(scene_build, SkySpec("clear", 10, 15, "11",
                                                                  800.0, 80.0), 320, 180,
-                                       procs=2, rays=ACCURATE_CAMERA_RAYS)
+                                       procs=1, rays=ACCURATE_CAMERA_RAYS)
     exposure = 0.8 / float(np.percentile(rendered.sun_image, 99.0))
     folder = tmp_path / "site"
     folder.mkdir()

@@ -48,7 +48,7 @@ def demo_streams(demo_draft_build):
         for name, (dni, dhi) in SKIES.items():
             rendered, _ = render_build_view(demo_draft_build, SkySpec(name, 10, 15, hour, dni,
                                                                       dhi),
-                                            *SIZE, procs=2, view=view, rays=ACCURATE_CAMERA_RAYS)
+                                            *SIZE, procs=1, view=view, rays=ACCURATE_CAMERA_RAYS)
             sun = sun_position(scene["latitude_deg"], scene["longitude_deg"],
                                scene["elevation_m"], [rendered.when_unix_s]).direction[0]
             lasts = [last_estimate(SceneEstimator(mesh, albedo, view, environment_albedo=ground,
@@ -123,7 +123,7 @@ def kiosk_overcast_streams(demo_draft_build):
         dni, dhi = SKIES["overcast"]
         rendered, view = render_build_view(demo_draft_build,
                                            SkySpec("overcast", 10, 15, hour, dni, dhi),
-                                           *KIOSK_SIZE, procs=2, rays=ACCURATE_CAMERA_RAYS)
+                                           *KIOSK_SIZE, procs=1, rays=ACCURATE_CAMERA_RAYS)
         sun = sun_position(scene["latitude_deg"], scene["longitude_deg"],
                            scene["elevation_m"], [rendered.when_unix_s]).direction[0]
         out[hour] = (rendered, [
@@ -172,7 +172,7 @@ def kiosk_clear(demo_draft_build):
     for hour in ("12", "9.5"):
         rendered, view = render_build_view(
             demo_draft_build, SkySpec("clear", 10, 15, hour, dni, dhi), *KIOSK_CLEAR_SIZE,
-            procs=2, rays=ACCURATE_CAMERA_RAYS)
+            procs=1, rays=ACCURATE_CAMERA_RAYS)
         sun = sun_position(scene["latitude_deg"], scene["longitude_deg"],
                            scene["elevation_m"], [rendered.when_unix_s]).direction[0]
         out[hour] = (rendered, sun, {"mesh": mesh, "face_albedo": albedo, "view": view,
