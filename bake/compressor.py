@@ -40,7 +40,7 @@ class Compressor:
             encoding=c["encoding"],
             selected_lights=c["selected_lights"],
             sun_bounce_budget=c["sun_bounce_budget"],
-            sun_bounce_lights=int(c.get("sun_bounce_lights", 196)) or None,
+            sun_bounce_lights=c["sun_bounce_lights"] or None,  # 0: one image per patch
         )
         self.display_skies = None  # set by start()
         self.log = log
@@ -77,7 +77,7 @@ class Compressor:
         # images"); None: one image per patch.
         self.shared = sunbounce.SharedImages.of_dome(
             dome.kind, dome.frequency, self.selection.selectable,
-            getattr(self.settings, "sun_bounce_lights", None),
+            self.settings.sun_bounce_lights,
         )
         self.log(
             f"  {len(self.selection.selectable)} of {dome.count} lights can be selected "
