@@ -41,7 +41,7 @@ def bake_test_site(root: Path) -> Path:
 def main() -> None:
     from playwright.sync_api import sync_playwright
 
-    from benchmarks.bench_fidelity import SkySpec
+    from benchmarks.radiance import SkySpec
     from tests.radiance_frames import camera_frame, render_build_view
     from tests.web.fakecamera import camera_page, orient, write_y4m
     from tests.web.harness import CHROMIUM_FLAGS, chromium_path

@@ -56,7 +56,7 @@ ESTIMATES = 5  # the first is dropped: the sky's isotropic share is followed acr
 def _render(build: Path, browser, tmp: Path) -> list[dict]:
     """Per sky: the render (tests.radiance_frames.RenderedSky), its fake camera file, its
     exposure (linear units per W/(m^2 sr)), from the pose the page takes for POSES["eye"]."""
-    from benchmarks.bench_fidelity import SkySpec
+    from benchmarks.radiance import SkySpec
     from tests.radiance_frames import ACCURATE_CAMERA_RAYS, camera_frame, render_build_view
     from tests.web.fakecamera import camera_page, orient, write_y4m
     from tests.web.phoneframes import POSES, view_from_three

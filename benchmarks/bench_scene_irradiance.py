@@ -11,14 +11,14 @@ W/m^2, 2026-10-15 11:00 standard time at the build's site):
 3. ``daylit probe``'s :func:`bake.probe.evaluate` turns that vector, with the sun as its own
    light (``--sun``), into irradiance at the site's points the way the client lights them
    (the baked sky basis, the sun's direct term and its bounce): ground and wall grids and
-   points on the models (``bench_fidelity.site_points``);
+   points on the models (``benchmarks.fidelity_points.site_points``);
 4. Radiance gives the irradiance at the same points for the same sky (``rtrace -I``, sky and
    sun, every part of the build, two ambient bounces): the truth.
 
-The figure is ``bench_fidelity.psnr_rms``'s RMS error relative to the mean truth (%), over all
-points and channels. Baseline in the same run: the true sky (gendaylit's sky function mapped
-by Radiance, ``equirect_light_vector``) and the true sun through the same probe: what the
-bake and the probe alone leave, with no estimate in between.
+The figure is ``benchmarks.fidelity_metrics.psnr_rms``'s RMS error relative to the mean truth
+(%), over all points and channels. Baseline in the same run: the true sky (gendaylit's sky
+function mapped by Radiance, ``equirect_light_vector``) and the true sun through the same
+probe: what the bake and the probe alone leave, with no estimate in between.
 
 Run (pyradiance is a dev dependency; the build: ``tests/server/conftest.scene_build``'s site or
 any build with a fixed view)::
@@ -46,10 +46,10 @@ RTRACE_POINTS = ["-ab", "2", "-aa", "0", "-ad", "1024", "-as", "0", "-lw", "1e-6
 
 def site_point_set(build_dir: Path, ground_step_m: float = 5.0, wall_step_m: float = 1.5,
                    model_points: int = 20):
-    """The points (``bench_fidelity.PointSet``) probed on the build."""
+    """The points (``benchmarks.fidelity_points.PointSet``) probed on the build."""
     from bake.evaluate import Build
     from bake.gltf import read_site_glb
-    from benchmarks.bench_fidelity import site_points
+    from benchmarks.fidelity_points import site_points
 
     build = Build(build_dir)
     nodes = read_site_glb(build_dir / build.manifest["model"]["path"])
@@ -60,12 +60,12 @@ def condition(build, ps, name: str, dni: float, dhi: float, seed: int = 0,
               frames: int = 4) -> dict:
     """One sky: the estimate, the probe with it and with the true sky, and Radiance."""
     from bake.probe import ProbePoint, SunSpec, evaluate
-    from benchmarks.bench_fidelity import (
+    from benchmarks.fidelity_metrics import psnr_rms
+    from benchmarks.radiance import (
         SkySpec,
         gendaylit,
         measurement_rays,
         oconv,
-        psnr_rms,
         radiance_env,
         rtrace,
         scene_files,

@@ -45,7 +45,7 @@ SAMPLE_COUNTS = (100, 250, 500, 1000, 2000)
 
 
 def render_all() -> dict:
-    from benchmarks.bench_fidelity import SkySpec
+    from benchmarks.radiance import SkySpec
     from tests.radiance_frames import PERSON_ALBEDO, known_site, person_mesh, render_sky
 
     site = known_site()
@@ -87,7 +87,7 @@ def sky_camera_errors(name: str, hour: str, size_px: int = 256, dome_lights: int
     :class:`server.measure.SkyMeter` over a ``dome_lights`` dome; the sky's horizontal
     irradiance is its patch radiances times their projected solid angles."""
     from bake.dome import Dome
-    from benchmarks.bench_fidelity import SkySpec
+    from benchmarks.radiance import SkySpec
     from server.fusion import projected_solid_angles_sr
     from server.measure import Frame, SkyMeter
     from server.photometry import Photometry

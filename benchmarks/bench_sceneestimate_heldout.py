@@ -55,7 +55,7 @@ def _triple(text: str) -> tuple[float, float, float]:
 
 def render_all(build: Path, view, size: tuple[int, int], accurate: bool, skies: list[str]):
     """{(sky, hour): RenderedSky} and the view they were rendered from."""
-    from benchmarks.bench_fidelity import SkySpec
+    from benchmarks.radiance import SkySpec
     from tests.radiance_frames import ACCURATE_CAMERA_RAYS, render_build_view
 
     out = {}

@@ -58,7 +58,7 @@ def scaled(view, image):
 
 def scenes(build: Path, renders: Path) -> dict:
     """{name: (mesh, albedo, environment albedo, view, linear frame, radiance per unit, sun)}"""
-    from benchmarks.bench_fidelity import SkySpec
+    from benchmarks.radiance import SkySpec
     from daylit import manifest as manifest_io
     from daylit.sun import sun_position
     from server.scenemeter import real_proxies

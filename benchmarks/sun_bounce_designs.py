@@ -39,7 +39,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
-from benchmarks.bench_fidelity import radiance_env  # noqa: E402
+from benchmarks.radiance import radiance_env  # noqa: E402
 from benchmarks.sun_bounce_display import (  # noqa: E402
     DECODE_CHUNK,
     clear_sky_sun,

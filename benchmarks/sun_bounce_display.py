@@ -36,7 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
-from benchmarks.bench_fidelity import (  # noqa: E402
+from benchmarks.radiance import (  # noqa: E402
     from_radiance,
     oconv,
     radiance_env,

@@ -3,7 +3,7 @@
 The site: open ground, a building, a low wall (the real proxies the estimator knows), and
 optionally what it does not know: a dark person-sized box and a parked van. Radiance
 (``pyradiance==1.3.1``: ``gendaylit``, ``oconv``, ``rtrace``; the helpers of
-``benchmarks/bench_fidelity.py``) renders the radiance seen through each pixel of a pinhole
+``benchmarks/radiance.py``) renders the radiance seen through each pixel of a pinhole
 view, the sun and the sky apart (light adds: a cloud over the sun scales the sun's image only).
 :func:`camera_frame` then makes what a camera delivers: auto-exposure, shot and read noise,
 clipping, the sRGB curve, 8-bit codes, JPEG; and :func:`linearise` undoes the sRGB curve, as
@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 import trimesh
 
-from benchmarks.bench_fidelity import (
+from benchmarks.radiance import (
     Sky,
     SkySpec,
     gendaylit,
@@ -255,10 +255,10 @@ def render_build_view(build_dir: Path, spec: SkySpec, width: int, height: int,
                       procs: int = 1, view: PinholeView | None = None,
                       rays: list[str] | None = None) -> tuple[RenderedSky, PinholeView]:
     """A build's first fixed view (scaled to ``width`` x ``height``), or ``view`` (a phone's
-    pose, at its own size), of its real proxies and ground (``bench_fidelity.scene_files``; no
+    pose, at its own size), of its real proxies and ground (``benchmarks.radiance.scene_files``; no
     virtual object) rendered by Radiance under one gendaylit sky for the build's site, with
     rtrace options ``rays`` (default ``CAMERA_RAYS``; ``ACCURATE_CAMERA_RAYS``: no cache)."""
-    from benchmarks.bench_fidelity import scene_files
+    from benchmarks.radiance import scene_files
 
     _, env = radiance_env()
     with tempfile.TemporaryDirectory(prefix="daylit-radiance-") as tmp:

@@ -105,7 +105,7 @@ def test_a_disagreement_past_the_factor_is_a_warning():
 def renders(scene_build):
     """The site camera's view of the build and the sky camera's fisheye, one gendaylit sky."""
     pytest.importorskip("pyradiance")
-    from benchmarks.bench_fidelity import SkySpec
+    from benchmarks.radiance import SkySpec
     from daylit import manifest as manifest_io
     from tests.radiance_frames import (
         ACCURATE_CAMERA_RAYS,

@@ -20,7 +20,7 @@ SITE = {"scene": {"latitude_deg": 34.47, "longitude_deg": 135.82, "timezone": "A
 
 def _gendaylit_relative(spec, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """gendaylit's sky radiance at site directions (m, 3) over its zenith's, and its sun."""
-    from benchmarks.bench_fidelity import gendaylit, oconv, radiance_env, rtrace, sky_rad
+    from benchmarks.radiance import gendaylit, oconv, radiance_env, rtrace, sky_rad
     from tests.radiance_frames import to_radiance
 
     _, env = radiance_env()
@@ -38,7 +38,7 @@ def _gendaylit_relative(spec, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 @pytest.mark.parametrize("hour,dni,dhi", [("12", 800.0, 80.0), ("9.5", 800.0, 80.0),
                                           ("14.5", 600.0, 120.0), ("12", 400.0, 200.0)])
 def test_perez_shape_matches_gendaylits_sky(hour, dni, dhi):
-    from benchmarks.bench_fidelity import SkySpec
+    from benchmarks.radiance import SkySpec
 
     rng = np.random.default_rng(1)
     el = np.radians(rng.uniform(15.0, 88.0, 200))  # above gendaylit's ground blend

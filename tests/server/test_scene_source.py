@@ -34,7 +34,7 @@ def write_exr(path, rgb: np.ndarray, when_unix_s: float, utc_offset_h: float = 9
 @pytest.mark.slow
 async def test_scene_source_streams_the_estimated_sun_and_sky(aiohttp_client, scene_build,
                                                               tmp_path):
-    from benchmarks.bench_fidelity import SkySpec
+    from benchmarks.radiance import SkySpec
     from daylit.sun import SunSource
     from server import protocol
     from server.app import create_app

@@ -102,7 +102,7 @@ def test_sky_clearness_is_gendaylits():
     the same DNI and DHI: three skies at three sun positions on the test site."""
     import subprocess
 
-    from benchmarks.bench_fidelity import radiance_env
+    from benchmarks.radiance import radiance_env
     from server.skyshape import sky_clearness
 
     _, env = radiance_env()
@@ -147,7 +147,7 @@ def _person(k: int):
 @pytest.fixture(scope="module")
 def renders():
     """Every condition rendered once per test run: {(sky, hour): RenderedSky}."""
-    from benchmarks.bench_fidelity import SkySpec
+    from benchmarks.radiance import SkySpec
     from tests.radiance_frames import known_site, render_sky
 
     site = known_site()
@@ -279,7 +279,7 @@ def test_cloud_over_the_sun_is_followed_within_two_frames(renders):
 def van_render():
     """Clear sky at 14:30 with a person and a van the model does not know (the van's shadow
     falls north-east of it, on open ground in view, where the model expects sun)."""
-    from benchmarks.bench_fidelity import SkySpec
+    from benchmarks.radiance import SkySpec
     from tests.radiance_frames import VAN_ALBEDO, known_site, render_sky, van_mesh
 
     site = known_site()

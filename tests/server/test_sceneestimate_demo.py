@@ -26,7 +26,7 @@ FRAMES = 4
 @pytest.fixture(scope="module")
 def demo_streams(demo_draft_build):
     """{(sky, hour): [last estimate of each seed's stream]} and the renders' truths."""
-    from benchmarks.bench_fidelity import SkySpec
+    from benchmarks.radiance import SkySpec
     from daylit import manifest as manifest_io
     from daylit.sun import sun_position
     from server.sceneestimate import SceneEstimator
@@ -107,7 +107,7 @@ def kiosk_overcast_streams(demo_draft_build):
     the overcast sky: {hour: (rendered, [last estimate of each seed's stream])}. The view sees
     the ground and a tree whose shadow is under a pixel wide here: no shade to tell a sun from
     the sky, and no pairs across shadow edges."""
-    from benchmarks.bench_fidelity import SkySpec
+    from benchmarks.radiance import SkySpec
     from daylit import manifest as manifest_io
     from daylit.sun import sun_position
     from server.sceneestimate import SceneEstimator
@@ -157,7 +157,7 @@ def kiosk_clear(demo_draft_build):
     estimator arguments)}. The view sees sunlit ground, the tree's shadow 1-2 px wide and its
     canopy of faces a few pixels across: no 3 x 3 patch of the pool is in shadow; 179 single
     pixels are wholly in the model's shadow at 12:00, 17 at 9:30."""
-    from benchmarks.bench_fidelity import SkySpec
+    from benchmarks.radiance import SkySpec
     from daylit import manifest as manifest_io
     from daylit.sun import sun_position
     from server.scenemeter import real_proxies

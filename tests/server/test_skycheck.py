@@ -26,7 +26,7 @@ DRIFT_FACTOR = 1.25  # server.config's default
 def _sky_camera(name: str, hour: str, dome: np.ndarray, when_s: float) -> np.ndarray:
     """(n, 3) patch radiances the server's sky meter measures from one 8-bit fisheye frame
     of the gendaylit sky (exposed to put the sky's 99th percentile at 0.8: the sun clips)."""
-    from benchmarks.bench_fidelity import SkySpec
+    from benchmarks.radiance import SkySpec
     from server.measure import Frame, SkyMeter
     from server.photometry import Photometry
     from server.sunmeter import SunMeter
@@ -43,7 +43,7 @@ def _sky_camera(name: str, hour: str, dome: np.ndarray, when_s: float) -> np.nda
 @pytest.mark.slow
 def test_the_sky_camera_gain_is_one_on_every_sky_and_a_fogged_lens_is_seen():
     from bake.dome import Dome
-    from benchmarks.bench_fidelity import SkySpec
+    from benchmarks.radiance import SkySpec
     from daylit.sun import sun_position
     from server.fusion import projected_solid_angles_sr
     from server.sceneestimate import SceneEstimator

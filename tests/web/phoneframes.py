@@ -67,7 +67,7 @@ def open_irradiance_truth(spec, build_dir: Path, normals=COMPOSITE_NORMALS) -> n
     (site frame) under one gendaylit sky and its sun, nothing below the horizon."""
     import tempfile
 
-    from benchmarks.bench_fidelity import (
+    from benchmarks.radiance import (
         gendaylit,
         oconv,
         radiance_env,

@@ -278,7 +278,7 @@ def test_the_phone_s_perez_sky_against_python_and_gendaylit():
     pytest.importorskip("pyradiance")
     import pvlib
 
-    from benchmarks.bench_fidelity import SkySpec
+    from benchmarks.radiance import SkySpec
     from server.perezsky import PerezShape, perez_parameters, sky_brightness
     from tests.server.test_perezsky import _gendaylit_relative
 

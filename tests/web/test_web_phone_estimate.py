@@ -69,7 +69,7 @@ def pose_frames(browser, build, pose, skies, tmp, server=True):
     time, DNI, DHI)]: per sky the Radiance render of ``build`` from the pose the page draws, the
     camera's frame (a Y4M for the fake camera), its exposure, the pose, Radiance's open
     irradiances, and (``server``) the server's estimate on it."""
-    from benchmarks.bench_fidelity import SkySpec
+    from benchmarks.radiance import SkySpec
     from tests.radiance_frames import (
         ACCURATE_CAMERA_RAYS,
         camera_frame,
