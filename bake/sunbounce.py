@@ -313,13 +313,13 @@ def compress_sun_bounce(image, name, out_dir, lights, settings, sky=None,
     if not valid.any() or len(lights) == 0:
         return None
     if shared is not None:
-        shared = SharedImages({rep: [q for q in members if q in set(lights.tolist())]
-                               for rep, members in shared.groups.items()
-                               if rep in set(lights.tolist())},
+        drawn = set(lights.tolist())
+        shared = SharedImages({rep: [q for q in members if q in drawn]
+                               for rep, members in shared.groups.items() if rep in drawn},
                               shared.solid_angles_sr, shared.kind, shared.frequency)
         image = SharedColumns(image, shared)
         lights = np.asarray(shared.representatives, dtype=int)
-    budget = getattr(settings, "sun_bounce_budget", None)
+    budget = settings.sun_bounce_budget
     check = (DisplayCheck(sky, skies, lights) if sky is not None and skies is not None
              else None)
     try:
