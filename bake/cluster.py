@@ -92,14 +92,7 @@ def _estimator(setup: WorkerSetup):
 def trace_chunk(setup: WorkerSetup, points, normals, configs, bounce, seed_words):
     """Run on a worker: one chunk's arrays (``{config: array}``, as the local pool saves
     them) and the rays cast. ``points``, ``normals``: (P, 3) metres, unit."""
-    estimator = _estimator(setup)
-    estimator.rays_cast = 0
-    rng = np.random.default_rng(seed_words)
-    if bounce:
-        out = estimator.basis(points, normals, configs, rng)
-    else:
-        out = estimator.direct(points, normals, configs, rng)
-    return out, estimator.rays_cast
+    return _estimator(setup).chunk(points, normals, configs, bounce, seed_words)
 
 
 class Cluster:

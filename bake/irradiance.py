@@ -329,6 +329,7 @@ class Estimator:
         self._hemisphere_lattice = lattice(max(bounce_rays, 1))
         self._exact_cache: dict[bytes, np.ndarray] = {}
         self._scratch: dict[str, np.ndarray] = {}
+        self.rays_cast = 0  # since the last chunk began (:meth:`chunk`)
 
     def _buffer(self, name: str, shape: tuple, dtype) -> np.ndarray:
         """A scratch array re-used from chunk to chunk (its contents are overwritten). Ray
@@ -400,7 +401,7 @@ class Estimator:
             E = np.zeros(exact.shape, dtype=np.float32)
             loops.scatter_visible(blocked[config], w, M, t_idx, i_idx, exact, E)
             out[config] = E
-        self.rays_cast = getattr(self, "rays_cast", 0) + rays
+        self.rays_cast += rays
         return out
 
     # ---------------------------------------------------------------------------------------
@@ -440,7 +441,7 @@ class Estimator:
         owner = np.repeat(np.arange(T), K)
         scene = self.scenes.scenes[config]
         face, distance = scene.first_hit(origins, dirs)
-        self.rays_cast = getattr(self, "rays_cast", 0) + len(origins)
+        self.rays_cast += len(origins)
         hit = face >= 0
         C = len(self.cache.points)
         if np.any(hit):
@@ -493,3 +494,12 @@ class Estimator:
             if self.bounce_rays > 0:
                 out["bounce:" + config] = self.bounce(points, normals, config, rng)
         return out
+
+    def chunk(self, points, normals, configs, bounce: bool, seed_words) -> tuple[dict, int]:
+        """One chunk of points, as the local pool and a cluster's workers both run it (one
+        code path, seeded per chunk: their builds are bit-identical): ``{config: array}``
+        (:meth:`basis` with the bounce, else :meth:`direct`) and the rays cast for it."""
+        self.rays_cast = 0
+        rng = np.random.default_rng(seed_words)
+        run = self.basis if bounce else self.direct
+        return run(points, normals, configs, rng), self.rays_cast

@@ -82,14 +82,9 @@ def _run_chunk(task):
     all on its own while the workers took both cores."""
     points, normals, configs, bounce, seed_words, path = task
     estimator: Estimator = _WORKER["estimator"]
-    estimator.rays_cast = 0
-    rng = np.random.default_rng(seed_words)
-    if bounce:
-        out = estimator.basis(points, normals, configs, rng)
-    else:
-        out = estimator.direct(points, normals, configs, rng)
+    out, rays = estimator.chunk(points, normals, configs, bounce, seed_words)
     chunkio.save_chunk(path, out)
-    return estimator.rays_cast
+    return rays
 
 
 class TraceWork:
