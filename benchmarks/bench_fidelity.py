@@ -3,25 +3,15 @@
 Radiance (``pyradiance``'s wheel: ``gendaylit``, ``oconv``, ``rtrace``) renders the same scene
 under the same skies, and ``daylit probe`` answers the same points:
 
-- **Scene**: the ``virtual`` and ``real`` meshes of the build's ``site.glb`` as opaque
-  Lambertian polygons (``plastic``, no specular) with their albedos, the ground as a
-  Lambertian square of the manifest's ground albedo 40 km wide (to the horizon within 0.02
-  degrees seen from 5 m up); never the shadowing planes. Site frame (+X east, +Y up, -Z
-  north) to Radiance's (+X east, +Y north, +Z up): ``(x, y, z) -> (x, -z, y)``.
-- **Skies**: ``gendaylit`` (Perez all-weather, solar radiometric units ``-O 1``) at the site's
-  latitude and longitude for a clear, an intermediate and an overcast condition. Radiance gets
-  its sky function as a ``glow`` over the whole sphere plus the sun as a ``light`` source of
-  0.533 degrees; daylit gets the same sky function, sampled by ``rtrace`` from the origin
-  into an equirectangular EXR (2 x 2 rays per pixel), as ``--env``, and the sun as ``--sun
-  AZ,EL,DNI`` with gendaylit's direction and DNI = the sun's radiance times its disc's solid
-  angle.
-- **Points**: a grid over the ground atlas's ground receivers, a grid on the real proxies'
-  wall receivers (neither buried inside a part), points on the models' own faces (virtual
-  and real; faces of at least 0.5 m^2, in the middle of their triangle, none buried inside
-  another part), and for each sky with a sun, lines of closely spaced ground points across
-  the sun's shadow edges of the hall, the fence and the visitor centre (found by projecting
-  each object's vertices along the sun onto the ground: the far edge of the projected
-  outline).
+- **Scene** and **skies**: as ``benchmarks/radiance.py`` converts them (the build's meshes as
+  Lambertian polygons, the ground a 40 km square; gendaylit's Perez skies at the site) for a
+  clear, an intermediate and an overcast condition. daylit gets the same sky function sampled
+  into an equirectangular EXR as ``--env``, and the sun as ``--sun AZ,EL,DNI`` with
+  gendaylit's direction and DNI = the sun's radiance times its disc's solid angle.
+- **Points** (``benchmarks/fidelity_points.py``): grids over the ground and the real proxies'
+  walls, points on the models' own faces, and for each sky with a sun, lines of closely
+  spaced ground points across the sun's shadow edges of the hall, the fence and the visitor
+  centre.
 - **Radiance's answer**: ``rtrace -I`` (irradiance at the point with its normal, 2 mm off the
   surface), sky and sun rendered apart (Radiance is linear in its sources): the sky with
   ``-ab 1`` (direct) and ``-ab 2`` (plus one bounce); the sun's direct term with ``-ab 0 -dj
