@@ -429,10 +429,10 @@ def test_the_kiosk_view_s_clear_sky_with_bounce_surfaces_lit_on_their_tilt(brows
     median error within 8 % and at least 10 of the 18 within the issue's 10 %, the sun within
     10 % in every one. The bounce surfaces are lit by the model sky on their own tilt
     (phonepool.js skyBounceTerms; the server's tilted_irradiance): under this sky a wall facing
-    the sun gets far more than an isotropic sky's 0.5 of the horizontal irradiance, and the
-    shaded building's samples see such walls. On main (each bounce surface lit by an isotropic
+    the sun gets far more than an isotropic sky's 0.5 of the horizontal irradiance, and one
+    facing away less. On main (each bounce surface lit by an isotropic
     sky on its tilt) the median error was 11.2 % and 8 of 18 within 10 % (sky -12.6 to +21.2 %;
-    2026-12-06, docs/benchmarks.md); with the tilt 5.5 % and 11 of 18."""
+    2026-12-06, docs/benchmarks.md); with the tilt 5.6 % and 11 of 18."""
     frames = pose_frames(browser, web_build, KIOSK_POSE, [("clear-9.5", "9.5", 800.0, 80.0)],
                          tmp_path, server=False)
     sky = frames["clear-9.5"]

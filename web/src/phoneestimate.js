@@ -7,9 +7,10 @@
 //   L = rho / pi * (E_sun (cos_i in_sun + B_sun) + k (S + B_sky))
 // E_sun the sun's normal irradiance, k the sky's horizontal irradiance, S the model sky's
 // irradiance on the point per unit k over the directions it sees open sky, B one bounce off the
-// surfaces it sees instead (sunlit where the sun reaches them; lit by an isotropic sky on their
-// tilt). Linear in (E_sun, k): a few hundred pixels of the build's real proxies and ground,
-// some in sun and some in shadow, give both; people and wrong pixels are outliers of a robust
+// surfaces it sees instead (sunlit where the sun reaches them; lit by the model sky on their
+// own tilt, phonepool.js skyBounceTerms; an isotropic sky's in the isotropic column). Linear in
+// (E_sun, k): a few hundred pixels of the build's real proxies and ground, some in sun and
+// some in shadow, give both; people and wrong pixels are outliers of a robust
 // fit (RANSAC, then IRLS with Tukey's biweight on relative residuals, as server/robustfit.py).
 // As on the server, a pixel's in_sun is the share of the 3 x 3 about it in sun, and a sun the
 // fit finds is kept only if pairs of pixels across the model's shadow edges show it
@@ -99,9 +100,9 @@ export class PhoneEstimator {
     this.perezClear = true; // the clear sky's Perez fit (benchmarks switch it off for a baseline)
     // The shade top-up (phoneshade.js), off: measured on the demo's 40-light draft, at the
     // copy's 192 x 108 it read the kiosk view's clear sky at 9:30 higher (6 of 18 estimates
-    // within 10 % against 8 without) and let an overcast sun through there (38 % of the sky
-    // in 3 of 18), though it helped the visitor centre's clear sky (docs/benchmarks.md, "The
-    // phone's shade top-up"); debug.phoneEstimateParts switches it on for the benchmarks.
+    // within 10 % against 8 without) and let an overcast sun through there (38-40 % of the
+    // sky in 3 of 18), though it helped the visitor centre's clear sky (docs/benchmarks.md, "The
+    // phone's bounce surfaces on their tilt, and its shade top-up"); debug.phoneEstimateParts switches it on for the benchmarks.
     this.shadeTopUp = false;
     this.bounceOnTilt = true; // bounce surfaces lit by the model sky on their tilt (else isotropic)
   }
