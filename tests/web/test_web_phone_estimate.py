@@ -420,3 +420,45 @@ def test_a_thin_shadow_is_not_shade(browser, web_build, tmp_path):
     assert all(abs(sun) < 0.25 and abs(sky) < 0.25 for sun, sky in err["clear-9.5"]), err
     for read, geometry in shifts:
         np.testing.assert_allclose(read, geometry, atol=3.0, err_msg=str(shifts))
+
+
+def test_the_kiosk_view_s_clear_sky_with_bounce_surfaces_lit_on_their_tilt(browser, web_build,
+                                                                           tmp_path):
+    """The demo's kiosk view at 9:30 under Radiance's clear sky (gendaylit 800/80, rendered here
+    from the phone's pose), six pools (``phonePoolSeed`` 1-6) of three estimates each: the sky's
+    median error within 8 % and at least 10 of the 18 within the issue's 10 %, the sun within
+    10 % in every one. The bounce surfaces are lit by the model sky on their own tilt
+    (phonepool.js skyBounceTerms; the server's tilted_irradiance): under this sky a wall facing
+    the sun gets far more than an isotropic sky's 0.5 of the horizontal irradiance, and one
+    facing away less. On main (each bounce surface lit by an isotropic
+    sky on its tilt) the median error was 11.2 % and 8 of 18 within 10 % (sky -12.6 to +21.2 %;
+    2026-12-06, docs/benchmarks.md); with the tilt 5.6 % and 11 of 18."""
+    frames = pose_frames(browser, web_build, KIOSK_POSE, [("clear-9.5", "9.5", 800.0, 80.0)],
+                         tmp_path, server=False)
+    sky = frames["clear-9.5"]
+    rendered, exposure = sky["rendered"], sky["exposure"]
+    errors_sky, errors_sun = [], []
+    with _open(browser, web_build, sky["y4m"],
+               f"&sky=phone&time={rendered.when_unix_s}") as (page, _, errors):
+        standpoint, orientation = KIOSK_POSE
+        page.evaluate("(p) => window.daylit.debug.standAt(p)", standpoint)
+        orient(page, *orientation)
+        assert page.evaluate("window.daylit.debug.holdPhoneEstimates(true)")
+        for _ in range(2):  # the registration settles at the pose
+            page.evaluate("window.daylit.debug.phoneEstimate()")
+        for seed in range(1, 7):
+            page.evaluate("(s) => window.daylit.debug.phonePoolSeed(s)", seed)
+            for _ in range(3):
+                e = page.evaluate("window.daylit.debug.phoneEstimate()")
+                assert e is not None, seed
+                errors_sun.append(float(LUMA @ np.asarray(e["sunNormal"])) / exposure
+                                  / rendered.dni_w_m2 - 1.0)
+                errors_sky.append(float(LUMA @ np.asarray(e["skyHorizontal"])) / exposure
+                                  / rendered.dhi_w_m2 - 1.0)
+        assert not errors, errors
+    errors_sky, errors_sun = np.array(errors_sky), np.array(errors_sun)
+    print("kiosk 9:30 clear over six pools: sky", np.round(errors_sky, 3), "sun",
+          np.round(errors_sun, 3))
+    assert np.all(np.abs(errors_sun) < 0.10), errors_sun
+    assert np.median(np.abs(errors_sky)) < 0.08, errors_sky
+    assert np.sum(np.abs(errors_sky) < 0.10) >= 10, errors_sky

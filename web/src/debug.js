@@ -280,6 +280,19 @@ export function debugApi(app) {
       app.feed.phoneEstimator.perezClear = perezClear;
       app.feed.phoneEstimator.forgetPose();
     },
+    /** What the phone's last estimate read ({used, shaded, topUp, shadeSamples, types: [[CIE
+     * type, the fit's sun/sky ratio]...]}): why it made none. */
+    phoneEstimateWhy: () => app.feed.phoneEstimator?.why ?? null,
+    /** The phone estimate's shade top-up (phoneshade.js; off unless asked for) and its bounce
+     * surfaces lit by the model sky on their tilt (on unless asked off): the benchmarks'
+     * variants (both off is the estimate before 2026-12-06, later). Takes effect from the
+     * next estimate, with a new pool. */
+    phoneEstimateParts: ({ shadeTopUp = false, bounceOnTilt = true } = {}) => {
+      app.feed.phoneReader();
+      app.feed.phoneEstimator.shadeTopUp = !!shadeTopUp;
+      app.feed.phoneEstimator.bounceOnTilt = !!bounceOnTilt;
+      app.feed.phoneEstimator.forgetPose();
+    },
     /** Mean milliseconds of n phone estimates (the pose held: the pose's registration, pixels
      * and the fit), of n without the registration, and of one with the pool of the pose made
      * again; and of n picture meter readings, the same-run baseline (both read the video into

@@ -44,9 +44,10 @@ const SCRATCH_WEIGHTS = new Float32Array(SKY_GRID.dirs.length);
  * @param {number[]} farAlbedo the open ground past the proxies (the build's ground albedo)
  * @returns {object[]} samples {x, y, point, normal, albedo, skyCells: Uint16Array (the grid
  *   cells of open sky in front of it), skyWeight: Float32Array (their cos x sr), bounce:
- *   [{point|null, normal, albedo}] (of HEMISPHERE_RAYS cosine-distributed rays, those that
- *   meet a surface or the open ground below the horizon), patch: the (2 PATCH_PX + 1)^2 points
- *   about the pixel on its plane, skyView: the cosine-weighted open-sky fraction}
+ *   [{point|null, normal, albedo, tilt}] (of rays = HEMISPHERE_RAYS cosine-distributed rays,
+ *   those that meet a surface or the open ground below the horizon), patch: the
+ *   (2 PATCH_PX + 1)^2 points about the pixel on its plane, skyView: the cosine-weighted
+ *   open-sky fraction} (sampleAt)
  */
 export function poolForPose(proxies, camera, w, h, farAlbedo, seed = 1) {
   camera.updateMatrixWorld();
@@ -77,19 +78,6 @@ export function poolForPose(proxies, camera, w, h, farAlbedo, seed = 1) {
       }
     }
     if (!same) continue;
-    const start = add(point, n, SURFACE_OFFSET_M);
-    const [t1, t2] = tangents(n);
-    const bounce = [];
-    for (const l of cosineDirections(HEMISPHERE_RAYS, jitter)) { // this sample's own set
-      const dir = [0, 1, 2].map((c) => l[0] * t1[c] + l[1] * t2[c] + l[2] * n[c]);
-      const hit = proxies.cast(start, dir);
-      if (hit >= 0) {
-        bounce.push({ point: add(start, dir, proxies.hitT), normal: proxies.normalOf(hit), albedo: proxies.albedoOf(hit) });
-      } else if (dir[1] <= 0) {
-        bounce.push({ point: null, normal: [0, 1, 0], albedo: farAlbedo }); // the open ground far off
-      }
-    }
-    const { skyCells, skyWeight } = openSky(proxies, start, n);
     // the points seen through the patch's pixel centres, on the sample's plane (the corner
     // rays above keep the patch on it: server/scenesamples.py patch_points_m)
     const patch = [];
@@ -99,12 +87,40 @@ export function poolForPose(proxies, camera, w, h, farAlbedo, seed = 1) {
         patch.push(add(origin, dp, dot(sub(point, origin), n) / dot(dp, n)));
       }
     }
-    pool.push({
-      x, y, point, normal: n, albedo: proxies.albedoOf(tri), skyCells, skyWeight, bounce, patch,
-      skyView: skyWeight.reduce((s, v) => s + v, 0) / Math.PI,
-    });
+    pool.push(sampleAt(proxies, x, y, tri, point, patch, HEMISPHERE_RAYS, jitter, farAlbedo));
   }
   return pool;
+}
+
+/**
+ * A sample of pixel (x, y) that sees triangle `tri` at `point` (metres): what its hemisphere
+ * sees (server/scenesamples.py samples_at): its open sky on the fixed grid, and one bounce
+ * through `rays` cosine-distributed directions of its own (jittered by `jitter`, a seeded
+ * generator) off the surfaces they meet, or the open ground far off below the horizon.
+ * @param {number[][]} patch the points (metres) its sun share is read over
+ * @returns {object} {x, y, point, normal, albedo, skyCells, skyWeight, bounce: [{point|null,
+ *   normal, albedo, tilt: the surface's index in proxies.tilts, -1 the far ground}], rays,
+ *   patch, skyView} (poolForPose's samples)
+ */
+export function sampleAt(proxies, x, y, tri, point, patch, rays, jitter, farAlbedo) {
+  const n = proxies.normalOf(tri);
+  const start = add(point, n, SURFACE_OFFSET_M);
+  const [t1, t2] = tangents(n);
+  const bounce = [];
+  for (const l of cosineDirections(rays, jitter)) { // this sample's own set
+    const dir = [0, 1, 2].map((c) => l[0] * t1[c] + l[1] * t2[c] + l[2] * n[c]);
+    const hit = proxies.cast(start, dir);
+    if (hit >= 0) {
+      bounce.push({ point: add(start, dir, proxies.hitT), normal: proxies.normalOf(hit), albedo: proxies.albedoOf(hit), tilt: proxies.tiltOf[hit] });
+    } else if (dir[1] <= 0) {
+      bounce.push({ point: null, normal: [0, 1, 0], albedo: farAlbedo, tilt: -1 }); // the open ground far off
+    }
+  }
+  const { skyCells, skyWeight } = openSky(proxies, start, n);
+  return {
+    x, y, point, normal: n, albedo: proxies.albedoOf(tri), skyCells, skyWeight, bounce, rays, patch,
+    skyView: skyWeight.reduce((v, w) => v + w, 0) / Math.PI,
+  };
 }
 
 /** The sky grid's cells in front of a surface (unit normal n) open from `start` (a shadow ray
@@ -188,8 +204,8 @@ export function sunTerms(proxies, pool, sun) {
       const l = lit(b.point, b.normal);
       const tilt = 0.5 * (1 + b.normal[1]); // an isotropic sky on the bounce surface's tilt
       for (let c = 0; c < 3; c++) {
-        bSun[c] += b.albedo[c] * l / HEMISPHERE_RAYS;
-        bSky[c] += b.albedo[c] * tilt / HEMISPHERE_RAYS;
+        bSun[c] += b.albedo[c] * l / s.rays;
+        bSky[c] += b.albedo[c] * tilt / s.rays;
       }
     }
     const share = s.patch.reduce((acc, p) => acc + (lit(p, s.normal) > 0 ? 1 : 0), 0) / s.patch.length;
@@ -212,6 +228,50 @@ export function skyTerms(pool, sky) {
     let sum = 0;
     for (let k = 0; k < s.skyCells.length; k++) sum += s.skyWeight[k] * rel[s.skyCells[k]];
     return sum / open;
+  });
+}
+
+/**
+ * Per sample, the one bounce per unit open horizontal irradiance of the model sky (RGB): the
+ * mean over its bounce rays of the albedo times the sky's irradiance on the bounce surface's
+ * own tilt, unobstructed and nothing from below the horizon (server/sceneestimate.py
+ * _sky_term_of, tilted_irradiance); an isotropic sky gives sunTerms' bSky. Under an overcast
+ * sky three times as bright at the zenith as at the horizon a wall gets about 0.4 of the
+ * horizontal irradiance, not 0.5; under a clear sky a wall facing the sun much more.
+ * The tilt's irradiance is summed on the pool's sky grid, once per distinct normal.
+ * @param {object[]} samples (m) with bounce [{albedo, tilt}] and rays (sampleAt)
+ * @param {{rel: (d: number[]) => number}} sky a relative radiance (skyshape.js unitSky)
+ * @param {number[][]} tilts (u, 3) the unit normals bounce.tilt indexes (proxies.tilts)
+ * @returns {number[][]} (m, 3)
+ */
+export function skyBounceTerms(samples, sky, tilts) {
+  const { dirs, sr } = SKY_GRID;
+  const weight = new Float64Array(dirs.length); // rel x sr per cell
+  let open = 0;
+  dirs.forEach((d, g) => {
+    weight[g] = sky.rel(d) * sr[g];
+    open += d[1] * weight[g];
+  });
+  const onTilt = new Float64Array(tilts.length).fill(NaN); // only the tilts some bounce meets
+  const irradiance = (k) => {
+    if (Number.isNaN(onTilt[k])) {
+      const n = tilts[k];
+      let sum = 0;
+      for (let g = 0; g < dirs.length; g++) {
+        const c = n[0] * dirs[g][0] + n[1] * dirs[g][1] + n[2] * dirs[g][2];
+        if (c > 0) sum += c * weight[g];
+      }
+      onTilt[k] = sum / open;
+    }
+    return onTilt[k];
+  };
+  return samples.map((s) => {
+    const out = [0, 0, 0];
+    for (const b of s.bounce) {
+      const e = b.tilt < 0 ? 1 : irradiance(b.tilt); // the far ground: an open horizontal plane
+      for (let c = 0; c < 3; c++) out[c] += b.albedo[c] * e / s.rays;
+    }
+    return out;
   });
 }
 

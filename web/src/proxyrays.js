@@ -51,6 +51,21 @@ export class Proxies {
       }
     });
     this.groups = groups.map(({ first, last, box }) => ({ first, last, lo: box.min.toArray(), hi: box.max.toArray() }));
+    // The distinct normals (tilts, (u, 3)) and each triangle's index among them (tiltOf, (t,)):
+    // a sky's irradiance on a bounce surface's tilt is found once per tilt (phonepool.js
+    // skyBounceTerms), not once per bounce.
+    this.tilts = [];
+    this.tiltOf = new Int32Array(t);
+    const seen = new Map();
+    for (let i = 0; i < t; i++) {
+      const n = this.normalOf(i);
+      const key = n.map((v) => v.toFixed(6)).join(' ');
+      if (!seen.has(key)) {
+        seen.set(key, this.tilts.length);
+        this.tilts.push(n);
+      }
+      this.tiltOf[i] = seen.get(key);
+    }
     this.hitT = 0; // the last cast's distance
   }
 

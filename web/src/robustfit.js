@@ -23,16 +23,21 @@ export const SUN_CONTRAST = 0.15;
  *   across estimates by the caller: one picture's samples determine it poorly)
  * @param {boolean} [allowSun] false: the sky alone (the shadow-edge pairs read no sun,
  *   shadowpairs.js), fitted as under the overcast test
+ * @param {number[]|null} [groups] (n) 0 or 1: samples of group 1 (the single pixels of the
+ *   shade top-up, phoneshade.js) start as inliers and have their own residual scale (as
+ *   server/shapefit.py: judged on the pool's scale nearly all of them were dropped and the
+ *   few kept set the sky)
  * @returns {{sun: number[], sky: number[], weights: number[], share: number}}
  */
-export function robustFit(values, sunCol, skyCol, isoCol, rand, overcast = false, follow = (x) => x, allowSun = true) {
+export function robustFit(values, sunCol, skyCol, isoCol, rand, overcast = false, follow = (x) => x, allowSun = true, groups = null) {
   const sum = (r) => r[0] + r[1] + r[2];
   const a = sunCol.map(sum);
   const c = skyCol.map(sum);
   const u = isoCol.map(sum);
   const y = values.map(sum);
-  const inliers = ransacInliers(a, c, y, rand).map((ok) => (ok ? 1 : 0));
-  const { x, w } = irls([a, c, u], y, inliers);
+  const group = groups ?? y.map(() => 0);
+  const inliers = ransacInliers(a, c, y, rand).map((ok, i) => (ok || group[i] === 1 ? 1 : 0));
+  const { x, w } = irls([a, c, u], y, inliers, group);
   const share = follow(x[1] + x[2] > 0 ? x[1] / (x[1] + x[2]) : 1);
   const blend = skyCol.map((r, i) => r.map((v, ch) => share * v + (1 - share) * isoCol[i][ch]));
   const sun = [0, 0, 0];
@@ -48,7 +53,7 @@ export function robustFit(values, sunCol, skyCol, isoCol, rand, overcast = false
     // the residuals with the sun's fit's weights favours the sun: the shaded samples the sky
     // model gets wrong are that fit's outliers, and a small sun then fits the rest.)
     const b = blend.map(sum);
-    const { w: w2 } = irls([b], y, inliers.map(() => 1));
+    const { w: w2 } = irls([b], y, inliers.map(() => 1), group);
     const skyOnly = [0, 1, 2].map((ch) => nonneg([channel(blend, ch)], channel(values, ch), w2)[0]);
     const q = y.map((v, i) => v / Math.max([0, 1, 2].reduce((t, ch) => t + skyOnly[ch] * blend[i][ch], 0), 1e-12));
     const top = Math.max(...a);
@@ -65,10 +70,14 @@ export function robustFit(values, sunCol, skyCol, isoCol, rand, overcast = false
 
 
 /** IRLS with Tukey's biweight on residuals relative to the fit (server/robustfit.py):
- * y ~ sum_j x_j cols[j], x >= 0, from the weights w0; returns x and the final weights. */
-function irls(cols, y, w0, iterations = 12, tukey = 4.685) {
+ * y ~ sum_j x_j cols[j], x >= 0, from the weights w0; returns x and the final weights. Each
+ * of `groups`' (n) values has its own residual scale (the median absolute deviation of its
+ * samples'), so that one group's noise does not make the other's samples outliers. */
+function irls(cols, y, w0, groups = null, iterations = 12, tukey = 4.685) {
   let w = w0.slice();
   let x = cols.map(() => 0);
+  const group = groups ?? y.map(() => 0);
+  const names = [...new Set(group)];
   const floor = 1e-9 + 0.02 * median(y.map(Math.abs));
   for (let it = 0; it < iterations; it++) {
     x = nonneg(cols, y, w);
@@ -76,10 +85,12 @@ function irls(cols, y, w0, iterations = 12, tukey = 4.685) {
       const fit = cols.reduce((s, col, j) => s + col[i] * x[j], 0);
       return (v - fit) / Math.max(Math.abs(fit), floor);
     });
-    const good = rel.filter((_, i) => w[i] > 0).map(Math.abs);
-    const scale = Math.max(good.length ? 1.4826 * median(good) : 1, 0.01);
-    w = rel.map((r) => {
-      const t = r / (tukey * scale);
+    const scales = new Map(names.map((g) => {
+      const good = rel.filter((_, i) => w[i] > 0 && group[i] === g).map(Math.abs);
+      return [g, Math.max(good.length ? 1.4826 * median(good) : 1, 0.01)];
+    }));
+    w = rel.map((r, i) => {
+      const t = r / (tukey * scales.get(group[i]));
       return Math.abs(t) < 1 ? (1 - t * t) ** 2 : 0;
     });
   }

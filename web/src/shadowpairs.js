@@ -94,8 +94,8 @@ export function pairSun(radianceShaded, radianceLit, skyShaded, skyLit, sunShade
  * PhoneEstimator: its pool, pairs, sun and sky terms, and readSample, which reads and skips
  * pixels as the estimate does, at the registration's `shift`): server/shadowpairs.py
  * pair_sun_ratio. The pairs' small sky differences come from the overcast sky brighter toward
- * the sun (PAIR_SKY_TYPE), the bounce surfaces lit by an isotropic sky on their tilt (as in
- * the phone's fit), with the stated albedos.
+ * the sun (PAIR_SKY_TYPE), the bounce surfaces lit by that sky on their tilt (as in the
+ * phone's fit), with the stated albedos.
  * @returns {number|null} null with fewer than MIN_PAIRS usable pairs
  */
 export function pairSunRatio(est, rgba, w, h, shift, sun, skyRgb) {
@@ -103,11 +103,11 @@ export function pairSunRatio(est, rgba, w, h, shift, sun, skyRgb) {
   if (shaded.length < MIN_PAIRS) return null;
   const pool = est.pool;
   const terms = est._sunTerms;
-  const { terms: skyTerm } = est._skyFor(PAIR_SKY_TYPE, sun);
+  const { terms: skyTerm, bounce } = est._skyFor(PAIR_SKY_TYPE, sun);
   const model = (i) => {
     const a = pool[i].albedo.map((v) => v / Math.PI);
     return {
-      sky: [0, 1, 2].map((c) => a[c] * (skyTerm[i] + terms[i].bSky[c]) * skyRgb[c]),
+      sky: [0, 1, 2].map((c) => a[c] * (skyTerm[i] + bounce[i][c]) * skyRgb[c]),
       sun: [0, 1, 2].map((c) => a[c] * (terms[i].cosI + terms[i].bSun[c])),
     };
   };
