@@ -227,7 +227,7 @@ def kiosk_clear_own_size(demo_draft_build):
     the clear sky at 9:30, rendered once by Radiance without the ambient cache (about 2-5 min
     with one process): (rendered, sun direction, estimator arguments). 268 pixels are wholly
     in the model's shadow there (17 at 320x180)."""
-    from benchmarks.bench_fidelity import SkySpec
+    from benchmarks.radiance import SkySpec
     from daylit import manifest as manifest_io
     from daylit.sun import sun_position
     from server.scenemeter import real_proxies
@@ -274,7 +274,7 @@ def test_the_shade_search_near_the_parts_finds_what_casting_every_pixel_finds(
     over the day, the pixels wholly in shadow are those found by casting every pixel's ray."""
     import dataclasses
 
-    from benchmarks.bench_fidelity import SkySpec
+    from benchmarks.radiance import SkySpec
     from daylit import manifest as manifest_io
     from daylit.sun import sun_position
     from server.sceneestimate import PinholeView, intersector
