@@ -14,7 +14,10 @@ render's) through the camera model (noise, JPEG 85) of ``tests/radiance_frames.p
 Timed per estimator (``--repeats``, median, the two interleaved): ``SceneEstimator.estimate``
 on a linear frame after a warm-up (the per-view pool and the per-sun casts done); and, once,
 the pool's preparation and the first estimate (which casts the sun's rays, and for the kiosk
-on this checkout finds the shaded pixels of the whole view).
+on this checkout finds the shaded pixels of the whole view); and (``--moves``, median) an
+estimate just after the sun moved 0.06 degrees, past ``sun_cache_deg`` (the pool's sun rays
+cast again and, where the view is topped up with shade, the shaded pixels found again and
+their samples prepared).
 
 Usage::
 
@@ -95,6 +98,8 @@ def main() -> None:
     parser.add_argument("--baseline-repo", type=Path)
     parser.add_argument("--repeats", type=int, default=20)
     parser.add_argument("--samples", type=int, default=500)
+    parser.add_argument("--moves", type=int, default=5,
+                        help="estimates timed just after a sun move of 0.06 degrees")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
     classes = {"this": estimator_class(None)}
@@ -119,17 +124,32 @@ def main() -> None:
                 t0 = time.perf_counter()
                 est.estimate(linear, sun, per_unit, clip_level=0.99)
                 times[label].append(time.perf_counter() - t0)
+        moved = {label: [] for label in classes}
+        axis = np.cross(sun, [0.0, 1.0, 0.0])
+        axis /= np.linalg.norm(axis)
+        for k in range(1, args.moves + 1):
+            # rotated about a horizontal axis: the sun's elevation 0.06 degrees lower each move
+            a = np.radians(0.06 * k)
+            sun_k = sun * np.cos(a) + np.cross(axis, sun) * np.sin(a) + axis * (
+                axis @ sun) * (1.0 - np.cos(a))
+            for label, est in ests.items():
+                t0 = time.perf_counter()
+                est.estimate(linear, sun_k, per_unit, clip_level=0.99)
+                moved[label].append(time.perf_counter() - t0)
         for label in classes:
             ms = 1e3 * float(np.median(times[label]))
+            move_s = float(np.median(moved[label])) if moved[label] else float("nan")
             pool_s, first_s, light = once[label]
             row = {"view": name, "estimator": label, "size": f"{view.width}x{view.height}",
                    "estimate_ms_median": ms, "estimates_per_s": 1e3 / ms,
                    "pool_prepare_s": pool_s, "first_estimate_s": first_s,
+                   "after_sun_move_s": move_s,
                    "shaded_samples": int(getattr(light, "shaded", -1))}
             rows.append(row)
             print(f"{name:10s} {label:9s} {row['size']}  {ms:7.1f} ms  "
                   f"{row['estimates_per_s']:5.1f}/s  pool {pool_s:5.2f} s  "
-                  f"first estimate {first_s:5.2f} s  shaded samples {row['shaded_samples']}",
+                  f"first estimate {first_s:5.2f} s  after a sun move {move_s:5.2f} s  "
+                  f"shaded samples {row['shaded_samples']}",
                   flush=True)
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))

@@ -17,6 +17,11 @@ read alone, not as a patch (its neighbours may lie on other faces of other tilts
 model is its own centre's: the surface point, normal, open sky and bounce of
 ``server.scenesamples.samples_at``.
 
+Only pixels near the model's shadow are cast against the mesh: those in the image of a bounding
+box of one of the mesh's connected parts (:func:`part_boxes`) swept away from the sun
+(:func:`box_reach_mask`) and no higher than its top. A ray from any other pixel misses every
+box, so every face: the pixels found are the same as casting every pixel's ray.
+
 Directions are site-frame unit vectors (+X east, +Y up, -Z north).
 """
 
@@ -24,6 +29,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 import trimesh
 
@@ -38,12 +44,71 @@ class ViewHits:
 
     face : (H, W) int, the face through each pixel's centre, -1 for none (or one seen from
     behind or at a grazing angle); points_m : (H, W, 3) site points (NaN where none);
-    normals : (H, W, 3) unit face normals.
+    normals : (H, W, 3) unit face normals; boxes_m : (B, 2, 3) the mesh's parts' bounding
+    boxes (:func:`part_boxes`) and view : the view, or None: every sunward pixel is cast.
     """
 
     face: np.ndarray
     points_m: np.ndarray
     normals: np.ndarray
+    boxes_m: np.ndarray | None = None
+    view: PinholeView | None = None
+
+
+# Bounding boxes are grown by this much (m) so that a ray grazing a box's face in floating point
+# is still cast.
+BOX_PAD_M = 1e-3
+
+
+def part_boxes(mesh: trimesh.Trimesh) -> np.ndarray:
+    """(B, 2, 3) min and max corners (site m) of the mesh's connected parts (faces sharing
+    edges), each grown by ``BOX_PAD_M``."""
+    parts = trimesh.graph.connected_components(mesh.face_adjacency,
+                                               nodes=np.arange(len(mesh.faces)))
+    corners = [mesh.vertices[mesh.faces[np.asarray(part, int)]].reshape(-1, 3)
+               for part in parts]
+    return np.array([[c.min(axis=0) - BOX_PAD_M, c.max(axis=0) + BOX_PAD_M]
+                     for c in corners]).reshape(-1, 2, 3)
+
+
+def sunward_near_parts(hits: ViewHits, view: PinholeView, idx: np.ndarray, start_m: np.ndarray,
+                       sun_dir: np.ndarray) -> np.ndarray:
+    """(k,) bool of the pixels ``idx`` (k, 2) (row, column) whose rays from ``start_m``
+    (k, 3) toward the unit ``sun_dir`` (3,; up) could meet a face: they start no higher than
+    the top of a part's box (:func:`part_boxes`; a ray toward the sun climbs) and in the image
+    of that box swept along ``-sun_dir`` down to below every start (a convex solid: its image
+    is the convex hull of its 16 corners' images), grown by a pixel. A box partly behind the
+    camera, or far outside the image, reaches every pixel. Every other ray misses every face.
+    """
+    sun_dir = np.asarray(sun_dir, float)
+    height, width = view.height, view.width
+    start_y = np.full((height, width), np.inf)
+    start_y[idx[:, 0], idx[:, 1]] = start_m[:, 1]
+    floor_y = float(min(start_m[:, 1].min(), hits.boxes_m[:, 0, 1].min())) - 1.0
+    rot, eye = view.world_from_camera[:3, :3], view.world_from_camera[:3, 3]
+    near = np.zeros((height, width), bool)
+    limit = 1e5  # pixels: a hull beyond this is not rasterised (int overflow): all reached
+    for lo, hi in hits.boxes_m:
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                            for z in (lo[2], hi[2])])
+        drop = (corners[:, 1] - floor_y) / sun_dir[1]
+        cam = (np.vstack([corners, corners - drop[:, None] * sun_dir]) - eye) @ rot
+        uv = (cam @ view.K.T)[:, :2] / np.maximum(cam[:, 2:3], 1e-12) - 0.5  # centres at ints
+        if np.any(cam[:, 2] <= 1e-6) or np.any(np.abs(uv) > limit):
+            near |= start_y <= hi[1]
+            continue
+        x0, y0 = (max(int(np.floor(v)) - 1, 0) for v in uv.min(axis=0))
+        x1, y1 = (int(np.ceil(v)) + 2 for v in uv.max(axis=0))
+        x1, y1 = min(x1, width), min(y1, height)
+        if x0 >= x1 or y0 >= y1:
+            continue
+        # rasterised in the box's own rectangle of the image, a pixel's margin about it
+        local = np.zeros((y1 - y0 + 2, x1 - x0 + 2), np.uint8)
+        pts = np.round((uv - [x0 - 1, y0 - 1]) * 16.0).astype(np.int32)
+        cv2.fillConvexPoly(local, cv2.convexHull(pts), 1, lineType=cv2.LINE_8, shift=4)
+        local = cv2.dilate(local, np.ones((3, 3), np.uint8))[1:-1, 1:-1].astype(bool)
+        near[y0:y1, x0:x1] |= local & (start_y[y0:y1, x0:x1] <= hi[1])
+    return near[idx[:, 0], idx[:, 1]]
 
 
 def view_hits(mesh: trimesh.Trimesh, view: PinholeView, hit) -> ViewHits:
@@ -62,7 +127,7 @@ def view_hits(mesh: trimesh.Trimesh, view: PinholeView, hit) -> ViewHits:
     points[~front] = np.nan
     shape = (view.height, view.width)
     return ViewHits(face.reshape(shape), points.reshape(shape + (3,)),
-                    normals.reshape(shape + (3,)))
+                    normals.reshape(shape + (3,)), part_boxes(mesh), view)
 
 
 def wholly_shaded_pixels(hits: ViewHits, hit, sun_dir: np.ndarray, margin_px: int = 1,
@@ -81,6 +146,10 @@ def wholly_shaded_pixels(hits: ViewHits, hit, sun_dir: np.ndarray, margin_px: in
     idx = np.argwhere(facing)
     start = hits.points_m[idx[:, 0], idx[:, 1]] + SURFACE_OFFSET_M * hits.normals[
         idx[:, 0], idx[:, 1]]
+    if hits.boxes_m is not None and hits.view is not None and len(idx):
+        # a ray that meets no part's box meets no face: only the rest are cast
+        near = sunward_near_parts(hits, hits.view, idx, start, sun_dir)
+        idx, start = idx[near], start[near]
     blocked = hit.intersects_any(start, np.broadcast_to(sun_dir, start.shape))
     shaded[idx[blocked, 0], idx[blocked, 1]] = True
     wholly = shaded.copy()

@@ -216,3 +216,90 @@ def test_the_kiosk_view_says_when_its_shade_cannot_separate_the_sky(kiosk_clear)
         sun_err = _grey(light.sun_normal_irradiance) / rendered.dni_w_m2 - 1.0
         assert abs(sun_err) < 0.10, (seed, sun_err, light)
         assert not light.sky_separable, (seed, light)
+
+
+KIOSK_OWN_SIZE = (640, 360)  # the kiosk view's own size (scenes/demo/scene.toml)
+
+
+@pytest.fixture(scope="module")
+def kiosk_clear_own_size(demo_draft_build):
+    """The kiosk view at its own 640x360 (the draft build's view, 320x180, scaled up) under
+    the clear sky at 9:30, rendered once by Radiance without the ambient cache (about 2-5 min
+    with one process): (rendered, sun direction, estimator arguments). 268 pixels are wholly
+    in the model's shadow there (17 at 320x180)."""
+    from benchmarks.radiance import SkySpec
+    from daylit import manifest as manifest_io
+    from daylit.sun import sun_position
+    from server.scenemeter import real_proxies
+    from tests.radiance_frames import ACCURATE_CAMERA_RAYS, render_build_view
+
+    manifest = manifest_io.load(demo_draft_build)
+    mesh, albedo = real_proxies(demo_draft_build, manifest)
+    ground = float(np.mean(manifest["ground"]["albedo"]))
+    scene = manifest["scene"]
+    dni, dhi = SKIES["clear"]
+    rendered, view = render_build_view(
+        demo_draft_build, SkySpec("clear", 10, 15, "9.5", dni, dhi), *KIOSK_OWN_SIZE,
+        procs=1, rays=ACCURATE_CAMERA_RAYS)
+    sun = sun_position(scene["latitude_deg"], scene["longitude_deg"], scene["elevation_m"],
+                       [rendered.when_unix_s]).direction[0]
+    return rendered, sun, {"mesh": mesh, "face_albedo": albedo, "view": view,
+                           "environment_albedo": ground}
+
+
+@pytest.mark.slow
+def test_the_kiosk_view_at_its_own_size_meets_the_goal_at_930(kiosk_clear_own_size):
+    """At its own 640x360 the kiosk view at 9:30 holds the issue's goal that it misses at half
+    the size (the test above): the sun and the sky within 10 %, from a couple of hundred
+    samples wholly in shade, and the estimate says the sky is separable. main already met it
+    (over 40 streams: the sky at most 6.5 % off, the sun 0.4 %, its standard error 0.6-0.9 %;
+    docs/benchmarks.md): this holds the goal at the view's real size."""
+    from server.sceneestimate import SceneEstimator
+    from tests.radiance_frames import last_estimate
+
+    rendered, sun, kwargs = kiosk_clear_own_size
+    for seed in SEEDS:
+        light = last_estimate(SceneEstimator(**kwargs, seed=seed), rendered, sun, seed, FRAMES)
+        sky = _grey(light.sky_horizontal_irradiance) / rendered.dhi_w_m2 - 1.0
+        sun_err = _grey(light.sun_normal_irradiance) / rendered.dni_w_m2 - 1.0
+        assert light.shaded >= 150 and light.sky_separable, (seed, light)
+        assert abs(sky) < 0.10, (seed, sky, light)
+        assert abs(sun_err) < 0.10, (seed, sun_err, light)
+
+
+def test_the_shade_search_near_the_parts_finds_what_casting_every_pixel_finds(
+        demo_draft_build):
+    """The shade search casts only the pixels whose ray toward the sun could meet a part's
+    bounding box (``server.shadepool.sunward_near_parts``): on the kiosk view at its own size,
+    over the day, the pixels wholly in shadow are those found by casting every pixel's ray."""
+    import dataclasses
+
+    from benchmarks.radiance import SkySpec
+    from daylit import manifest as manifest_io
+    from daylit.sun import sun_position
+    from server.sceneestimate import PinholeView, intersector
+    from server.scenemeter import real_proxies
+    from server.shadepool import view_hits, wholly_shaded_pixels
+    from tests.radiance_frames import local_time
+
+    manifest = manifest_io.load(demo_draft_build)
+    mesh, _ = real_proxies(demo_draft_build, manifest)
+    scene = manifest["scene"]
+    first = PinholeView.from_manifest(manifest["views"][0])
+    s = KIOSK_OWN_SIZE[0] / first.width
+    view = PinholeView(np.diag([s, s, 1.0]) @ first.K, first.world_from_camera,
+                       *KIOSK_OWN_SIZE)
+    hit = intersector(mesh)
+    hits = view_hits(mesh, view, hit)
+    every = dataclasses.replace(hits, boxes_m=None)
+    found = 0
+    for hour in np.arange(7.0, 17.01, 0.5):
+        when = local_time(SkySpec("clear", 10, 15, str(hour), 800.0, 80.0), scene["timezone"])
+        sun = sun_position(scene["latitude_deg"], scene["longitude_deg"],
+                           scene["elevation_m"], [when]).direction[0]
+        for margin in (0, 1):
+            near = wholly_shaded_pixels(hits, hit, sun, margin_px=margin)
+            assert np.array_equal(near, wholly_shaded_pixels(every, hit, sun,
+                                                             margin_px=margin)), (hour, margin)
+            found += len(near)
+    assert found > 1000
