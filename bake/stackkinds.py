@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from bake.compact_reader import CompactReader
-from bake.compress import Settings, compress_stack
+from bake.compress import Settings, compress_stack, settle_v_dtype
 from bake.lowrank import Spectrum, floored_gain, ratio_rank, rms_rank, texel_means
 from bake.refinement import RatioRefinement
 from bake.rowstore import as_stack, let_go, release_freed_memory, row_block, valid_rows
@@ -186,18 +186,27 @@ def compress_ratio_pair(I, d, names, out_dir, skies, S, S_inv, selection, settin
         return (d - delta for d, delta in zip(spec_d.absolute_truths(skies),
                                               spec_delta.absolute_truths(skies), strict=True))
 
-    for stack, references, rebuild in (
-        (d_stack, spec_d.absolute_truths(skies), lambda r: readers["d"].composite(r, selection)),
-        (
-            delta_stack,
-            i_true(),
-            lambda r: (
-                readers["d"].composite(r, selection)
-                - readers["delta"].composite(r, selection)
+    def judge():
+        for stack, references, rebuild in (
+            (d_stack, spec_d.absolute_truths(skies),
+             lambda r: readers["d"].composite(r, selection)),
+            (
+                delta_stack,
+                i_true(),
+                lambda r: (
+                    readers["d"].composite(r, selection)
+                    - readers["delta"].composite(r, selection)
+                ),
             ),
-        ),
-    ):
-        record_errors(stack.entry, references, lambda r, f=rebuild: f(r)[valid], skies)
+        ):
+            record_errors(stack.entry, references, lambda r, f=rebuild: f(r)[valid], skies)
+
+    judge()
+    # V in float16 unless it puts I or d over the budget where float32 does better (both
+    # stacks' V together: I is read as d's composite minus delta's).
+    settle_v_dtype([(d_stack.entry, d_stack.factors.V, readers["d"]),
+                    (delta_stack.entry, delta_stack.factors.V, readers["delta"])],
+                   out_dir, settings.budget, judge)
     spec_d.remove()
     spec_delta.remove()
     return delta_stack, d_stack
