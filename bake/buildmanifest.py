@@ -18,8 +18,10 @@ def build_manifest(site, dome, nodes, atlases, views, compressor, bake_info) -> 
         # 2 since a stack's base layers may be split into a UASTC and an ETC1S array
         # (compact.etc1s), which a version-1 client would not sum; 3 since neighbouring
         # sun-path patches share one sun-bounce image (lights.image), which a version-2
-        # client would ask for under each patch's own name (docs/manifest.md).
-        "version": 3,
+        # client would ask for under each patch's own name; 4 since a stack's V may be
+        # float16 (compact.v.dtype), which a version-3 client would read as float32
+        # (docs/manifest.md).
+        "version": 4,
         "scene": {
             "id": site.scene_id,
             "name": site.name,

@@ -35,6 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
+from bake.compact_reader import V_DTYPES
+
 KTX2_ID = b"\xabKTX 20\xbb\r\n\x1a\n"
 UASTC_BLOCK_BYTES = 16  # one 4 x 4 block
 ZSTD_SCHEME = 2
@@ -123,12 +125,15 @@ def write_coarse_stack(build_dir: Path, key: str, compact: dict,
     out.mkdir(exist_ok=True)
     (out / f"{key}.ktx2").write_bytes(cut)
     rows, k = compact["v"]["shape"]
-    V = np.fromfile(build_dir / compact["v"]["path"], dtype="<f4").reshape(rows, k)
+    # The first kc columns of V, stored as the stack's V is (type and scale: the same values).
+    stored = {key: value for key, value in compact["v"].items() if key in ("dtype", "scale")}
+    dtype = V_DTYPES[stored.get("dtype", "float32-le")]
+    V = np.fromfile(build_dir / compact["v"]["path"], dtype=dtype).reshape(rows, k)
     kc = 1 + max(layer["coefficient"] for layer in compact["layers"][:n])
     np.ascontiguousarray(V[:, :kc]).tofile(out / f"{key}.V.bin")
     return {"ktx2": f"{COARSE_DIR}/{key}.ktx2", "layers": n,
             "v": {"path": f"{COARSE_DIR}/{key}.V.bin", "shape": [rows, kc],
-                  "dtype": "float32-le"}}
+                  "dtype": "float32-le", **stored}}
 
 
 def add_coarse_entries(build_dir: Path, atlases: list[dict],

@@ -12,6 +12,50 @@ import numpy as np
 from bake.ktx2decoder import decode
 from daylit.selection import Selection
 
+# A compact stack's ``v.dtype`` and the numpy type its file holds: float32 always before
+# manifest version 4 (2026-12-06), float16 since (bake.compress.settle_v_dtype keeps float32
+# where float16 would put a stack over its budget).
+V_DTYPES = {"float32-le": "<f4", "float16-le": "<f2"}
+HALF_TOP_EXPONENT = 14  # a float16 V's largest |value| / scale is in [2^14, 2^15)
+
+
+def half_scale(V: np.ndarray) -> float:
+    """The power of two ``scale`` a float16 V (n, k) is stored divided by: its largest
+    magnitude then in [2^14, 2^15), below float16's largest finite value (65504), and its
+    entries down to 2^-29 of it normal numbers, each rounded to 2^-11 of itself whatever the
+    stack's units (the demo's V are at most 0.002-0.2: without a scale 4-25 % of its entries
+    would be float16 subnormals, rounded to 3e-8 absolute). A power of two: dividing and
+    multiplying by it is exact."""
+    top = float(np.abs(V).max(initial=0.0))
+    if not np.isfinite(top) or top == 0.0:
+        return 1.0
+    return float(2.0 ** (int(np.floor(np.log2(top))) - HALF_TOP_EXPONENT))
+
+
+def stored_v(V: np.ndarray, dtype: str, scale: float = 1.0) -> np.ndarray:
+    """V (n, k) float32 as it reads back from a file of type ``dtype`` holding ``V / scale``
+    (:func:`read_v`)."""
+    stored = (np.asarray(V, dtype=np.float32) / np.float32(scale)).astype(V_DTYPES[dtype])
+    return stored.astype(np.float32) * np.float32(scale)
+
+
+def write_v(path: Path, V: np.ndarray, dtype: str) -> dict:
+    """Write V (n, k) to ``path`` in ``dtype`` (float16: divided by :func:`half_scale`);
+    returns the entry's ``dtype`` and, for float16, ``scale``."""
+    scale = half_scale(V) if dtype == "float16-le" else 1.0
+    (np.asarray(V, dtype=np.float32) / np.float32(scale)).astype(V_DTYPES[dtype]).tofile(path)
+    return {"dtype": dtype, **({"scale": scale} if dtype == "float16-le" else {})}
+
+
+def read_v(build_dir: Path, v: dict) -> np.ndarray:
+    """A stack's V (n, k) float32 from its manifest entry ``v`` (``path``, ``shape``,
+    ``dtype``, ``scale``): the file's values, float16 widened exactly, times ``scale``
+    (default 1; a power of two, so exact)."""
+    n, k = v["shape"]
+    dtype = V_DTYPES[v.get("dtype", "float32-le")]
+    values = np.fromfile(Path(build_dir) / v["path"], dtype=dtype).reshape(n, k)
+    return values.astype(np.float32) * np.float32(v.get("scale", 1.0))
+
 
 class CompactReader:
     """Evaluates a stack from its compact files exactly as the client does (for checks,
@@ -26,8 +70,7 @@ class CompactReader:
         self.entry = entry
         self.shape = shape
         if "v" in entry:
-            n, k = entry["v"]["shape"]
-            self.V = np.fromfile(self.dir / entry["v"]["path"], dtype="<f4").reshape(n, k)
+            self.V = read_v(self.dir, entry["v"])
         else:
             self.V = np.zeros((len(entry["lights"]["scale"]), 0))
         self._base = None
@@ -64,7 +107,8 @@ class CompactReader:
     def decoded(cls, build_dir: Path, entry: dict, shape: tuple[int, int], V: np.ndarray,
                 raw: list[np.ndarray]) -> CompactReader:
         """A reader of a stack whose base is not written (bake.compress tries its ETC1S
-        splits in memory): ``V`` (n, k) float32 as it would be written, ``raw`` its base
+        splits in memory): ``V`` (n, k) float32 as it would be read back (float16-rounded
+        where it is written so: bake.compress.stored_v), ``raw`` its base
         layers' decoded bytes in the order of ``entry["layers"]`` (each (H, W, 4) uint8);
         the lights and the gain are read from ``build_dir`` as usual. The same composite,
         to the bit, as a reader of the files that decode to those bytes."""

@@ -45,7 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from bake.basisu import encode
-from bake.compact_reader import CompactReader
+from bake.compact_reader import CompactReader, half_scale, stored_v, write_v
 from bake.ktx2decoder import decode
 from bake.lowrank import (
     Factors,
@@ -230,7 +230,10 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
       ``etc1s``; its layers follow the first array's in ``layers``);
     - ``ktx2/<name>.L<i>.ktx2`` and ``ktx2/<name>.L<i>r.ktx2``: light ``i``'s own
       (normalized) image and its refinement, for each selectable light ``i``;
-    - ``v/<name>.V.bin``: V, n x k float32, little-endian, row-major.
+    - ``v/<name>.V.bin``: V, n x k, little-endian, row-major: float16, divided by a power of
+      two (the entry's ``v.scale``, bake.compact_reader.half_scale), since 2026-12-06
+      (manifest version 4); float32 where float16 put the stack over the budget on a test
+      sky and float32 did better (:func:`settle_v_dtype`).
 
     Refinement (two-stage quantization): a texture is encoded, decoded, and what the codec
     and the 8-bit quantization lost is encoded again with its own, much smaller range. The
@@ -257,6 +260,9 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
     else:
         k, errors = rank, {}
     f = factors(spectrum, k, S, S_inv, errors)
+    # V in float16 (settle_v_dtype below may keep float32): the splits are judged with V as
+    # the client will read it.
+    dtype = "float16-le"
     (out_dir / "ktx2").mkdir(exist_ok=True)
     (out_dir / "v").mkdir(exist_ok=True)
 
@@ -354,7 +360,8 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
             predicted = {"layers": _layer_entries(base_q, [candidates[j] for j in refine], head,
                                                   refine),
                          "lights": lights, "error": {}}
-            reader = CompactReader.decoded(out_dir, predicted, (H, W), f.V, raw)
+            reader = CompactReader.decoded(out_dir, predicted, (H, W),
+                                           stored_v(f.V, dtype, half_scale(f.V)), raw)
             reader.lights(selected_by_any(skies, selection))
             within, first = within_budget(
                 predicted, lambda sky: next(spectrum.absolute_truths([sky])),
@@ -380,7 +387,7 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
         if write_gain:
             encode_array([gain_q.path, gain_refine_q.path], written_gain)
     v_file = out_dir / "v" / f"{name}.V.bin"
-    f.V.astype("<f4").tofile(v_file)
+    v_type = write_v(v_file, f.V, dtype)  # {"dtype", "scale"}
     encode_s = time.perf_counter() - started
 
     entry = {
@@ -391,7 +398,7 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
         "v": {
             "path": v_file.relative_to(out_dir).as_posix(),
             "shape": [n, f.k],
-            "dtype": "float32-le",
+            **v_type,
         },
         "lights": lights,
         "error": {"truncation": {k: round(v, 6) for k, v in f.truncation_error.items()}},
@@ -427,7 +434,39 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
             lambda r: reader.composite(r, selection)[valid],
             skies,
         )
+        if settle_v_dtype(
+            [(entry, f.V, reader)], out_dir, settings.budget,
+            lambda: record_errors(entry, spectrum.absolute_truths(skies),
+                                  lambda r: reader.composite(r, selection)[valid], skies),
+        ):
+            compact.base_bytes = sum(p.stat().st_size for p in files if p not in light_files)
     return compact
+
+
+def settle_v_dtype(stacks, out_dir: Path, budget: float, judge) -> bool:
+    """Keep V in float16 unless that puts a stack over ``budget`` on a test sky: then V in
+    float32 is judged (``judge()`` records the errors again into the entries, with their
+    readers' V set to float32) and kept, its files rewritten, if the worst error is lower;
+    else float16 and its errors are restored. ``stacks``: (entry, V float32 (n, k), its
+    CompactReader) of the stacks judged together (a shadowing pair's two). Float16 changed
+    the demo's stacks' errors by < 1e-4 of the mean (docs/benchmarks.md): this is a guard.
+    Returns whether the files were rewritten as float32."""
+    half = [(e, V, r) for e, V, r in stacks if e["v"]["dtype"] == "float16-le"]
+    worst = max(e["error"]["max"] for e, _, _ in stacks)
+    if not half or worst <= budget:
+        return False
+    kept = [(dict(e["error"]), r.V) for e, _, r in half]
+    for _, V, reader in half:
+        reader.V = np.asarray(V, dtype=np.float32)
+    judge()
+    if max(e["error"]["max"] for e, _, _ in stacks) < worst:
+        for entry, V, _ in half:
+            entry["v"].pop("scale", None)
+            entry["v"].update(write_v(out_dir / entry["v"]["path"], V, "float32-le"))
+        return True
+    for (entry, _, reader), (error, V16) in zip(half, kept, strict=True):
+        entry["error"], reader.V = error, V16
+    return False
 
 
 def _etc1s_heads(k: int, settings: Settings, tries: list[int | None] | None) -> list[int]:

@@ -215,6 +215,14 @@ class Compressor:
                 f"{row['base_bytes'] / 1e6:>8.2f}MB{row['light_bytes'] / 1e6:>10.2f}MB"
                 f"{row['light_bytes_per_light'] / 1e3:>9.1f}kB{flag}"
             )
+        for atlas in manifest["atlases"]:
+            ratio = atlas["stacks"].get("I", {}).get("compact", {}).get("error", {}).get("ratio")
+            if ratio:  # a shadowing pair's ratio as decoded (bake.stackkinds), not enforced
+                self.log(
+                    f"  {atlas['id']} shadow ratio as decoded: worst texel {ratio['max']:.4f} "
+                    f"({ratio['sky']}); over 0.02 on {ratio['skies_over']} of "
+                    f"{len(self.skies)} test skies, {ratio['texels_over']} texels in all"
+                )
         sizes = download_bytes(manifest, staging)
 
         def mb(key: str) -> str:

@@ -17,6 +17,7 @@ import pytest
 import bake.coarse
 from bake import ktx2decoder
 from bake.coarse import CoarseError, add_coarse, coarse_count, read_ktx2_level
+from bake.compact_reader import read_v
 from bake.pipeline import bake as run_bake
 from daylit import manifest as manifest_io
 from tests.coarsebuild import coarse_copy
@@ -45,11 +46,12 @@ def test_cut_arrays_hold_the_first_layers_texel_for_texel(build):
         assert cut.shape == (n, *full.shape[1:]), compact["ktx2"]
         assert 1 <= n <= coarse_count(compact["layers"])
         np.testing.assert_array_equal(cut, full[:n], err_msg=compact["ktx2"])
-        rows, k = compact["v"]["shape"]
-        V = np.fromfile(build / compact["v"]["path"], "<f4").reshape(rows, k)
+        V = read_v(build, compact["v"])
         kc = compact["coarse"]["v"]["shape"][1]
         assert kc == 1 + max(layer["coefficient"] for layer in compact["layers"][:n])
-        Vc = np.fromfile(build / compact["coarse"]["v"]["path"], "<f4").reshape(rows, kc)
+        # The coarse V is the first kc columns, in the stack's own type (float16 since v4).
+        assert compact["coarse"]["v"]["dtype"] == compact["v"]["dtype"]
+        Vc = read_v(build, compact["coarse"]["v"])
         np.testing.assert_array_equal(Vc, V[:, :kc])
         # Within the budget (60 kB here), unless one layer alone is more.
         size = (build / compact["coarse"]["ktx2"]).stat().st_size

@@ -89,6 +89,29 @@ def test_ground_shadow_ratio_within_002_at_every_texel(build):
         assert np.abs(ratio_compact - ratio_master)[lit].max() <= 0.02
 
 
+def test_the_bake_records_the_ground_ratio_as_decoded_on_its_test_skies(build):
+    """The bake's own check of the shadow ratio as decoded (``error.ratio`` of the ground's
+    ``I``, bake.stackkinds.decoded_ratio_error): the worst texel over the bake's test skies,
+    and which sky, as this test's metric above computes it from the masters and the compact
+    files (it is recorded, not enforced: docs/benchmarks.md)."""
+    recorded = build.atlases["ground"]["stacks"]["I"]["compact"]["error"]["ratio"]
+    worst, where, over = 0.0, None, 0
+    for sky in testskies.test_skies(build.manifest["scene"], build.dome_vertices):
+        d_master = build.composite("ground", "d", sky.r, "master")
+        ratio_master = build.composite("ground", "I", sky.r, "master") / np.maximum(
+            d_master, 1e-9)
+        d_compact = build.composite("ground", "d", sky.r, "compact")
+        ratio_compact = build.composite("ground", "I", sky.r, "compact") / np.maximum(
+            d_compact, 1e-9)
+        lit = d_master > 0.05 * d_master[d_master > 0].mean()
+        error = np.abs(ratio_compact - ratio_master)[lit]
+        over += int((error > 0.02).any())
+        if error.max() > worst:
+            worst, where = float(error.max()), sky.name
+    assert recorded["max"] == pytest.approx(worst, abs=2e-6)
+    assert recorded["sky"] == where and recorded["skies_over"] == over
+
+
 def test_shuffled_v_breaks_the_composite(build):
     """The tests above can fail: V's row order is the dome's light order."""
     reader = build.compact("ground", "d")

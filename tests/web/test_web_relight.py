@@ -4,7 +4,9 @@ For several light vectors (uniform, CIE overcast, clear, a random partly cloudy 
 the sun's disc, which the client draws apart, in the visit and at the kiosk) every
 stack's render target is read back and compared with ``Build.composite`` on the compact data
 (the same KTX2 files decoded by the same Basis transcoder, summed as docs/compact-assets.md
-says) and, more loosely, with the EXR masters.
+says) and, more loosely, with the EXR masters. The build's V are float16 (manifest version
+4, read by the client's ``Assets.matrix`` and ``bake.compact_reader.read_v`` each their own
+way); a version-3 copy with float32 V checks that the client still reads those.
 
 Tolerances, per texel and channel: against the compact reference
 |gpu - ref| <= 2e-3 |ref| + 2e-3 mean|ref| (half float keeps 11 bits: 4.9e-4 relative, plus
@@ -15,6 +17,12 @@ test skies).
 """
 
 from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -73,9 +81,52 @@ def check(name, gpu, want, master=None, magnitude=None):
     return worst, None
 
 
-@pytest.mark.parametrize("mode", ["visit", "kiosk"])
-def test_relight_targets_equal_the_numpy_reference(new_page, web_build, reference, mode):
+def float32_copy(build: Path, out: Path) -> Path:
+    """A copy of ``build`` (files hard-linked) as a version-3 build: every V (and coarse V)
+    float32, as builds were before V in float16 (manifest version 4), its values those the
+    float16 files decode to, the manifest's sizes and checksums updated."""
+    from bake.compact_reader import read_v
+
+    shutil.copytree(build, out, copy_function=os.link)
+    manifest = json.loads((build / "manifest.json").read_text())
+    changed = {}
+    for owner in manifest["atlases"] + manifest["views"]:
+        for stack in owner["stacks"].values():
+            compact = stack["compact"]
+            for v in (compact["v"], compact.get("coarse", {}).get("v")):
+                if v is None:
+                    continue
+                values = read_v(build, v)
+                (out / v["path"]).unlink()  # a hard link: never write through it
+                values.astype("<f4").tofile(out / v["path"])
+                v.pop("scale", None)
+                v["dtype"] = "float32-le"
+                changed[v["path"]] = (out / v["path"]).read_bytes()
+    for f in manifest["files"]:
+        if f["path"] in changed:
+            data = changed[f["path"]]
+            f["bytes"], f["sha256"] = len(data), hashlib.sha256(data).hexdigest()
+    manifest["version"] = 3
+    (out / "manifest.json").unlink()
+    (out / "manifest.json").write_text(json.dumps(manifest))
+    return out
+
+
+@pytest.mark.parametrize("mode, v_type", [("visit", "float16-le"), ("kiosk", "float16-le"),
+                                          ("visit", "float32-le")])
+def test_relight_targets_equal_the_numpy_reference(new_page, web_build, reference, mode, v_type,
+                                                   tmp_path):
+    """``v_type``: the build's V as baked (float16 since manifest version 4) or, for the
+    builds of versions 1-3 that the client still reads, float32 in a version-3 copy."""
+    from bake.evaluate import Build
+
+    if v_type == "float32-le":
+        web_build = float32_copy(web_build, tmp_path / "v3")
+        reference = Build(web_build)
     ref = reference
+    assert ref.manifest["version"] == (4 if v_type == "float16-le" else 3)
+    assert {s["compact"]["v"]["dtype"] for o in ref.manifest["atlases"] + ref.manifest["views"]
+            for s in o["stacks"].values()} == {v_type}
     entries = ref.manifest["atlases"] if mode == "visit" else ref.manifest["views"]
     report = {}
     with StubServer(web_build) as server:

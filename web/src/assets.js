@@ -10,6 +10,7 @@
 // and turns every failure into an AssetError that names the file.
 import { KTX2Loader } from 'three/addons/loaders/KTX2Loader.js';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
+import { DataUtils } from 'three';
 
 export class AssetError extends Error {
   constructor(path, reason) {
@@ -72,9 +73,11 @@ export class Assets {
     } catch {
       throw new AssetError(this.manifestUrl, 'not JSON');
     }
-    // Version 2 (2026-11-24): a stack's base may also have an ETC1S array (compact.etc1s).
-    if (manifest.format !== 'daylit-build' || ![1, 2, 3].includes(manifest.version)) {
-      throw new AssetError(this.manifestUrl, `not a daylit build of version 1, 2 or 3 (${manifest.format} ${manifest.version})`);
+    // Version 2 (2026-11-24): a stack's base may also have an ETC1S array (compact.etc1s);
+    // 3 (2026-12-06): shared sun-bounce images (lights.image); 4 (2026-12-06): a stack's V
+    // may be float16 (compact.v.dtype, read by `matrix`). Docs/manifest.md.
+    if (manifest.format !== 'daylit-build' || ![1, 2, 3, 4].includes(manifest.version)) {
+      throw new AssetError(this.manifestUrl, `not a daylit build of version 1, 2, 3 or 4 (${manifest.format} ${manifest.version})`);
     }
     this.manifest = manifest;
     this.files = new Map(manifest.files.map((f) => [f.path, f]));
@@ -246,11 +249,30 @@ export class Assets {
     return this._shared.get(path);
   }
 
-  /** A float32 little-endian array (the V matrices). */
+  /** A float32 little-endian array. */
   async float32(path) {
     const buffer = await this.bytes(path);
     if (buffer.byteLength % 4) throw new AssetError(path, 'not a float32 array');
     return new Float32Array(buffer);
+  }
+
+  /**
+   * A stack's V matrix (manifest `compact.v` or `compact.coarse.v`: {path, shape, dtype,
+   * scale}) as a Float32Array, n x k row-major: `float32-le` as it is; `float16-le` (builds of
+   * version 4) widened (three.js DataUtils.fromHalfFloat) and times `scale`, a power of two:
+   * exact, the same values as bake/compact_reader.py's read_v. Little-endian files.
+   */
+  async matrix(v) {
+    const dtype = v.dtype ?? 'float32-le';
+    if (dtype === 'float32-le') return this.float32(v.path);
+    if (dtype !== 'float16-le') throw new AssetError(v.path, `V of an unknown type ${dtype}`);
+    const buffer = await this.bytes(v.path);
+    if (buffer.byteLength % 2) throw new AssetError(v.path, 'not a float16 array');
+    const view = new DataView(buffer);
+    const scale = v.scale ?? 1;
+    const out = new Float32Array(buffer.byteLength / 2);
+    for (let i = 0; i < out.length; i++) out[i] = DataUtils.fromHalfFloat(view.getUint16(2 * i, true)) * scale;
+    return out;
   }
 
   async gltf(path) {

@@ -64,7 +64,7 @@ class RelightStack {
 
   /** The full stack: every base layer (replaces a coarse start, if any). */
   async load() {
-    const loads = [this.assets.texture(this.compact.ktx2), this.assets.float32(this.compact.v.path)];
+    const loads = [this.assets.texture(this.compact.ktx2), this.assets.matrix(this.compact.v)];
     // Builds from 2026-11-24: base layers past the first few in a second, ETC1S array, whose
     // layers follow the first array's in compact.layers (docs/compact-assets.md).
     loads.push(this.compact.etc1s ? this.assets.texture(this.compact.etc1s.ktx2) : null);
@@ -82,7 +82,7 @@ class RelightStack {
     const coarse = this.compact.coarse;
     if (!coarse) return false;
     const [base, V, gain] = await Promise.all([
-      this.assets.texture(coarse.ktx2), this.assets.float32(coarse.v.path),
+      this.assets.texture(coarse.ktx2), this.assets.matrix(coarse.v),
       this.compact.gain ? this.assets.sharedTexture(this.compact.gain.ktx2) : null,
     ]);
     this._setUp({ base: asArray(base), V, k: coarse.v.shape[1], etc1s: null, gain, layers: this.compact.layers.slice(0, coarse.layers), coarse: true });
