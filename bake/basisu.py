@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from bake.compress import Settings
+    from bake.compresssettings import Settings
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 

@@ -18,7 +18,8 @@ import cv2
 import numpy as np
 
 from bake.compact_reader import CompactReader
-from bake.compress import Settings, compress_stack, settle_v_dtype
+from bake.compress import compress_stack, settle_v_dtype
+from bake.compresssettings import Settings
 from bake.lowrank import (
     RATIO_FLOOR,
     Spectrum,

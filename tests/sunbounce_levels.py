@@ -19,7 +19,7 @@ def recompress_sun_bounce(build_dir: Path, copy: Path, budget: float,
     again, judged with ``budget`` (and ``Settings.sun_bounce_level`` ``second_level``, by
     default the baker's), their lights grouped by ``shared`` (a
     ``bake.sunbounce.SharedImages``; None: one image per light); returns ``copy``."""
-    from bake.compress import Settings
+    from bake.compresssettings import Settings
     from bake.evaluate import Build
     from bake.sunbounce import DisplaySkies, compress_sun_bounce
     from daylit.stackio import read_stack_exr
