@@ -53,7 +53,8 @@ function run(query, { server = !query.includes('sky=phone'), kept = null } = {})
   const { alpha, beta, gamma } = input.orientation;
   view._onOrientation({ alpha, beta, gamma });
   feed.tick(10.5);
-  return { before, first: reads[before.reads] ?? null, after: drawn() };
+  // the client's clock (?time=), Unix seconds: the phone's sun is at that time, not the run's
+  return { before, first: reads[before.reads] ?? null, after: drawn(), clockS: (Date.now() + feed.clockOffsetMs) / 1000 };
 }
 
 const kept = { rgb: [], sun: null, captureTime: Date.parse(input.time) / 1000 - 86400 };

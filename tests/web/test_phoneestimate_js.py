@@ -7,6 +7,7 @@ ground of tests/radiance_frames.py)."""
 
 import json
 import subprocess
+from datetime import datetime
 from pathlib import Path
 
 import numpy as np
@@ -245,7 +246,12 @@ def test_nothing_is_read_or_registered_before_the_device_s_orientation():
                          check=True)
     got = json.loads(out.stdout)
     print(got)
+    when_s = datetime.fromisoformat(case["time"]).timestamp()
     for source in ("phone", "server", "offline"):
+        # ?time= as typed (its '+' decoded as a space): the clock at 9:30 in Nara whatever the
+        # hour the test runs at (before, the time was ignored and the sun was the run's own:
+        # after sunset in Japan, no read at all and this test failed)
+        assert abs(got[source]["clockS"] - when_s) < 60, (source, got[source]["clockS"])
         before = got[source]["before"]
         assert before["reads"] == 0 and before["turnsDeg"] == [0, 0], got
         assert got[source]["first"] == {"headingDeg": 0, "tiltDeg": 0}, got

@@ -54,8 +54,7 @@ export class LightFeed {
     this._keptLightTried = false; // the kept light is looked for once a visit (useKept)
     // ?time= (ISO 8601 or Unix seconds): the client's clock starts there (the phone's sun
     // without a server; tests and demos). Only the phone's estimate reads it.
-    const start = params.get('time');
-    const startMs = start === null ? NaN : (/^[0-9.]+$/.test(start) ? Number(start) * 1000 : Date.parse(start));
+    const startMs = clockStartMs(params.get('time'));
     this.clockOffsetMs = Number.isFinite(startMs) ? startMs - Date.now() : 0;
   }
 
@@ -236,4 +235,18 @@ export class LightFeed {
     this.app.view.turnBy(...turnDeg);
     this.phoneEstimator.forgetPose();
   }
+}
+
+/**
+ * The client's clock start from ?time= (Unix seconds, or ISO 8601), in ms; NaN when absent or
+ * not understood. A query string decodes '+' as a space, so `?time=2026-10-15T09:30:00+09:00`
+ * as typed arrives as `...09:30:00 09:00`: a space before a trailing zone offset is read back
+ * as '+' (before this, such a time was ignored and the phone's sun was the real clock's).
+ * @param {string|null} text
+ * @returns {number}
+ */
+export function clockStartMs(text) {
+  if (text === null) return NaN;
+  if (/^[0-9.]+$/.test(text)) return Number(text) * 1000;
+  return Date.parse(text.replace(/ (\d{2}(:?\d{2})?)$/, '+$1'));
 }
