@@ -21,6 +21,8 @@ export const REGISTER_TILT_DEG = 5;
 const MIN_FISHER = 8;
 /** Fewer pixels than this in either group: no ratio at that shift. */
 const MIN_GROUP = 10;
+/** The first pass scores every this many pixels each way (then the best one's neighbours). */
+const COARSE_STEP_PX = 2;
 
 /**
  * The picture's shift that registers the pool's sun/shade split on it.
@@ -54,22 +56,37 @@ export function registerShift(rgba, w, h, pool, lit, fovDeg, { clipCode, darkCod
   const reachY = Math.ceil(f * Math.tan((REGISTER_TILT_DEG * Math.PI) / 180));
   const nx = 2 * reachX + 1;
   const scores = new Float64Array(nx * (2 * reachY + 1));
+  const scored = new Uint8Array(scores.length);
   let best = { dx: 0, dy: 0, fisher: -Infinity };
-  for (let dy = -reachY; dy <= reachY; dy++) {
-    for (let dx = -reachX; dx <= reachX; dx++) {
-      const fisher = splitRatio(logL, w, h, pool, lit, logAlbedo, dx, dy);
-      scores[(dy + reachY) * nx + dx + reachX] = fisher;
-      if (fisher > best.fisher) best = { dx, dy, fisher };
+  const score = (dx, dy) => {
+    const k = (dy + reachY) * nx + dx + reachX;
+    if (!scored[k]) {
+      scores[k] = splitRatio(logL, w, h, pool, lit, logAlbedo, dx, dy);
+      scored[k] = 1;
+      if (scores[k] > best.fisher) best = { dx, dy, fisher: scores[k] };
     }
+    return scores[k];
+  };
+  // Every COARSE_STEP_PX-th shift, then up the best one's slope a pixel at a time: the split's
+  // peak is several pixels wide (a shadow edge's blur and the pool's spread over it), and a
+  // pixel-by-pixel search of the whole reach took three times as long at the 384 x 216 copy.
+  for (let dy = -Math.floor(reachY / COARSE_STEP_PX) * COARSE_STEP_PX; dy <= reachY; dy += COARSE_STEP_PX) {
+    for (let dx = -Math.floor(reachX / COARSE_STEP_PX) * COARSE_STEP_PX; dx <= reachX; dx += COARSE_STEP_PX) score(dx, dy);
   }
-  const fisherAtZero = scores[reachY * nx + reachX];
+  for (let moved = true; moved && best.fisher > -Infinity;) {
+    const { dx: cx, dy: cy } = best;
+    for (let dy = Math.max(cy - 1, -reachY); dy <= Math.min(cy + 1, reachY); dy++) {
+      for (let dx = Math.max(cx - 1, -reachX); dx <= Math.min(cx + 1, reachX); dx++) score(dx, dy);
+    }
+    moved = best.dx !== cx || best.dy !== cy;
+  }
+  const fisherAtZero = score(0, 0);
   if (!(best.fisher >= MIN_FISHER)) {
     return { dx: 0, dy: 0, fisher: best.fisher, fisherAtZero, turnDeg: [0, 0] };
   }
   // The peak between pixels (a parabola through the best score and its neighbours), so that
   // the view turned by it lands within a fraction of a pixel and the next search finds 0.
-  const at = (dx, dy) => (Math.abs(dx) > reachX || Math.abs(dy) > reachY ? NaN
-    : scores[(dy + reachY) * nx + dx + reachX]);
+  const at = (dx, dy) => (Math.abs(dx) > reachX || Math.abs(dy) > reachY ? NaN : score(dx, dy));
   const x = best.dx + peakOffset(at(best.dx - 1, best.dy), best.fisher, at(best.dx + 1, best.dy));
   const y = best.dy + peakOffset(at(best.dx, best.dy - 1), best.fisher, at(best.dx, best.dy + 1));
   // A turn by a small angle moves a pixel u from the centre by f (1 + (u / f)^2) per radian:
