@@ -6,9 +6,10 @@ estimate's test site (tests/server/conftest.py scene_build, baked here at draft 
 ``--build`` an existing bake), its fake camera playing a Radiance frame of the clear sky from the
 phone's eye-height pose (tests/web/phoneframes.py). Timed in the page
 (``window.daylit.debug.timePhoneEstimate``): an estimate with the pose held (the video drawn into
-the 192x108 copy, its pixels read, the fit), an estimate after the pose moved (the pool of
-pixels and their hemisphere rays made again, then the fit), and a picture meter reading (the
-video into its 48x27 copy and its 1296 ground rays).
+the copy, its pixels read, the fit), an estimate after the pose moved (the pool of pixels and
+their hemisphere rays made again, then the fit), and a picture meter reading (the video into its
+48x27 copy and its 1296 ground rays). Each at the client's copy size (ESTIMATE_SIZE, 384x216) and
+at the 192x108 copy it had before 2026-12-06 (``debug.phoneCopySize``), interleaved.
 
 Run (about a minute on the 2-core reference machine; pyradiance is a dev dependency)::
 
@@ -26,6 +27,10 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
+
+# The copy sizes timed: the client's (web/src/phoneestimate.js ESTIMATE_SIZE) and the one
+# before it, the same-run comparison.
+COPY_SIZES = [(384, 216), (192, 108)]
 
 
 def bake_test_site(root: Path) -> Path:
@@ -77,23 +82,32 @@ def main() -> None:
             with camera_page(browser, build, y4m, sky, query=query) as (page, _, errors):
                 page.evaluate("(p) => window.daylit.debug.standAt(p)", standpoint)
                 orient(page, *orientation)
-                runs = [page.evaluate("window.daylit.debug.timePhoneEstimate(5)")
-                        for _ in range(args.runs)]
+                runs = {size: [] for size in COPY_SIZES}
+                for _ in range(args.runs):
+                    for size in COPY_SIZES:
+                        assert page.evaluate("(s) => window.daylit.debug.phoneCopySize(s)",
+                                             list(size))
+                        runs[size].append(page.evaluate(
+                            "window.daylit.debug.timePhoneEstimate(5)"))
                 assert not errors, errors
             browser.close()
-    med = {k: float(np.median([r[k] for r in runs])) for k in ("estimateMs", "unregisteredMs",
-                                                                "newPoseMs", "meterMs")}
-    print(f"phone estimate, pose held: {med['estimateMs']:.1f} ms "
-          f"(pool of {runs[0]['pool']} pixels)")
-    print(f"  of which the pose's registration (poseregister.js): "
-          f"{med['estimateMs'] - med['unregisteredMs']:.1f} ms "
-          f"(without it {med['unregisteredMs']:.1f} ms)")
-    print(f"phone estimate, new pose (pool made again): {med['newPoseMs']:.1f} ms")
-    print(f"picture meter reading (baseline, same run): {med['meterMs']:.2f} ms")
-    print(f"estimate / meter: {med['estimateMs'] / med['meterMs']:.1f}x; "
-          f"share of one core at one estimate per 2 s: {med['estimateMs'] / 2000:.1%}")
+    report = {}
+    for size, timed in runs.items():
+        med = {k: float(np.median([r[k] for r in timed]))
+               for k in ("estimateMs", "unregisteredMs", "newPoseMs", "meterMs")}
+        report[f"{size[0]}x{size[1]}"] = {"runs": timed, "median": med}
+        print(f"copy {size[0]}x{size[1]}:")
+        print(f"  phone estimate, pose held: {med['estimateMs']:.1f} ms "
+              f"(pool of {timed[0]['pool']} pixels)")
+        print(f"    of which the pose's registration (poseregister.js): "
+              f"{med['estimateMs'] - med['unregisteredMs']:.1f} ms "
+              f"(without it {med['unregisteredMs']:.1f} ms)")
+        print(f"  phone estimate, new pose (pool made again): {med['newPoseMs']:.1f} ms")
+        print(f"  picture meter reading (baseline, same run): {med['meterMs']:.2f} ms")
+        print(f"  estimate / meter: {med['estimateMs'] / med['meterMs']:.1f}x; share of one "
+              f"core at one estimate per 2 s: {med['estimateMs'] / 2000:.1%}")
     if args.json:
-        args.json.write_text(json.dumps({"runs": runs, "median": med}, indent=1))
+        args.json.write_text(json.dumps(report, indent=1))
 
 
 if __name__ == "__main__":

@@ -5,6 +5,7 @@ same frame (the numpy reference, server/sceneestimate.py)."""
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +13,20 @@ import numpy as np
 from server.sceneestimate import PinholeView, SceneEstimator
 
 LUMA = np.array([0.2126, 0.7152, 0.0722])
+
+
+def _copy_size() -> tuple[int, int]:
+    """The phone estimate's copy of the picture, pixels (w, h): ESTIMATE_SIZE as the client
+    declares it (web/src/phoneestimate.js), so that the tests' shifts are in its pixels."""
+    source = (Path(__file__).resolve().parents[2] / "web/src/phoneestimate.js").read_text()
+    w, h = re.search(r"export const ESTIMATE_SIZE = \[(\d+), (\d+)\]", source).groups()
+    return int(w), int(h)
+
+
+COPY_SIZE = _copy_size()
+# The copy's pixels per pixel of the 192 x 108 copy the tests' tolerances were first set in
+# (a tolerance of n px there is n * COPY_SCALE px now: the same angle).
+COPY_SCALE = COPY_SIZE[1] / 108
 
 # The poses (tests/server/conftest.py scene_build: an 8 x 5 x 6 m building at the origin, a
 # wall to its west), each a standpoint (m) and a device orientation (alpha, beta, gamma;
@@ -112,7 +127,7 @@ def open_irradiance_estimated(estimate: dict, sun_dir, normals=COMPOSITE_NORMALS
 
 def copy_shift_px(true_pose: dict, drawn_pose: dict, aspect: float = 16 / 9) -> np.ndarray:
     """Where the drawn view's pixels lie in the true camera's picture, in pixels of the
-    estimate's copy (ESTIMATE_SIZE 192 x 108 in web/src/phoneestimate.js; ``aspect`` the
+    estimate's copy (ESTIMATE_SIZE in web/src/phoneestimate.js, COPY_SIZE; ``aspect`` the
     page's): the median displacement over a grid of the copy, the shift a registration should
     find (a turn moves the picture's edges further than its centre). Both poses are camera
     mode's (``debug.cameraPose()``: matrixWorld, fovDeg) at the same standpoint. Returns
@@ -120,7 +135,7 @@ def copy_shift_px(true_pose: dict, drawn_pose: dict, aspect: float = 16 / 9) -> 
     def rotation(pose):
         return np.asarray(pose["matrixWorld"], float).reshape(4, 4).T[:3, :3]
 
-    w, h = 192, 108
+    w, h = COPY_SIZE
     t = np.tan(np.radians(true_pose["fovDeg"]) / 2.0)
     xs, ys = np.meshgrid(np.linspace(0, w, 25), np.linspace(0, h, 15))
     ndc = np.column_stack([xs.ravel() / w * 2 - 1, 1 - ys.ravel() / h * 2])

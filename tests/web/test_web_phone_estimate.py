@@ -23,6 +23,7 @@ import pytest
 from tests.server.conftest import scene_build  # noqa: F401 (the fixture)
 from tests.web.fakecamera import camera_page, orient, write_y4m
 from tests.web.phoneframes import (
+    COPY_SCALE,
     POSES,
     copy_shift_px,
     open_irradiance_estimated,
@@ -194,8 +195,11 @@ def test_phone_estimate_against_radiance_and_the_server(browser, phone_build, re
 # A registration's whole-pixel shift against the geometry's: within 2 px. Once the view has
 # turned onto the picture the search's landscape is flat over a pixel or two (a soft-shadowed
 # sky): on the clear sky's frames a settled view read +1 px where the geometry gave -0.65
-# (2026-12-04). A wrong pose reads 12 px and more.
-REGISTRATION_ATOL_PX = 2.0
+# (2026-12-04). A wrong pose reads 12 px and more. (Pixels of the 192 x 108 copy these were
+# measured in; COPY_SCALE of the copy's now: the same angles.)
+REGISTRATION_ATOL_PX = 2.0 * COPY_SCALE
+WRONG_POSE_PX = 8.0 * COPY_SCALE  # a pose told this far off is off (the tests' precondition)
+SETTLED_PX = 1.5 * COPY_SCALE  # the registration's own accuracy
 
 def _tell_a_wrong_pose(page, standpoint, alpha, beta, gamma):
     """Only the test's estimates and registrations from here (the page's own may have turned
@@ -226,7 +230,7 @@ def test_phone_estimate_registers_a_wrong_pose(browser, phone_build, renders):
             ests = [page.evaluate("window.daylit.debug.phoneEstimate()") for _ in range(5)]
             final_pose = page.evaluate("window.daylit.debug.cameraPose()")
             assert not errors, errors
-        assert np.hypot(*copy_shift_px(true_pose, ests[0])) > 8  # a precondition: it was off
+        assert np.hypot(*copy_shift_px(true_pose, ests[0])) > WRONG_POSE_PX  # a precondition
         # Each estimate against the pose it read with.
         for e in ests:
             np.testing.assert_allclose(e["shiftPx"], copy_shift_px(true_pose, e),
@@ -234,7 +238,7 @@ def test_phone_estimate_registers_a_wrong_pose(browser, phone_build, renders):
                                        err_msg=name)
         # Within the registration's own accuracy (its shifts against the geometry: 1.5 px)
         residual = copy_shift_px(true_pose, final_pose)
-        assert np.hypot(*residual) < 1.5, (name, residual)
+        assert np.hypot(*residual) < SETTLED_PX, (name, residual)
         later = ests[2:]
         sun, sky_h = (float(np.median([LUMA @ np.asarray(e[key]) for e in later]))
                       / sky["exposure"] for key in ("sunNormal", "skyHorizontal"))
@@ -261,13 +265,13 @@ def test_the_view_follows_the_picture_under_a_server_sky(browser, phone_build, r
           n: window.daylit.status.phoneEstimates })""")
         assert not errors, errors
     assert status == {"source": "server", "n": 0}, status  # registered, not estimated
-    assert np.hypot(*copy_shift_px(sky["pose"], shifts[0])) > 8  # a precondition: it was off
+    assert np.hypot(*copy_shift_px(sky["pose"], shifts[0])) > WRONG_POSE_PX  # a precondition
     for r in shifts:
         np.testing.assert_allclose(r["shiftPx"], copy_shift_px(sky["pose"], r),
                                    atol=REGISTRATION_ATOL_PX)
     residual = copy_shift_px(sky["pose"], final_pose)
     print("server sky: shifts", [r["shiftPx"] for r in shifts], "residual", np.round(residual, 2))
-    assert np.hypot(*residual) < 1.5, residual
+    assert np.hypot(*residual) < SETTLED_PX, residual
 
 
 def test_camera_mode_takes_the_server_sky_when_there_is_one(browser, phone_build, tmp_path):
@@ -315,6 +319,8 @@ def _eight_estimates(browser, build, pose, frames, early=0) -> tuple[dict, dict]
         rendered = sky["rendered"]
         with _open(browser, build, sky["y4m"],
                    f"&sky=phone&time={rendered.when_unix_s}") as (page, _, errors):
+            # only the test's estimates (not as many as the machine's frame loop made)
+            assert page.evaluate("window.daylit.debug.holdPhoneEstimates(true)")
             standpoint, orientation = pose
             page.evaluate("(p) => window.daylit.debug.standAt(p)", standpoint)
             before[name] = [page.evaluate("window.daylit.debug.phoneEstimate()")
@@ -416,23 +422,43 @@ def test_a_thin_shadow_is_not_shade(browser, web_build, tmp_path):
     assert all(e is not None for e in got["clear-9.5"]), err
     overcast = [e for e in got["overcast-9.5"] if e is not None]
     assert all(e["ratio"] < 0.05 for e in overcast), [e["ratio"] for e in overcast]
+    # Under the overcast sky the view stays where the phone put it: the registration's split
+    # there is the sky's (walls that see half the sky read darker per albedo than open ground),
+    # not the sun's. Before 2026-12-06, midday the view followed it 11-15 degrees away in five
+    # estimates (shifts of 9-41 px), until it saw no shade and estimated nothing.
+    drift_px = [float(np.hypot(*copy_shift_px(frames["overcast-9.5"]["pose"], e["turned"])))
+                for e in overcast]
+    print("overcast: the view off the frame's pose after each estimate (px)",
+          np.round(drift_px, 1).tolist())
+    assert len(overcast) >= 6 and max(drift_px) < REGISTRATION_ATOL_PX, drift_px
     # Goal: no estimate wildly wrong, sun and sky each within 25 %
     assert all(abs(sun) < 0.25 and abs(sky) < 0.25 for sun, sky in err["clear-9.5"]), err
     for read, geometry in shifts:
-        np.testing.assert_allclose(read, geometry, atol=3.0, err_msg=str(shifts))
+        np.testing.assert_allclose(read, geometry, atol=3.0 * COPY_SCALE, err_msg=str(shifts))
 
 
 def test_the_kiosk_view_s_clear_sky_with_bounce_surfaces_lit_on_their_tilt(browser, web_build,
                                                                            tmp_path):
     """The demo's kiosk view at 9:30 under Radiance's clear sky (gendaylit 800/80, rendered here
     from the phone's pose), six pools (``phonePoolSeed`` 1-6) of three estimates each: the sky's
-    median error within 8 % and at least 10 of the 18 within the issue's 10 %, the sun within
-    10 % in every one. The bounce surfaces are lit by the model sky on their own tilt
-    (phonepool.js skyBounceTerms; the server's tilted_irradiance): under this sky a wall facing
-    the sun gets far more than an isotropic sky's 0.5 of the horizontal irradiance, and one
-    facing away less. On main (each bounce surface lit by an isotropic
-    sky on its tilt) the median error was 11.2 % and 8 of 18 within 10 % (sky -12.6 to +21.2 %;
-    2026-12-06, docs/benchmarks.md); with the tilt 5.6 % and 11 of 18."""
+    median error within 8 %, at least 10 of the 18 within the issue's 10 % and none off by 20 %
+    or more, the sun within 10 % in every one.
+
+    The bounce surfaces are lit by the model sky on their own tilt (phonepool.js
+    skyBounceTerms; the server's tilted_irradiance): under this sky a wall facing the sun gets
+    far more than an isotropic sky's 0.5 of the horizontal irradiance, and one facing away
+    less. With each lit by an isotropic sky on its tilt the median error was 11.2 % and 8 of 18
+    within 10 % (sky -12.6 to +21.2 %; 2026-12-06, docs/benchmarks.md).
+
+    The copy is 384 x 216 (phoneestimate.js ESTIMATE_SIZE): at 192 x 108 the tree's shadow is
+    a pixel or two high, the pool has 15-36 pixels mostly in shade and the sky moved by up to
+    27 % from one pool to the next. Measured 2026-12-06 (the same frames; "worst" the largest
+    error): at 192 x 108 median 7.6 %, 13 of 18 within 10 %, worst 18.3 % (on CI's Chromium
+    10.0 %, 12 of 18, worst 21.1 %: this test's failure there); pools 7-18, 7.6 %, 23 of 36,
+    worst 27 %. At 384 x 216 median 4.2 %, 16 of 18, worst 15.1 %; pools 7-18, 5.9 %, 27 of
+    36, worst 13.7 %. What is left is mostly the Perez sky's clearness bin: the truth (6.44) is
+    in the clearest bin; fits whose first ratio reads a clearness under 6.2 take the bin below
+    and read the sky up to 6 % high, those above it read it 5-15 % low."""
     frames = pose_frames(browser, web_build, KIOSK_POSE, [("clear-9.5", "9.5", 800.0, 80.0)],
                          tmp_path, server=False)
     sky = frames["clear-9.5"]
@@ -440,10 +466,13 @@ def test_the_kiosk_view_s_clear_sky_with_bounce_surfaces_lit_on_their_tilt(brows
     errors_sky, errors_sun = [], []
     with _open(browser, web_build, sky["y4m"],
                f"&sky=phone&time={rendered.when_unix_s}") as (page, _, errors):
+        # only the test's estimates, from the start: what the page's own frame loop made
+        # before would depend on how many frames the machine drew (each may turn the view, and
+        # the pool is the turned pose's)
+        assert page.evaluate("window.daylit.debug.holdPhoneEstimates(true)")
         standpoint, orientation = KIOSK_POSE
         page.evaluate("(p) => window.daylit.debug.standAt(p)", standpoint)
         orient(page, *orientation)
-        assert page.evaluate("window.daylit.debug.holdPhoneEstimates(true)")
         for _ in range(2):  # the registration settles at the pose
             page.evaluate("window.daylit.debug.phoneEstimate()")
         for seed in range(1, 7):
@@ -462,3 +491,4 @@ def test_the_kiosk_view_s_clear_sky_with_bounce_surfaces_lit_on_their_tilt(brows
     assert np.all(np.abs(errors_sun) < 0.10), errors_sun
     assert np.median(np.abs(errors_sky)) < 0.08, errors_sky
     assert np.sum(np.abs(errors_sky) < 0.10) >= 10, errors_sky
+    assert np.all(np.abs(errors_sky) < 0.20), errors_sky

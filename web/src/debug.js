@@ -280,6 +280,16 @@ export function debugApi(app) {
       app.feed.phoneEstimator.perezClear = perezClear;
       app.feed.phoneEstimator.forgetPose();
     },
+    /** The phone estimate's copy of the picture at [w, h] pixels instead of ESTIMATE_SIZE
+     * (phoneestimate.js): the benchmarks' baseline. Takes effect from the next estimate, with a
+     * new pool. False outside camera mode. */
+    phoneCopySize: (size) => {
+      const reader = app.feed.phoneReader();
+      if (!reader) return false;
+      reader.resize(size);
+      app.feed.phoneEstimator.forgetPose();
+      return true;
+    },
     /** What the phone's last estimate read ({used, shaded, topUp, shadeSamples, types: [[CIE
      * type, the fit's sun/sky ratio]...]}): why it made none. */
     phoneEstimateWhy: () => app.feed.phoneEstimator?.why ?? null,

@@ -23,8 +23,9 @@ const MIN_FISHER_GAIN = 0.02;
 // A shift found twice in a row is followed without that gain only this close to the pose (a
 // settled view's last pixel): a picture whose brightness the model's shadows do not explain
 // (no shadows, a wall of two colours) found the same far shift on every registration and
-// walked the view 10 degrees away.
-const SETTLE_SHIFT_PX = 1;
+// walked the view 10 degrees away. Two pixels of the 384 x 216 copy (phoneestimate.js
+// ESTIMATE_SIZE): the one pixel of the 192 x 108 copy the rule was made at.
+const SETTLE_SHIFT_PX = 2;
 
 export class LightFeed {
   /**
@@ -192,7 +193,11 @@ export class LightFeed {
     const estimate = this.phoneLight.read(app.camera, sun, nowS, force);
     if (!estimate) return null;
     this.phoneEstimate = estimate;
-    this._follow(estimate);
+    // A registration is a split of sun from shade: where the estimate keeps no sun (cloud) the
+    // split it found is the sky's (a wall that sees half the sky reads darker than open ground,
+    // in the sun's sense), and following it walked the demo's kiosk view 11-15 degrees away in
+    // five estimates under an overcast sky, until it saw no shade and estimated nothing.
+    if (Math.max(...estimate.sunNormal) > 0) this._follow(estimate);
     const v = this.phoneEstimator.lightVector(estimate, app.assets.manifest.dome.lights, sun);
     this._phoneSequence += 1;
     this.push({ rgb: v.rgb, saturated: null, sequence: this._phoneSequence, captureTime: Date.now() / 1000, stale: false, flags: 0, sun: v.sun, phone: true });
@@ -212,7 +217,10 @@ export class LightFeed {
     const shift = this.phoneLight.readShift(app.camera, sun, nowS, force);
     if (!shift) return null;
     this.registration = { shiftPx: [shift.dx, shift.dy], turnDeg: shift.turnDeg, fisher: shift.fisher, fisherAtZero: shift.fisherAtZero };
-    this._follow(this.registration);
+    // not under a server sky with no sun now (as estimate(): the split is then the sky's);
+    // a server that sends no sun at all (protocol version 1) is followed as before
+    const sunNow = this.light?.sun?.normalIrradiance;
+    if (!sunNow || Math.max(...sunNow) > 0) this._follow(this.registration);
     return this.registration;
   }
 

@@ -47,8 +47,12 @@ import { CLEAR_TYPE, OVERCAST_TYPE, skyClearness, skyTypeForRatio, unitSky } fro
 export { PATCH_PX, POOL_SIZE, poolForPose, sunTerms } from './phonepool.js';
 export { skyClearness, skyTypeForRatio, unitSky } from './skyshape.js';
 
-/** The estimated copy of the picture, pixels (w, h). */
-export const ESTIMATE_SIZE = [192, 108];
+/** The estimated copy of the picture, pixels (w, h). At 192 x 108 a shadow a metre wide ten
+ * metres off (the demo's kiosk view: its tree's shadow at 9:30) was one or two pixels high:
+ * a few dozen pool pixels mostly in shade, and a sky that moved by -15 to +21 % from one
+ * pool of pixels to the next; at twice that, within -15 to +6 % and mostly within 6 %
+ * (docs/benchmarks.md, "The phone's copy at 384 x 216"). */
+export const ESTIMATE_SIZE = [384, 216];
 /** A new estimate at most this often, seconds (the sky changes over minutes; a phone's CPU). */
 export const ESTIMATE_PERIOD_S = 2;
 const MIN_SAMPLES = 30; // fewer usable pixels: no estimate
@@ -66,9 +70,9 @@ const SUN_TOLERANCE_DEG = 0.1;
 // The shadow-edge pairs' check (shadowpairs.js): a sun the pairs read below PAIR_FLOOR of the
 // sky is dropped (the server's pair_floor). The server pairs patches less than 12 px apart at
 // 320 x 180 through 75 degrees (3.3 degrees at the centre); camera mode's 60-degree vertical
-// field over the copy's 108 rows has 94 px per radian there, so the same angle is 5.4 px: 6.
+// field over the copy's 216 rows has 187 px per radian there, so the same angle is 10.8 px: 11.
 export const PAIR_FLOOR = 0.05;
-export const PAIR_RADIUS_PX = 6;
+export const PAIR_RADIUS_PX = 11;
 const SHARE_MEMORY = 0.8; // per estimate, the weight of the past in the model sky's share
 /** The level the estimate is scaled to: a sun and sky giving this on open ground. */
 export const NOMINAL_GLOBAL_W_M2 = 500;
@@ -140,7 +144,9 @@ export class PhoneEstimator {
   _termsFor(sun) {
     if (!this._sun || dot(this._sun, sun) < Math.cos(SUN_TOLERANCE_DEG * Math.PI / 180)) {
       this._sunTerms = sunTerms(this.proxies, this.pool, sun);
-      this._pairs = shadowPairs(this.pool, this._sunTerms.map((t) => t.share), sun, { radiusPx: PAIR_RADIUS_PX });
+      // (the radius is an angle: PAIR_RADIUS_PX at ESTIMATE_SIZE, scaled for another copy)
+      const radiusPx = Math.round(PAIR_RADIUS_PX * this._pose.h / ESTIMATE_SIZE[1]);
+      this._pairs = shadowPairs(this.pool, this._sunTerms.map((t) => t.share), sun, { radiusPx });
       this._shade = this._topUp(sun);
       this.samples = this.pool.concat(this._shade);
       this._terms = this._sunTerms.concat(sunTerms(this.proxies, this._shade, sun));

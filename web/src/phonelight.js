@@ -17,11 +17,17 @@ export class PhoneLight {
     this.estimator = estimator;
     this.held = held;
     this.canvas = document.createElement('canvas');
-    [this.canvas.width, this.canvas.height] = ESTIMATE_SIZE;
+    this.resize(ESTIMATE_SIZE);
     this.context = this.canvas.getContext('2d', { willReadFrequently: true });
     this.lastS = -Infinity;
     this.estimates = 0; // estimates made (status.phoneEstimates)
     this.ms = null; // the last estimate's milliseconds of CPU
+  }
+
+  /** The copy's size, pixels [w, h] (ESTIMATE_SIZE; the benchmarks' baseline sets another). */
+  resize([w, h]) {
+    this.size = [w, h];
+    [this.canvas.width, this.canvas.height] = this.size;
   }
 
   /** @returns {boolean} whether an estimate is due at nowS (s) and the video has a frame */
@@ -48,7 +54,7 @@ export class PhoneLight {
     if (!this.due(nowS, force)) return null;
     this.lastS = nowS;
     const t0 = performance.now();
-    const [w, h] = ESTIMATE_SIZE;
+    const [w, h] = this.size;
     this.context.drawImage(this.video, 0, 0, w, h);
     const result = use(this.context.getImageData(0, 0, w, h).data, w, h);
     this.ms = performance.now() - t0;
