@@ -42,7 +42,8 @@ function run(query, { server = !query.includes('sky=phone'), kept = null } = {})
   feed.phoneLight = {
     video: view.video, held: false, estimates: 0, ms: null,
     due(nowS, force) { return force || nowS - (this.lastS ?? -Infinity) >= 2; },
-    read(cam, sun, nowS) { this.lastS = nowS; const s = registration(); return { ...s, shiftPx: [s.dx, s.dy] }; },
+    // an estimate that keeps a sun (the view follows only such a one's registration)
+    read(cam, sun, nowS) { this.lastS = nowS; const s = registration(); return { ...s, shiftPx: [s.dx, s.dy], sunNormal: [1, 1, 1] }; },
     readShift(cam, sun, nowS) { this.lastS = nowS; return registration(); },
   };
   const turns = () => [view.alignment.registeredHeadingDeg, view.alignment.registeredTiltDeg];
