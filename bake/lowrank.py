@@ -313,11 +313,15 @@ def ratio_error(
         P_d = spec_d.project_rows(S, K_d, rows_d)
         P_delta = spec_delta.project_rows(S, K_delta, rows_delta)
         gain = spec_d.gain[a:b, None]
-        # The rank-k composites of a batch of skies at a time (two (skies, b, 3) arrays
-        # within the working block's bytes), each sky then judged as before.
-        batch = max(1, ROW_BLOCK_BYTES // (2 * 3 * 4 * max(b - a, 1)))
-        for first in range(0, len(skies), batch):
+        # The rank-k composites of a batch of skies at a time, each sky then judged as
+        # before: one sky, then twice as many each batch (a rank over the bound is mostly
+        # rejected within the first few skies), up to two (skies, b, 3) arrays within the
+        # working block's bytes.
+        most = max(1, ROW_BLOCK_BYTES // (2 * 3 * 4 * max(b - a, 1)))
+        first, batch = 0, 1
+        while first < len(skies):
             these = range(first, min(first + batch, len(skies)))
+            first, batch = these.stop, min(2 * batch, most)
             rs, lights = [skies[s].r for s in these], [chosen[s] for s in these]
             D_k = spec_d.composites(P_d, k, S_inv, rs, lights, rows_d)
             X_k = spec_delta.composites(P_delta, k, S_inv, rs, lights, rows_delta)
