@@ -193,8 +193,8 @@ def compress_ratio_pair(I, d, names, out_dir, skies, S, S_inv, selection, settin
     # Each test sky's decoded composites of d and delta, computed once and judged three ways
     # (d's error, I's as d's minus delta's, the shadow ratio's): until 2026-12-06 d's was
     # computed three times a sky and delta's twice (docs/benchmarks.md, "One composite per
-    # sky, one product per rank"). The ratio is recorded with the errors, so that settle_v_dtype's restoring them
-    # restores it too: it is the one of the V kept.
+    # sky, one product per rank"). The ratio is recorded with the errors, so that
+    # settle_v_dtype's restoring them restores it too: it is the one of the V kept.
     def judge():
         judge_pair(d_stack.entry, delta_stack.entry, spec_d, spec_delta, skies,
                    lambda r: readers["d"].composite(r, selection)[valid],
