@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bake.rowstore import RowFile, row_block, rows_of
+from bake.rowstore import ROW_BLOCK_BYTES, RowFile, row_block, rows_of
 from bake.testskies import TestSky
 from daylit.selection import Selection
 
@@ -202,17 +202,31 @@ class Spectrum:
             work = M.path.parent
         return cls(M, gain, G, colsum, Y[:, np.argsort(eigenvalues)[::-1]], work)
 
-    def composite(
-        self, P: np.ndarray, k: int, S_inv, r: np.ndarray, chosen: np.ndarray, rows: np.ndarray
-    ) -> np.ndarray:
-        """(b, 3) normalized composite of rank k with the lights ``chosen`` exact,
+    def composites(self, P: np.ndarray, k: int, S_inv, rs: list[np.ndarray],
+                   chosen: list[np.ndarray], rows: np.ndarray) -> np.ndarray:
+        """(len(rs), b, 3) normalized composites of rank k under the light vectors ``rs``
+        (each (n, 3)) with the lights ``chosen`` (one index array per vector) exact,
         ``M (Q_k r' + r_A)``, from the projections ``P`` (b, 3, K >= k) of texel rows
-        ``rows`` of ``M`` (b, n, 3)."""
-        rest = r.copy()
-        rest[chosen] = 0.0
-        c = (self.Y[:, :k].T @ (S_inv @ rest)).astype(np.float32)  # (k, 3)
-        out = np.einsum("tck,kc->tc", P[:, :, :k], c)
-        return out + np.einsum("tnc,nc->tc", rows[:, chosen], r[chosen].astype(np.float32))
+        ``rows`` of ``M`` (b, n, 3).
+
+        The rank-k part is one float32 matrix product per channel for every vector at once,
+        ``P[:, c, :k]`` (b, k) by the vectors' coefficients ``c = Y_k^T S^-1 r'`` (k, len(rs)):
+        until 2026-12-06 an einsum per vector, which walked ``P`` once per sky and was the
+        largest array cost of a shadowing pair's rank search (docs/benchmarks.md, "One
+        composite per sky, one product per rank"). Float32 either way, summed in another
+        order: the same values to float32 rounding."""
+        C = np.empty((3, k, len(rs)), dtype=np.float32)
+        for s, (r, lights) in enumerate(zip(rs, chosen, strict=True)):
+            rest = r.copy()
+            rest[lights] = 0.0
+            C[:, :, s] = (self.Y[:, :k].T @ (S_inv @ rest)).astype(np.float32).T  # (3, k)
+        out = np.empty((len(rs), len(P), 3), dtype=np.float32)
+        for c in range(3):
+            out[:, :, c] = (P[:, c, :k] @ C[c]).T
+        for s, (r, lights) in enumerate(zip(rs, chosen, strict=True)):
+            if len(lights):
+                out[s] += np.einsum("tnc,nc->tc", rows[:, lights], r[lights].astype(np.float32))
+        return out
 
 
 def sky_composites(M: np.ndarray, r: np.ndarray) -> np.ndarray:
@@ -281,9 +295,10 @@ def ratio_error(
     ``sum r d`` is not tiny (above ``RATIO_FLOOR`` of its mean), with ``I = d - delta``. The
     two spectra share one gain, which cancels in the ratio.
 
-    By blocks of texel rows (the two spectra's projections of a block, then every sky),
-    with each sky's threshold from its whole composite first: the same maximum as over
-    whole arrays, without holding texels x rank or texels x skies.
+    By blocks of texel rows (the two spectra's projections of a block, then the skies'
+    composites a batch at a time, :meth:`Spectrum.composites`), with each sky's threshold
+    from its whole composite first: the same maximum as over whole arrays, without holding
+    texels x rank or texels x skies (a batch's composites within ``ROW_BLOCK_BYTES``).
 
     With ``above``, the search stops at the first block and sky whose error passes it and
     returns the worst found so far: over ``above`` exactly when the whole maximum is (a
@@ -298,19 +313,33 @@ def ratio_error(
         P_d = spec_d.project_rows(S, K_d, rows_d)
         P_delta = spec_delta.project_rows(S, K_delta, rows_delta)
         gain = spec_d.gain[a:b, None]
-        for s, sky in enumerate(skies):
-            d_true = spec_d._truth(sky.name, a, b)
-            I_true = d_true - spec_delta._truth(sky.name, a, b)
-            lit = d_true * gain > floors[s]
-            d_k = spec_d.composite(P_d, k, S_inv, sky.r, chosen[s], rows_d)
-            I_k = d_k - spec_delta.composite(P_delta, k, S_inv, sky.r, chosen[s], rows_delta)
-            if lit.any():
-                error = np.abs(
-                    I_k / np.maximum(d_k, 1e-12) - I_true / np.maximum(d_true, 1e-12)
-                )
-                worst = max(worst, float(error[lit].max()))
-                if above is not None and worst > above:
-                    return worst
+        # The rank-k composites of a batch of skies at a time, each sky then judged as
+        # before: one sky, then twice as many each batch (a rank over the bound is mostly
+        # rejected within the first few skies), up to two (skies, b, 3) arrays within the
+        # working block's bytes.
+        most = max(1, ROW_BLOCK_BYTES // (2 * 3 * 4 * max(b - a, 1)))
+        first, batch = 0, 1
+        while first < len(skies):
+            these = range(first, min(first + batch, len(skies)))
+            first, batch = these.stop, min(2 * batch, most)
+            rs, lights = [skies[s].r for s in these], [chosen[s] for s in these]
+            D_k = spec_d.composites(P_d, k, S_inv, rs, lights, rows_d)
+            X_k = spec_delta.composites(P_delta, k, S_inv, rs, lights, rows_delta)
+            for i, s in enumerate(these):
+                sky = skies[s]
+                d_true = spec_d._truth(sky.name, a, b)
+                I_true = d_true - spec_delta._truth(sky.name, a, b)
+                lit = d_true * gain > floors[s]
+                d_k = D_k[i]
+                I_k = d_k - X_k[i]
+                if lit.any():
+                    error = np.abs(
+                        I_k / np.maximum(d_k, 1e-12) - I_true / np.maximum(d_true, 1e-12)
+                    )
+                    worst = max(worst, float(error[lit].max()))
+                    if above is not None and worst > above:
+                        return worst
+            del D_k, X_k
     return worst
 
 

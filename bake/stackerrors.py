@@ -30,10 +30,12 @@ def record_errors(entry: dict, references: list[np.ndarray], composite, skies) -
     errors = {}
     for sky, reference in zip(skies, references, strict=True):
         errors[sky.name] = sky_error(composite(sky.r), reference)
-    _record(entry, errors)
+    record_sky_errors(entry, errors)
 
 
-def _record(entry: dict, errors: dict) -> None:
+def record_sky_errors(entry: dict, errors: dict) -> None:
+    """``errors`` {sky name: RMS error over the mean} into ``entry["error"]``: each rounded
+    to ``DIGITS`` decimals (``"encoded"``) and their largest (``"max"``)."""
     entry["error"]["encoded"] = {k: round(v, DIGITS) for k, v in errors.items()}
     entry["error"]["max"] = round(max(errors.values()), DIGITS)
 
@@ -59,5 +61,5 @@ def within_budget(entry: dict, reference, composite, skies, budget: float,
         if round(error, DIGITS) > budget:
             return False, s
         errors[s] = error
-    _record(entry, {sky.name: errors[s] for s, sky in enumerate(skies)})
+    record_sky_errors(entry, {sky.name: errors[s] for s, sky in enumerate(skies)})
     return True, first

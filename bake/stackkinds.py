@@ -30,7 +30,7 @@ from bake.lowrank import (
 )
 from bake.refinement import RatioRefinement
 from bake.rowstore import as_stack, let_go, release_freed_memory, row_block, valid_rows
-from bake.stackerrors import record_errors, selected_by_any
+from bake.stackerrors import record_sky_errors, selected_by_any, sky_error
 
 RATIO_CHECKED = 0.02  # the shadow ratio's per-texel bound the tests check (test_compact.py)
 
@@ -190,26 +190,15 @@ def compress_ratio_pair(I, d, names, out_dir, skies, S, S_inv, selection, settin
     for reader in readers.values():
         reader.lights(selected_by_any(skies, selection))
 
-    # The masters' composites, one sky at a time: d's, and I's as d's minus delta's (the
-    # spectra keep them from choosing the rank; one gain for both).
-    def i_true():
-        return (d - delta for d, delta in zip(spec_d.absolute_truths(skies),
-                                              spec_delta.absolute_truths(skies), strict=True))
-
+    # Each test sky's decoded composites of d and delta, computed once and judged three ways
+    # (d's error, I's as d's minus delta's, the shadow ratio's): until 2026-12-06 d's was
+    # computed three times a sky and delta's twice (docs/benchmarks.md, "One composite per
+    # sky, one product per rank"). The ratio is recorded with the errors, so that
+    # settle_v_dtype's restoring them restores it too: it is the one of the V kept.
     def judge():
-        for stack, references, rebuild in (
-            (d_stack, spec_d.absolute_truths(skies),
-             lambda r: readers["d"].composite(r, selection)),
-            (
-                delta_stack,
-                i_true(),
-                lambda r: (
-                    readers["d"].composite(r, selection)
-                    - readers["delta"].composite(r, selection)
-                ),
-            ),
-        ):
-            record_errors(stack.entry, references, lambda r, f=rebuild: f(r)[valid], skies)
+        judge_pair(d_stack.entry, delta_stack.entry, spec_d, spec_delta, skies,
+                   lambda r: readers["d"].composite(r, selection)[valid],
+                   lambda r: readers["delta"].composite(r, selection)[valid])
 
     judge()
     # V in float16 unless it puts I or d over the budget where float32 does better (both
@@ -217,36 +206,58 @@ def compress_ratio_pair(I, d, names, out_dir, skies, S, S_inv, selection, settin
     settle_v_dtype([(d_stack.entry, d_stack.factors.V, readers["d"]),
                     (delta_stack.entry, delta_stack.factors.V, readers["delta"])],
                    out_dir, settings.budget, judge)
-    delta_stack.entry["error"]["ratio"] = decoded_ratio_error(
-        spec_d, spec_delta, skies, lambda r: readers["d"].composite(r, selection)[valid],
-        lambda r: readers["delta"].composite(r, selection)[valid])
     spec_d.remove()
     spec_delta.remove()
     return delta_stack, d_stack
 
 
-def decoded_ratio_error(spec_d, spec_delta, skies, d_composite, delta_composite) -> dict:
-    """The shadow ratio ``I / d`` as decoded against the masters' on every test sky: the
-    worst texel's absolute error where ``sum r d`` is above ``RATIO_FLOOR`` of its mean
-    (lowrank.ratio_checks, the texels the rank and refinement rules bound), as
+def judge_pair(d_entry: dict, delta_entry: dict, spec_d, spec_delta, skies, d_composite,
+               delta_composite) -> None:
+    """A shadowing pair's decoded composites against the masters' on every test sky, each
+    sky's composites computed once: into ``d_entry["error"]`` d's RMS errors, into
+    ``delta_entry["error"]`` I's (``I = d - delta``, as the client reads it; both as
+    :func:`bake.stackerrors.record_errors` records them) and then the shadow ratio's
+    (:class:`RatioError`, under ``"ratio"``). ``d_composite(r)`` and ``delta_composite(r)``
+    the decoded composites (T, 3) at the valid texels; the masters' from the spectra
+    (``absolute_truths``)."""
+    d_errors, i_errors, ratio = {}, {}, RatioError()
+    for sky, d_true, delta_true in zip(skies, spec_d.absolute_truths(skies),
+                                       spec_delta.absolute_truths(skies), strict=True):
+        D, delta = d_composite(sky.r), delta_composite(sky.r)
+        d_errors[sky.name] = sky_error(D, d_true)
+        i_errors[sky.name] = sky_error(D - delta, d_true - delta_true)
+        ratio.add(sky.name, D, delta, d_true, delta_true)
+    record_sky_errors(d_entry, d_errors)
+    record_sky_errors(delta_entry, i_errors)
+    delta_entry["error"]["ratio"] = ratio.summary()
+
+
+class RatioError:
+    """The shadow ratio ``I / d`` as decoded against the masters' on every test sky, added
+    a sky at a time (:meth:`add`): the worst texel's absolute error where ``sum r d`` is
+    above ``RATIO_FLOOR`` of its mean (lowrank.ratio_checks, the texels the rank and
+    refinement rules bound), summarized (:meth:`summary`) as
     ``{"max", "sky", "skies_over", "texels_over"}`` (``*_over``: above ``RATIO_CHECKED``, the
     tests' bound). Recorded, not enforced: the rank and refinement rules bound the ratio's
     truncation and unrefined losses (0.008 + 2 x 0.002) but not the ETC1S layers', which are
-    never refined (docs/benchmarks.md, "The ground's shadow ratio on held-out skies").
-    ``d_composite(r)`` and ``delta_composite(r)`` the decoded composites (T, 3)."""
-    worst, where, skies_over, texels_over = 0.0, None, 0, 0
-    for sky, d_true, delta_true in zip(skies, spec_d.absolute_truths(skies),
-                                       spec_delta.absolute_truths(skies), strict=True):
+    never refined (docs/benchmarks.md, "The ground's shadow ratio on held-out skies")."""
+
+    def __init__(self):
+        self.worst, self.where, self.skies_over, self.texels_over = 0.0, None, 0, 0
+
+    def add(self, name: str, D, delta, d_true, delta_true) -> None:
+        """One sky's decoded composites ``D`` (of d) and ``delta`` and the masters' (T, 3)."""
         lit = d_true > RATIO_FLOOR * d_true.mean()
-        D = d_composite(sky.r)
-        ratio = (D - delta_composite(sky.r)) / np.maximum(D, 1e-12)
+        ratio = (D - delta) / np.maximum(D, 1e-12)
         truth = (d_true - delta_true) / np.maximum(d_true, 1e-12)
         error = np.abs(ratio - truth)[lit]
         top = float(error.max(initial=0.0))
         over = int((error > RATIO_CHECKED).sum())
-        skies_over += over > 0
-        texels_over += over
-        if top > worst:
-            worst, where = top, sky.name
-    return {"max": round(worst, 6), "sky": where, "skies_over": skies_over,
-            "texels_over": texels_over}
+        self.skies_over += over > 0
+        self.texels_over += over
+        if top > self.worst:
+            self.worst, self.where = top, name
+
+    def summary(self) -> dict:
+        return {"max": round(self.worst, 6), "sky": self.where,
+                "skies_over": self.skies_over, "texels_over": self.texels_over}

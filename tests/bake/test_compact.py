@@ -91,7 +91,7 @@ def test_ground_shadow_ratio_within_002_at_every_texel(build):
 
 def test_the_bake_records_the_ground_ratio_as_decoded_on_its_test_skies(build):
     """The bake's own check of the shadow ratio as decoded (``error.ratio`` of the ground's
-    ``I``, bake.stackkinds.decoded_ratio_error): the worst texel over the bake's test skies,
+    ``I``, bake.stackkinds.RatioError): the worst texel over the bake's test skies,
     and which sky, as this test's metric above computes it from the masters and the compact
     files (it is recorded, not enforced: docs/benchmarks.md)."""
     recorded = build.atlases["ground"]["stacks"]["I"]["compact"]["error"]["ratio"]
@@ -825,14 +825,14 @@ def test_a_ratio_rank_over_the_bound_is_rejected_at_its_first_texels_over_it(mon
     settings = compress.Settings()
     rng = np.random.default_rng(8)
     T, n = 400, dome.count
-    calls = []
-    composite = lowrank.Spectrum.composite
+    calls = []  # a 1 per sky's composite (Spectrum.composites makes a batch of skies')
+    composites = lowrank.Spectrum.composites
 
-    def counted(self, *args):
-        calls.append(1)
-        return composite(self, *args)
+    def counted(self, P, k, S_inv, rs, *args):
+        calls.extend([1] * len(rs))
+        return composites(self, P, k, S_inv, rs, *args)
 
-    monkeypatch.setattr(lowrank.Spectrum, "composite", counted)
+    monkeypatch.setattr(lowrank.Spectrum, "composites", counted)
     verdicts, fewer = set(), 0
     for case in range(2):
         d = (1.0 + 0.3 * rng.random((T, 1, 1))) * (0.2 + rng.random((1, n, 3)))
