@@ -49,9 +49,9 @@ export { skyClearness, skyTypeForRatio, unitSky } from './skyshape.js';
 
 /** The estimated copy of the picture, pixels (w, h). At 192 x 108 a shadow a metre wide ten
  * metres off (the demo's kiosk view: its tree's shadow at 9:30) was one or two pixels high:
- * a few dozen pool pixels mostly in shade, and a sky that moved by -15 to +21 % from one
- * pool of pixels to the next; at twice that, within -15 to +6 % and mostly within 6 %
- * (docs/benchmarks.md, "The phone's copy at 384 x 216"). */
+ * a few dozen pool pixels mostly in shade, and a sky that moved by up to 27 % from one pool
+ * of pixels to the next; at twice that, up to 13 %, median 3-5 % (docs/benchmarks.md, "The
+ * phone's copy at 384 x 216"). */
 export const ESTIMATE_SIZE = [384, 216];
 /** A new estimate at most this often, seconds (the sky changes over minutes; a phone's CPU). */
 export const ESTIMATE_PERIOD_S = 2;
