@@ -457,9 +457,10 @@ def test_the_kiosk_view_s_clear_sky_with_bounce_surfaces_lit_on_their_tilt(brows
     (CI's run, the page's own estimates let in before the hold, 10.0 %, 12 of 18, worst 21.1 %:
     this test's failure there); pools 7-18, 7.6 %, 23 of 36, worst 27 %. Now, at 384 x 216,
     median 3.2 %, 14 of 18, worst 13.4 %; pools 7-18, 5.3 %, 28 of 36, worst 13.3 % (today's
-    code at 192 x 108: 11.7 %, 9 of 18; it fails here). What is left is mostly the Perez sky's clearness bin: the truth (6.44) is
-    in the clearest bin; fits whose first ratio reads a clearness under 6.2 take the bin below
-    and read the sky up to 6 % high, those above it read it 5-15 % low."""
+    code at 192 x 108: 11.7 %, 9 of 18; it fails here). What is left is mostly the Perez sky's
+    clearness bin: the truth (6.44) is in the clearest bin; fits whose first ratio reads a
+    clearness under 6.2 take the bin below and read the sky up to 6 % high, those above it
+    read it 5-15 % low."""
     frames = pose_frames(browser, web_build, KIOSK_POSE, [("clear-9.5", "9.5", 800.0, 80.0)],
                          tmp_path, server=False)
     sky = frames["clear-9.5"]
