@@ -14,7 +14,7 @@
 // For tests/web/test_phoneestimate_js.py.
 import { readFileSync } from 'node:fs';
 import * as THREE from 'three';
-import { ESTIMATE_SIZE, PAIR_RADIUS_PX } from '../../web/src/phoneestimate.js';
+import { pairRadiusPx } from '../../web/src/phoneestimate.js';
 import { poolForPose, skyBounceTerms, skyTerms, sunTerms } from '../../web/src/phonepool.js';
 import { viewHits, whollyShadedPixels } from '../../web/src/phoneshade.js';
 import { unitSky } from '../../web/src/skyshape.js';
@@ -40,9 +40,7 @@ if (c.pool) {
   camera.updateMatrixWorld();
   const pool = poolForPose(proxies, camera, p.width, p.height, p.farAlbedo);
   const terms = sunTerms(proxies, pool, p.sun);
-  // the radius as the estimator scales it to a copy of this height (phoneestimate.js _termsFor)
-  const radiusPx = Math.round(PAIR_RADIUS_PX * p.height / ESTIMATE_SIZE[1]);
-  const pairs = shadowPairs(pool, terms.map((t) => t.share), p.sun, { radiusPx });
+  const pairs = shadowPairs(pool, terms.map((t) => t.share), p.sun, { radiusPx: pairRadiusPx(p.height) });
   const sky = p.perez ? skyTerms(pool, unitSky(12, p.sun, p.perez)) : null;
   out.pool = {
     matrixWorld: camera.matrixWorld.toArray(),

@@ -73,6 +73,11 @@ const SUN_TOLERANCE_DEG = 0.1;
 // field over the copy's 216 rows has 187 px per radian there, so the same angle is 10.8 px: 11.
 export const PAIR_FLOOR = 0.05;
 export const PAIR_RADIUS_PX = 11;
+/** The pairs' radius for a copy `heightPx` rows high, pixels: PAIR_RADIUS_PX at ESTIMATE_SIZE,
+ * the same angle at another size (the benchmarks' baseline copy, the Node cases' views). */
+export function pairRadiusPx(heightPx) {
+  return Math.round(PAIR_RADIUS_PX * heightPx / ESTIMATE_SIZE[1]);
+}
 const SHARE_MEMORY = 0.8; // per estimate, the weight of the past in the model sky's share
 /** The level the estimate is scaled to: a sun and sky giving this on open ground. */
 export const NOMINAL_GLOBAL_W_M2 = 500;
@@ -144,9 +149,7 @@ export class PhoneEstimator {
   _termsFor(sun) {
     if (!this._sun || dot(this._sun, sun) < Math.cos(SUN_TOLERANCE_DEG * Math.PI / 180)) {
       this._sunTerms = sunTerms(this.proxies, this.pool, sun);
-      // (the radius is an angle: PAIR_RADIUS_PX at ESTIMATE_SIZE, scaled for another copy)
-      const radiusPx = Math.round(PAIR_RADIUS_PX * this._pose.h / ESTIMATE_SIZE[1]);
-      this._pairs = shadowPairs(this.pool, this._sunTerms.map((t) => t.share), sun, { radiusPx });
+      this._pairs = shadowPairs(this.pool, this._sunTerms.map((t) => t.share), sun, { radiusPx: pairRadiusPx(this._pose.h) });
       this._shade = this._topUp(sun);
       this.samples = this.pool.concat(this._shade);
       this._terms = this._sunTerms.concat(sunTerms(this.proxies, this._shade, sun));
