@@ -193,11 +193,7 @@ export class LightFeed {
     const estimate = this.phoneLight.read(app.camera, sun, nowS, force);
     if (!estimate) return null;
     this.phoneEstimate = estimate;
-    // A registration is a split of sun from shade: where the estimate keeps no sun (cloud) the
-    // split it found is the sky's (a wall that sees half the sky reads darker than open ground,
-    // in the sun's sense), and following it walked the demo's kiosk view 11-15 degrees away in
-    // five estimates under an overcast sky, until it saw no shade and estimated nothing.
-    if (Math.max(...estimate.sunNormal) > 0) this._follow(estimate);
+    this._follow(estimate, estimate.sunNormal);
     const v = this.phoneEstimator.lightVector(estimate, app.assets.manifest.dome.lights, sun);
     this._phoneSequence += 1;
     this.push({ rgb: v.rgb, saturated: null, sequence: this._phoneSequence, captureTime: Date.now() / 1000, stale: false, flags: 0, sun: v.sun, phone: true });
@@ -217,10 +213,7 @@ export class LightFeed {
     const shift = this.phoneLight.readShift(app.camera, sun, nowS, force);
     if (!shift) return null;
     this.registration = { shiftPx: [shift.dx, shift.dy], turnDeg: shift.turnDeg, fisher: shift.fisher, fisherAtZero: shift.fisherAtZero };
-    // not under a server sky with no sun now (as estimate(): the split is then the sky's);
-    // a server that sends no sun at all (protocol version 1) is followed as before
-    const sunNow = this.light?.sun?.normalIrradiance;
-    if (!sunNow || Math.max(...sunNow) > 0) this._follow(this.registration);
+    this._follow(this.registration, this.light?.sun?.normalIrradiance ?? null);
     return this.registration;
   }
 
@@ -229,8 +222,16 @@ export class LightFeed {
    * registration that left the view found the same shift of a pixel (a smaller gain once is the
    * picture's noise: under a soft-shadowed sky the best shift wanders a pixel from one
    * estimate to the next; the same shift twice is not), and the turn passes a tenth of a
-   * degree. */
-  _follow({ shiftPx, turnDeg, fisher, fisherAtZero }) {
+   * degree. Only under a sun: a registration is a split of sun from shade, and where the light
+   * has no sun (cloud) the split it finds is the sky's (a wall that sees half the sky reads
+   * darker per albedo than open ground); following it walked the demo's kiosk view 11-15
+   * degrees away in five estimates under an overcast sky, until it saw no shade and estimated
+   * nothing.
+   * @param {number[]|null} sunNormal the light's sun normal irradiance (RGB): the phone's
+   *   estimate's, or the server's now; null where it is not known (a protocol-version-1
+   *   server), followed as before */
+  _follow({ shiftPx, turnDeg, fisher, fisherAtZero }, sunNormal) {
+    if (sunNormal && !(Math.max(...sunNormal) > 0)) return;
     const gains = fisher > fisherAtZero * (1 + MIN_FISHER_GAIN);
     const settling = Math.max(Math.abs(shiftPx[0]), Math.abs(shiftPx[1])) <= SETTLE_SHIFT_PX;
     const again = settling && (shiftPx[0] !== 0 || shiftPx[1] !== 0)
