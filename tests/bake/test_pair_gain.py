@@ -69,19 +69,32 @@ def _masters(dome: Dome) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return I, d, moved
 
 
+def prepared_skies(dome: Dome) -> tuple:
+    """The bake's test skies of SITE on ``dome`` with no selected light: compress.prepare's
+    (skies, S, S_inv, selection)."""
+    selectable = testskies.sun_path_selectable(SITE, dome.vertices, dome.solid_angles_sr)
+    return compress.prepare(SITE, dome.vertices, dome.solid_angles_sr, 0,
+                            selectable=selectable)
+
+
+def compress_ground_pair(I, d, out, prepared) -> tuple:
+    """The pair (copies of ``I`` and ``d``) compressed as the bake's ground pair into ``out``
+    under ``prepared`` (prepared_skies): (delta_stack, d_stack)."""
+    skies, S, S_inv, selection = prepared
+    return stackkinds.compress_ratio_pair(
+        I.copy(), d.copy(), ("ground.I", "ground.d"), out, skies, S, S_inv, selection,
+        compress.Settings(selected_lights=0),
+    )
+
+
 @pytest.fixture(scope="module")
 def pair(tmp_path_factory):
     dome = Dome.for_light_count(40)
     I, d, moved = _masters(dome)
     out = tmp_path_factory.mktemp("pair")
-    selectable = testskies.sun_path_selectable(SITE, dome.vertices, dome.solid_angles_sr)
-    skies, S, S_inv, selection = compress.prepare(
-        SITE, dome.vertices, dome.solid_angles_sr, 0, selectable=selectable
-    )
-    delta_stack, d_stack = stackkinds.compress_ratio_pair(
-        I.copy(), d.copy(), ("ground.I", "ground.d"), out, skies, S, S_inv, selection,
-        compress.Settings(selected_lights=0),
-    )
+    prepared = prepared_skies(dome)
+    skies, _, _, selection = prepared
+    delta_stack, d_stack = compress_ground_pair(I, d, out, prepared)
     readers = {name: CompactReader(out, s.entry, (SIZE, SIZE))
                for name, s in (("d", d_stack), ("delta", delta_stack))}
     held = testskies.held_out_skies(SITE, dome.vertices)

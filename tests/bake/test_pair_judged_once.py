@@ -14,10 +14,10 @@ import collections
 import numpy as np
 import pytest
 
-from bake import compress, stackkinds, testskies
+from bake import stackkinds
 from bake.compact_reader import CompactReader
 from bake.dome import Dome
-from tests.bake.test_pair_gain import SITE, SIZE, _masters
+from tests.bake.test_pair_gain import SIZE, _masters, compress_ground_pair, prepared_skies
 
 
 @pytest.fixture(scope="module")
@@ -25,10 +25,8 @@ def judged(tmp_path_factory):
     dome = Dome.for_light_count(40)
     I, d, _ = _masters(dome)
     out = tmp_path_factory.mktemp("pair")
-    selectable = testskies.sun_path_selectable(SITE, dome.vertices, dome.solid_angles_sr)
-    skies, S, S_inv, selection = compress.prepare(
-        SITE, dome.vertices, dome.solid_angles_sr, 0, selectable=selectable
-    )
+    prepared = prepared_skies(dome)
+    skies, _, _, selection = prepared
     calls = collections.Counter()  # (reader, sky) -> composites computed
     composite = CompactReader.composite
 
@@ -38,10 +36,7 @@ def judged(tmp_path_factory):
 
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(CompactReader, "composite", counted)
-        delta_stack, d_stack = stackkinds.compress_ratio_pair(
-            I.copy(), d.copy(), ("ground.I", "ground.d"), out, skies, S, S_inv, selection,
-            compress.Settings(selected_lights=0),
-        )
+        delta_stack, d_stack = compress_ground_pair(I, d, out, prepared)
     return dict(I=I, d=d, out=out, skies=skies, selection=selection, calls=calls,
                 entries={"d": d_stack.entry, "delta": delta_stack.entry})
 

@@ -185,6 +185,35 @@ def test_the_phone_pool_s_sun_share_and_pairs_against_python():
     assert len(js ^ py) <= 0.1 * len(py), (len(js), len(py), len(js ^ py))
 
 
+def _ground_and_wall_pool(rng, w, h, ground_from_row, wall_columns, wall_rows):
+    """A registration's pool on a picture made here: 1500 random pixels of sunlit ground
+    (albedo 0.3) from ``ground_from_row`` down, and a wall (albedo 0.1) in shade at the
+    pixels of ``wall_columns`` x ``wall_rows``. Returns (pool, lit)."""
+    ground = [{"x": int(x), "y": int(y), "albedo": [0.3] * 3}
+              for x, y in zip(rng.integers(2, w - 2, 1500),
+                              rng.integers(ground_from_row, h - 2, 1500), strict=True)]
+    wall = [{"x": x, "y": y, "albedo": [0.1] * 3} for x in wall_columns for y in wall_rows]
+    return ground + wall, [True] * len(ground) + [False] * len(wall)
+
+
+def _grey_codes(linear):
+    """A grey picture's sRGB codes (h, w, 3), ints, from its linear values (h, w)."""
+    from tests.radiance_frames import srgb_encode
+
+    return np.round(255 * srgb_encode(np.repeat(linear[..., None], 3, axis=2))).astype(int)
+
+
+def _registrations(pictures, pool, lit):
+    """poseregister.js's registerShift in Node (poseregister_cases.mjs) on each picture's codes
+    (h, w, 3) with ``pool`` and ``lit``, a 60-degree field of view: their registrations."""
+    cases = [{"codes": codes.ravel().tolist(), "w": codes.shape[1], "h": codes.shape[0],
+              "pool": pool, "lit": lit, "fovDeg": 60.0} for codes in pictures]
+    out = subprocess.run([node_path(), str(ROOT / "tests" / "web" / "poseregister_cases.mjs")],
+                         input=json.dumps(cases), capture_output=True, text=True, timeout=60,
+                         check=True)
+    return json.loads(out.stdout)
+
+
 def test_the_registration_takes_no_split_that_puts_shade_on_brighter_pixels():
     """poseregister.js on a picture made here (the demo's kiosk view at 9:30 in miniature): sunlit
     ground (albedo 0.3) and a small wall (albedo 0.1) in shade, its shade textured (30 %
@@ -195,29 +224,16 @@ def test_the_registration_takes_no_split_that_puts_shade_on_brighter_pixels():
     The registration must find the true shift; on main it took the far one (the kiosk view's
     estimates then read sunlit ground for shade and dropped the sun). A flat grey picture (no
     sun) splits only the wrong way at every shift: no shift is taken."""
-    from tests.radiance_frames import srgb_encode
-
     rng = np.random.default_rng(3)
     w, h = 192, 108
     true_shift = (3, 1)
-    ground = [{"x": int(x), "y": int(y), "albedo": [0.3] * 3}
-              for x, y in zip(rng.integers(2, w - 2, 1500), rng.integers(60, h - 2, 1500),
-                              strict=True)]
-    wall = [{"x": x, "y": y, "albedo": [0.1] * 3} for x in range(80, 96) for y in range(20, 51, 2)]
-    pool = ground + wall
-    lit = [True] * len(ground) + [False] * len(wall)
+    pool, lit = _ground_and_wall_pool(rng, w, h, 60, range(80, 96), range(20, 51, 2))
     linear = np.full((h, w), 0.5) * np.exp(rng.normal(0.0, 0.02, (h, w)))  # sunlit ground
     shade = (slice(20 + true_shift[1], 51 + true_shift[1]),
              slice(80 + true_shift[0], 96 + true_shift[0]))
     linear[shade] = 0.02 * np.exp(rng.normal(0.0, 0.3, linear[shade].shape))
     grey = np.full((h, w), 0.2) * np.exp(rng.normal(0.0, 0.02, (h, w)))
-    cases = [{"codes": np.round(255 * srgb_encode(np.repeat(pic[..., None], 3, axis=2)))
-              .astype(int).ravel().tolist(), "w": w, "h": h, "pool": pool, "lit": lit,
-              "fovDeg": 60.0} for pic in (linear, grey)]
-    out = subprocess.run([node_path(), str(ROOT / "tests" / "web" / "poseregister_cases.mjs")],
-                         input=json.dumps(cases), capture_output=True, text=True, timeout=60,
-                         check=True)
-    sunny, flat = json.loads(out.stdout)
+    sunny, flat = _registrations([_grey_codes(linear), _grey_codes(grey)], pool, lit)
     print("registrations", sunny, flat)
     assert (sunny["dx"], sunny["dy"]) == true_shift, sunny
     assert sunny["fisher"] > 8, sunny
@@ -248,18 +264,10 @@ def test_the_registration_s_search_finds_the_best_shift_of_every_shift():
     size whose shadow lies at an odd shift (5 px right, 3 down; the coarse pass misses it), with
     a soft shadow edge and noise, it finds the shift that scores best over every shift within
     its reach, as numpy scores them here, and that shift is the picture's."""
-    from tests.radiance_frames import srgb_encode
-
     rng = np.random.default_rng(5)
     w, h = 384, 216
     true_shift = (5, 3)
-    ground = [{"x": int(x), "y": int(y), "albedo": [0.3] * 3}
-              for x, y in zip(rng.integers(2, w - 2, 1500), rng.integers(100, h - 2, 1500),
-                              strict=True)]
-    wall = [{"x": x, "y": y, "albedo": [0.1] * 3} for x in range(150, 200, 2)
-            for y in range(40, 100, 3)]
-    pool = ground + wall
-    lit = [True] * len(ground) + [False] * len(wall)
+    pool, lit = _ground_and_wall_pool(rng, w, h, 100, range(150, 200, 2), range(40, 100, 3))
     # sunlit ground, then the wall's shade a pixel beyond its pool pixels each way, its edge
     # blurred over about 3 px
     yy, xx = np.mgrid[0:h, 0:w].astype(float) - np.array(true_shift[::-1])[:, None, None]
@@ -267,13 +275,8 @@ def test_the_registration_s_search_finds_the_best_shift_of_every_shift():
     inside_y = np.clip(np.minimum(yy - 39, 98 - yy) / 3 + 0.5, 0, 1)
     shade = inside_x * inside_y
     linear = (0.5 * (1 - shade) + 0.02 * shade) * np.exp(rng.normal(0.0, 0.05, (h, w)))
-    codes = np.round(255 * srgb_encode(np.repeat(linear[..., None], 3, axis=2))).astype(int)
-    case = {"codes": codes.ravel().tolist(), "w": w, "h": h, "pool": pool, "lit": lit,
-            "fovDeg": 60.0}
-    out = subprocess.run([node_path(), str(ROOT / "tests" / "web" / "poseregister_cases.mjs")],
-                         input=json.dumps([case]), capture_output=True, text=True, timeout=60,
-                         check=True)
-    (got,) = json.loads(out.stdout)
+    codes = _grey_codes(linear)
+    (got,) = _registrations([codes], pool, lit)
     # the picture as the client reads it: its sRGB codes back to linear, clipped or black
     # codes unread
     from tests.radiance_frames import linearise
