@@ -14,7 +14,7 @@ Shapes as in :mod:`bake.lowrank`: ``U`` (T, 3, k), ``V`` (n, k), losses (k, T, 3
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -97,6 +97,9 @@ def _composite_means(U: np.ndarray, cs: np.ndarray) -> tuple[np.ndarray, np.ndar
 # The new summed moves a layer tested for the shadow ratio keeps, at most (beside the sums
 # themselves, skies x lit texels: the demo's hull pair's fit, a large site's do not).
 KEPT_SUMS_BYTES = 2 * ROW_BLOCK_BYTES
+# The skies' lit places, -X and D**2 a rule keeps for its moves, at most (made again per move
+# past it: a large site's).
+KEPT_TERMS_BYTES = 2 * ROW_BLOCK_BYTES
 
 
 @dataclass
@@ -133,11 +136,51 @@ class RatioRefinement:
             means.append(float(np.abs(d_true).mean()))
         return tuple(cls(role, rests, lit, d, delta, means) for role in ("d", "delta"))
 
+    # Per sky, once: its lit values' places and the role's terms (:meth:`_terms`), kept up
+    # to ``KEPT_TERMS_BYTES`` in all, made again per move past that.
+    _kept: dict = field(default_factory=dict, init=False, repr=False)
+    _held: int = field(default=0, init=False, repr=False)
+
     def move(self, losses: np.ndarray, V: np.ndarray, j: int, s: int) -> np.ndarray:
-        """Layer j's move of the ratio on sky ``s`` (L,) float32."""
-        rest, lit, D, X = self.rests[s], self.lit[s], self.d[s], self.delta[s]
-        change = (losses[j] * (V[:, j] @ rest).astype(np.float32))[lit]
-        return change / D if self.role == "delta" else -X * change / D**2
+        """Layer j's move of the ratio on sky ``s`` (L,): at the sky's lit values (``lit``)
+        ordered by channel (R's, then G's, then B's, each in the texels' order; the same
+        order for every layer of a sky, so summed moves and their largest values are those
+        of the lit values in any order).
+
+        The values of ``(losses[j] * c_j)[lit] / D`` (delta's) and ``-X (losses[j] *
+        c_j)[lit] / D**2`` (d's), ``c_j = V[:, j] @ r'`` in float32, bit for bit, made from
+        the lit values only, with ``-X`` and ``D**2`` made once per sky: the product over the
+        whole (T, 3) loss and its gather at the lit texels was most of the rule's time
+        (docs/benchmarks.md, "The ratio rule's moves at the lit values")."""
+        places, starts, numerator, denominator = self._terms(s)
+        c = (V[:, j] @ self.rests[s]).astype(np.float32)  # (3,)
+        loss = losses[j].reshape(-1)
+        change = np.take(loss, places).astype(np.result_type(loss, c), copy=False)
+        for channel in range(3):
+            change[starts[channel] : starts[channel + 1]] *= c[channel]
+        if numerator is None:
+            return change / denominator
+        return numerator * change / denominator
+
+    def _terms(self, s: int):
+        """Sky ``s``'s lit values' flat places in a (T, 3) loss, ordered by channel; where
+        each channel's start (4,); ``-X`` (d's, None for delta's) and ``D**2`` (d's) or
+        ``D`` (delta's), in that order."""
+        kept = self._kept.get(s)
+        if kept is not None:
+            return kept
+        flat = np.flatnonzero(np.asarray(self.lit[s]).reshape(-1))  # the mask's order
+        order = np.argsort(flat % 3, kind="stable")  # by channel, the mask's order within
+        places = flat[order].astype(np.int32 if flat.size and flat[-1] < 2**31 else np.intp)
+        starts = np.searchsorted(flat[order] % 3, np.arange(4))
+        D, X = np.asarray(self.d[s])[order], np.asarray(self.delta[s])[order]
+        terms = ((places, starts, None, D) if self.role == "delta"
+                 else (places, starts, -X, D**2))
+        size = sum(a.nbytes for a in terms if a is not None)
+        if self._held + size <= KEPT_TERMS_BYTES:
+            self._kept[s] = terms
+            self._held += size
+        return terms
 
     def layers(self, losses: np.ndarray, f: Factors, keep_bytes: int = KEPT_SUMS_BYTES
                ) -> list[int]:
