@@ -220,10 +220,15 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
         # (With the default m = 0 none: a stack that selects lights holds their images.)
         normalized = np.ascontiguousarray(full(spectrum.columns(lit)).transpose(2, 0, 1, 3))
         # Stage 1: coarse gain and light images (and the lights' refinements, written: they
-        # do not depend on the base's ETC1S split), each base layer quantized.
-        gain_image = np.repeat(full(spectrum.gain[:, None]), 3, axis=2)
-        gain_q = quantized_png(gain_image, tmp / "gain.png")
-        encode_array([gain_q.path], tmp / "gain-coarse.ktx2")
+        # do not depend on the base's ETC1S split), each base layer quantized. The gain only
+        # where this stack writes it (a pair's first stack): no other file or value reads
+        # its coarse encoding (docs/benchmarks.md, "The ratio rule's moves at the lit
+        # values": the gain encoded and decoded for nothing by the other stacks).
+        write_gain = normalized_gain and gain_file is None
+        if write_gain:
+            gain_image = np.repeat(full(spectrum.gain[:, None]), 3, axis=2)
+            gain_q = quantized_png(gain_image, tmp / "gain.png")
+            encode_array([gain_q.path], tmp / "gain-coarse.ktx2")
         # Each base layer's full image is made when it is written and again for its loss:
         # k full images at once were k x texels x 3 more (docs/benchmarks.md, "The write
         # stage's memory").
@@ -235,11 +240,10 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
             quantized_png(normalized[j], tmp / f"{name}.L{i:04d}.png") for j, i in enumerate(lit)
         ]
         encode([q.path for q in light_q], coarse_dir, settings, array=False)
-        decoded = decode(
-            [tmp / "gain-coarse.ktx2"] + [coarse_dir / f"{name}.L{i:04d}.ktx2" for i in lit]
-        )
-        coarse_gain = gain_q.value(decoded[0][0])
-        coarse_lights = [q.value(decoded[1 + i][0]) for i, q in enumerate(light_q)]
+        gains = [tmp / "gain-coarse.ktx2"] if write_gain else []
+        decoded = decode(gains + [coarse_dir / f"{name}.L{i:04d}.ktx2" for i in lit])
+        coarse_gain = gain_q.value(decoded[0][0]) if write_gain else None
+        coarse_lights = [q.value(decoded[len(gains) + i][0]) for i, q in enumerate(light_q)]
         del decoded
         light_refine_q, light_files = _light_refinements(
             name, lit, normalized, coarse_lights, light_q, coarse_dir, out_dir, tmp,
@@ -311,10 +315,10 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
         ]
         del arrays, uastc
         encode_array([q.path for q in base_q[:head] + refine_q], base_file)
-        gain_refine_q = refinement_png(gain_image - coarse_gain, tmp / "gain-refine.png", None)
         written_gain = out_dir / "ktx2" / f"{name}.gain.ktx2"
-        write_gain = normalized_gain and gain_file is None
         if write_gain:
+            gain_refine_q = refinement_png(gain_image - coarse_gain, tmp / "gain-refine.png",
+                                           None)
             encode_array([gain_q.path, gain_refine_q.path], written_gain)
     v_file = out_dir / "v" / f"{name}.V.bin"
     v_type = write_v(v_file, f.V, dtype)  # {"dtype", "scale"}
