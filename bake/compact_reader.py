@@ -76,6 +76,8 @@ class CompactReader:
         self._base = None
         self._gain = None
         self._lights: dict[int, np.ndarray] = {}
+        self._raw = None  # a reader made from decoded bytes (:meth:`decoded`): its base's
+        self._at = None  # (mask, base layers at it (k, T, 3), gain at it) of composite(at=)
 
     def gain(self) -> np.ndarray | float:
         """(H, W, 3) float32 decoded gain (coarse plus refinement), or 1 without one."""
@@ -92,6 +94,8 @@ class CompactReader:
 
     def base(self) -> np.ndarray:
         """(k, H, W, 3) float32 decoded base layers, refinements added to their layers."""
+        if self._base is None and self._raw is not None:
+            self._base = layer_sum(self.entry["layers"], *self._raw)
         if self._base is None and "ktx2" not in self.entry:
             self._base = np.zeros((0,) + self.shape + (3,), dtype=np.float32)
         if self._base is None:
@@ -115,7 +119,7 @@ class CompactReader:
         reader = cls(build_dir, {key: value for key, value in entry.items() if key != "v"},
                      shape)
         reader.V = V
-        reader._base = layer_sum(entry["layers"], raw, V.shape[1])
+        reader._raw = (raw, V.shape[1])
         return reader
 
     def lights(self, indices) -> dict[int, np.ndarray]:
@@ -153,17 +157,40 @@ class CompactReader:
         """Drop the decoded light images (memory)."""
         self._lights.clear()
 
-    def composite(self, r: np.ndarray, selection: Selection) -> np.ndarray:
-        """``g (sum_l U_l (V^T r')_l + sum_{i in A(r)} r_i B_i)``: (H, W, 3) float32."""
+    def composite(self, r: np.ndarray, selection: Selection,
+                  at: np.ndarray | None = None) -> np.ndarray:
+        """``g (sum_l U_l (V^T r')_l + sum_{i in A(r)} r_i B_i)``: (H, W, 3) float32; with
+        ``at`` (H, W) bool, at those texels only (T, 3): the same values, bit for bit, as
+        the whole composite's ``[at]`` (the same sum over the layers at each texel), from
+        the base layers' values there, kept for the next call with that mask; the whole base
+        is then let go of (made again if asked for). The bake's checks read a stack's valid
+        texels only (about three fifths of the demo's lightmap; docs/benchmarks.md, "The
+        ratio rule's moves at the lit values")."""
         r = np.asarray(r, dtype=np.float64)
         chosen = self.selection(selection)(r)
         rest = r.copy()
         rest[chosen] = 0.0
         c = self.V.T @ rest  # (k, 3)
-        out = np.einsum("khwc,kc->hwc", self.base(), c.astype(np.float32))
+        if at is None:
+            out = np.einsum("khwc,kc->hwc", self.base(), c.astype(np.float32))
+            gain = self.gain()
+        else:
+            base, gain = self._values_at(at)
+            out = np.einsum("ktc,kc->tc", base, c.astype(np.float32))
         for i, light in self.lights(chosen).items():
-            out += light * r[i].astype(np.float32)
-        return out * self.gain()
+            out += (light if at is None else light[at]) * r[i].astype(np.float32)
+        return out * gain
+
+    def _values_at(self, at: np.ndarray):
+        """The base layers (k, T, 3) and the gain (T, 3, or 1) at the ``at`` texels."""
+        if self._at is None or not np.array_equal(self._at[0], at):
+            gain = self.gain()
+            self._at = None
+            self._at = (np.array(at, dtype=bool), self.base()[:, at],
+                        gain if np.isscalar(gain) else gain[at])
+            if self._raw is not None or "ktx2" in self.entry:
+                self._base = None  # decoded again if asked for
+        return self._at[1], self._at[2]
 
 
 def layer_sum(layers: list[dict], raw, k: int) -> np.ndarray:

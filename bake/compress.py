@@ -299,7 +299,7 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
             reader.lights(selected_by_any(skies, selection))
             within, first = within_budget(
                 predicted, lambda sky: next(spectrum.absolute_truths([sky])),
-                lambda r, reader=reader: reader.composite(r, selection)[valid], skies,
+                lambda r, reader=reader: reader.composite(r, selection, at=valid), skies,
                 settings.budget, first,
             )
             del reader
@@ -365,13 +365,13 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
         record_errors(
             entry,
             spectrum.absolute_truths(skies),
-            lambda r: reader.composite(r, selection)[valid],
+            lambda r: reader.composite(r, selection, at=valid),
             skies,
         )
         if settle_v_dtype(
             [(entry, f.V, reader)], out_dir, settings.budget,
             lambda: record_errors(entry, spectrum.absolute_truths(skies),
-                                  lambda r: reader.composite(r, selection)[valid], skies),
+                                  lambda r: reader.composite(r, selection, at=valid), skies),
         ):
             compact.base_bytes = sum(p.stat().st_size for p in files if p not in light_files)
     return compact

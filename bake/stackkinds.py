@@ -197,8 +197,8 @@ def compress_ratio_pair(I, d, names, out_dir, skies, S, S_inv, selection, settin
     # settle_v_dtype's restoring them restores it too: it is the one of the V kept.
     def judge():
         judge_pair(d_stack.entry, delta_stack.entry, spec_d, spec_delta, skies,
-                   lambda r: readers["d"].composite(r, selection)[valid],
-                   lambda r: readers["delta"].composite(r, selection)[valid])
+                   lambda r: readers["d"].composite(r, selection, at=valid),
+                   lambda r: readers["delta"].composite(r, selection, at=valid))
 
     judge()
     # V in float16 unless it puts I or d over the budget where float32 does better (both

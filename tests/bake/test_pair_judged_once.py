@@ -30,9 +30,9 @@ def judged(tmp_path_factory):
     calls = collections.Counter()  # (reader, sky) -> composites computed
     composite = CompactReader.composite
 
-    def counted(self, r, selection):
+    def counted(self, r, selection, **kwargs):
         calls[id(self), np.asarray(r).tobytes()] += 1
-        return composite(self, r, selection)
+        return composite(self, r, selection, **kwargs)
 
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(CompactReader, "composite", counted)

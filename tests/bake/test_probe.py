@@ -192,9 +192,9 @@ def test_compact_decodes_once_whatever_the_number_of_points(site, capsys, monkey
         calls["decode"] += 1
         return decode(files)
 
-    def counted_composite(self, r, selection):
+    def counted_composite(self, r, selection, **kwargs):
         calls["composite"] += 1
-        return composite(self, r, selection)
+        return composite(self, r, selection, **kwargs)
 
     monkeypatch.setattr(compact_reader, "decode", counted_decode)
     monkeypatch.setattr(compact_reader.CompactReader, "composite", counted_composite)
