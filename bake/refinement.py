@@ -98,7 +98,7 @@ def _composite_means(U: np.ndarray, cs: np.ndarray) -> tuple[np.ndarray, np.ndar
 # themselves, skies x lit texels: the demo's hull pair's fit, a large site's do not).
 KEPT_SUMS_BYTES = 2 * ROW_BLOCK_BYTES
 # The skies' lit places, -X and D**2 a rule keeps for its moves, at most (made again per move
-# past it: a large site's).
+# past it: a large site's); the demo's hull needs about 100 MB for d's.
 KEPT_TERMS_BYTES = 2 * ROW_BLOCK_BYTES
 
 
@@ -136,23 +136,24 @@ class RatioRefinement:
             means.append(float(np.abs(d_true).mean()))
         return tuple(cls(role, rests, lit, d, delta, means) for role in ("d", "delta"))
 
-    # Per sky, once: its lit values' places and the role's terms (:meth:`_terms`), kept up
+    # Per sky, once: its lit values' places and the role's terms (:meth:`terms`), kept up
     # to ``KEPT_TERMS_BYTES`` in all, made again per move past that.
     _kept: dict = field(default_factory=dict, init=False, repr=False)
     _held: int = field(default=0, init=False, repr=False)
 
-    def move(self, losses: np.ndarray, V: np.ndarray, j: int, s: int) -> np.ndarray:
+    def move(self, losses: np.ndarray, V: np.ndarray, j: int, s: int, terms=None
+             ) -> np.ndarray:
         """Layer j's move of the ratio on sky ``s`` (L,): at the sky's lit values (``lit``)
         ordered by channel (R's, then G's, then B's, each in the texels' order; the same
         order for every layer of a sky, so summed moves and their largest values are those
-        of the lit values in any order).
+        of the lit values in any order). ``terms``: the sky's :meth:`terms`, if at hand.
 
         The values of ``(losses[j] * c_j)[lit] / D`` (delta's) and ``-X (losses[j] *
         c_j)[lit] / D**2`` (d's), ``c_j = V[:, j] @ r'`` in float32, bit for bit, made from
         the lit values only, with ``-X`` and ``D**2`` made once per sky: the product over the
         whole (T, 3) loss and its gather at the lit texels was most of the rule's time
         (docs/benchmarks.md, "The ratio rule's moves at the lit values")."""
-        places, starts, numerator, denominator = self._terms(s)
+        places, starts, numerator, denominator = self.terms(s) if terms is None else terms
         c = (V[:, j] @ self.rests[s]).astype(np.float32)  # (3,)
         loss = losses[j].reshape(-1)
         change = np.take(loss, places).astype(np.result_type(loss, c), copy=False)
@@ -162,38 +163,22 @@ class RatioRefinement:
             return change / denominator
         return numerator * change / denominator
 
-    def largest_moves(self, losses: np.ndarray, V: np.ndarray, s: int) -> np.ndarray:
-        """Every layer's largest move on sky ``s`` (k,) float64: ``|move(losses, V, j, s)|``'s
-        largest value (0 where nothing is lit) for each layer j, the same values, from one
-        gather of the lit values per block of layers (within ``ROW_BLOCK_BYTES``) instead
-        of one per layer."""
-        places, starts, numerator, denominator = self._terms(s)
-        k = len(losses)
-        loss = losses.reshape(k, -1)
-        c = np.stack([(V[:, j] @ self.rests[s]).astype(np.float32) for j in range(k)]
-                     ).reshape(k, 3)  # each layer's as in move
-        out = np.zeros(k)
-        step = max(1, ROW_BLOCK_BYTES // (8 * max(len(places), 1)))
-        for a in range(0, k, step):
-            change = np.take(loss[a : a + step], places, axis=1)
-            change = change.astype(np.result_type(loss, c), copy=False)
-            for channel in range(3):
-                change[:, starts[channel] : starts[channel + 1]] *= c[a : a + step, channel, None]
-            m = change / denominator if numerator is None else numerator * change / denominator
-            out[a : a + step] = np.abs(m).max(axis=1, initial=0.0)
-        return out
-
-    def _terms(self, s: int):
+    def terms(self, s: int):
         """Sky ``s``'s lit values' flat places in a (T, 3) loss, ordered by channel; where
         each channel's start (4,); ``-X`` (d's, None for delta's) and ``D**2`` (d's) or
-        ``D`` (delta's), in that order."""
+        ``D`` (delta's), in that order. Kept while the rule's kept terms are within
+        ``KEPT_TERMS_BYTES`` (12 bytes per lit value for d's, 8 for delta's)."""
         kept = self._kept.get(s)
         if kept is not None:
             return kept
-        flat = np.flatnonzero(np.asarray(self.lit[s]).reshape(-1))  # the mask's order
-        order = np.argsort(flat % 3, kind="stable")  # by channel, the mask's order within
-        places = flat[order]  # intp: take casts other indices each time
-        starts = np.searchsorted(flat[order] % 3, np.arange(4))
+        lit = np.asarray(self.lit[s])
+        channels = np.nonzero(lit)[1]  # each lit value's channel, in the mask's order
+        order = np.concatenate([np.flatnonzero(channels == c) for c in range(3)])
+        counts = lit.sum(axis=0)
+        starts = np.concatenate([[0], np.cumsum(counts)])
+        places = np.concatenate([np.flatnonzero(lit[:, c]) * 3 + c for c in range(3)])
+        if lit.size < 2**31:
+            places = places.astype(np.int32)
         D, X = np.asarray(self.d[s])[order], np.asarray(self.delta[s])[order]
         terms = ((places, starts, None, D) if self.role == "delta"
                  else (places, starts, -X, D**2))
@@ -212,8 +197,8 @@ class RatioRefinement:
         the bake's peak memory (docs/benchmarks.md, "Figures behind choices in the code"),
         and a layer's moves on every sky are skies x texels (the same sums either way).
 
-        Each move is made once for the layers' order (a sky's layers at once:
-        :meth:`largest_moves`), and its largest value kept: until a
+        Each move is made once for the layers' order (a sky's layers one after the other,
+        its terms made once), and its largest value kept: until a
         layer is left unrefined, a layer is tested on its own moves, whose largest values
         those are (no move made again). A layer tested against the summed moves keeps its
         new sums, up to ``keep_bytes`` of them, for the skies where it is within the
@@ -225,10 +210,12 @@ class RatioRefinement:
 
         skies = range(len(self.rests))
         worst, alone = [], []  # per layer: its largest move; whether each sky's is within
-        largest_moves = np.array([self.largest_moves(losses, f.V, s) for s in skies]
-                                 ).reshape(len(skies), f.k)
+        each_sky = np.zeros((len(skies), f.k))  # a sky's terms made once for its layers
+        for s in skies:
+            terms = self.terms(s)
+            each_sky[s] = [largest(self.move(losses, f.V, j, s, terms)) for j in range(f.k)]
         for j in range(f.k):
-            each = [float(m) for m in largest_moves[:, j]]
+            each = [float(m) for m in each_sky[:, j]]
             worst.append(max(each, default=0.0))
             alone.append(all(m <= self.tolerance for m in each))
         total = None

@@ -85,19 +85,3 @@ def test_layers_are_those_of_the_whole_loss_moves():
         seen.add(tuple(sorted(expected)))
     assert len(seen) >= 5
 
-
-@pytest.mark.parametrize("role", ["d", "delta"])
-@pytest.mark.parametrize("block_bytes", [1, 2000, refinement.ROW_BLOCK_BYTES])
-def test_largest_moves_of_a_sky_are_each_layers_own(role, block_bytes, monkeypatch):
-    """``largest_moves`` (every layer of a sky from one gather per block of layers: one
-    layer, a few, all) against each layer's move over the whole loss: the same largest
-    values, bit for bit, 0 on the sky with nothing lit."""
-    monkeypatch.setattr(refinement, "ROW_BLOCK_BYTES", block_bytes)
-    rng = np.random.default_rng(14)
-    rule, f, losses = _case(rng, role)
-    for s in range(len(rule.rests)):
-        expected = [float(np.abs(_moves_over_whole_loss(rule, losses, f.V, j, s)
-                                 ).max(initial=0.0)) for j in range(f.k)]
-        got = rule.largest_moves(losses, f.V, s)
-        assert got.dtype == np.float64 and got.tolist() == expected, s
-    assert rule.largest_moves(losses, f.V, 0).tolist() == [0.0] * f.k  # nothing lit
