@@ -144,15 +144,24 @@ class RatioRefinement:
     def move(self, losses: np.ndarray, V: np.ndarray, j: int, s: int, terms=None
              ) -> np.ndarray:
         """Layer j's move of the ratio on sky ``s`` (L,): at the sky's lit values (``lit``)
-        ordered by channel (R's, then G's, then B's, each in the texels' order; the same
-        order for every layer of a sky, so summed moves and their largest values are those
-        of the lit values in any order). ``terms``: the sky's :meth:`terms`, if at hand.
+        ordered by channel (R's, then G's, then B's, each in the texels' order), or, for a
+        sky whose terms are not kept (past ``KEPT_TERMS_BYTES``), in the mask's order: the
+        same order for every layer of a sky, so summed moves and their largest values are
+        those of the lit values in any order. ``terms``: the sky's :meth:`terms`, if at hand
+        (the values in their order).
 
         The values of ``(losses[j] * c_j)[lit] / D`` (delta's) and ``-X (losses[j] *
         c_j)[lit] / D**2`` (d's), ``c_j = V[:, j] @ r'`` in float32, bit for bit, made from
         the lit values only, with ``-X`` and ``D**2`` made once per sky: the product over the
         whole (T, 3) loss and its gather at the lit texels was most of the rule's time
         (docs/benchmarks.md, "The ratio rule's moves at the lit values")."""
+        if terms is None and s not in self._kept and self._held + self._size(s) > (
+                KEPT_TERMS_BYTES):
+            # Past the kept terms (a large site's skies): as the rule made it before, over
+            # the whole loss, in the mask's order (every move of this sky so: never kept).
+            rest, lit, D, X = self.rests[s], self.lit[s], self.d[s], self.delta[s]
+            change = (losses[j] * (V[:, j] @ rest).astype(np.float32))[lit]
+            return change / D if self.role == "delta" else -X * change / D**2
         places, starts, numerator, denominator = self.terms(s) if terms is None else terms
         c = (V[:, j] @ self.rests[s]).astype(np.float32)  # (3,)
         loss = losses[j].reshape(-1)
@@ -162,6 +171,13 @@ class RatioRefinement:
         if numerator is None:
             return change / denominator
         return numerator * change / denominator
+
+    def _size(self, s: int) -> int:
+        """The bytes of sky ``s``'s :meth:`terms`."""
+        values = len(self.d[s])
+        return values * ((4 if self.lit[s].size < 2**31 else 8)
+                         + np.asarray(self.d[s]).itemsize
+                         + (np.asarray(self.delta[s]).itemsize if self.role == "d" else 0))
 
     def terms(self, s: int):
         """Sky ``s``'s lit values' flat places in a (T, 3) loss, ordered by channel; where
@@ -182,10 +198,9 @@ class RatioRefinement:
         D, X = np.asarray(self.d[s])[order], np.asarray(self.delta[s])[order]
         terms = ((places, starts, None, D) if self.role == "delta"
                  else (places, starts, -X, D**2))
-        size = sum(a.nbytes for a in terms if a is not None)
-        if self._held + size <= KEPT_TERMS_BYTES:
+        if self._held + self._size(s) <= KEPT_TERMS_BYTES:
             self._kept[s] = terms
-            self._held += size
+            self._held += self._size(s)
         return terms
 
     def layers(self, losses: np.ndarray, f: Factors, keep_bytes: int = KEPT_SUMS_BYTES

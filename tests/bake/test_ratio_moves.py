@@ -49,21 +49,37 @@ def test_moves_equal_the_whole_loss_products_bit_for_bit(role, dtype):
             assert got.tobytes() == expected.tobytes(), (s, j)
 
 
-def test_moves_made_again_past_the_kept_bytes_are_the_same(monkeypatch):
-    """Past ``KEPT_TERMS_BYTES`` a sky's terms are made again per move: the same values."""
+@pytest.mark.parametrize("kept_bytes", [0, 1000])
+def test_skies_past_the_kept_bytes_make_their_moves_as_before(kept_bytes, monkeypatch):
+    """Past ``KEPT_TERMS_BYTES`` (none kept, or the first sky only) a sky's moves are made
+    as before, over the whole loss, in the mask's order, every time; the kept skies' as
+    above; and the layers are those of the whole-loss moves."""
+    monkeypatch.setattr(refinement, "KEPT_TERMS_BYTES", kept_bytes)
     rng = np.random.default_rng(12)
-    rule, f, losses = _case(rng, "d")
-    kept = [rule.move(losses, f.V, j, s) for s in range(4) for j in range(f.k)]
-    monkeypatch.setattr(refinement, "KEPT_TERMS_BYTES", 0)
-    again, _, _ = _case(np.random.default_rng(12), "d")
-    made = [again.move(losses, f.V, j, s) for s in range(4) for j in range(f.k)]
-    assert not again._kept
-    assert all(a.tobytes() == b.tobytes() for a, b in zip(kept, made, strict=True))
+    rule, f, losses = _case(rng, "d", low=0.5)
+    for s in range(4):
+        rule.terms(s)  # as the rule's first pass: each sky's terms made, kept if they fit
+    for _ in range(2):
+        for s in range(4):
+            for j in range(f.k):
+                got = rule.move(losses, f.V, j, s)
+                expected = _moves_over_whole_loss(rule, losses, f.V, j, s)
+                if s not in rule._kept:
+                    lit, D, X = rule.lit[s], rule.d[s], rule.delta[s]
+                    expected = -X * (losses[j] * (f.V[:, j] @ rule.rests[s]).astype(
+                        np.float32))[lit] / D**2
+                assert got.tobytes() == expected.tobytes(), (s, j)
+    # Kept: the sky with nothing lit (no bytes), and with 1000 bytes the next (about 60
+    # lit values, 12 bytes each); the others are made as before.
+    assert sorted(rule._kept) == ([0] if kept_bytes == 0 else [0, 1])
 
 
-def test_layers_are_those_of_the_whole_loss_moves():
+@pytest.mark.parametrize("kept_bytes", [refinement.KEPT_TERMS_BYTES, 1000])
+def test_layers_are_those_of_the_whole_loss_moves(kept_bytes, monkeypatch):
     """``layers`` against the rule stated with every move made over the whole loss (the
-    code before): the same layers for many random pairs whose choices differ."""
+    code before): the same layers for many random pairs whose choices differ, with every
+    sky's terms kept or some skies' moves made as before."""
+    monkeypatch.setattr(refinement, "KEPT_TERMS_BYTES", kept_bytes)
     rng = np.random.default_rng(13)
     seen = set()
     for case in range(30):
