@@ -218,11 +218,7 @@ class Compressor:
         for atlas in manifest["atlases"]:
             ratio = atlas["stacks"].get("I", {}).get("compact", {}).get("error", {}).get("ratio")
             if ratio:  # a shadowing pair's ratio as decoded (bake.stackkinds), not enforced
-                self.log(
-                    f"  {atlas['id']} shadow ratio as decoded: worst texel {ratio['max']:.4f} "
-                    f"({ratio['sky']}); over 0.02 on {ratio['skies_over']} of "
-                    f"{len(self.skies)} test skies, {ratio['texels_over']} texels in all"
-                )
+                self.log(ratio_line(atlas, ratio, len(self.skies)))
         sizes = download_bytes(manifest, staging)
 
         def mb(key: str) -> str:
@@ -264,3 +260,23 @@ class Compressor:
                 f"  the sun's bounce on the server: {total / 1e6:.2f} MB of light images, "
                 f"{masters / 1e6:.1f} MB of EXR masters"
             )
+
+
+def ratio_line(atlas: dict, ratio: dict, skies: int) -> str:
+    """The bake's line on a shadowing atlas's shadow ratio as decoded (``ratio``, the
+    ``error.ratio`` of its ``I`` entry: bake.stackkinds.RatioError). The 0.02 per texel is
+    the real ground's bound (a virtual shadow on real video); the hull planes are the virtual
+    objects' own surfaces (``d_reference`` "unoccluded"), judged by RMS as the lightmap is,
+    so their line says which share of the checks is over it rather than sounding an alarm
+    (docs/compact-assets.md, "The shadow ratio as decoded")."""
+    checked = ratio.get("checked")
+    share = (f" ({ratio['texels_over'] / checked:.2%} of {checked} texel checks)"
+             if checked else "")
+    line = (f"  {atlas['id']} shadow ratio as decoded: worst texel {ratio['max']:.4f} "
+            f"({ratio['sky']}); over 0.02 on {ratio['skies_over']} of {skies} test skies, "
+            f"{ratio['texels_over']} texels in all{share}")
+    if atlas.get("d_reference") == "unoccluded":
+        line += ("; these are the virtual objects' own surfaces (hull-plane mode), whose "
+                 "shading is judged by RMS as the lightmap's: the 0.02 bound is the real "
+                 "ground's")
+    return line

@@ -36,8 +36,9 @@ class Settings:
     # show there, and level 0 is faster.
     rms_refine_level: int = 0
     # A sun-bounce image whose coarse level alone is within this RMS error of the displayed
-    # value (sky without the disc plus the sun's bounce, clear sky, the sun at the patch's
-    # centre) gets no refinement (bake.sunbounce; docs/compact-assets.md, "The sun's bounce").
+    # value (sky without the disc, the sun's direct term and its bounce, clear sky, the sun
+    # at the patch's centre; the direct term since 2026-12-06 afternoon) gets no refinement
+    # (bake.sunbounce; docs/compact-assets.md, "The sun's bounce").
     # None: every image keeps its refinement, as before 2026-11-25.
     sun_bounce_budget: float | None = 0.01
     # The sun's bounce is kept at no finer an angular step than a dome of about this many

@@ -177,7 +177,8 @@ SCHEMA: dict = _table({
         "sun_bounce_budget": _num(0.01, "a sun-bounce image keeps its refinement only where "
                                   "its coarse level alone is off by more than this, as "
                                   "displayed: RMS over the mean of the sky without the sun's "
-                                  "disc plus the sun's bounce, under a clear sky with the sun "
+                                  "disc, the sun's direct term and its bounce, under a clear "
+                                  "sky with the sun "
                                   "at the patch's centre (0: every image keeps it; "
                                   "docs/compact-assets.md, \"The sun's bounce\")", 0.0, 0.5),
         "sun_bounce_lights": _num(196, "on a dome of more lights than this, neighbouring "

@@ -237,13 +237,16 @@ class RatioError:
     a sky at a time (:meth:`add`): the worst texel's absolute error where ``sum r d`` is
     above ``RATIO_FLOOR`` of its mean (lowrank.ratio_checks, the texels the rank and
     refinement rules bound), summarized (:meth:`summary`) as
-    ``{"max", "sky", "skies_over", "texels_over"}`` (``*_over``: above ``RATIO_CHECKED``, the
-    tests' bound). Recorded, not enforced: the rank and refinement rules bound the ratio's
+    ``{"max", "sky", "skies_over", "texels_over", "checked"}`` (``*_over``: above
+    ``RATIO_CHECKED``, the tests' bound; ``checked``: the texel checks made, texels times
+    channels times skies, so that ``texels_over`` can be read as a share). Recorded, not
+    enforced: the rank and refinement rules bound the ratio's
     truncation and unrefined losses (0.008 + 2 x 0.002) but not the ETC1S layers', which are
     never refined (docs/benchmarks.md, "The ground's shadow ratio on held-out skies")."""
 
     def __init__(self):
         self.worst, self.where, self.skies_over, self.texels_over = 0.0, None, 0, 0
+        self.checked = 0
 
     def add(self, name: str, D, delta, d_true, delta_true) -> None:
         """One sky's decoded composites ``D`` (of d) and ``delta`` and the masters' (T, 3)."""
@@ -255,9 +258,11 @@ class RatioError:
         over = int((error > RATIO_CHECKED).sum())
         self.skies_over += over > 0
         self.texels_over += over
+        self.checked += error.size
         if top > self.worst:
             self.worst, self.where = top, name
 
     def summary(self) -> dict:
         return {"max": round(self.worst, 6), "sky": self.where,
-                "skies_over": self.skies_over, "texels_over": self.texels_over}
+                "skies_over": self.skies_over, "texels_over": self.texels_over,
+                "checked": self.checked}

@@ -203,27 +203,47 @@ def share_entry(entry: dict, shared: SharedImages, n: int) -> dict:
 class DisplayCheck:
     """The error a decoded sun-bounce column makes in what the client shows, for one stack:
     the sky stack ``sky`` (H, W, n, 3, the same atlas's or view's, an array or a
-    :class:`bake.rowstore.StackStore`) relit with the display sky plus the sun's bounce (the
-    master column), over the receiver texels (the sky stack's non-zero ones). The sun's
-    direct term, drawn apart, is left out: with it every error would be smaller.
+    :class:`bake.rowstore.StackStore`) relit with the display sky, plus the sun's direct
+    term, plus the sun's bounce (the master column), over the receiver texels (the sky
+    stack's non-zero ones): RMS error over the mean of that displayed value.
+
+    The sun's direct term (drawn apart by the client, from its shadow map) is estimated from
+    the stacks themselves when ``bounce`` (the sun-bounce stack, H, W, n, 3, each patch's own
+    column, not shared) is given: the sky stack's column ``p`` holds the sun's direct light
+    and its bounce for patch ``p``, so ``max(sky_p - bounce_p, 0)`` times the display sky's
+    weight ``E_sun / solid_angle_p`` is the direct term with the sun spread over its patch.
+    Only its mean over the receiver texels enters the error (the client draws the direct term
+    itself, exactly: it adds nothing to the numerator), and a mean does not see that the
+    patch's shadow edges are soft where the client's are sharp (docs/sun.md, "Judged with the
+    sun's direct term"). Without ``bounce`` the direct term is left out (as before
+    2026-12-06: every error then larger, the judge stricter than what a visitor sees).
 
     The relit sky stack of every light of ``lights`` is made in one pass over the sky
     stack's rows (for each block of rows, a matrix product per chunk of lights and
     channel) and kept, (len(lights), V, 3) float64: in memory, or beside a stack on disk."""
 
-    def __init__(self, sky, skies: DisplaySkies, lights):
+    def __init__(self, sky, skies: DisplaySkies, lights, bounce=None):
         sky = as_stack(sky)
         self.valid = sky.valid
         self.skies = skies
         self.lights = [int(i) for i in lights]
         V = int(self.valid.sum())
+        # (len(lights),) the direct term's mean over the receiver texels and channels, W/m^2
+        # per sr of display radiance as the relit sky (0 without ``bounce``).
+        self.direct_mean = np.zeros(len(self.lights))
+        direct_sum = np.zeros((len(self.lights), 3))
+        stacks = [sky] if bounce is None else [sky, as_stack(bounce)]
         if sky.work is not None:
             self.shown = RowFile.create(sky.work / f"sky-shown-{id(self)}.npy",
                                         (len(self.lights) * V, 3), np.float64)
         else:
             self.shown = np.empty((len(self.lights) * V, 3), dtype=np.float64)
         self.V = V
-        for t, block in valid_blocks([sky], self.valid):
+        for t, block in valid_blocks(stacks, self.valid):
+            if bounce is not None:
+                direct = block[0][:, self.lights, :] - block[1][:, self.lights, :]
+                direct_sum += np.clip(direct, 0.0, None).sum(axis=0, dtype=np.float64)
+                del direct
             # (3, b, n) per channel, contiguous: a chunk of lights is one matrix product each.
             per_channel = np.stack([block[0][..., c] for c in range(3)])
             del block
@@ -241,6 +261,9 @@ class DisplayCheck:
                         self.shown.write(at, out[j])
                     else:
                         self.shown[at : at + len(out[j])] = out[j]
+        if V:
+            weights = self.skies.weight[[self.skies.row(p) for p in self.lights]]
+            self.direct_mean = (direct_sum * weights).mean(axis=1) / V
 
     def sky_shown(self, lights) -> np.ndarray:
         """(len(lights), V, 3) the sky stack relit with each light's display sky."""
@@ -258,13 +281,16 @@ class DisplayCheck:
             self.shown.remove()
 
     def error(self, light: int, sky_shown: np.ndarray, master, decoded) -> float:
-        """RMS error over the mean of the displayed value with the sun in ``light``'s patch,
-        when its column is ``decoded`` instead of ``master`` (both (H, W, 3));
-        ``sky_shown`` (V, 3) from :meth:`sky_shown`."""
+        """RMS error over the mean of the displayed value with the sun in ``light``'s patch
+        (the relit sky, the direct term's mean, the bounce), when its column is ``decoded``
+        instead of ``master`` (both (H, W, 3)); ``sky_shown`` (V, 3) from
+        :meth:`sky_shown`."""
         weight = self.skies.weight[self.skies.row(light)]
         truth = master[self.valid].astype(np.float64) * weight
         err = (decoded[self.valid].astype(np.float64) * weight) - truth
-        return float(np.sqrt((err**2).mean()) / max(float((sky_shown + truth).mean()), 1e-30))
+        shown = float((sky_shown + truth).mean()) + float(
+            self.direct_mean[self.lights.index(int(light))])
+        return float(np.sqrt((err**2).mean()) / max(shown, 1e-30))
 
 
 def compress_sun_bounce(image, name, out_dir, lights, settings, sky=None,
@@ -285,7 +311,8 @@ def compress_sun_bounce(image, name, out_dir, lights, settings, sky=None,
     offset, encoded at UASTC level ``settings.uastc_level`` and decoded. Where the coarse
     image alone is off by more than ``settings.sun_bounce_budget`` as displayed
     (:class:`DisplayCheck`: ``sky`` (H, W, n, 3), the same atlas's or view's sky stack,
-    relit with ``skies``' clear sky for that patch, plus the bounce) it is encoded again at
+    relit with ``skies``' clear sky for that patch, plus the sun's direct term estimated
+    from the sky stack's and ``image``'s column, plus the bounce) it is encoded again at
     level ``settings.sun_bounce_level``, and where that is still off, what was lost is
     encoded as a refinement at level ``settings.refine_level``; without ``sky`` and
     ``skies``, or with the budget None, every light keeps its refinement. Every column is
@@ -312,6 +339,7 @@ def compress_sun_bounce(image, name, out_dir, lights, settings, sky=None,
     valid = image.valid
     if not valid.any() or len(lights) == 0:
         return None
+    own = image  # each patch's own column: the direct term's estimate (DisplayCheck)
     if shared is not None:
         drawn = set(lights.tolist())
         shared = SharedImages({rep: [q for q in members if q in drawn]
@@ -320,8 +348,8 @@ def compress_sun_bounce(image, name, out_dir, lights, settings, sky=None,
         image = SharedColumns(image, shared)
         lights = np.asarray(shared.representatives, dtype=int)
     budget = settings.sun_bounce_budget
-    check = (DisplayCheck(sky, skies, lights) if sky is not None and skies is not None
-             else None)
+    check = (DisplayCheck(sky, skies, lights, bounce=own)
+             if sky is not None and skies is not None else None)
     try:
         result = _compress_columns(image, name, out_dir, lights, settings, check, budget,
                                    started)

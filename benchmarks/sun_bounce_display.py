@@ -9,11 +9,14 @@ clear-sky model for that elevation): its sky *without the disc* as the light vec
 patch's mean radiance, rtrace of the sky function along directions uniform over the patch),
 its DNI as the sun. The displayed irradiance (or the view's radiance) of a stack is then
 
-    D(x) = sum_i r_i S_i(x) + DNI / omega_p * B_p(x)
+    D(x) = sum_i r_i S_i(x) + DNI / omega_p * (max(S_p(x) - B_p(x), 0) + B_p(x))
 
 with ``S`` the sky stack's EXR master and ``B`` the sun-bounce stack's EXR master: the sky
-relit plus the sun's bounce, what the client shows before the sun's direct term is added
-(adding it would only make the error smaller). The error of a decoded column ``B'_p`` is
+relit, the sun's direct term and the sun's bounce, what the client shows. The direct term is
+estimated here from the two masters (the sky stack's column ``p`` is the sun's direct light
+and its bounce with the sun spread over patch ``p``; its shadow edges are the patch's, softer
+than the client's, which the RMS over the mean does not see); ``direct=False`` leaves it out
+(the judge before 2026-12-06). The error of a decoded column ``B'_p`` is
 ``DNI / omega_p * (B'_p - B_p)``, over the receiver texels (the sky stack's non-zero texels):
 ``rms`` is its RMS over the mean of ``D``, ``p99`` the 99th percentile of ``|error| / D`` per
 texel and channel (``D`` at least a tenth of its mean: :data:`DARK_FLOOR`). Measured with the
@@ -136,15 +139,18 @@ def clear_sky_sun(sun_dir, elevation_m: float, day_of_year: float = 80.0) -> tup
 
 
 def displayed_errors(sky_shown: np.ndarray, bounce: np.ndarray, columns: dict,
-                     weight: np.ndarray) -> dict:
+                     weight: np.ndarray, direct: np.ndarray | None = None) -> dict:
     """As-displayed errors of decoded sun-bounce columns, over the receiver texels (V of
     them).
 
     ``sky_shown`` (V, 3) the sky stack relit with the sky without the disc (:func:`sky_relit`);
     ``bounce`` (V, 3) the master column of the sun's patch; ``columns`` {name: (V, 3) decoded
-    column}; ``weight`` (3,) DNI / omega_p. Returns {name: {"rms", "p99"}}, fractions of the
+    column}; ``weight`` (3,) DNI / omega_p; ``direct`` (V, 3) the sun's direct term per unit
+    of ``weight`` (None: left out). Returns {name: {"rms", "p99"}}, fractions of the
     displayed value."""
     truth = sky_shown + bounce * weight
+    if direct is not None:
+        truth = truth + direct * weight
     mean = max(float(truth.mean()), 1e-30)
     # Texels darker than a tenth of the mean (under roofs, in corners) are judged against a
     # tenth of the mean: near black, a display shows no relative error.
@@ -181,9 +187,10 @@ def level_reader(build_dir: Path, entry: dict, shape, levels: int):
     return CompactReader(build_dir, cut, shape)
 
 
-def measure(build_dir: Path, log=print) -> list[dict]:
+def measure(build_dir: Path, log=print, direct: bool = True) -> list[dict]:
     """One row per stack and light with images: stack, light, sun (az, el), levels stored,
-    bytes per level, and the as-displayed ``coarse`` and ``stored`` errors."""
+    bytes per level, and the as-displayed ``coarse`` and ``stored`` errors (with the sun's
+    direct term in the displayed value, or without it: ``direct``)."""
     from bake.evaluate import Build
     from daylit.sky import azimuth_elevation_from_direction
     from daylit.stackio import read_stack_exr
@@ -231,9 +238,13 @@ def measure(build_dir: Path, log=print) -> list[dict]:
                     cols = {"coarse": decoded_coarse[p][valid]}
                     if p in decoded_stored:
                         cols["stored"] = decoded_stored[p][valid]
-                    errors = displayed_errors(sky_relit(sky_valid, r),
-                                              master[:, :, p][valid].astype(np.float64),
-                                              cols, weight)
+                    bounce = master[:, :, p][valid].astype(np.float64)
+                    sun_direct = None
+                    if direct:  # the sky stack's column p less its bounce: direct light
+                        sun_direct = np.clip(np.stack([sky_valid[c][:, p] for c in range(3)],
+                                                      axis=1) - bounce, 0.0, None)
+                    errors = displayed_errors(sky_relit(sky_valid, r), bounce, cols, weight,
+                                              sun_direct)
                     errors.setdefault("stored", errors["coarse"])
                     az, el = azimuth_elevation_from_direction(sun[None, :])
                     rows.append({
@@ -276,8 +287,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("build", type=Path)
     ap.add_argument("--json", type=Path, help="write every row here")
+    ap.add_argument("--no-direct", action="store_true",
+                    help="leave the sun's direct term out of the displayed value")
     args = ap.parse_args()
-    rows = measure(args.build, log=lambda s: print(s, file=sys.stderr))
+    rows = measure(args.build, log=lambda s: print(s, file=sys.stderr),
+                   direct=not args.no_direct)
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
     print(f"{'stack':<14}{'lights':>7}{'2 lvl':>6}{'coarse RMS max':>16}{'(median)':>10}"

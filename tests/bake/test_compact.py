@@ -95,7 +95,7 @@ def test_the_bake_records_the_ground_ratio_as_decoded_on_its_test_skies(build):
     and which sky, as this test's metric above computes it from the masters and the compact
     files (it is recorded, not enforced: docs/benchmarks.md)."""
     recorded = build.atlases["ground"]["stacks"]["I"]["compact"]["error"]["ratio"]
-    worst, where, over = 0.0, None, 0
+    worst, where, over, checked = 0.0, None, 0, 0
     for sky in testskies.test_skies(build.manifest["scene"], build.dome_vertices):
         d_master = build.composite("ground", "d", sky.r, "master")
         ratio_master = build.composite("ground", "I", sky.r, "master") / np.maximum(
@@ -106,10 +106,29 @@ def test_the_bake_records_the_ground_ratio_as_decoded_on_its_test_skies(build):
         lit = d_master > 0.05 * d_master[d_master > 0].mean()
         error = np.abs(ratio_compact - ratio_master)[lit]
         over += int((error > 0.02).any())
+        checked += error.size
         if error.max() > worst:
             worst, where = float(error.max()), sky.name
     assert recorded["max"] == pytest.approx(worst, abs=2e-6)
     assert recorded["sky"] == where and recorded["skies_over"] == over
+    assert recorded["checked"] == checked
+
+
+def test_the_bake_s_ratio_line_tells_the_hull_planes_from_the_real_ground(build):
+    """The hull planes are the virtual objects' own surfaces: their line says so and which
+    share of the checks is over 0.02, where the real ground's line keeps the bound's alarm
+    alone (bake.compressor.ratio_line)."""
+    from bake.compressor import ratio_line
+
+    lines = {}
+    for atlas in ("hull", "ground"):
+        entry = build.atlases[atlas]
+        ratio = entry["stacks"]["I"]["compact"]["error"]["ratio"]
+        lines[atlas] = ratio_line(entry, ratio, 97)
+        share = ratio["texels_over"] / ratio["checked"]
+        assert f"({share:.2%} of {ratio['checked']} texel checks)" in lines[atlas]
+    assert "virtual objects' own surfaces" in lines["hull"]
+    assert "virtual objects' own surfaces" not in lines["ground"]
 
 
 def test_shuffled_v_breaks_the_composite(build):

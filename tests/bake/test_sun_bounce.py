@@ -330,20 +330,24 @@ def test_compact_sun_bounce_layout_and_the_bakes_own_check(sun_site_build):
         assert set(atlas["stacks"]) <= {"I", "d"}
 
 
-TIGHT_BUDGET = 0.002  # between the sun site's coarse images' errors as displayed (0.03-0.5 %)
+# Between the sun site's coarse images' errors as displayed, with the sun's direct term in
+# (0.01-0.18 %; 0.03-0.5 % without it, when this was 0.2 %).
+TIGHT_BUDGET = 0.0008
 
 
-def judged_by_gendaylit(build_dir: Path) -> list[dict]:
+def judged_by_gendaylit(build_dir: Path, direct: bool = True) -> list[dict]:
     """Every sun-bounce column of a build judged as displayed by an independent computation
     (benchmarks/sun_bounce_display.py): the sky stack's EXR master relit with Radiance's
     gendaylit clear sky without its disc (pyradiance; not ``daylit.sky``), the sun at the
     patch's centre with pvlib's Ineichen DNI and DHI, plus DNI / solid_angle_p times the
-    sun-bounce EXR master's column; the error of the column decoded from its coarse image
-    alone and from every level the build stores. Rows of ``measure``."""
+    sun's direct term (with ``direct``: the sky stack's column less the sun-bounce column,
+    from the EXR masters) and the sun-bounce EXR master's column; the error of the column
+    decoded from its coarse image alone and from every level the build stores. Rows of
+    ``measure``."""
     pytest.importorskip("pyradiance")
     from benchmarks.sun_bounce_display import measure
 
-    return measure(build_dir, log=lambda msg: None)
+    return measure(build_dir, log=lambda msg: None, direct=direct)
 
 
 @pytest.fixture(scope="module")
@@ -382,6 +386,50 @@ def test_the_refinement_is_kept_where_the_coarse_image_would_show(tight_build):
     assert all(r["levels"] == 1 for r in within), [r for r in within if r["levels"] != 1]
     assert all(r["levels"] == 2 for r in over), [r for r in over if r["levels"] != 2]
     worst = max(rows, key=lambda r: r["stored"]["rms"])
+    assert worst["stored"]["rms"] <= 1.1 * TIGHT_BUDGET, worst
+
+
+def test_the_direct_term_is_the_sky_stack_less_the_bounce_on_open_ground(sun_site_build):
+    """The direct term the judge adds (bake.sunbounce.DisplayCheck; the independent judge of
+    benchmarks/sun_bounce_display.py) is each patch's sky-stack column less its sun-bounce
+    column. On the sun site's open ground (most of its 60 m; horizontal, seeing the whole
+    patch) that is the patch's cosine-weighted solid angle, the direct light of a patch of
+    unit radiance on a horizontal surface: the median over the ground texels within 2 % for
+    every sun-path patch, and below 1 % of it somewhere (the wall's and the shed's
+    shadows)."""
+    build = Build(sun_site_build)
+    dome = build.manifest["dome"]["lights"]
+    sky = build.stack("ground", "I")
+    bounce = build.sun_bounce_stack("ground", "I")
+    valid = np.any(sky != 0.0, axis=(2, 3))
+    for p in build.selection.selectable.tolist():
+        direct = np.clip(sky[:, :, p][valid] - bounce[:, :, p][valid], 0.0, None).mean(axis=1)
+        expected = dome[p]["cosine_weighted_sr"]
+        assert np.median(direct) == pytest.approx(expected, rel=0.02), (p, expected)
+        if dome[p]["centroid"][1] > 0.2:  # above 11.5 degrees: a shadow falls on the ground
+            assert direct.min() < 0.01 * expected, (p, direct.min(), expected)
+
+
+def test_judged_with_the_suns_direct_term_fewer_images_keep_a_refinement(tight_build):
+    """The client draws the sun's direct term itself (70-90 % of the light on sunlit open
+    ground), so the error a visitor sees in a sun-bounce image is relative to sky, direct term
+    and bounce together. Judged so by the independent judge (gendaylit's sky; the direct term
+    from the two EXR masters, benchmarks/sun_bounce_display.py), with the tight build's budget:
+    some coarse images over the budget without the direct term are within it with it, and
+    none of those keeps a refinement (main judged without the direct term and refined each of
+    them); every image as stored is within 1.1 times the budget with it."""
+    with_direct = {(r["stack"], r["light"]): r for r in judged_by_gendaylit(tight_build)}
+    sky_only = {(r["stack"], r["light"]): r
+                for r in judged_by_gendaylit(tight_build, direct=False)}
+    # The direct term only adds to the displayed value: every error smaller with it.
+    assert all(with_direct[k]["coarse"]["rms"] < sky_only[k]["coarse"]["rms"]
+               for k in with_direct)
+    spared = [k for k, r in with_direct.items() if r["coarse"]["rms"] < 0.9 * TIGHT_BUDGET
+              and sky_only[k]["coarse"]["rms"] > 1.1 * TIGHT_BUDGET]
+    assert len(spared) >= 5, len(spared)
+    kept = [k for k in spared if with_direct[k]["levels"] == 2]
+    assert not kept, (len(kept), len(spared))
+    worst = max(with_direct.values(), key=lambda r: r["stored"]["rms"])
     assert worst["stored"]["rms"] <= 1.1 * TIGHT_BUDGET, worst
 
 
