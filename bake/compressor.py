@@ -260,6 +260,11 @@ class Compressor:
                 f"  the sun's bounce on the server: {total / 1e6:.2f} MB of light images, "
                 f"{masters / 1e6:.1f} MB of EXR masters"
             )
+            for unit in [*manifest["atlases"], *manifest.get("views", [])]:
+                for stack, entry in (unit.get("sun_bounce") or {}).items():
+                    shared = entry["compact"]["error"].get("displayed", {}).get("shared")
+                    if shared:
+                        self.log(shared_line(f"{unit['id']}.sun_bounce.{stack}", shared))
 
 
 def ratio_line(atlas: dict, ratio: dict, skies: int) -> str:
@@ -280,3 +285,14 @@ def ratio_line(atlas: dict, ratio: dict, skies: int) -> str:
                  "shading is judged by RMS as the lightmap's: the 0.02 bound is the real "
                  "ground's")
     return line
+
+
+def shared_line(stack: str, shared: dict) -> str:
+    """The bake's line on what sharing sun-bounce images costs as displayed (``shared``:
+    bake.sunbounce.shared_errors), each sun-path patch against its own column: the images
+    themselves are judged against their group's (docs/sun.md, "Shared images")."""
+    over = (f", {shared['over_budget']} of {shared['lights']} patches over the budget"
+            if "over_budget" in shared else "")
+    return (f"  {stack}: each sun-path patch with its group's image, as displayed against "
+            f"its own column: worst {shared['max']:.2%} (light {shared['worst_light']}), "
+            f"median {shared['median']:.2%}{over}")

@@ -127,3 +127,45 @@ def test_a_visit_fetches_one_image_per_group(shared_build):
     gzipped = len(gzip.compress(glb, 6, mtime=0))
     assert gzipped < len(glb)
     assert got["phone"] == sent + gzipped + sum(sizes[f] for f in base)
+
+
+def test_the_bake_records_what_sharing_costs_each_patch_as_displayed(shared_build):
+    """Each sun-path patch decoded from its group's image against its *own* master column,
+    as displayed (the display sky relit on the sky stack, the sun's direct term estimated
+    from the masters, the bounce): computed here from the EXR masters, it is what the bake
+    recorded under ``error.displayed.shared`` (bake.sunbounce.shared_errors), and it is
+    larger than the images' own recorded error, which is judged against the group's column
+    (so the bake's report cannot hide the sharing)."""
+    from bake.sunbounce import DisplaySkies
+
+    build = Build(shared_build)
+    lights = build.selection.selectable.tolist()
+    skies = DisplaySkies.of_dome(build.dome_vertices, build.solid_angles, lights,
+                                 build.manifest["scene"].get("elevation_m", 0.0))
+    for atlas_id, atlas in build.atlases.items():
+        for stack, entry in atlas["sun_bounce"].items():
+            recorded = entry["compact"]["error"]["displayed"]
+            sky = build.stack(atlas_id, stack)
+            valid = np.any(sky != 0.0, axis=(2, 3))
+            master = build.sun_bounce_stack(atlas_id, stack)
+            reader = build.sun_bounce_compact(atlas_id, stack)
+            errors = []
+            for p in lights:
+                row = skies.row(p)
+                w = skies.weight[row]
+                shown_sky = np.einsum("tnc,nc->tc", sky[valid].astype(np.float64),
+                                      skies.r[row])
+                bounce = master[valid][:, p].astype(np.float64) * w
+                direct = np.clip(sky[valid][:, p] - master[valid][:, p], 0.0, None) * w
+                decoded = reader.lights([p])[p][valid].astype(np.float64) * w
+                reader.forget_lights()
+                mean = shown_sky.mean() + bounce.mean() + direct.mean()
+                errors.append(np.sqrt(((decoded - bounce) ** 2).mean()) / mean)
+            errors = np.array(errors)
+            shared = recorded["shared"]
+            assert shared["lights"] == len(lights)
+            assert shared["max"] == pytest.approx(errors.max(), rel=1e-3, abs=2e-6), stack
+            assert shared["median"] == pytest.approx(np.median(errors), rel=1e-3, abs=2e-6)
+            assert shared["worst_light"] == lights[int(np.argmax(errors))]
+            assert shared["over_budget"] == int((errors > recorded["budget"]).sum())
+            assert shared["max"] > recorded["max"], (atlas_id, stack)
