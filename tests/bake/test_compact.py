@@ -441,12 +441,14 @@ def test_ratio_refinement_leaves_unrefined_only_what_the_ratio_can_afford():
     assert _ratio_refinement("d", X=2.0).layers(_layer_major(losses), f) == [0, 2, 3]
 
 
-def _ratio_layers_as_stated(rule: refinement.RatioRefinement, losses, f) -> list[int]:
+def _ratio_layers_as_stated(rule: refinement.RatioRefinement, losses, f, move=None
+                            ) -> list[int]:
     """The shadow ratio's layer rule as its docstring states it, every move of every layer
     on every sky held at once: layers in the order of their largest move, each left
     unrefined while the moves of those left unrefined, summed, stay within the tolerance on
-    every sky."""
-    moves = [[rule.move(losses, f.V, j, s) for s in range(len(rule.rests))]
+    every sky. ``move(losses, V, j, s)`` makes a move (the rule's own by default)."""
+    move = rule.move if move is None else move
+    moves = [[move(losses, f.V, j, s) for s in range(len(rule.rests))]
              for j in range(f.k)]
     worst = [max((float(np.abs(m).max(initial=0.0)) for m in layer), default=0.0)
              for layer in moves]

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from bake import lowrank, refinement
+from tests.bake.test_compact import _ratio_layers_as_stated
 
 
 def _moves_over_whole_loss(rule, losses, V, j, s):
@@ -85,19 +86,10 @@ def test_layers_are_those_of_the_whole_loss_moves(kept_bytes, monkeypatch):
     for case in range(30):
         rule, f, losses = _case(rng, "delta" if case % 2 else "d", low=0.5)
         losses *= {3: 0.05, 7: 20.0}.get(case % 10, 1.0)
-        skies = range(len(rule.rests))
-        moves = [[_moves_over_whole_loss(rule, losses, f.V, j, s) for s in skies]
-                 for j in range(f.k)]
-        worst = [max(float(np.abs(m).max(initial=0.0)) for m in layer) for layer in moves]
-        total, expected = None, []
-        for j in np.argsort(worst, kind="stable"):
-            trial = moves[j] if total is None else [t + m for t, m in zip(total, moves[j],
-                                                                            strict=True)]
-            if all(float(np.abs(t).max(initial=0.0)) <= rule.tolerance for t in trial):
-                total = trial
-            else:
-                expected.append(int(j))
-        assert rule.layers(losses, f) == sorted(expected), case
-        seen.add(tuple(sorted(expected)))
+        expected = _ratio_layers_as_stated(
+            rule, losses, f,
+            lambda losses, V, j, s, rule=rule: _moves_over_whole_loss(rule, losses, V, j, s))
+        assert rule.layers(losses, f) == expected, case
+        seen.add(tuple(expected))
     assert len(seen) >= 5
 
