@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from bake import basisu, compress, compressjobs, stackkinds, sunbounce, testskies
+from bake import basisu, compress, compressjobs, stackkinds, sunbounce, sundisplay, testskies
 from bake.dome import Dome
 from bake.downloads import download_bytes
 from bake.errors import BakeError
@@ -70,7 +70,7 @@ class Compressor:
             selectable=selectable, sun_in_patch=False,
         )
         # The clear skies each sun-bounce image is judged under as displayed.
-        self.display_skies = sunbounce.DisplaySkies.of_dome(
+        self.display_skies = sundisplay.DisplaySkies.of_dome(
             dome.vertices, dome.solid_angles_sr, self.selection.selectable, site.elevation_m
         )
         # Neighbouring sun-path patches sharing one sun-bounce image (docs/sun.md, "Shared

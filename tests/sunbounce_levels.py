@@ -21,7 +21,8 @@ def recompress_sun_bounce(build_dir: Path, copy: Path, budget: float,
     ``bake.sunbounce.SharedImages``; None: one image per light); returns ``copy``."""
     from bake.compresssettings import Settings
     from bake.evaluate import Build
-    from bake.sunbounce import DisplaySkies, compress_sun_bounce
+    from bake.sunbounce import compress_sun_bounce
+    from bake.sundisplay import DisplaySkies
     from daylit.stackio import read_stack_exr
 
     shutil.copytree(build_dir, copy)

@@ -390,7 +390,7 @@ def test_the_refinement_is_kept_where_the_coarse_image_would_show(tight_build):
 
 
 def test_the_direct_term_is_the_sky_stack_less_the_bounce_on_open_ground(sun_site_build):
-    """The direct term the judge adds (bake.sunbounce.DisplayCheck; the independent judge of
+    """The direct term the judge adds (bake.sundisplay.DisplayCheck; the independent judge of
     benchmarks/sun_bounce_display.py) is each patch's sky-stack column less its sun-bounce
     column. On the sun site's open ground (most of its 60 m; horizontal, seeing the whole
     patch) that is the patch's cosine-weighted solid angle, the direct light of a patch of

@@ -136,7 +136,7 @@ def test_the_bake_records_what_sharing_costs_each_patch_as_displayed(shared_buil
     recorded under ``error.displayed.shared`` (bake.sunbounce.shared_errors), and it is
     larger than the images' own recorded error, which is judged against the group's column
     (so the bake's report cannot hide the sharing)."""
-    from bake.sunbounce import DisplaySkies
+    from bake.sundisplay import DisplaySkies
 
     build = Build(shared_build)
     lights = build.selection.selectable.tolist()

@@ -176,7 +176,7 @@ def _peak_bytes(run) -> int:
 
 
 def test_writing_a_stack_holds_far_less_than_its_lights_x_texels(tmp_path, monkeypatch):
-    from bake import lowrank, rowstore, sunbounce
+    from bake import lowrank, rowstore, sunbounce, sundisplay
     from daylit.stackio import read_stack_exr, write_stack_exr, write_stack_exr_by_rows
 
     dome, maps = _pair_on_disk(tmp_path)
@@ -222,7 +222,7 @@ def test_writing_a_stack_holds_far_less_than_its_lights_x_texels(tmp_path, monke
     np.save(tmp_path / "bounce.npy", bounce)
     del bounce
     bounce = np.load(tmp_path / "bounce.npy", mmap_mode="r")
-    display = sunbounce.DisplaySkies.of_dome(dome.vertices, dome.solid_angles_sr, lights)
+    display = sundisplay.DisplaySkies.of_dome(dome.vertices, dome.solid_angles_sr, lights)
     settings = compress.Settings()
     peak = _peak_bytes(lambda: results.setdefault("sun", sunbounce.compress_sun_bounce(
         bounce, "hull.sun_bounce.I", out, lights, settings, maps["I"], display)))
