@@ -187,39 +187,40 @@ def compress_sun_bounce(image, name, out_dir, lights, settings, sky=None,
         image = SharedColumns(image, shared)
         lights = np.asarray(shared.representatives, dtype=int)
     budget = settings.sun_bounce_budget
-    check = (DisplayCheck(sky, skies, lights, bounce=own)
+    # One judge, one pass over the sky stack: with shared images it holds every drawn light,
+    # the representatives' images judged with it and then every member's error against its
+    # own column (shared_errors).
+    judged = sorted(drawn) if shared is not None else lights
+    check = (DisplayCheck(sky, skies, judged, bounce=own)
              if sky is not None and skies is not None else None)
     try:
         result = _compress_columns(image, name, out_dir, lights, settings, check, budget,
                                    started)
         if result is not None and shared is not None:
             share_entry(result.entry, shared, n)
+            if check is not None:
+                result.entry["error"]["displayed"]["shared"] = shared_errors(
+                    out_dir, result.entry, own, check, budget)
+        return result
     finally:
         if check is not None:
             check.remove()
-    if result is not None and shared is not None and check is not None:
-        result.entry["error"]["displayed"]["shared"] = shared_errors(
-            out_dir, result.entry, own, sky, skies, sorted(drawn), budget)
-    return result
 
 
-def shared_errors(out_dir: Path, entry: dict, own, sky, skies: DisplaySkies, lights,
+def shared_errors(out_dir: Path, entry: dict, own, check: DisplayCheck,
                   budget: float | None) -> dict:
-    """What sharing costs a visitor: each sun-path light ``p`` of ``lights`` decoded as the
-    client decodes it (its group's image with its own scale, ``entry`` after
+    """What sharing costs a visitor: each sun-path light ``p`` of ``check.lights`` decoded as
+    the client decodes it (its group's image with its own scale, ``entry`` after
     :func:`share_entry`) against its *own* master column of ``own`` (H, W, n, 3), as
-    displayed under its own display sky with the sun's direct term (:class:`DisplayCheck`).
-    The images are judged against their group's column (:func:`compress_sun_bounce`), so
-    this is the error the budget does not see (docs/sun.md, "Shared images"). Returns
-    ``{"max", "median", "worst_light", "lights", "over_budget"}`` (the last with a
-    budget)."""
+    displayed under its own display sky with the sun's direct term (``check``, made with
+    ``bounce=own``). The images are judged against their group's column
+    (:func:`compress_sun_bounce`), so this is the error the budget does not see (docs/sun.md,
+    "Shared images"). Returns ``{"max", "median", "worst_light", "lights", "over_budget"}``
+    (the last with a budget)."""
     own = as_stack(own)
-    check = DisplayCheck(sky, skies, lights, bounce=own)
-    try:
-        reader = CompactReader(out_dir, entry, own.shape[:2])
-        _, displayed = sun_bounce_errors(reader, own, own.valid, lights, check)
-    finally:
-        check.remove()
+    lights = check.lights
+    reader = CompactReader(out_dir, entry, own.shape[:2])
+    _, displayed = sun_bounce_errors(reader, own, own.valid, lights, check)
     out = {"max": round(float(displayed.max()), 6),
            "median": round(float(np.median(displayed)), 6),
            "worst_light": int(lights[int(np.argmax(displayed))]),
