@@ -410,7 +410,15 @@ async def test_a_broker_password_from_the_settings_file_stays_out_of_sight(serve
         config.write_text(f'[server]\nbroker = "{redis.url}"\n')
         port = free_port()
         parent = serve(port, "--workers", "2", "--config", str(config))
+        # A worker answers as soon as it listens, which on a loaded machine can be before its
+        # relay has the first vector through Redis: ask again until both have it (or 60 s).
+        deadline = time.monotonic() + 60
         by_pid = await statuses_by_worker(port)
+        while not all(b["relay"]["connected"] and not b["stale"] for b in by_pid.values()):
+            if time.monotonic() > deadline:
+                break
+            await asyncio.sleep(0.2)
+            by_pid = await statuses_by_worker(port)
         for pid, body in by_pid.items():
             assert body["relay"]["connected"] and not body["stale"]
             assert body["relay"]["link"] == f"redis://:***@127.0.0.1:{redis.port}/0"
