@@ -55,10 +55,12 @@ def encode(
     settings: Settings,
     array: bool,
     level: int | None = None,
+    rdo_lambda: float | None = None,
 ) -> None:
     """Encode PNG layers into ``out`` (one 2D array texture) or, with ``array=False``, each
     into its own 2D KTX2 inside the folder ``out`` (named after it). ``level`` overrides the
-    UASTC level of ``settings``.
+    UASTC level of ``settings``; ``rdo_lambda`` turns on UASTC's rate-distortion optimization
+    with that lambda (basisu ``-uastc_rdo_l``: smaller files, larger errors).
 
     Separate textures are split between one single-threaded encoder per core: basisu's own
     threads share out the blocks of one image and idle between images (less time for the
@@ -74,6 +76,8 @@ def encode(
     if settings.encoding == "uastc":
         level = settings.uastc_level if level is None else level
         args += ["-uastc", "-uastc_level", str(level)]
+        if rdo_lambda is not None:
+            args += ["-uastc_rdo_l", f"{rdo_lambda:g}"]
     else:
         args += ["-q", "255", "-comp_level", "2"]
     if not pngs:

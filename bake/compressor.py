@@ -41,6 +41,7 @@ class Compressor:
             selected_lights=c["selected_lights"],
             sun_bounce_budget=c["sun_bounce_budget"],
             sun_bounce_lights=c["sun_bounce_lights"] or None,  # 0: one image per patch
+            sun_bounce_encoding=c["sun_bounce_encoding"],
         )
         self.display_skies = None  # set by start()
         self.log = log

@@ -31,6 +31,18 @@ class Settings:
     # 24 of 142 refinements, each larger than the coarse image (docs/benchmarks.md,
     # "Downloads with the sun apart").
     sun_bounce_level: int = 1
+    # "smallest": a judged sun-bounce image is also encoded with ETC1S (quality 255) and with
+    # UASTC at uastc_level with rate-distortion optimization (``sun_bounce_rdo_lambdas``, in
+    # turn), and keeps the first of those that is smaller than its plain UASTC image and
+    # within ``sun_bounce_budget`` as displayed; the others go on to plain UASTC as above.
+    # On the 400-light final demo, one image per patch, that took the sun-bounce images from
+    # 56.6 to 24.5 MB, but their error at single texels, as displayed, is 3-5 times plain
+    # UASTC's (the budget is an RMS), and the kiosk's view in a real umbra was 2.6 sRGB codes
+    # off an independent oracle against 1.6: so it is a choice for a site, not the default
+    # (docs/benchmarks.md, "The sun-bounce images in their smallest encoding within the
+    # budget"). "uastc": plain UASTC only.
+    sun_bounce_encoding: str = "uastc"
+    sun_bounce_rdo_lambdas: tuple[float, ...] = (3.0, 1.0)
     # The same for stacks judged by their RMS error alone (lightmap, views): a refinement
     # layer spans a few steps of its coarse layer, so level 1's better worst texel does not
     # show there, and level 0 is faster.

@@ -274,6 +274,7 @@ def _load_settings(
         "selected_lights": compression_t.number("selected_lights"),
         "sun_bounce_budget": compression_t.number("sun_bounce_budget"),
         "sun_bounce_lights": compression_t.number("sun_bounce_lights"),
+        "sun_bounce_encoding": compression_t.string("sun_bounce_encoding"),
     }
 
     q = levels[chosen]

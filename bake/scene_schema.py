@@ -187,6 +187,14 @@ SCHEMA: dict = _table({
                                   "at 400 lights fetches 3 images per stack instead of 6). 0: "
                                   "one image per patch (docs/sun.md, \"Shared images\")", 0,
                                   20000, integer=True),
+        "sun_bounce_encoding": _str("uastc", "uastc: a sun-bounce image is plain UASTC; "
+                                    "smallest: the first of ETC1S and UASTC with "
+                                    "rate-distortion optimization (lambda 3, then 1) that is "
+                                    "smaller than its plain UASTC image and within "
+                                    "sun_bounce_budget as displayed, else plain UASTC (fewer "
+                                    "bytes; 3-5 times the error at single texels; "
+                                    "docs/compact-assets.md, \"The sun's bounce\")",
+                                    choices=("uastc", "smallest")),
     }),
     "virtual": _array_of(_table({
         "name": _str(None, "unique"),

@@ -11,7 +11,7 @@ from __future__ import annotations
 import shutil
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -254,27 +254,35 @@ def _compress_columns(image, name, out_dir, lights, settings, check, budget, sta
             chunk = [int(i) for i in lights[start : start + SUN_BOUNCE_DECODE_CHUNK]]
             for i, column in zip(chunk, image.columns(chunk), strict=True):
                 coarse_q[i] = quantized_png(column, tmp / f"{name}.L{i:04d}.png")
-        encode([q.path for q in coarse_q.values()], coarse_dir, image_settings, array=False)
-        second = getattr(settings, "sun_bounce_level", settings.uastc_level)
-        again = judged and second != settings.uastc_level
-        # The lights whose coarse image shows (all of them when not judged); refined at once
-        # unless they get a second coarse level first.
+        # The coarse image: UASTC at uastc_level, or a smaller encoding where one is within
+        # the budget as displayed (_cheaper_within); the lights still over the budget are
+        # encoded again at each later level of the ladder (the same 8-bit image: the same
+        # scale and offset), and those over it after the last are refined against it
+        # (docs/compact-assets.md, "The sun's bounce"). Not judged: the first level alone,
+        # every light refined.
+        ladder = coarse_levels(settings) if judged else coarse_levels(settings)[:1]
+        first_settings, first_level = ladder[0]
+        encode([q.path for q in coarse_q.values()], coarse_dir, first_settings, array=False,
+               level=first_level)
+        cheaper = _cheaper_within(lights, coarse_dir, name, coarse_q, image, check, budget,
+                                  settings, tmp) if judged else {}
         refine_q = {}
-        over = _shown_coarse(lights, coarse_dir, name, coarse_q, image,
-                             check if judged else None, budget, None if again else refine_q, tmp)
-        if again and over:
-            # Encoded again at a better UASTC level (the same 8-bit image: the same scale and
-            # offset), which is enough for some; those keep it, the others are refined
-            # against it (docs/compact-assets.md, "The sun's bounce").
-            again_dir = tmp / "again"
-            again_dir.mkdir()
-            encode([coarse_q[i].path for i in over], again_dir, image_settings, array=False,
-                   level=second)
-            for i in over:
-                shutil.move(again_dir / f"{name}.L{i:04d}.ktx2",
-                            coarse_dir / f"{name}.L{i:04d}.ktx2")
-            over = _shown_coarse(over, coarse_dir, name, coarse_q, image, check, budget,
-                                 refine_q, tmp)
+        over = [int(i) for i in lights if int(i) not in cheaper]
+        for step, (step_settings, level) in enumerate(ladder):
+            if step:
+                step_dir = tmp / f"coarse{step}"
+                step_dir.mkdir()
+                encode([coarse_q[i].path for i in over], step_dir, step_settings,
+                       array=False, level=level)
+                for i in over:
+                    shutil.move(step_dir / f"{name}.L{i:04d}.ktx2",
+                                coarse_dir / f"{name}.L{i:04d}.ktx2")
+            last = step == len(ladder) - 1
+            over = _shown_coarse(over, coarse_dir, name, coarse_q, image,
+                                 check if judged else None, budget,
+                                 refine_q if last else None, tmp)
+            if not over:
+                break
         refined.extend(over)
         if refine_q:
             encode(
@@ -316,10 +324,73 @@ def _compress_columns(image, name, out_dir, lights, settings, check, budget, sta
             "worst_light": int(lights[int(np.argmax(displayed))]),
             "budget": budget,
             "refined": len(refined),
+            "cheaper": {label: sum(v == label for v in cheaper.values())
+                        for label, *_ in cheaper_encodings(settings)},
         }
     compact = CompactStack(entry, light_files, encode_s=encode_s)
     compact.light_bytes = sum(p.stat().st_size for p in light_files)
     return compact
+
+
+def coarse_levels(settings) -> list[tuple]:
+    """The coarse encodings a sun-bounce image goes through while it is over the budget as
+    displayed, as ``(settings, UASTC level)`` for :func:`bake.basisu.encode`: UASTC at
+    ``settings.uastc_level``, then at ``settings.sun_bounce_level`` when that differs (a
+    build whose ``encoding`` is ``"etc1s"``: ETC1S alone)."""
+    if settings.encoding == "etc1s":
+        return [(settings, None)]
+    ladder = [(settings, settings.uastc_level)]
+    if settings.sun_bounce_level != settings.uastc_level:
+        ladder.append((settings, settings.sun_bounce_level))
+    return ladder
+
+
+def cheaper_encodings(settings) -> list[tuple]:
+    """The encodings a judged sun-bounce image tries before plain UASTC at
+    ``settings.uastc_level``, in turn, as ``(label, settings, UASTC level, RDO lambda)`` for
+    :func:`bake.basisu.encode`: with ``settings.sun_bounce_encoding`` ``"smallest"``, ETC1S
+    (quality 255), then UASTC at that level with each of ``settings.sun_bounce_rdo_lambdas``;
+    none for ``"uastc"`` or a build whose ``encoding`` is ``"etc1s"``."""
+    if settings.sun_bounce_encoding != "smallest" or settings.encoding == "etc1s":
+        return []
+    out = [("etc1s", replace(settings, encoding="etc1s"), None, None)]
+    for lam in settings.sun_bounce_rdo_lambdas:
+        out.append((f"uastc rdo {lam:g}", settings, settings.uastc_level, lam))
+    return out
+
+
+def _cheaper_within(lights, coarse_dir: Path, name: str, coarse_q: dict, image, check,
+                    budget, settings, tmp: Path) -> dict[int, str]:
+    """The ``lights`` that keep a cheaper encoding than their plain UASTC image in
+    ``coarse_dir``: for each of :func:`cheaper_encodings` in turn, the lights not yet kept
+    whose image so encoded is smaller than the plain one and within ``budget`` as displayed
+    (``check``); its file replaces the plain one there. Returns ``{light: label}``.
+
+    ETC1S is 4-6 times smaller than UASTC on the models' faces and the views, UASTC with
+    RDO about a third smaller; once the judge counts the sun's direct term they are within
+    the budget for part of the lights. On smooth closed-form stacks (the hull planes' ``d``)
+    plain UASTC's Zstandard-packed blocks are the smallest (docs/benchmarks.md, "The
+    sun-bounce images in their smallest encoding within the budget")."""
+    file = f"{name}.L{{:04d}}.ktx2".format
+    left = [int(i) for i in lights]
+    kept: dict[int, str] = {}
+    for step, (label, step_settings, level, rdo) in enumerate(cheaper_encodings(settings)):
+        if not left:
+            break
+        step_dir = tmp / f"cheaper{step}"
+        step_dir.mkdir()
+        encode([coarse_q[i].path for i in left], step_dir, step_settings, array=False,
+               level=level, rdo_lambda=rdo)
+        smaller = [i for i in left
+                   if (step_dir / file(i)).stat().st_size < (coarse_dir / file(i)).stat().st_size]
+        over = set(_shown_coarse(smaller, step_dir, name, coarse_q, image, check, budget,
+                                 None, tmp))
+        for i in smaller:
+            if i not in over:
+                shutil.move(step_dir / file(i), coarse_dir / file(i))
+                kept[i] = label
+        left = [i for i in left if i not in kept]
+    return kept
 
 
 def _shown_coarse(lights, folder: Path, name: str, coarse_q: dict, image, check, budget,

@@ -14,11 +14,13 @@ from pathlib import Path
 
 
 def recompress_sun_bounce(build_dir: Path, copy: Path, budget: float,
-                          second_level: int | None = None, shared=None) -> Path:
+                          second_level: int | None = None, shared=None,
+                          encoding: str | None = None) -> Path:
     """Copy ``build_dir`` to ``copy`` and compress its atlases' and views' sun-bounce stacks
     again, judged with ``budget`` (and ``Settings.sun_bounce_level`` ``second_level``, by
     default the baker's), their lights grouped by ``shared`` (a
-    ``bake.sunbounce.SharedImages``; None: one image per light); returns ``copy``."""
+    ``bake.sunbounce.SharedImages``; None: one image per light), with
+    ``Settings.sun_bounce_encoding`` ``encoding`` (default the baker's); returns ``copy``."""
     from bake.compresssettings import Settings
     from bake.evaluate import Build
     from bake.sunbounce import compress_sun_bounce
@@ -36,6 +38,8 @@ def recompress_sun_bounce(build_dir: Path, copy: Path, budget: float,
     settings = replace(Settings(), sun_bounce_budget=budget)
     if second_level is not None:
         settings = replace(settings, sun_bounce_level=second_level)
+    if encoding is not None:
+        settings = replace(settings, sun_bounce_encoding=encoding)
     for owner in manifest["atlases"] + manifest["views"]:
         for stack, entry in owner.get("sun_bounce", {}).items():
             result = compress_sun_bounce(

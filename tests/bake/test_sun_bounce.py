@@ -467,6 +467,53 @@ def test_a_second_coarse_level_spares_refinements(sun_site_build, tight_build, t
             assert (tight_build / name).read_bytes() == (before / name).read_bytes()
 
 
+def is_etc1s(path: Path) -> bool:
+    """Whether a KTX2 file holds ETC1S data: its header's supercompressionScheme (bytes
+    44-47, little-endian) is 1, BasisLZ, which only ETC1S uses (KTX 2.0 specification,
+    section 3.9; UASTC files are 0 or 2, Zstandard)."""
+    header = path.read_bytes()[:48]
+    return int.from_bytes(header[44:48], "little") == 1
+
+
+def test_an_image_takes_a_smaller_encoding_where_that_is_within_the_budget(sun_site_build,
+                                                                          tmp_path):
+    """With ``compression.sun_bounce_encoding = "smallest"`` a sun-bounce image is stored in
+    the first of ETC1S and UASTC with rate-distortion optimization that is smaller than its
+    plain UASTC image and within the budget as displayed, else plain UASTC (bake.sunbounce;
+    docs/compact-assets.md, "The sun's bounce"). Against the same site compressed with plain
+    UASTC only (``"uastc"``, the default): every image
+    that differs from that build's is smaller than it and, judged independently (gendaylit's
+    sky, benchmarks/sun_bounce_display.py), within 1.1 times the budget; the others are that
+    build's bytes; some of them are ETC1S (their header says so); and the sun's bounce takes
+    fewer bytes in all."""
+    from tests.sunbounce_levels import recompress_sun_bounce
+
+    smallest = recompress_sun_bounce(sun_site_build, tmp_path / "smallest", BUDGET,
+                                     encoding="smallest")
+    uastc = recompress_sun_bounce(sun_site_build, tmp_path / "uastc", BUDGET,
+                                  encoding="uastc")
+    rows = {(r["stack"], r["light"]): r for r in judged_by_gendaylit(smallest)}
+    cheaper, etc1s = [], []
+    for stack, light in rows:
+        owner, name = stack.split(".")
+        file = f"ktx2/{owner}.sun_bounce.{name}.L{light:04d}.ktx2"
+        assert not is_etc1s(uastc / file), file
+        if (smallest / file).read_bytes() != (uastc / file).read_bytes():
+            cheaper.append((stack, light))
+            assert (smallest / file).stat().st_size < (uastc / file).stat().st_size, file
+            if is_etc1s(smallest / file):
+                etc1s.append((stack, light))
+    print(f"{len(cheaper)} of {len(rows)} sun-bounce images smaller, {len(etc1s)} ETC1S")
+    assert len(etc1s) >= 10, len(etc1s)
+    worst = max((rows[k] for k in cheaper), key=lambda r: r["stored"]["rms"])
+    assert worst["stored"]["rms"] <= 1.1 * BUDGET, worst
+
+    def bounce_bytes(build_dir: Path) -> int:
+        return sum(f.stat().st_size for f in (build_dir / "ktx2").glob("*.sun_bounce.*"))
+
+    assert bounce_bytes(smallest) < bounce_bytes(uastc)
+
+
 def test_the_sun_in_patch_p_reads_file_p_and_shuffled_files_break_it(sun_site_build, tmp_path):
     """The index rule: with the sun in patch p the client reads L{p} (its levels) with
     scale[p] and offset[p]. Swapping the coarse files of the build's lights breaks every

@@ -21,6 +21,7 @@ against budgets computed here from what each mode needs, not from the client:
 from __future__ import annotations
 
 import base64
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -63,19 +64,31 @@ def sun_bytes(maps: int, size: int) -> int:
     return maps * (4 * texels + 4 * texels + ground + coarse) + 4 * texels
 
 
-def bounce_bytes(manifest: dict, patch: int, hull: bool = False) -> int:
+def bounce_bytes(build_dir: Path, manifest: dict, patch: int, etc1s_format: str,
+                 hull: bool = False) -> int:
     """The sun-bounce images of one sun patch the visit holds: every atlas stack's with an image
     for that patch (its scale not null), each of its levels (one or two: ``len(scale[p])``)
-    decoded to RGBA8 (UASTC); the hull planes' only in hull-plane mode (``hull``; since
-    2026-12-06 the client fetches them only then)."""
+    decoded to RGBA8 (UASTC), or, for a coarse image stored with ETC1S (its KTX2 header's
+    supercompression scheme 1, BasisLZ; since 2026-12-06 evening) where the client takes
+    ETC1S as ETC2 (``etc1s_format``, its status), 8 bytes a 4 x 4 block; the hull planes'
+    only in hull-plane mode (``hull``; since 2026-12-06 the client fetches them only then)."""
     total = 0
     for atlas in manifest["atlases"]:
         if atlas["id"] == "hull" and not hull:
             continue
+        texels = atlas["width"] * atlas["height"]
+        blocks = -(-atlas["width"] // 4) * -(-atlas["height"] // 4)
         for stack in atlas.get("sun_bounce", {}).values():
             lights = stack["compact"]["lights"]
-            if lights["scale"][patch] is not None:
-                total += 4 * atlas["width"] * atlas["height"] * len(lights["scale"][patch])
+            if lights["scale"][patch] is None:
+                continue
+            shared = lights.get("image")  # the light whose files hold each light's image
+            holder = shared[patch] if shared else patch
+            for level in range(len(lights["scale"][patch])):
+                file = build_dir / lights["ktx2"][level].format(index=holder)
+                header = file.read_bytes()[:48]
+                etc1s = int.from_bytes(header[44:48], "little") == 1
+                total += 8 * blocks if etc1s and etc1s_format == "etc2" else 4 * texels
     return total
 
 
@@ -175,8 +188,8 @@ def test_sun_maps_share_their_normals(browser, web_build, reference, profile):
             patch = page.page.evaluate("window.daylit.debug.sunBounce()")
             assert patch >= 0  # a precondition
             added = page.status()["gpuTextureBytes"] - before
-            assert added == sun_bytes(maps, SUN_MAP_PX[profile]) + bounce_bytes(server.manifest,
-                                                                                patch)
+            assert added == sun_bytes(maps, SUN_MAP_PX[profile]) + bounce_bytes(
+                web_build, server.manifest, patch, page.status()["etc1sTextures"])
             assert not page.errors, page.errors
         finally:
             page.context.close()

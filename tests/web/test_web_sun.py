@@ -389,6 +389,30 @@ def test_sun_bounce_with_and_without_refinement_files(new_page, sun_build, sun_r
     assert not errors, errors
 
 
+def test_sun_bounce_from_etc1s_and_rdo_images(new_page, sun_build, sun_reference, tmp_path):
+    """A build compressed with ``compression.sun_bounce_encoding = "smallest"`` (the site's
+    sun-bounce stacks compressed again so): the patch's lightmap image is ETC1S (its KTX2
+    header's supercompression scheme 1, BasisLZ), which the client tells from the file alone,
+    and the shaded face is shown as that build's compact oracle says."""
+    from bake.evaluate import Build
+    from tests.sunbounce_levels import recompress_sun_bounce
+
+    smallest = recompress_sun_bounce(sun_build, tmp_path / "smallest", 0.01,
+                                     encoding="smallest")
+    build = Build(smallest)
+    s, _ = sun_and_sky(build)
+    table = next(a for a in build.manifest["atlases"]
+                 if a["id"] == "lightmap")["sun_bounce"]["I"]["compact"]
+    coarse = smallest / table["lights"]["ktx2"][0].format(index=build.sun_patch(s))
+    assert int.from_bytes(coarse.read_bytes()[44:48], "little") == 1, coarse  # a precondition
+    _, casters = sun_reference
+    shown, expected, no_bounce, share, errors = shaded_face_shown(new_page, smallest, build,
+                                                                  casters)
+    assert np.abs(shown - expected).max() <= 3.0, (shown, expected)
+    assert (shown.mean(axis=1) > no_bounce.mean(axis=1) + 3.0).all(), (shown, no_bounce)
+    assert not errors, errors
+
+
 def test_sun_bounce_from_an_image_shared_with_a_neighbouring_patch(new_page, sun_build,
                                                                    sun_reference, tmp_path):
     """A build whose sun-bounce images are shared (manifest version 3, ``lights.image``):
