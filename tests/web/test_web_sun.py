@@ -337,6 +337,16 @@ def shaded_face_shown(new_page, build_dir, build, casters, served: list | None =
         return shown, expected, no_bounce, share, list(page.errors)
 
 
+def shaded_face_as_the_oracle_says(new_page, build_dir, build, casters) -> None:
+    """The shaded face of ``build_dir`` (:func:`shaded_face_shown`) within 3 codes of its
+    compact oracle, clearly brighter than the sky alone would make it, and no page errors."""
+    shown, expected, no_bounce, _, errors = shaded_face_shown(new_page, build_dir, build,
+                                                              casters)
+    assert np.abs(shown - expected).max() <= 3.0, (shown, expected)
+    assert (shown.mean(axis=1) > no_bounce.mean(axis=1) + 3.0).all(), (shown, no_bounce)
+    assert not errors, errors
+
+
 def test_sun_bounce_on_the_shaded_face(new_page, sun_build, sun_reference):
     """The virtual box's west face, away from the low eastern sun, lit by the sky and by the
     sun's bounce off the sunlit ground in front of it: displayed as the oracle says (the
@@ -381,12 +391,7 @@ def test_sun_bounce_with_and_without_refinement_files(new_page, sun_build, sun_r
     print(f"patch {p}: (patterns, its levels) {levels}")
     # Preconditions: the face's stack lists two patterns and has one level here; another two.
     assert levels["lightmap.I"] == (2, 1) and levels["ground.I"] == (2, 2), levels
-    _, casters = sun_reference
-    shown, expected, no_bounce, share, errors = shaded_face_shown(new_page, mixed, build,
-                                                                  casters)
-    assert np.abs(shown - expected).max() <= 3.0, (shown, expected)
-    assert (shown.mean(axis=1) > no_bounce.mean(axis=1) + 3.0).all(), (shown, no_bounce)
-    assert not errors, errors
+    shaded_face_as_the_oracle_says(new_page, mixed, build, sun_reference[1])
 
 
 def test_sun_bounce_from_etc1s_and_rdo_images(new_page, sun_build, sun_reference, tmp_path):
@@ -405,12 +410,7 @@ def test_sun_bounce_from_etc1s_and_rdo_images(new_page, sun_build, sun_reference
                  if a["id"] == "lightmap")["sun_bounce"]["I"]["compact"]
     coarse = smallest / table["lights"]["ktx2"][0].format(index=build.sun_patch(s))
     assert int.from_bytes(coarse.read_bytes()[44:48], "little") == 1, coarse  # a precondition
-    _, casters = sun_reference
-    shown, expected, no_bounce, share, errors = shaded_face_shown(new_page, smallest, build,
-                                                                  casters)
-    assert np.abs(shown - expected).max() <= 3.0, (shown, expected)
-    assert (shown.mean(axis=1) > no_bounce.mean(axis=1) + 3.0).all(), (shown, no_bounce)
-    assert not errors, errors
+    shaded_face_as_the_oracle_says(new_page, smallest, build, sun_reference[1])
 
 
 def test_sun_bounce_from_an_image_shared_with_a_neighbouring_patch(new_page, sun_build,
