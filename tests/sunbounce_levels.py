@@ -2,7 +2,7 @@
 ``compression.sun_bounce_budget`` (``bake.sunbounce.compress_sun_bounce``, the baker's own
 function), its manifest listing the new entries and files: a build where some lights keep a
 refinement and some do not, for the tests of the bake (tests/bake/test_sun_bounce.py) and of
-the client (tests/web/test_web_sun.py)."""
+the client (tests/web/test_web_sun.py); and which of its images are ETC1S (:func:`is_etc1s`)."""
 
 from __future__ import annotations
 
@@ -57,3 +57,11 @@ def recompress_sun_bounce(build_dir: Path, copy: Path, budget: float,
     manifest["files"] = files
     (copy / "manifest.json").write_text(json.dumps(manifest, indent=1))
     return copy
+
+
+def is_etc1s(path: Path) -> bool:
+    """Whether a KTX2 file holds ETC1S data: its header's supercompressionScheme (bytes
+    44-47, little-endian) is 1, BasisLZ, which only ETC1S uses (KTX 2.0 specification,
+    section 3.9; UASTC files are 0 or 2, Zstandard)."""
+    header = path.read_bytes()[:48]
+    return int.from_bytes(header[44:48], "little") == 1

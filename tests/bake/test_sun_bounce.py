@@ -467,14 +467,6 @@ def test_a_second_coarse_level_spares_refinements(sun_site_build, tight_build, t
             assert (tight_build / name).read_bytes() == (before / name).read_bytes()
 
 
-def is_etc1s(path: Path) -> bool:
-    """Whether a KTX2 file holds ETC1S data: its header's supercompressionScheme (bytes
-    44-47, little-endian) is 1, BasisLZ, which only ETC1S uses (KTX 2.0 specification,
-    section 3.9; UASTC files are 0 or 2, Zstandard)."""
-    header = path.read_bytes()[:48]
-    return int.from_bytes(header[44:48], "little") == 1
-
-
 def test_an_image_takes_a_smaller_encoding_where_that_is_within_the_budget(sun_site_build,
                                                                           tmp_path):
     """With ``compression.sun_bounce_encoding = "smallest"`` a sun-bounce image is stored in
@@ -486,7 +478,7 @@ def test_an_image_takes_a_smaller_encoding_where_that_is_within_the_budget(sun_s
     sky, benchmarks/sun_bounce_display.py), within 1.1 times the budget; the others are that
     build's bytes; some of them are ETC1S (their header says so); and the sun's bounce takes
     fewer bytes in all."""
-    from tests.sunbounce_levels import recompress_sun_bounce
+    from tests.sunbounce_levels import is_etc1s, recompress_sun_bounce
 
     smallest = recompress_sun_bounce(sun_site_build, tmp_path / "smallest", BUDGET,
                                      encoding="smallest")

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.sunbounce_levels import is_etc1s
 from tests.web.harness import StubServer
 from tests.web.kioskref import light_message
 
@@ -86,9 +87,8 @@ def bounce_bytes(build_dir: Path, manifest: dict, patch: int, etc1s_format: str,
             holder = shared[patch] if shared else patch
             for level in range(len(lights["scale"][patch])):
                 file = build_dir / lights["ktx2"][level].format(index=holder)
-                header = file.read_bytes()[:48]
-                etc1s = int.from_bytes(header[44:48], "little") == 1
-                total += 8 * blocks if etc1s and etc1s_format == "etc2" else 4 * texels
+                etc2 = is_etc1s(file) and etc1s_format == "etc2"
+                total += 8 * blocks if etc2 else 4 * texels
     return total
 
 
