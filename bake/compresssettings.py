@@ -35,12 +35,10 @@ class Settings:
     # UASTC at uastc_level with rate-distortion optimization (``sun_bounce_rdo_lambdas``, in
     # turn), and keeps the first of those that is smaller than its plain UASTC image and
     # within ``sun_bounce_budget`` as displayed; the others go on to plain UASTC as above.
-    # On the 400-light final demo, one image per patch, that took the sun-bounce images from
-    # 56.6 to 24.5 MB, but their error at single texels, as displayed, is 3-5 times plain
-    # UASTC's (the budget is an RMS), and the kiosk's view in a real umbra was 2.6 sRGB codes
-    # off an independent oracle against 1.6: so it is a choice for a site, not the default
-    # (docs/benchmarks.md, "The sun-bounce images in their smallest encoding within the
-    # budget"). "uastc": plain UASTC only.
+    # Far fewer bytes, but the budget is an RMS and these codecs spend it unevenly: several
+    # times plain UASTC's error at single texels, blocky, in shade; so a choice for a site,
+    # not the default (docs/benchmarks.md, "The sun-bounce images in their smallest encoding
+    # within the budget"). "uastc": plain UASTC only.
     sun_bounce_encoding: str = "uastc"
     sun_bounce_rdo_lambdas: tuple[float, ...] = (3.0, 1.0)
     # The same for stacks judged by their RMS error alone (lightmap, views): a refinement
