@@ -42,6 +42,7 @@ class Compressor:
             sun_bounce_budget=c["sun_bounce_budget"],
             sun_bounce_lights=c["sun_bounce_lights"] or None,  # 0: one image per patch
             sun_bounce_encoding=c["sun_bounce_encoding"],
+            sun_bounce_sharing=c["sun_bounce_sharing"],
         )
         self.display_skies = None  # set by start()
         self.log = log
@@ -294,6 +295,7 @@ def shared_line(stack: str, shared: dict) -> str:
     themselves are judged against their group's (docs/sun.md, "Shared images")."""
     over = (f", {shared['over_budget']} of {shared['lights']} patches over the budget"
             if "over_budget" in shared else "")
-    return (f"  {stack}: each sun-path patch with its group's image, as displayed against "
+    return (f"  {stack}: each sun-path patch with its group's image and its own gain, as "
+            f"displayed against "
             f"its own column: worst {shared['max']:.2%} (light {shared['worst_light']}), "
             f"median {shared['median']:.2%}{over}")

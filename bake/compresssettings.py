@@ -58,6 +58,13 @@ class Settings:
     # lights a two-hour visit then fetches 3 images per stack instead of 6 (docs/sun.md,
     # "Shared images"; what it costs in fidelity: docs/benchmarks.md).
     sun_bounce_lights: int | None = 196
+    # "within_budget": a patch shares its group's image only where that, at its own gain,
+    # keeps it within bake.sunbounce.SHARING_SHARE of ``sun_bounce_budget`` as displayed,
+    # else it gets an image of its own (bake.sunbounce.groups_within; since 2026-12-06
+    # night). "always": every member of a group shares it, as before (fewer bytes, over the
+    # budget for most patches of the models' faces at 400 lights: docs/benchmarks.md, "Each
+    # patch's own gain, and sharing only within the budget").
+    sun_bounce_sharing: str = "within_budget"
     # Zstandard supercompression of the UASTC blocks (lossless): level 19 for arrays (the
     # base layers every phone downloads: 15 made them larger), 15 for separate light images
     # (less encode time for a fraction of a per cent more bytes).

@@ -275,6 +275,7 @@ def _load_settings(
         "sun_bounce_budget": compression_t.number("sun_bounce_budget"),
         "sun_bounce_lights": compression_t.number("sun_bounce_lights"),
         "sun_bounce_encoding": compression_t.string("sun_bounce_encoding"),
+        "sun_bounce_sharing": compression_t.string("sun_bounce_sharing"),
     }
 
     q = levels[chosen]

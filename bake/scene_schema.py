@@ -195,6 +195,14 @@ SCHEMA: dict = _table({
                                     "bytes; 3-5 times the error at single texels; "
                                     "docs/compact-assets.md, \"The sun's bounce\")",
                                     choices=("uastc", "smallest")),
+        "sun_bounce_sharing": _str("within_budget", "within_budget: a sun patch shares its "
+                                   "group's sun-bounce image (sun_bounce_lights) only where "
+                                   "that, at the patch's own gain, keeps it within 70 % of "
+                                   "sun_bounce_budget as displayed, else it gets an image of "
+                                   "its own; always: every patch of a group shares it, "
+                                   "whatever it costs as displayed (fewer bytes; the bake "
+                                   "reports the cost; docs/sun.md, \"Shared images\")",
+                                   choices=("within_budget", "always")),
     }),
     "virtual": _array_of(_table({
         "name": _str(None, "unique"),

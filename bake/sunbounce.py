@@ -24,6 +24,11 @@ from bake.quantize import float32_list, quantized_png, refinement_png
 from bake.rowstore import as_stack
 from bake.sundisplay import SUN_BOUNCE_DECODE_CHUNK, DisplayCheck, DisplaySkies
 
+# Of the budget as displayed, the share a patch's sharing of its group's image may take
+# before encoding (groups_within); the image's encoding error, judged against the group's
+# column, takes the rest (errors of both kinds add about in quadrature: 0.7^2 + 0.7^2 ~ 1).
+SHARING_SHARE = 0.7
+
 
 @dataclass
 class SharedImages:
@@ -34,7 +39,8 @@ class SharedImages:
     ``omega_rep / sum(omega_q) * sum_q B_q``, so that with the sun in any member ``p`` the
     client's ``E_sun / omega_p * column_p`` (``column_p``: the shared image scaled by
     ``omega_p / omega_rep``) is ``E_sun * sum_q B_q / sum_q omega_q``: the sun's bounce
-    averaged over the group's patches."""
+    averaged over the group's patches; each member then scales it by its own least-squares
+    gain per channel (:func:`fit_member_gains`)."""
 
     groups: dict[int, list[int]]
     solid_angles_sr: np.ndarray  # (n,) the dome's
@@ -162,7 +168,8 @@ def compress_sun_bounce(image, name, out_dir, lights, settings, sky=None,
     With ``shared`` (:class:`SharedImages`) the lights of a group share one image, their
     group's (:class:`SharedColumns`): only the representatives are encoded and judged (each
     against its group's column, under its own display sky), and the entry lists every
-    member (:func:`share_entry`).
+    member (:func:`share_entry`), each with its own gain per channel against its own column
+    (:func:`fit_member_gains`).
 
     Writes ``ktx2/<name>.L<i>.ktx2`` for each light ``i`` of ``lights`` and
     ``ktx2/<name>.L<i>r.ktx2`` for those that keep a refinement. Returns the
@@ -179,25 +186,35 @@ def compress_sun_bounce(image, name, out_dir, lights, settings, sky=None,
     if not valid.any() or len(lights) == 0:
         return None
     own = image  # each patch's own column: the direct term's estimate (DisplayCheck)
+    budget = settings.sun_bounce_budget
+    # One judge, one pass over the sky stack: with shared images it holds every drawn light,
+    # the groups checked with it, the representatives' images judged with it and then every
+    # member's error against its own column (shared_errors).
+    judged = lights
     if shared is not None:
         drawn = set(lights.tolist())
         shared = SharedImages({rep: [q for q in members if q in drawn]
                                for rep, members in shared.groups.items() if rep in drawn},
                               shared.solid_angles_sr, shared.kind, shared.frequency)
-        image = SharedColumns(image, shared)
-        lights = np.asarray(shared.representatives, dtype=int)
-    budget = settings.sun_bounce_budget
-    # One judge, one pass over the sky stack: with shared images it holds every drawn light,
-    # the representatives' images judged with it and then every member's error against its
-    # own column (shared_errors).
-    judged = sorted(drawn) if shared is not None else lights
+        judged = sorted(drawn)
     check = (DisplayCheck(sky, skies, judged, bounce=own)
              if sky is not None and skies is not None else None)
+    split_out = 0
+    if shared is not None:
+        if (check is not None and budget is not None
+                and settings.sun_bounce_sharing == "within_budget"):
+            grouped = len(shared.groups)
+            shared = groups_within(shared, own, check, SHARING_SHARE * budget)
+            split_out = len(shared.groups) - grouped
+        image = SharedColumns(image, shared)
+        lights = np.asarray(shared.representatives, dtype=int)
     try:
         result = _compress_columns(image, name, out_dir, lights, settings, check, budget,
                                    started)
         if result is not None and shared is not None:
             share_entry(result.entry, shared, n)
+            result.entry["shared"]["split_out"] = split_out
+            fit_member_gains(out_dir, result.entry, own, judged)
             if check is not None:
                 result.entry["error"]["displayed"]["shared"] = shared_errors(
                     out_dir, result.entry, own, check, budget)
@@ -205,6 +222,86 @@ def compress_sun_bounce(image, name, out_dir, lights, settings, sky=None,
     finally:
         if check is not None:
             check.remove()
+
+
+def groups_within(shared: SharedImages, own, check: DisplayCheck, limit: float
+                  ) -> SharedImages:
+    """``shared`` with the patches that sharing would put over ``limit`` as displayed taken
+    out of their groups, each to an image of its own: in each group, the group's column
+    (the members' solid-angle mean) times each member's least-squares gain
+    (:func:`least_squares_gain`, as :func:`fit_member_gains` will give it) is judged against
+    the member's own column of ``own`` (H, W, n, 3) by ``check`` (made with ``bounce=own``,
+    holding every member); while the worst member is over ``limit``, it leaves the group
+    and the rest's mean is judged again. Before encoding: ``limit`` is the share of the
+    budget left to sharing (:data:`SHARING_SHARE`), the rest to the image's encoding."""
+    own = as_stack(own)
+    valid = own.valid
+    omega = shared.solid_angles_sr
+    groups: dict[int, list[int]] = {}
+    for members in shared.groups.values():
+        members = list(members)
+        columns = dict(zip(members, own.columns(members), strict=True))
+        shown = dict(zip(members, check.sky_shown(members), strict=True))
+        while len(members) > 1:
+            total = sum(columns[q].astype(np.float64) for q in members) / omega[members].sum()
+            errors = []
+            for p in members:
+                mean = total * omega[p]
+                gain = least_squares_gain(mean[valid], columns[p][valid])
+                errors.append(check.error(p, shown[p], columns[p], mean * gain))
+            worst = int(np.argmax(errors))
+            if errors[worst] <= limit:
+                break
+            alone = members.pop(worst)
+            groups[alone] = [alone]
+        groups[members[0]] = members
+    return SharedImages(dict(sorted(groups.items())), omega, shared.kind, shared.frequency)
+
+
+def fit_member_gains(out_dir: Path, entry: dict, own, lights) -> None:
+    """Give each light ``p`` of ``lights`` that reads a shared image (``entry`` after
+    :func:`share_entry`) its own gain per channel: the least-squares one, over the valid
+    texels of ``own`` (H, W, n, 3, each patch's own column), of its decoded image against its
+    own master column, ``g_c = sum(decoded_c * own_c) / sum(decoded_c ** 2)``; its ``scale``
+    and ``offset`` (every level) are multiplied by it, so the client draws ``g`` times the
+    group's image with no change of its own.
+
+    The group's image is the members' mean; part of how a member's own bounce differs from it
+    is strength (the sun's cosine on the surfaces that throw it off changes across a group, up
+    to twice from the lowest row of patches to the next), which the gain restores; the rest is
+    pattern, which :func:`groups_within` judges.
+    As displayed, the relit sky and the direct term do not depend on the gain, so the
+    least-squares gain is the one with the smallest error the judge can see for that image
+    (docs/sun.md, "Shared images"). Records ``entry["shared"]["gains"]``: the smallest and
+    largest gain over lights and channels."""
+    own = as_stack(own)
+    valid = own.valid
+    table = entry["lights"]
+    reader = CompactReader(out_dir, entry, own.shape[:2])
+    lowest, highest = np.inf, -np.inf
+    for start in range(0, len(lights), SUN_BOUNCE_DECODE_CHUNK):
+        chunk = [int(i) for i in lights[start : start + SUN_BOUNCE_DECODE_CHUNK]]
+        decoded = reader.lights(chunk)
+        for p, column in zip(chunk, own.columns(chunk), strict=True):
+            gain = least_squares_gain(decoded[p][valid], column[valid])
+            table["scale"][p] = [float32_list(np.asarray(level) * gain)
+                                 for level in table["scale"][p]]
+            table["offset"][p] = [float32_list(np.asarray(level) * gain)
+                                  for level in table["offset"][p]]
+            lowest, highest = min(lowest, gain.min()), max(highest, gain.max())
+        reader.forget_lights()
+    entry["shared"]["gains"] = [round(float(lowest), 4), round(float(highest), 4)]
+
+
+def least_squares_gain(decoded: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """(3,) per channel, the gain ``g >= 0`` that minimizes ``sum (g * decoded - truth)^2``
+    over texels (``decoded``, ``truth``: (T, 3)); 1 for a channel whose decoded image is
+    zero."""
+    decoded = decoded.astype(np.float64)
+    power = (decoded**2).sum(axis=0)
+    fit = (decoded * truth.astype(np.float64)).sum(axis=0)
+    return np.where(power > 0.0, np.clip(fit / np.where(power > 0.0, power, 1.0), 0.0, None),
+                    1.0)
 
 
 def shared_errors(out_dir: Path, entry: dict, own, check: DisplayCheck,

@@ -15,12 +15,13 @@ from pathlib import Path
 
 def recompress_sun_bounce(build_dir: Path, copy: Path, budget: float,
                           second_level: int | None = None, shared=None,
-                          encoding: str | None = None) -> Path:
+                          encoding: str | None = None, sharing: str | None = None) -> Path:
     """Copy ``build_dir`` to ``copy`` and compress its atlases' and views' sun-bounce stacks
     again, judged with ``budget`` (and ``Settings.sun_bounce_level`` ``second_level``, by
     default the baker's), their lights grouped by ``shared`` (a
     ``bake.sunbounce.SharedImages``; None: one image per light), with
-    ``Settings.sun_bounce_encoding`` ``encoding`` (default the baker's); returns ``copy``."""
+    ``Settings.sun_bounce_encoding`` ``encoding`` and ``Settings.sun_bounce_sharing``
+    ``sharing`` (defaults the baker's); returns ``copy``."""
     from bake.compresssettings import Settings
     from bake.evaluate import Build
     from bake.sunbounce import compress_sun_bounce
@@ -40,6 +41,8 @@ def recompress_sun_bounce(build_dir: Path, copy: Path, budget: float,
         settings = replace(settings, sun_bounce_level=second_level)
     if encoding is not None:
         settings = replace(settings, sun_bounce_encoding=encoding)
+    if sharing is not None:
+        settings = replace(settings, sun_bounce_sharing=sharing)
     for owner in manifest["atlases"] + manifest["views"]:
         for stack, entry in owner.get("sun_bounce", {}).items():
             result = compress_sun_bounce(

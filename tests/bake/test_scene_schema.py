@@ -79,19 +79,26 @@ def test_the_schema_is_json_schema_and_its_defaults_load(tmp_path):
     assert site.north_deg == 0.0 and site.scene_id == "test"
 
 
-def test_the_sun_bounce_encoding_reaches_the_compressor(tmp_path):
-    """``[compression] sun_bounce_encoding`` (docs/scene-format.md) is read from the scene file
-    and handed to the compression settings the baker uses; a word it does not know is an
-    error that names the key and what is allowed."""
+def test_the_sun_bounce_encoding_and_sharing_reach_the_compressor(tmp_path):
+    """``[compression] sun_bounce_encoding`` and ``sun_bounce_sharing`` (docs/scene-format.md)
+    are read from the scene file and handed to the compression settings the baker uses; a
+    word it does not know is an error that names the key and what is allowed."""
     from bake.compressor import Compressor
 
     site = load_site(make_site(tmp_path / "a", extra='[compression]\nsun_bounce_encoding = '
-                                                      '"smallest"\nsun_bounce_lights = 0\n'))
+                                                      '"smallest"\nsun_bounce_lights = 0\n'
+                                                      'sun_bounce_sharing = "always"\n'))
     settings = Compressor(site, log=lambda msg: None).settings
     assert settings.sun_bounce_encoding == "smallest" and settings.sun_bounce_lights is None
+    assert settings.sun_bounce_sharing == "always"
     default = Compressor(load_site(make_site(tmp_path / "b")), log=lambda msg: None).settings
     assert default.sun_bounce_encoding == "uastc" and default.sun_bounce_lights == 196
+    assert default.sun_bounce_sharing == "within_budget"
     with pytest.raises(SceneError) as info:
         load_site(make_site(tmp_path / "c", extra='[compression]\nsun_bounce_encoding = "etc1s"\n'))
     assert info.value.key == "compression.sun_bounce_encoding", str(info.value)
     assert "smallest" in info.value.message, str(info.value)
+    with pytest.raises(SceneError) as info:
+        load_site(make_site(tmp_path / "d", extra='[compression]\nsun_bounce_sharing = "no"\n'))
+    assert info.value.key == "compression.sun_bounce_sharing", str(info.value)
+    assert "within_budget" in info.value.message, str(info.value)
