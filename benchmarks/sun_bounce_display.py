@@ -227,6 +227,8 @@ def measure(build_dir: Path, log=print, direct: bool = True) -> list[dict]:
             coarse = level_reader(build_dir, sb["compact"], shape, 1)
             stored = level_reader(build_dir, sb["compact"], shape, len(table["ktx2"]))
             have = [p for p, scale in enumerate(table["scale"]) if scale is not None]
+            # A light may read a shared image: its holder's files (bake.sunbounce).
+            holder = table.get("image") or list(range(len(table["scale"])))
             for start in range(0, len(have), DECODE_CHUNK):
                 chunk = have[start: start + DECODE_CHUNK]
                 two = [p for p in chunk if len(table["scale"][p]) > 1]
@@ -252,7 +254,8 @@ def measure(build_dir: Path, log=print, direct: bool = True) -> list[dict]:
                         "sun_az_el_deg": [round(float(az[0]), 2), round(float(el[0]), 2)],
                         "dni_dhi_W_m2": [round(dni, 1), round(dhi, 1)],
                         "levels": len(scale),
-                        "bytes": [sizes[pat.format(index=p)]
+                        "holder": holder[p],
+                        "bytes": [sizes[pat.format(index=holder[p])]
                                   for pat in table["ktx2"][:len(scale)]],
                         **errors,
                     })
@@ -271,13 +274,14 @@ def summary(rows: list[dict]) -> list[dict]:
         c_p99 = np.array([r["coarse"]["p99"] for r in rs])
         s_rms = np.array([r["stored"]["rms"] for r in rs])
         s_p99 = np.array([r["stored"]["p99"] for r in rs])
+        files = {r.get("holder", r["light"]): r for r in rs}  # a shared image counted once
         out.append({
             "stack": name, "lights": len(rs),
             "coarse_rms_max": float(c_rms.max()), "coarse_rms_median": float(np.median(c_rms)),
             "coarse_p99_max": float(c_p99.max()), "coarse_p99_median": float(np.median(c_p99)),
             "stored_rms_max": float(s_rms.max()), "stored_p99_max": float(s_p99.max()),
-            "coarse_bytes": int(sum(r["bytes"][0] for r in rs)),
-            "refine_bytes": int(sum(sum(r["bytes"][1:]) for r in rs)),
+            "coarse_bytes": int(sum(r["bytes"][0] for r in files.values())),
+            "refine_bytes": int(sum(sum(r["bytes"][1:]) for r in files.values())),
             "two_levels": int(sum(r["levels"] > 1 for r in rs)),
         })
     return out
