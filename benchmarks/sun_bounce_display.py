@@ -184,6 +184,8 @@ def level_reader(build_dir: Path, entry: dict, shape, levels: int):
             "offset": [None if o is None else o[:levels] for o in table["offset"]],
         },
     }
+    if table.get("image"):  # shared images: the holder's files (bake.sunbounce)
+        cut["lights"]["image"] = table["image"]
     return CompactReader(build_dir, cut, shape)
 
 
