@@ -237,24 +237,33 @@ def groups_within(shared: SharedImages, own, check: DisplayCheck, limit: float
     own = as_stack(own)
     valid = own.valid
     omega = shared.solid_angles_sr
-    groups: dict[int, list[int]] = {}
+    # Whole groups, about SUN_BOUNCE_DECODE_CHUNK lights at a time: a stack on disk reads
+    # every row of a block of lights for each call (bake.rowstore.StackStore.columns).
+    batches: list[list[list[int]]] = [[]]
     for members in shared.groups.values():
-        members = list(members)
-        columns = dict(zip(members, own.columns(members), strict=True))
-        shown = dict(zip(members, check.sky_shown(members), strict=True))
-        while len(members) > 1:
-            total = sum(columns[q].astype(np.float64) for q in members) / omega[members].sum()
-            errors = []
-            for p in members:
-                mean = total * omega[p]
-                gain = least_squares_gain(mean[valid], columns[p][valid])
-                errors.append(check.error(p, shown[p], columns[p], mean * gain))
-            worst = int(np.argmax(errors))
-            if errors[worst] <= limit:
-                break
-            alone = members.pop(worst)
-            groups[alone] = [alone]
-        groups[members[0]] = members
+        if batches[-1] and sum(map(len, batches[-1])) + len(members) > SUN_BOUNCE_DECODE_CHUNK:
+            batches.append([])
+        batches[-1].append(list(members))
+    groups: dict[int, list[int]] = {}
+    for batch in batches:
+        lights = [p for members in batch for p in members]
+        columns = dict(zip(lights, own.columns(lights), strict=True))
+        shown = dict(zip(lights, check.sky_shown(lights), strict=True))
+        for members in batch:
+            while len(members) > 1:
+                total = (sum(columns[q].astype(np.float64) for q in members)
+                         / omega[members].sum())
+                errors = []
+                for p in members:
+                    mean = total * omega[p]
+                    gain = least_squares_gain(mean[valid], columns[p][valid])
+                    errors.append(check.error(p, shown[p], columns[p], mean * gain))
+                worst = int(np.argmax(errors))
+                if errors[worst] <= limit:
+                    break
+                alone = members.pop(worst)
+                groups[alone] = [alone]
+            groups[members[0]] = members
     return SharedImages(dict(sorted(groups.items())), omega, shared.kind, shared.frequency)
 
 
