@@ -57,6 +57,13 @@ def read_v(build_dir: Path, v: dict) -> np.ndarray:
     return values.astype(np.float32) * np.float32(v.get("scale", 1.0))
 
 
+def image_holders(table: dict) -> list:
+    """A ``lights`` table's light whose files hold each light's image: ``image`` where a
+    sun-bounce light may share another's (since 2026-12-06: bake.sunbounce.SharedImages; it
+    is read with its own scale and offset), else each light its own."""
+    return table.get("image") or list(range(len(table["scale"])))
+
+
 class CompactReader:
     """Evaluates a stack from its compact files exactly as the client does (for checks,
     tests and ``daylit probe --compact``). Decoded textures are cached.
@@ -131,9 +138,7 @@ class CompactReader:
         # Light i has len(scale[i]) levels, the first of the ``ktx2`` patterns (a sun-bounce
         # image may have no refinement: bake.sunbounce).
         levels = {i: len(table["scale"][i]) for i in missing}
-        # A sun-bounce light may share another's image (``image[i]``, since 2026-12-06:
-        # bake.sunbounce.SharedImages), read with its own scale and offset.
-        holder = table.get("image") or list(range(len(table["scale"])))
+        holder = image_holders(table)
         files = [self.dir / pattern.format(index=holder[i]) for i in missing
                  for pattern in table["ktx2"][: levels[i]]]
         decoded = iter(decode(files))

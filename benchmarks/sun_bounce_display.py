@@ -179,13 +179,12 @@ def level_reader(build_dir: Path, entry: dict, shape, levels: int):
     cut = {
         "k": 0,
         "lights": {
+            **table,  # as it is but for the levels (a shared image's holder: ``image``)
             "ktx2": table["ktx2"][:levels],
             "scale": [None if s is None else s[:levels] for s in table["scale"]],
             "offset": [None if o is None else o[:levels] for o in table["offset"]],
         },
     }
-    if table.get("image"):  # shared images: the holder's files (bake.sunbounce)
-        cut["lights"]["image"] = table["image"]
     return CompactReader(build_dir, cut, shape)
 
 
@@ -193,6 +192,7 @@ def measure(build_dir: Path, log=print, direct: bool = True) -> list[dict]:
     """One row per stack and light with images: stack, light, sun (az, el), levels stored,
     bytes per level, and the as-displayed ``coarse`` and ``stored`` errors (with the sun's
     direct term in the displayed value, or without it: ``direct``)."""
+    from bake.compact_reader import image_holders
     from bake.evaluate import Build
     from daylit.sky import azimuth_elevation_from_direction
     from daylit.stackio import read_stack_exr
@@ -229,8 +229,7 @@ def measure(build_dir: Path, log=print, direct: bool = True) -> list[dict]:
             coarse = level_reader(build_dir, sb["compact"], shape, 1)
             stored = level_reader(build_dir, sb["compact"], shape, len(table["ktx2"]))
             have = [p for p, scale in enumerate(table["scale"]) if scale is not None]
-            # A light may read a shared image: its holder's files (bake.sunbounce).
-            holder = table.get("image") or list(range(len(table["scale"])))
+            holder = image_holders(table)  # a shared image is its holder's files
             for start in range(0, len(have), DECODE_CHUNK):
                 chunk = have[start: start + DECODE_CHUNK]
                 two = [p for p in chunk if len(table["scale"][p]) > 1]
