@@ -212,8 +212,11 @@ def test_workers_killed_mid_trace_are_replaced_and_the_bytes_are_the_same(
     assert len(killed) == 2
     assert any(killed[0].values())  # it died holding chunks
     # Once for the cache's chunks, once for the rest, and again after every worker died (at
-    # least the held chunk: its result died with it).
-    assert len(sent) == 3 and sent[0] >= 1 and 0 < sent[2] < sent[1]
+    # least the held chunk: its result died with it). On a loaded machine the killed workers
+    # may still be listed when the setup is scattered again, so it is lost once more and
+    # sent a further time (bake.cluster.SETUP_RESENDS bounds it): seen once under load.
+    assert len(sent) >= 3 and sent[0] >= 1, sent
+    assert all(0 < n < sent[1] for n in sent[2:]), sent
     assert result.rays > 0
     baked = build_files(out)
     assert baked.keys() == reference.keys()
