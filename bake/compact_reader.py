@@ -59,7 +59,7 @@ def read_v(build_dir: Path, v: dict) -> np.ndarray:
 
 def image_holders(table: dict) -> list:
     """A ``lights`` table's light whose files hold each light's image: ``image`` where a
-    sun-bounce light may share another's (since 2026-12-06: bake.sunbounce.SharedImages; it
+    sun-bounce light may share another's (since 2026-12-06: bake.sunshare.SharedImages; it
     is read with its own scale and offset), else each light its own."""
     return table.get("image") or list(range(len(table["scale"])))
 

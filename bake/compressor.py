@@ -12,7 +12,16 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from bake import basisu, compress, compressjobs, stackkinds, sunbounce, sundisplay, testskies
+from bake import (
+    basisu,
+    compress,
+    compressjobs,
+    stackkinds,
+    sunbounce,
+    sundisplay,
+    sunshare,
+    testskies,
+)
 from bake.dome import Dome
 from bake.downloads import download_bytes
 from bake.errors import BakeError
@@ -77,7 +86,7 @@ class Compressor:
         )
         # Neighbouring sun-path patches sharing one sun-bounce image (docs/sun.md, "Shared
         # images"); None: one image per patch.
-        self.shared = sunbounce.SharedImages.of_dome(
+        self.shared = sunshare.SharedImages.of_dome(
             dome.kind, dome.frequency, self.selection.selectable,
             self.settings.sun_bounce_lights,
         )
@@ -137,19 +146,21 @@ class Compressor:
 
     def run_sun_bounce(
         self, image: np.ndarray, name: str, staging: Path, master: str | None = None,
-        sky: np.ndarray | None = None,
+        sky: np.ndarray | None = None, view: bool = False,
     ) -> dict | None:
         """Compress one sun-bounce stack ``name`` (``<atlas or view>.sun_bounce.<stack>``)
         into one image per light the sun can be in, each refined only where its coarse image
         shows against its sky stack ``sky`` (H, W, n, 3; None: every one refined)
         (:func:`bake.sunbounce.compress_sun_bounce`); its compact entry, or None when it is
         zero everywhere (then the master, ``master`` relative to ``staging``, by default
-        ``exr/<name>.exr``, is dropped too)."""
+        ``exr/<name>.exr``, is dropped too). A fixed ``view``'s images are plain UASTC
+        (:func:`bake.sunbounce.view_settings`)."""
         skies = self.display_skies if sky is not None else None
+        settings = sunbounce.view_settings(self.settings) if view else self.settings
         try:
             if self.cluster is None:
                 result = sunbounce.compress_sun_bounce(
-                    image, name, staging, self.selection.selectable, self.settings, sky, skies,
+                    image, name, staging, self.selection.selectable, settings, sky, skies,
                     self.shared,
                 )
             else:
@@ -157,7 +168,7 @@ class Compressor:
                 sky = None if sky is None else as_stack(sky).array()
                 result, files = self.cluster.compress(
                     compressjobs.sun_bounce_job, image, name, self.selection.selectable,
-                    self.settings, sky, skies, self.shared,
+                    settings, sky, skies, self.shared,
                     label=f"the sun-bounce stack {name}",
                 )
                 compressjobs.write_files(staging, files)
@@ -291,7 +302,7 @@ def ratio_line(atlas: dict, ratio: dict, skies: int) -> str:
 
 def shared_line(stack: str, shared: dict) -> str:
     """The bake's line on what sharing sun-bounce images costs as displayed (``shared``:
-    bake.sunbounce.shared_errors), each sun-path patch against its own column: the images
+    bake.sunshare.shared_errors), each sun-path patch against its own column: the images
     themselves are judged against their group's (docs/sun.md, "Shared images")."""
     over = (f", {shared['over_budget']} of {shared['lights']} patches over the budget"
             if "over_budget" in shared else "")

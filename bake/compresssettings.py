@@ -34,12 +34,13 @@ class Settings:
     # "smallest": a judged sun-bounce image is also encoded with ETC1S (quality 255) and with
     # UASTC at uastc_level with rate-distortion optimization (``sun_bounce_rdo_lambdas``, in
     # turn), and keeps the first of those that is smaller than its plain UASTC image and
-    # within ``sun_bounce_budget`` as displayed; the others go on to plain UASTC as above.
-    # Far fewer bytes, but the budget is an RMS and these codecs spend it unevenly: several
-    # times plain UASTC's error at single texels, blocky, in shade; so a choice for a site,
-    # not the default (docs/benchmarks.md, "The sun-bounce images in their smallest encoding
-    # within the budget"). "uastc": plain UASTC only.
-    sun_bounce_encoding: str = "uastc"
+    # within ``sun_bounce_budget`` as displayed, its RMS and at single texels
+    # (bake.sundisplay.TEXEL_BOUND_PER_BUDGET: these codecs' errors are blocky, and an RMS
+    # lets them gather in shade); the others go on to plain UASTC as above. The default since
+    # 2026-12-07: the ground's and the smooth stacks' images fit, the models' faces' and the
+    # kiosk view's do not (docs/benchmarks.md, "Sharing and cheaper codecs held at single
+    # texels"). "uastc": plain UASTC only.
+    sun_bounce_encoding: str = "smallest"
     sun_bounce_rdo_lambdas: tuple[float, ...] = (3.0, 1.0)
     # The same for stacks judged by their RMS error alone (lightmap, views): a refinement
     # layer spans a few steps of its coarse layer, so level 1's better worst texel does not
@@ -54,13 +55,14 @@ class Settings:
     # The sun's bounce is kept at no finer an angular step than a dome of about this many
     # lights: on a finer dome neighbouring sun-path patches share one sun-bounce image, their
     # solid-angle mean (the patches whose centroids lie in one patch of that dome;
-    # bake.sunbounce.SharedImages). None: one image per patch, as before 2026-12-06. At 400
+    # bake.sunshare.SharedImages). None: one image per patch, as before 2026-12-06. At 400
     # lights a two-hour visit then fetches 3 images per stack instead of 6 (docs/sun.md,
     # "Shared images"; what it costs in fidelity: docs/benchmarks.md).
     sun_bounce_lights: int | None = 196
     # "within_budget": a patch shares its group's image only where that, at its own gain,
-    # keeps it within bake.sunbounce.SHARING_SHARE of ``sun_bounce_budget`` as displayed,
-    # else it gets an image of its own (bake.sunbounce.groups_within; since 2026-12-06
+    # keeps it within bake.sunshare.SHARING_SHARE of ``sun_bounce_budget`` as displayed, its
+    # RMS and at single texels (bake.sundisplay.TEXEL_BOUND_PER_BUDGET, since 2026-12-07),
+    # else it gets an image of its own (bake.sunshare.groups_within; since 2026-12-06
     # night). "always": every member of a group shares it, as before (fewer bytes, over the
     # budget for most patches of the models' faces at 400 lights: docs/benchmarks.md, "Each
     # patch's own gain, and sharing only within the budget").

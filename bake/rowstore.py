@@ -213,7 +213,7 @@ def as_stack(stack):
     """A :class:`StackStore` or :class:`ArrayStack` as it is; an array (H, W, n, 3) as an
     :class:`ArrayStack`."""
     if isinstance(stack, (StackStore, ArrayStack)) or hasattr(stack, "columns"):
-        return stack  # a stack read by columns (bake.sunbounce.SharedColumns) as well
+        return stack  # a stack read by columns (bake.sunshare.SharedColumns) as well
     return ArrayStack(stack)
 
 

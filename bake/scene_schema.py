@@ -187,18 +187,20 @@ SCHEMA: dict = _table({
                                   "at 400 lights fetches 3 images per stack instead of 6). 0: "
                                   "one image per patch (docs/sun.md, \"Shared images\")", 0,
                                   20000, integer=True),
-        "sun_bounce_encoding": _str("uastc", "uastc: a sun-bounce image is plain UASTC; "
-                                    "smallest: the first of ETC1S and UASTC with "
-                                    "rate-distortion optimization (lambda 3, then 1) that is "
-                                    "smaller than its plain UASTC image and within "
-                                    "sun_bounce_budget as displayed, else plain UASTC (fewer "
-                                    "bytes; 3-5 times the error at single texels; "
-                                    "docs/compact-assets.md, \"The sun's bounce\")",
+        "sun_bounce_encoding": _str("smallest", "smallest: the first of ETC1S and UASTC "
+                                    "with rate-distortion optimization (lambda 3, then 1) that "
+                                    "is smaller than the image's plain UASTC and within "
+                                    "sun_bounce_budget as displayed, its RMS and at single "
+                                    "texels, else plain UASTC (the kiosk's views: plain "
+                                    "UASTC always); uastc: every sun-bounce image "
+                                    "plain UASTC (more bytes; docs/compact-assets.md, \"The "
+                                    "sun's bounce\")",
                                     choices=("uastc", "smallest")),
         "sun_bounce_sharing": _str("within_budget", "within_budget: a sun patch shares its "
                                    "group's sun-bounce image (sun_bounce_lights) only where "
                                    "that, at the patch's own gain, keeps it within 70 % of "
-                                   "sun_bounce_budget as displayed, else it gets an image of "
+                                   "sun_bounce_budget as displayed, its RMS and at single "
+                                   "texels, else it gets an image of "
                                    "its own; always: every patch of a group shares it, "
                                    "whatever it costs as displayed (fewer bytes; the bake "
                                    "reports the cost; docs/sun.md, \"Shared images\")",

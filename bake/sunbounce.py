@@ -2,8 +2,8 @@
 can be in, each its column as it is (no base, no gain), encoded and checked as the client
 decodes it; a light's refinement image is kept only where its coarse image alone would show
 as displayed (the judge: bake.sundisplay). Neighbouring patches may share one image, their
-solid-angle mean (:class:`SharedImages`; docs/sun.md, "Shared images"), and what that costs
-each patch as displayed is recorded (:func:`shared_errors`).
+solid-angle mean (bake.sunshare; docs/sun.md, "Shared images"), and what that costs each
+patch as displayed is recorded.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from __future__ import annotations
 import shutil
 import tempfile
 import time
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -20,122 +20,28 @@ from bake.basisu import encode
 from bake.compact_reader import CompactReader
 from bake.compress import CompactStack
 from bake.ktx2decoder import decode
-from bake.quantize import float32_list, quantized_png, refinement_png
+from bake.quantize import quantized_png, refinement_png
 from bake.rowstore import as_stack
-from bake.sundisplay import SUN_BOUNCE_DECODE_CHUNK, DisplayCheck, DisplaySkies
+from bake.sundisplay import (
+    SUN_BOUNCE_DECODE_CHUNK,
+    DisplayCheck,
+    DisplaySkies,
+    max_median,
+    sun_bounce_errors,
+)
+from bake.sunshare import (
+    SharedColumns,
+    SharedImages,
+    codec_texel_bounds,
+    fit_member_gains,
+    groups_within,
+    share_entry,
+    shared_errors,
+)
 
-# Of the budget as displayed, the share a patch's sharing of its group's image may take
-# before encoding (groups_within); the image's encoding error, judged against the group's
-# column, takes the rest (errors of both kinds add about in quadrature: 0.7^2 + 0.7^2 ~ 1).
-SHARING_SHARE = 0.7
-
-
-@dataclass
-class SharedImages:
-    """Which sun-path lights share one sun-bounce image: ``groups`` {representative light:
-    its members, sorted, the representative first}. A group is the sun-path patches whose
-    centroids lie in one patch of a coarser dome (:meth:`of_dome`); its
-    image is its members' columns summed and scaled to the representative's solid angle,
-    ``omega_rep / sum(omega_q) * sum_q B_q``, so that with the sun in any member ``p`` the
-    client's ``E_sun / omega_p * column_p`` (``column_p``: the shared image scaled by
-    ``omega_p / omega_rep``) is ``E_sun * sum_q B_q / sum_q omega_q``: the sun's bounce
-    averaged over the group's patches; each member then scales it by its own least-squares
-    gain per channel (:func:`fit_member_gains`)."""
-
-    groups: dict[int, list[int]]
-    solid_angles_sr: np.ndarray  # (n,) the dome's
-    kind: str
-    frequency: int  # the coarser dome's
-
-    @classmethod
-    def of_dome(cls, kind: str, frequency: int, lights, max_lights: int | None
-                ) -> SharedImages | None:
-        """The groups of ``lights`` (the sun-path patches) of a ``kind`` dome of this
-        ``frequency`` by the patches of the dome of about ``max_lights`` lights
-        (:meth:`bake.dome.Dome.for_light_count`), or None when the build's dome has no more
-        lights than that (or ``max_lights`` is None): the sun's bounce is kept at no finer an
-        angular step than that dome's."""
-        from bake.dome import Dome
-        from daylit.spherical import PatchLookup
-
-        fine = Dome.build(kind, frequency)
-        if not max_lights or fine.count <= max_lights:
-            return None
-        rough = Dome.for_light_count(max_lights)
-        if rough.count >= fine.count:
-            return None
-        owner = PatchLookup(rough.vertices)(fine.centroids)
-        by_patch: dict[int, list[int]] = {}
-        for p in sorted(int(i) for i in lights):
-            key = int(owner[p]) if owner[p] >= 0 else -1 - p  # outside every coarse patch: alone
-            by_patch.setdefault(key, []).append(p)
-        groups = {members[0]: members for members in by_patch.values()}
-        return cls(groups, fine.solid_angles_sr, rough.kind, rough.frequency)
-
-    @property
-    def representatives(self) -> list[int]:
-        return sorted(self.groups)
-
-    def image_of(self, n: int) -> list:
-        """(n,) the light whose files hold each light's image; None for lights without."""
-        out: list = [None] * n
-        for rep, members in self.groups.items():
-            for q in members:
-                out[q] = rep
-        return out
-
-    def ratio(self, light: int, rep: int) -> float:
-        """``omega_light / omega_rep``: a member's scale and offset over its image's."""
-        return float(self.solid_angles_sr[light] / self.solid_angles_sr[rep])
-
-
-class SharedColumns:
-    """A sun-bounce stack (a :mod:`bake.rowstore` stack) read as :class:`SharedImages` store
-    it: a representative's column is its group's, ``omega_rep / sum(omega_q) * sum_q B_q``;
-    any other light's its own."""
-
-    def __init__(self, image, shared: SharedImages):
-        self.image = as_stack(image)
-        self.shared = shared
-        self.shape = self.image.shape
-        self.valid = self.image.valid
-        self.work = getattr(self.image, "work", None)
-
-    def columns(self, lights) -> np.ndarray:
-        out = []
-        omega = self.shared.solid_angles_sr
-        for p in lights:
-            members = self.shared.groups.get(int(p), [int(p)])
-            total = np.zeros(self.shape[:2] + (3,), dtype=np.float64)
-            for column in self.image.columns(members):
-                total += column
-            out.append((total * (omega[p] / omega[members].sum())).astype(np.float32))
-        return np.stack(out)
-
-    def column(self, light: int) -> np.ndarray:
-        return self.columns([light])[0]
-
-
-def share_entry(entry: dict, shared: SharedImages, n: int) -> dict:
-    """A sun-bounce entry whose ``lights`` hold the representatives' images, extended to
-    every member: ``scale``/``offset`` the representative's times ``omega_p / omega_rep``,
-    ``image[p]`` the representative (whose files hold the image), and ``shared``: the
-    coarser dome and how many images."""
-    table = entry["lights"]
-    for rep, members in shared.groups.items():
-        for q in members:
-            if q == rep:
-                continue
-            f = shared.ratio(q, rep)
-            table["scale"][q] = [float32_list(np.asarray(level) * f)
-                                 for level in table["scale"][rep]]
-            table["offset"][q] = [float32_list(np.asarray(level) * f)
-                                  for level in table["offset"][rep]]
-    table["image"] = shared.image_of(n)
-    entry["shared"] = {"kind": shared.kind, "frequency": shared.frequency,
-                       "images": len(shared.groups),
-                       "lights": sum(len(m) for m in shared.groups.values())}
-    return entry
+# How many of a stack's sun-bounce images are tried in cheaper encodings before the rest
+# (_cheaper_within).
+CHEAPER_SAMPLE = 16
 
 
 def compress_sun_bounce(image, name, out_dir, lights, settings, sky=None,
@@ -204,13 +110,14 @@ def compress_sun_bounce(image, name, out_dir, lights, settings, sky=None,
         if (check is not None and budget is not None
                 and settings.sun_bounce_sharing == "within_budget"):
             grouped = len(shared.groups)
-            shared = groups_within(shared, own, check, SHARING_SHARE * budget)
+            shared = groups_within(shared, own, check, budget)
             split_out = len(shared.groups) - grouped
         image = SharedColumns(image, shared)
         lights = np.asarray(shared.representatives, dtype=int)
+    texel_bounds = codec_texel_bounds(lights, budget, shared) if budget is not None else None
     try:
         result = _compress_columns(image, name, out_dir, lights, settings, check, budget,
-                                   started)
+                                   texel_bounds, started)
         if result is not None and shared is not None:
             share_entry(result.entry, shared, n)
             result.entry["shared"]["split_out"] = split_out
@@ -224,121 +131,12 @@ def compress_sun_bounce(image, name, out_dir, lights, settings, sky=None,
             check.remove()
 
 
-def groups_within(shared: SharedImages, own, check: DisplayCheck, limit: float
-                  ) -> SharedImages:
-    """``shared`` with the patches that sharing would put over ``limit`` as displayed taken
-    out of their groups, each to an image of its own: in each group, the group's column
-    (the members' solid-angle mean) times each member's least-squares gain
-    (:func:`least_squares_gain`, as :func:`fit_member_gains` will give it) is judged against
-    the member's own column of ``own`` (H, W, n, 3) by ``check`` (made with ``bounce=own``,
-    holding every member); while the worst member is over ``limit``, it leaves the group
-    and the rest's mean is judged again. Before encoding: ``limit`` is the share of the
-    budget left to sharing (:data:`SHARING_SHARE`), the rest to the image's encoding."""
-    own = as_stack(own)
-    valid = own.valid
-    omega = shared.solid_angles_sr
-    # Whole groups, about SUN_BOUNCE_DECODE_CHUNK lights at a time: a stack on disk reads
-    # every row of a block of lights for each call (bake.rowstore.StackStore.columns).
-    batches: list[list[list[int]]] = [[]]
-    for members in shared.groups.values():
-        if batches[-1] and sum(map(len, batches[-1])) + len(members) > SUN_BOUNCE_DECODE_CHUNK:
-            batches.append([])
-        batches[-1].append(list(members))
-    groups: dict[int, list[int]] = {}
-    for batch in batches:
-        lights = [p for members in batch for p in members]
-        columns = dict(zip(lights, own.columns(lights), strict=True))
-        shown = dict(zip(lights, check.sky_shown(lights), strict=True))
-        for members in batch:
-            while len(members) > 1:
-                total = (sum(columns[q].astype(np.float64) for q in members)
-                         / omega[members].sum())
-                errors = []
-                for p in members:
-                    mean = total * omega[p]
-                    gain = least_squares_gain(mean[valid], columns[p][valid])
-                    errors.append(check.error(p, shown[p], columns[p], mean * gain))
-                worst = int(np.argmax(errors))
-                if errors[worst] <= limit:
-                    break
-                alone = members.pop(worst)
-                groups[alone] = [alone]
-            groups[members[0]] = members
-    return SharedImages(dict(sorted(groups.items())), omega, shared.kind, shared.frequency)
-
-
-def fit_member_gains(out_dir: Path, entry: dict, own, lights) -> None:
-    """Give each light ``p`` of ``lights`` that reads a shared image (``entry`` after
-    :func:`share_entry`) its own gain per channel: the least-squares one, over the valid
-    texels of ``own`` (H, W, n, 3, each patch's own column), of its decoded image against its
-    own master column, ``g_c = sum(decoded_c * own_c) / sum(decoded_c ** 2)``; its ``scale``
-    and ``offset`` (every level) are multiplied by it, so the client draws ``g`` times the
-    group's image with no change of its own.
-
-    The group's image is the members' mean; part of how a member's own bounce differs from it
-    is strength (the sun's cosine on the surfaces that throw it off changes across a group, up
-    to twice from the lowest row of patches to the next), which the gain restores; the rest is
-    pattern, which :func:`groups_within` judges.
-    As displayed, the relit sky and the direct term do not depend on the gain, so the
-    least-squares gain is the one with the smallest error the judge can see for that image
-    (docs/sun.md, "Shared images"). Records ``entry["shared"]["gains"]``: the smallest and
-    largest gain over lights and channels."""
-    own = as_stack(own)
-    valid = own.valid
-    table = entry["lights"]
-    reader = CompactReader(out_dir, entry, own.shape[:2])
-    lowest, highest = np.inf, -np.inf
-    for start in range(0, len(lights), SUN_BOUNCE_DECODE_CHUNK):
-        chunk = [int(i) for i in lights[start : start + SUN_BOUNCE_DECODE_CHUNK]]
-        decoded = reader.lights(chunk)
-        for p, column in zip(chunk, own.columns(chunk), strict=True):
-            gain = least_squares_gain(decoded[p][valid], column[valid])
-            table["scale"][p] = [float32_list(np.asarray(level) * gain)
-                                 for level in table["scale"][p]]
-            table["offset"][p] = [float32_list(np.asarray(level) * gain)
-                                  for level in table["offset"][p]]
-            lowest, highest = min(lowest, gain.min()), max(highest, gain.max())
-        reader.forget_lights()
-    entry["shared"]["gains"] = [round(float(lowest), 4), round(float(highest), 4)]
-
-
-def least_squares_gain(decoded: np.ndarray, truth: np.ndarray) -> np.ndarray:
-    """(3,) per channel, the gain ``g >= 0`` that minimizes ``sum (g * decoded - truth)^2``
-    over texels (``decoded``, ``truth``: (T, 3)); 1 for a channel whose decoded image is
-    zero."""
-    decoded = decoded.astype(np.float64)
-    power = (decoded**2).sum(axis=0)
-    fit = (decoded * truth.astype(np.float64)).sum(axis=0)
-    return np.where(power > 0.0, np.clip(fit / np.where(power > 0.0, power, 1.0), 0.0, None),
-                    1.0)
-
-
-def shared_errors(out_dir: Path, entry: dict, own, check: DisplayCheck,
-                  budget: float | None) -> dict:
-    """What sharing costs a visitor: each sun-path light ``p`` of ``check.lights`` decoded as
-    the client decodes it (its group's image with its own scale, ``entry`` after
-    :func:`share_entry`) against its *own* master column of ``own`` (H, W, n, 3), as
-    displayed under its own display sky with the sun's direct term (``check``, made with
-    ``bounce=own``). The images are judged against their group's column
-    (:func:`compress_sun_bounce`), so this is the error the budget does not see (docs/sun.md,
-    "Shared images"). Returns ``{"max", "median", "worst_light", "lights", "over_budget"}``
-    (the last with a budget)."""
-    own = as_stack(own)
-    lights = check.lights
-    reader = CompactReader(out_dir, entry, own.shape[:2])
-    _, displayed = sun_bounce_errors(reader, own, own.valid, lights, check)
-    out = {"max": round(float(displayed.max()), 6),
-           "median": round(float(np.median(displayed)), 6),
-           "worst_light": int(lights[int(np.argmax(displayed))]),
-           "lights": len(lights)}
-    if budget is not None:
-        out["over_budget"] = int((displayed > budget).sum())
-    return out
-
-
-def _compress_columns(image, name, out_dir, lights, settings, check, budget, started):
+def _compress_columns(image, name, out_dir, lights, settings, check, budget, texel_bounds,
+                      started):
     """:func:`compress_sun_bounce` once its stack (a :mod:`bake.rowstore` stack) and its
-    check are ready; its columns read a chunk of lights at a time."""
+    check are ready; its columns read a chunk of lights at a time. ``texel_bounds``: {light:
+    the bound at single texels on a cheaper codec} (:func:`bake.sunshare.codec_texel_bounds`).
+    """
     H, W, n, _ = image.shape
     valid = image.valid
     judged = check is not None and budget is not None
@@ -371,7 +169,7 @@ def _compress_columns(image, name, out_dir, lights, settings, check, budget, sta
         encode([q.path for q in coarse_q.values()], coarse_dir, first_settings, array=False,
                level=first_level)
         cheaper = _cheaper_within(lights, coarse_dir, name, coarse_q, image, check, budget,
-                                  settings, tmp) if judged else {}
+                                  texel_bounds, settings, tmp) if judged else {}
         refine_q = {}
         over = [int(i) for i in lights if int(i) not in cheaper]
         for step, (step_settings, level) in enumerate(ladder):
@@ -416,7 +214,7 @@ def _compress_columns(image, name, out_dir, lights, settings, check, budget, sta
         patterns.append(f"ktx2/{name}.L{{index:04d}}r.ktx2")
     entry = {"k": 0, "lights": {"ktx2": patterns, "scale": scales, "offset": offsets}}
     reader = CompactReader(out_dir, entry, (H, W))
-    errors, displayed = sun_bounce_errors(reader, image, valid, lights, check)
+    errors, displayed, texel = sun_bounce_errors(reader, image, valid, lights, check)
     entry["error"] = {
         "test_lights": int(len(lights)),
         "max": round(float(errors.max()), 6),
@@ -428,6 +226,7 @@ def _compress_columns(image, name, out_dir, lights, settings, check, budget, sta
             "max": round(float(displayed.max()), 6),
             "median": round(float(np.median(displayed)), 6),
             "worst_light": int(lights[int(np.argmax(displayed))]),
+            "texel_p99": max_median(texel),
             "budget": budget,
             "refined": len(refined),
             "cheaper": {label: sum(v == label for v in cheaper.values())
@@ -436,6 +235,15 @@ def _compress_columns(image, name, out_dir, lights, settings, check, budget, sta
     compact = CompactStack(entry, light_files, encode_s=encode_s)
     compact.light_bytes = sum(p.stat().st_size for p in light_files)
     return compact
+
+
+def view_settings(settings):
+    """The settings a fixed view's sun-bounce stacks are compressed with: ``settings`` with
+    plain UASTC whatever ``sun_bounce_encoding`` says. Even within the bound at single texels,
+    ETC1S took the kiosk's real umbra 2.6 sRGB codes off an independent oracle where plain
+    UASTC is 1.6 off (tests/web/test_web_kiosk_sun.py, tolerance 2.5), and the kiosk fetches
+    its images over the site's own network, not a visitor's."""
+    return replace(settings, sun_bounce_encoding="uastc")
 
 
 def coarse_levels(settings) -> list[tuple]:
@@ -466,31 +274,52 @@ def cheaper_encodings(settings) -> list[tuple]:
 
 
 def _cheaper_within(lights, coarse_dir: Path, name: str, coarse_q: dict, image, check,
-                    budget, settings, tmp: Path) -> dict[int, str]:
+                    budget, texel_bounds: dict, settings, tmp: Path) -> dict[int, str]:
     """The ``lights`` that keep a cheaper encoding than their plain UASTC image in
     ``coarse_dir``: for each of :func:`cheaper_encodings` in turn, the lights not yet kept
     whose image so encoded is smaller than the plain one and within ``budget`` as displayed
-    (``check``); its file replaces the plain one there. Returns ``{light: label}``.
+    (``check``), its RMS and at single texels (``texel_bounds[light]``); its file replaces
+    the plain one there. Returns ``{light: label}``.
 
     ETC1S is 4-6 times smaller than UASTC on the models' faces and the views, UASTC with
     RDO about a third smaller; once the judge counts the sun's direct term they are within
-    the budget for part of the lights. On smooth closed-form stacks (the hull planes' ``d``)
-    plain UASTC's Zstandard-packed blocks are the smallest (docs/benchmarks.md, "The
-    sun-bounce images in their smallest encoding within the budget")."""
+    the RMS budget for part of the lights, but on the models' faces and the kiosk's view
+    their blocky errors are several times plain UASTC's at single texels, and the bound
+    refuses them; on the ground and the smooth stacks they fit. So a sample of
+    :data:`CHEAPER_SAMPLE` lights spread over the sun's path is tried first, and the rest
+    only where the sample kept one (each try encodes and judges every image again). On
+    smooth closed-form stacks (the hull planes' ``d``) plain UASTC's Zstandard-packed blocks
+    are the smallest (docs/benchmarks.md, "The sun-bounce images in their smallest encoding
+    within the budget")."""
+    lights = [int(i) for i in lights]
+    sample = lights[:: max(1, -(-len(lights) // CHEAPER_SAMPLE))]
+    kept = _cheaper_of(sample, coarse_dir, name, coarse_q, image, check, budget,
+                       texel_bounds, settings, tmp / "sample")
+    if kept:
+        rest = [i for i in lights if i not in set(sample)]
+        kept |= _cheaper_of(rest, coarse_dir, name, coarse_q, image, check, budget,
+                            texel_bounds, settings, tmp / "rest")
+    return kept
+
+
+def _cheaper_of(lights, coarse_dir: Path, name: str, coarse_q: dict, image, check, budget,
+                texel_bounds: dict, settings, tmp: Path) -> dict[int, str]:
+    """:func:`_cheaper_within` for these ``lights``, all of them tried (``tmp``: a new folder
+    for the encodings)."""
     file = f"{name}.L{{:04d}}.ktx2".format
-    left = [int(i) for i in lights]
+    left = list(lights)
     kept: dict[int, str] = {}
     for step, (label, step_settings, level, rdo) in enumerate(cheaper_encodings(settings)):
         if not left:
             break
         step_dir = tmp / f"cheaper{step}"
-        step_dir.mkdir()
+        step_dir.mkdir(parents=True)
         encode([coarse_q[i].path for i in left], step_dir, step_settings, array=False,
                level=level, rdo_lambda=rdo)
         smaller = [i for i in left
                    if (step_dir / file(i)).stat().st_size < (coarse_dir / file(i)).stat().st_size]
         over = set(_shown_coarse(smaller, step_dir, name, coarse_q, image, check, budget,
-                                 None, tmp))
+                                 None, tmp, texel_bounds=texel_bounds))
         for i in smaller:
             if i not in over:
                 shutil.move(step_dir / file(i), coarse_dir / file(i))
@@ -500,9 +329,13 @@ def _cheaper_within(lights, coarse_dir: Path, name: str, coarse_q: dict, image, 
 
 
 def _shown_coarse(lights, folder: Path, name: str, coarse_q: dict, image, check, budget,
-                  refine_q: dict | None, tmp: Path) -> list[int]:
+                  refine_q: dict | None, tmp: Path, texel_bounds: dict | None = None
+                  ) -> list[int]:
     """The ``lights`` whose coarse image in ``folder`` is off by more than ``budget`` as
-    displayed (``check``: a :class:`DisplayCheck`; None: every light), the masters read from
+    displayed (``check``: a :class:`DisplayCheck`; None: every light), or with
+    ``texel_bounds`` ({light: bound}) by more than its bound at single texels
+    (:meth:`DisplayCheck.texel_error`),
+    the masters read from
     ``image`` (a :mod:`bake.rowstore` stack). With ``refine_q``, the
     refinement image of each of them (what its coarse image lost) is written into ``tmp`` and
     listed there, as its chunk is decoded (not every decoded image held at once: memory)."""
@@ -510,12 +343,14 @@ def _shown_coarse(lights, folder: Path, name: str, coarse_q: dict, image, check,
     for start in range(0, len(lights), SUN_BOUNCE_DECODE_CHUNK):
         chunk = [int(i) for i in lights[start : start + SUN_BOUNCE_DECODE_CHUNK]]
         decoded = decode([folder / f"{name}.L{i:04d}.ktx2" for i in chunk])
-        shown = check.sky_shown(chunk) if check is not None else None
+        shown = check.shown_but_bounce(chunk) if check is not None else None
         columns = image.columns(chunk)
         for j, i in enumerate(chunk):
             coarse = coarse_q[i].value(decoded[j][0])
             # The coarse image alone is enough where its error does not show.
-            if check is not None and check.error(i, shown[j], columns[j], coarse) <= budget:
+            if check is not None and check.error(i, shown[j], columns[j], coarse) <= budget \
+                    and (texel_bounds is None or check.texel_error(
+                        i, shown[j], columns[j], coarse) <= texel_bounds[i]):
                 continue
             over.append(i)
             if refine_q is not None:
@@ -524,26 +359,3 @@ def _shown_coarse(lights, folder: Path, name: str, coarse_q: dict, image, check,
                 )
         del decoded, shown, columns
     return over
-
-
-def sun_bounce_errors(reader: CompactReader, image, valid, lights,
-                      check: DisplayCheck | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Each column ``p`` of ``lights`` decoded from its images as the client decodes it,
-    against the master ``image[:, :, p]`` (H, W, n, 3): RMS error over the ``valid`` texels
-    (H, W) relative to the column's mean there, and (with ``check``) as displayed
-    (:meth:`DisplayCheck.error`; empty without). Returns two arrays (len(lights),)."""
-    image = as_stack(image)
-    errors, displayed = [], []
-    for start in range(0, len(lights), SUN_BOUNCE_DECODE_CHUNK):
-        chunk = [int(i) for i in lights[start : start + SUN_BOUNCE_DECODE_CHUNK]]
-        decoded = reader.lights(chunk)
-        shown = check.sky_shown(chunk) if check is not None else None
-        columns = image.columns(chunk)
-        for j, i in enumerate(chunk):
-            truth = columns[j][valid].astype(np.float64)
-            rms = np.sqrt(((decoded[i][valid] - truth) ** 2).mean())
-            errors.append(rms / max(float(truth.mean()), 1e-30))
-            if check is not None:
-                displayed.append(check.error(i, shown[j], columns[j], decoded[i]))
-        reader.forget_lights()
-    return np.array(errors), np.array(displayed)

@@ -12,10 +12,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bake.compact_reader import CompactReader
 from bake.rowstore import RowFile, as_stack, valid_blocks
 
 SUN_BOUNCE_DECODE_CHUNK = 16  # light images decoded at a time (memory: the lightmap is large)
 DISPLAY_SKY_SAMPLES_PER_SIDE = 6  # the display skies' patch integration (as the test skies')
+TEXEL_PERCENTILE = 99.0  # DisplayCheck.texel_error's
+# The error at single texels (DisplayCheck.texel_error, its 99th percentile) a choice that
+# trades fidelity for bytes may make (sharing a group's image, a codec cheaper than plain
+# UASTC), per unit of the RMS budget: the 99th percentile of |e| for an error spread as a
+# normal one at the budget's RMS (2.576 sigma). An RMS budget alone lets a choice spend it
+# on a few texels (blocky codecs in shade, a neighbour's bounce pattern on the ground); plain
+# UASTC images are not held to it: they are what the choices are measured against.
+TEXEL_BOUND_PER_BUDGET = 2.576
 
 
 @dataclass
@@ -90,22 +99,25 @@ class DisplayCheck:
     the sky stack ``sky`` (H, W, n, 3, the same atlas's or view's, an array or a
     :class:`bake.rowstore.StackStore`) relit with the display sky, plus the sun's direct
     term, plus the sun's bounce (the master column), over the receiver texels (the sky
-    stack's non-zero ones): RMS error over the mean of that displayed value.
+    stack's non-zero ones). Two measures: the RMS error over the mean of that displayed
+    value (:meth:`error`, the budget's), and the error at single texels, each over the
+    value displayed there (:meth:`texel_error`, its 99th percentile).
 
     The sun's direct term (drawn apart by the client, from its shadow map) is estimated from
     the stacks themselves when ``bounce`` (the sun-bounce stack, H, W, n, 3, each patch's own
     column, not shared) is given: the sky stack's column ``p`` holds the sun's direct light
     and its bounce for patch ``p``, so ``max(sky_p - bounce_p, 0)`` times the display sky's
     weight ``E_sun / solid_angle_p`` is the direct term with the sun spread over its patch.
-    Only its mean over the receiver texels enters the error (the client draws the direct term
-    itself, exactly: it adds nothing to the numerator), and a mean does not see that the
-    patch's shadow edges are soft where the client's are sharp (docs/sun.md, "Judged with the
-    sun's direct term"). Without ``bounce`` the direct term is left out (as before
-    2026-12-06: every error then larger, the judge stricter than what a visitor sees).
+    It adds to what is displayed, not to the error (the client draws it itself, exactly);
+    its soft shadow edges, where the client's are sharp, move a texel's displayed value
+    near an edge, not the mean (docs/sun.md, "Judged with the sun's direct term"). Without
+    ``bounce`` the direct term is left out (as before 2026-12-06: every error then larger,
+    the judge stricter than what a visitor sees).
 
-    The relit sky stack of every light of ``lights`` is made in one pass over the sky
-    stack's rows (for each block of rows, a matrix product per chunk of lights and
-    channel) and kept, (len(lights), V, 3) float64: in memory, or beside a stack on disk."""
+    What is displayed but the bounce (the relit sky plus the direct term) is made for every
+    light of ``lights`` in one pass over the sky stack's rows (for each block of rows, a
+    matrix product per chunk of lights and channel) and kept, (len(lights), V, 3) float64:
+    in memory, or beside a stack on disk."""
 
     def __init__(self, sky, skies: DisplaySkies, lights, bounce=None):
         sky = as_stack(sky)
@@ -113,10 +125,6 @@ class DisplayCheck:
         self.skies = skies
         self.lights = [int(i) for i in lights]
         V = int(self.valid.sum())
-        # (len(lights),) the direct term's mean over the receiver texels and channels, W/m^2
-        # per sr of display radiance as the relit sky (0 without ``bounce``).
-        self.direct_mean = np.zeros(len(self.lights))
-        direct_sum = np.zeros((len(self.lights), 3))
         stacks = [sky] if bounce is None else [sky, as_stack(bounce)]
         if sky.work is not None:
             self.shown = RowFile.create(sky.work / f"sky-shown-{id(self)}.npy",
@@ -124,11 +132,12 @@ class DisplayCheck:
         else:
             self.shown = np.empty((len(self.lights) * V, 3), dtype=np.float64)
         self.V = V
+        weights = self.skies.weight[[self.skies.row(p) for p in self.lights]]  # (L, 3)
         for t, block in valid_blocks(stacks, self.valid):
+            direct = None
             if bounce is not None:
-                direct = block[0][:, self.lights, :] - block[1][:, self.lights, :]
-                direct_sum += np.clip(direct, 0.0, None).sum(axis=0, dtype=np.float64)
-                del direct
+                direct = np.clip(block[0][:, self.lights, :] - block[1][:, self.lights, :],
+                                 0.0, None)
             # (3, b, n) per channel, contiguous: a chunk of lights is one matrix product each.
             per_channel = np.stack([block[0][..., c] for c in range(3)])
             del block
@@ -140,18 +149,20 @@ class DisplayCheck:
                     out[:, :, c] = (
                         per_channel[c] @ self.skies.r[sky_rows, :, c].T.astype(np.float32)
                     ).T
+                if direct is not None:
+                    out += (direct[:, start : start + len(chunk), :].transpose(1, 0, 2)
+                            * weights[start : start + len(chunk), None, :])
                 for j in range(len(chunk)):
                     at = (start + j) * V + t
                     if isinstance(self.shown, RowFile):
                         self.shown.write(at, out[j])
                     else:
                         self.shown[at : at + len(out[j])] = out[j]
-        if V:
-            weights = self.skies.weight[[self.skies.row(p) for p in self.lights]]
-            self.direct_mean = (direct_sum * weights).mean(axis=1) / V
 
-    def sky_shown(self, lights) -> np.ndarray:
-        """(len(lights), V, 3) the sky stack relit with each light's display sky."""
+    def shown_but_bounce(self, lights) -> np.ndarray:
+        """(len(lights), V, 3) what is displayed with the sun in each light's patch but its
+        bounce: the sky stack relit with the light's display sky plus the sun's direct
+        term."""
         out = []
         for p in lights:
             j = self.lights.index(int(p))
@@ -165,14 +176,61 @@ class DisplayCheck:
         if isinstance(self.shown, RowFile):
             self.shown.remove()
 
-    def error(self, light: int, sky_shown: np.ndarray, master, decoded) -> float:
-        """RMS error over the mean of the displayed value with the sun in ``light``'s patch
-        (the relit sky, the direct term's mean, the bounce), when its column is ``decoded``
-        instead of ``master`` (both (H, W, 3)); ``sky_shown`` (V, 3) from
-        :meth:`sky_shown`."""
+    def _displayed(self, light: int, but_bounce: np.ndarray, master, decoded):
+        """(V, 3) the displayed value with the sun in ``light``'s patch and the error
+        ``decoded`` instead of ``master`` (both (H, W, 3)) makes in it;
+        ``but_bounce`` (V, 3) from :meth:`shown_but_bounce`."""
         weight = self.skies.weight[self.skies.row(light)]
         truth = master[self.valid].astype(np.float64) * weight
-        err = (decoded[self.valid].astype(np.float64) * weight) - truth
-        shown = float((sky_shown + truth).mean()) + float(
-            self.direct_mean[self.lights.index(int(light))])
-        return float(np.sqrt((err**2).mean()) / max(shown, 1e-30))
+        err = decoded[self.valid].astype(np.float64) * weight - truth
+        return but_bounce + truth, err
+
+    def error(self, light: int, but_bounce: np.ndarray, master, decoded) -> float:
+        """RMS error over the mean of the displayed value with the sun in ``light``'s patch
+        (the relit sky, the direct term, the bounce), when its column is ``decoded`` instead
+        of ``master`` (both (H, W, 3)); ``but_bounce`` (V, 3) from
+        :meth:`shown_but_bounce`."""
+        shown, err = self._displayed(light, but_bounce, master, decoded)
+        return float(np.sqrt((err**2).mean()) / max(float(shown.mean()), 1e-30))
+
+    def texel_error(self, light: int, but_bounce: np.ndarray, master, decoded) -> float:
+        """The error at single texels that :meth:`error`'s mean hides: the 99th percentile,
+        over the receiver texels and channels, of ``|error|`` over the value displayed there,
+        that value floored at a tenth of its mean (a texel in deep shade is not judged
+        against nothing; as benchmarks/sun_bounce_display.py's judge)."""
+        shown, err = self._displayed(light, but_bounce, master, decoded)
+        if not len(shown):
+            return 0.0
+        floor = max(0.1 * float(shown.mean()), 1e-30)
+        return float(np.percentile(np.abs(err) / np.maximum(shown, floor), TEXEL_PERCENTILE))
+
+
+def sun_bounce_errors(reader: CompactReader, image, valid, lights,
+                      check: DisplayCheck | None = None
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each column ``p`` of ``lights`` decoded from its images as the client decodes it,
+    against the master ``image[:, :, p]`` (H, W, n, 3): RMS error over the ``valid`` texels
+    (H, W) relative to the column's mean there, and (with ``check``) as displayed
+    (:meth:`DisplayCheck.error`) and at single texels (:meth:`DisplayCheck.texel_error`;
+    both empty without). Returns three arrays (len(lights),)."""
+    image = as_stack(image)
+    errors, displayed, texel = [], [], []
+    for start in range(0, len(lights), SUN_BOUNCE_DECODE_CHUNK):
+        chunk = [int(i) for i in lights[start : start + SUN_BOUNCE_DECODE_CHUNK]]
+        decoded = reader.lights(chunk)
+        shown = check.shown_but_bounce(chunk) if check is not None else None
+        columns = image.columns(chunk)
+        for j, i in enumerate(chunk):
+            truth = columns[j][valid].astype(np.float64)
+            rms = np.sqrt(((decoded[i][valid] - truth) ** 2).mean())
+            errors.append(rms / max(float(truth.mean()), 1e-30))
+            if check is not None:
+                displayed.append(check.error(i, shown[j], columns[j], decoded[i]))
+                texel.append(check.texel_error(i, shown[j], columns[j], decoded[i]))
+        reader.forget_lights()
+    return np.array(errors), np.array(displayed), np.array(texel)
+
+
+def max_median(values: np.ndarray) -> dict:
+    """``{"max", "median"}`` of ``values``, rounded as the manifest records errors."""
+    return {"max": round(float(values.max()), 6), "median": round(float(np.median(values)), 6)}

@@ -380,7 +380,7 @@ def write_view(
             if sun_store is not None:  # judged as displayed with its sky stack
                 sun_entries.update(_write_sun_bounce(
                     {stack: sun_store}, view.name, "views", "radiance", staging, compressor,
-                    {stack: store}))
+                    {stack: store}, view=True))
                 sun_store.remove()
             entry["stacks"][stack] = {
                 "master": rel,
@@ -464,12 +464,13 @@ def swap_into_place(staging: Path, out_dir: Path) -> None:
 
 
 def _write_sun_bounce(sun_images: dict, owner: str, folder: str, quantity: str, staging: Path,
-                      compressor, sky_images: dict) -> dict:
+                      compressor, sky_images: dict, view: bool = False) -> dict:
     """Write and compress an atlas's or a view's sun-bounce stacks (``sun_images``: stack ->
     :class:`StackStore`, emptied as they are written) as
     ``<folder>/<owner>.sun_bounce.<stack>.exr`` masters and their compact images, each
-    judged as displayed with its sky stack (``sky_images``: stack -> :class:`StackStore`);
-    the manifest entries of the stacks that are not zero everywhere."""
+    judged as displayed with its sky stack (``sky_images``: stack -> :class:`StackStore`;
+    ``view``: a fixed view's, :meth:`Compressor.run_sun_bounce`); the manifest entries of the
+    stacks that are not zero everywhere."""
     entries = {}
     for stack in list(sun_images):
         image = sun_images.pop(stack)
@@ -477,7 +478,7 @@ def _write_sun_bounce(sun_images: dict, owner: str, folder: str, quantity: str, 
         rel = f"{folder}/{name}.exr"
         _write_master(staging / rel, image)
         compact = compressor.run_sun_bounce(image, name, staging, master=rel,
-                                            sky=sky_images.get(stack))
+                                            sky=sky_images.get(stack), view=view)
         if compact is not None:
             entries[stack] = {
                 "master": rel,

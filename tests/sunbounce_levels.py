@@ -19,12 +19,13 @@ def recompress_sun_bounce(build_dir: Path, copy: Path, budget: float,
     """Copy ``build_dir`` to ``copy`` and compress its atlases' and views' sun-bounce stacks
     again, judged with ``budget`` (and ``Settings.sun_bounce_level`` ``second_level``, by
     default the baker's), their lights grouped by ``shared`` (a
-    ``bake.sunbounce.SharedImages``; None: one image per light), with
+    ``bake.sunshare.SharedImages``; None: one image per light), with
     ``Settings.sun_bounce_encoding`` ``encoding`` and ``Settings.sun_bounce_sharing``
-    ``sharing`` (defaults the baker's); returns ``copy``."""
+    ``sharing`` (defaults the baker's; the views' images plain UASTC, as the baker's:
+    ``bake.sunbounce.view_settings``); returns ``copy``."""
     from bake.compresssettings import Settings
     from bake.evaluate import Build
-    from bake.sunbounce import compress_sun_bounce
+    from bake.sunbounce import compress_sun_bounce, view_settings
     from bake.sundisplay import DisplaySkies
     from daylit.stackio import read_stack_exr
 
@@ -43,12 +44,13 @@ def recompress_sun_bounce(build_dir: Path, copy: Path, budget: float,
         settings = replace(settings, sun_bounce_encoding=encoding)
     if sharing is not None:
         settings = replace(settings, sun_bounce_sharing=sharing)
+    views = {id(view) for view in manifest["views"]}
     for owner in manifest["atlases"] + manifest["views"]:
         for stack, entry in owner.get("sun_bounce", {}).items():
             result = compress_sun_bounce(
                 read_stack_exr(copy / entry["master"]), f"{owner['id']}.sun_bounce.{stack}",
-                copy, lights, settings, read_stack_exr(copy / owner["stacks"][stack]["master"]),
-                skies, shared,
+                copy, lights, view_settings(settings) if id(owner) in views else settings,
+                read_stack_exr(copy / owner["stacks"][stack]["master"]), skies, shared,
             )
             entry["compact"] = result.entry
     files = [f for f in manifest["files"] if ".sun_bounce." not in f["path"]

@@ -86,13 +86,13 @@ def test_the_sun_bounce_encoding_and_sharing_reach_the_compressor(tmp_path):
     from bake.compressor import Compressor
 
     site = load_site(make_site(tmp_path / "a", extra='[compression]\nsun_bounce_encoding = '
-                                                      '"smallest"\nsun_bounce_lights = 0\n'
+                                                      '"uastc"\nsun_bounce_lights = 0\n'
                                                       'sun_bounce_sharing = "always"\n'))
     settings = Compressor(site, log=lambda msg: None).settings
-    assert settings.sun_bounce_encoding == "smallest" and settings.sun_bounce_lights is None
+    assert settings.sun_bounce_encoding == "uastc" and settings.sun_bounce_lights is None
     assert settings.sun_bounce_sharing == "always"
     default = Compressor(load_site(make_site(tmp_path / "b")), log=lambda msg: None).settings
-    assert default.sun_bounce_encoding == "uastc" and default.sun_bounce_lights == 196
+    assert default.sun_bounce_encoding == "smallest" and default.sun_bounce_lights == 196
     assert default.sun_bounce_sharing == "within_budget"
     with pytest.raises(SceneError) as info:
         load_site(make_site(tmp_path / "c", extra='[compression]\nsun_bounce_encoding = "etc1s"\n'))

@@ -469,15 +469,18 @@ def test_a_second_coarse_level_spares_refinements(sun_site_build, tight_build, t
 
 def test_an_image_takes_a_smaller_encoding_where_that_is_within_the_budget(sun_site_build,
                                                                           tmp_path):
-    """With ``compression.sun_bounce_encoding = "smallest"`` a sun-bounce image is stored in
-    the first of ETC1S and UASTC with rate-distortion optimization that is smaller than its
-    plain UASTC image and within the budget as displayed, else plain UASTC (bake.sunbounce;
-    docs/compact-assets.md, "The sun's bounce"). Against the same site compressed with plain
-    UASTC only (``"uastc"``, the default): every image
-    that differs from that build's is smaller than it and, judged independently (gendaylit's
-    sky, benchmarks/sun_bounce_display.py), within 1.1 times the budget; the others are that
-    build's bytes; some of them are ETC1S (their header says so); and the sun's bounce takes
-    fewer bytes in all."""
+    """With ``compression.sun_bounce_encoding = "smallest"`` (the default) a sun-bounce image
+    is stored in the first of ETC1S and UASTC with rate-distortion optimization that is
+    smaller than its plain UASTC image and within the budget as displayed, its RMS and at
+    single texels, else plain UASTC (bake.sunbounce; docs/compact-assets.md, "The sun's
+    bounce"). Against the same site compressed with plain UASTC only (``"uastc"``): every
+    image that differs from that build's is smaller than it and, judged independently
+    (gendaylit's sky, benchmarks/sun_bounce_display.py), within 1.1 times the budget and
+    within 1.1 times the bound at single texels (bake.sundisplay.TEXEL_BOUND_PER_BUDGET:
+    fails on the code before 2026-12-07, which judged the RMS alone and kept images at
+    several times it there); the others are that build's bytes; some of them are ETC1S
+    (their header says so); and the sun's bounce takes fewer bytes in all."""
+    from bake.sundisplay import TEXEL_BOUND_PER_BUDGET
     from tests.sunbounce_levels import is_etc1s, recompress_sun_bounce
 
     smallest = recompress_sun_bounce(sun_site_build, tmp_path / "smallest", BUDGET,
@@ -499,6 +502,9 @@ def test_an_image_takes_a_smaller_encoding_where_that_is_within_the_budget(sun_s
     assert len(etc1s) >= 10, len(etc1s)
     worst = max((rows[k] for k in cheaper), key=lambda r: r["stored"]["rms"])
     assert worst["stored"]["rms"] <= 1.1 * BUDGET, worst
+    worst = max((rows[k] for k in cheaper), key=lambda r: r["stored"]["p99"])
+    print(f"worst cheaper image at single texels: {worst}")
+    assert worst["stored"]["p99"] <= 1.1 * TEXEL_BOUND_PER_BUDGET * BUDGET, worst
 
     def bounce_bytes(build_dir: Path) -> int:
         return sum(f.stat().st_size for f in (build_dir / "ktx2").glob("*.sun_bounce.*"))
@@ -509,11 +515,16 @@ def test_an_image_takes_a_smaller_encoding_where_that_is_within_the_budget(sun_s
 def test_the_sun_in_patch_p_reads_file_p_and_shuffled_files_break_it(sun_site_build, tmp_path):
     """The index rule: with the sun in patch p the client reads L{p} (its levels) with
     scale[p] and offset[p]. Swapping the coarse files of the build's lights breaks every
-    column."""
+    column. (On a copy whose images are all plain UASTC: the default's cheaper codecs put
+    some ground images 15-25 % off their column alone, within the budget as displayed, where
+    the ground's bounce is small against the sun and the sky.)"""
     import json
     import shutil
 
-    build = Build(sun_site_build)
+    from tests.sunbounce_levels import recompress_sun_bounce
+
+    plain = recompress_sun_bounce(sun_site_build, tmp_path / "plain", BUDGET, encoding="uastc")
+    build = Build(plain)
     lights = build.selection.selectable.tolist()
     master = build.sun_bounce_stack("ground", "I")
     reader = build.sun_bounce_compact("ground", "I")
@@ -525,12 +536,12 @@ def test_the_sun_in_patch_p_reads_file_p_and_shuffled_files_break_it(sun_site_bu
     # A copy of the build whose light files are moved one light along (p gets p's
     # neighbour's files, with p's own scale and offset).
     copy = tmp_path / "shuffled"
-    shutil.copytree(sun_site_build, copy)
+    shutil.copytree(plain, copy)
     table = reader.entry["lights"]
     for p, q in zip(lights, lights[1:] + lights[:1], strict=True):
         # The coarse images (every light has one; the refinements only some).
         pattern = table["ktx2"][0]
-        shutil.copyfile(sun_site_build / pattern.format(index=q), copy / pattern.format(index=p))
+        shutil.copyfile(plain / pattern.format(index=q), copy / pattern.format(index=p))
     shuffled = CompactReader(copy, json.loads(json.dumps(reader.entry)), reader.shape)
     for p in held_out_patches(build):
         wrong = column_error(shuffled.lights([p])[p], master, p)

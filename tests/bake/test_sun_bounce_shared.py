@@ -1,5 +1,5 @@
 """Neighbouring sun-path patches sharing one sun-bounce image (docs/sun.md, "Shared images";
-bake/sunbounce.py ``SharedImages``): the layout, the columns a client decodes against the
+bake/sunshare.py ``SharedImages``): the layout, the columns a client decodes against the
 group's mean computed here from the EXR masters, and what a visit downloads
 (bake/downloads.py).
 
@@ -68,14 +68,14 @@ def test_neighbouring_patches_read_one_image_their_groups_mean(shared_build):
     lights = build.selection.selectable.tolist()
     omega = np.array([light["solid_angle_sr"] for light in manifest["dome"]["lights"]])
     centroid = np.array([light["centroid"] for light in manifest["dome"]["lights"]])
+    images, gain_ranges = {}, []
     for atlas_id, atlas in build.atlases.items():
         for stack, entry in atlas["sun_bounce"].items():
             compact = entry["compact"]
             table = compact["lights"]
             groups = _groups(table)
             assert sorted(p for members in groups.values() for p in members) == lights
-            # sharing still saves images where it is free (130 of 194 on the lightmap here)
-            assert len(groups) < 0.8 * len(lights), (atlas_id, stack, len(groups))
+            images[atlas_id, stack] = len(groups)
             assert compact["shared"]["images"] == len(groups)
             assert compact["error"]["test_lights"] == len(groups)
             for p in lights:  # files for the holders alone
@@ -102,8 +102,13 @@ def test_neighbouring_patches_read_one_image_their_groups_mean(shared_build):
                 reader.forget_lights()
             assert worst <= compact["error"]["max"] + 1e-4, (atlas_id, stack)
             np.testing.assert_allclose(gains, 1.0, atol=2e-3, err_msg=f"{atlas_id} {stack}")
-            low, high = compact["shared"]["gains"]
-            assert low < 0.9 and high > 1.1, (atlas_id, stack)  # the gains do something
+            gain_ranges.append(compact["shared"]["gains"])
+    # Sharing still saves images where it is free: the hull planes' closed-form `d` keeps
+    # its 102 groups whole here (the models' faces, whose bounce pattern differs from a
+    # neighbouring patch's, keep few or none).
+    assert min(images.values()) < 0.6 * len(lights), images
+    lows, highs = zip(*gain_ranges, strict=True)
+    assert min(lows) < 0.9 and max(highs) > 1.1, gain_ranges  # the gains do something
 
 
 def test_a_visit_fetches_one_image_per_group(shared_build):
@@ -128,7 +133,8 @@ def test_a_visit_fetches_one_image_per_group(shared_build):
             for h in holders:
                 files |= {pattern.format(index=h)
                           for pattern in table["ktx2"][: len(table["scale"][h])]}
-    assert got["visit_sun_images"] == max(per_stack) < len(patches), (per_stack, patches)
+    assert got["visit_sun_images"] == max(per_stack), (per_stack, patches)
+    assert min(per_stack) < len(patches), (per_stack, patches)
     assert got["sun_bounce_visit"] == sum(sizes[f] for f in files)
     assert got["phone_visit_with_sun_bounce"] == got["phone_visit"] + got["sun_bounce_visit"]
     glb = (shared_build / manifest["model"]["path"]).read_bytes()
@@ -145,49 +151,75 @@ def test_a_visit_fetches_one_image_per_group(shared_build):
     assert got["phone"] == sent + gzipped + sum(sizes[f] for f in base)
 
 
+def _texel_p99(decoded: np.ndarray, bounce: np.ndarray, shown: np.ndarray) -> float:
+    """99th percentile over texels and channels of ``|decoded - bounce|`` over the displayed
+    value ``shown`` (T, 3 each), floored at a tenth of its mean."""
+    floor = 0.1 * shown.mean()
+    return float(np.percentile(np.abs(decoded - bounce) / np.maximum(shown, floor), 99))
+
+
+def _errors_against_own_columns(build: Build, atlas_id: str, stack: str, lights, skies):
+    """Each sun-path patch of ``lights`` decoded from its image against its *own* master
+    column, as displayed (the display sky relit on the sky stack, the sun's direct term
+    estimated from the masters, the bounce), computed here from the EXR masters: (RMS over
+    the displayed mean, 99th percentile at single texels), two arrays (len(lights),)."""
+    sky = build.stack(atlas_id, stack)
+    valid = np.any(sky != 0.0, axis=(2, 3))
+    sky = sky[valid].astype(np.float64)
+    master = build.sun_bounce_stack(atlas_id, stack)[valid]
+    reader = build.sun_bounce_compact(atlas_id, stack)
+    rms, texel = [], []
+    for p in lights:
+        row = skies.row(p)
+        w = skies.weight[row]
+        bounce = master[:, p].astype(np.float64) * w
+        direct = np.clip(sky[:, p] - master[:, p], 0.0, None) * w
+        shown = np.einsum("tnc,nc->tc", sky, skies.r[row]) + direct + bounce
+        decoded = reader.lights([p])[p][valid].astype(np.float64) * w
+        reader.forget_lights()
+        rms.append(np.sqrt(((decoded - bounce) ** 2).mean()) / shown.mean())
+        texel.append(_texel_p99(decoded, bounce, shown))
+    return np.array(rms), np.array(texel)
+
+
 def test_the_bake_records_what_sharing_costs_each_patch_as_displayed(shared_build):
     """Each sun-path patch decoded from its group's image against its *own* master column,
-    as displayed (the display sky relit on the sky stack, the sun's direct term estimated
-    from the masters, the bounce): computed here from the EXR masters, it is what the bake
-    recorded under ``error.displayed.shared`` (bake.sunbounce.shared_errors), and it is
-    larger than the images' own recorded error, which is judged against the group's column
-    (so the bake's report cannot hide the sharing)."""
-    from bake.sundisplay import DisplaySkies
+    as displayed (:func:`_errors_against_own_columns`): it is what the bake recorded under
+    ``error.displayed.shared`` (bake.sunshare.shared_errors), larger than the images' own
+    recorded error, which is judged against the group's column, where patches share (so the
+    bake's report cannot hide the sharing); and a patch shares its group's image only where
+    that keeps it within the budget, its RMS and at single texels
+    (bake.sunshare.groups_within): fails on a
+    build whose groups were kept whole or judged by their RMS alone (``"always"``: the test
+    below)."""
+    from bake.sundisplay import TEXEL_BOUND_PER_BUDGET, DisplaySkies
 
     build = Build(shared_build)
     lights = build.selection.selectable.tolist()
     skies = DisplaySkies.of_dome(build.dome_vertices, build.solid_angles, lights,
                                  build.manifest["scene"].get("elevation_m", 0.0))
+    costs = []
     for atlas_id, atlas in build.atlases.items():
         for stack, entry in atlas["sun_bounce"].items():
             recorded = entry["compact"]["error"]["displayed"]
-            sky = build.stack(atlas_id, stack)
-            valid = np.any(sky != 0.0, axis=(2, 3))
-            master = build.sun_bounce_stack(atlas_id, stack)
-            reader = build.sun_bounce_compact(atlas_id, stack)
-            errors = []
-            for p in lights:
-                row = skies.row(p)
-                w = skies.weight[row]
-                shown_sky = np.einsum("tnc,nc->tc", sky[valid].astype(np.float64),
-                                      skies.r[row])
-                bounce = master[valid][:, p].astype(np.float64) * w
-                direct = np.clip(sky[valid][:, p] - master[valid][:, p], 0.0, None) * w
-                decoded = reader.lights([p])[p][valid].astype(np.float64) * w
-                reader.forget_lights()
-                mean = shown_sky.mean() + bounce.mean() + direct.mean()
-                errors.append(np.sqrt(((decoded - bounce) ** 2).mean()) / mean)
-            errors = np.array(errors)
+            errors, texel = _errors_against_own_columns(build, atlas_id, stack, lights, skies)
             shared = recorded["shared"]
             assert shared["lights"] == len(lights)
             assert shared["max"] == pytest.approx(errors.max(), rel=1e-3, abs=2e-6), stack
             assert shared["median"] == pytest.approx(np.median(errors), rel=1e-3, abs=2e-6)
             assert shared["worst_light"] == lights[int(np.argmax(errors))]
             assert shared["over_budget"] == int((errors > recorded["budget"]).sum())
-            assert shared["max"] > recorded["max"], (atlas_id, stack)
-            # A patch shares its group's image only where that keeps it within the budget
-            # (bake.sunbounce.groups_within): every patch is, against its own column.
+            costs.append(shared["max"] > recorded["max"])
+            for key, value in (("max", texel.max()), ("median", np.median(texel))):
+                assert shared["texel_p99"][key] == pytest.approx(value, rel=1e-3, abs=1e-6)
             assert errors.max() <= recorded["budget"], (atlas_id, stack, errors.max())
+            sharing = [i for i, p in enumerate(lights)
+                       if len(_groups(entry["compact"]["lights"])[
+                           entry["compact"]["lights"]["image"][p]]) > 1]
+            worst_sharing = texel[sharing].max(initial=0.0)
+            assert worst_sharing <= TEXEL_BOUND_PER_BUDGET * recorded["budget"], (
+                atlas_id, stack, worst_sharing)
+    assert any(costs)  # sharing shows in the report (not where a stack's images are its own)
 
 
 def test_always_shares_every_group_and_records_what_it_costs(shared_build, tmp_path):
@@ -195,7 +227,8 @@ def test_always_shares_every_group_and_records_what_it_costs(shared_build, tmp_p
     image, as many images as the 196-light dome makes groups and none taken out, each patch
     still at its own gain; the patches that sharing puts over the budget are recorded (on
     this site some are, where the default takes them out of their groups: the test above)."""
-    from bake.sunbounce import SharedImages
+    from bake.sundisplay import TEXEL_BOUND_PER_BUDGET
+    from bake.sunshare import SharedImages
     from tests.sunbounce_levels import recompress_sun_bounce
 
     build = Build(shared_build)
@@ -204,11 +237,15 @@ def test_always_shares_every_group_and_records_what_it_costs(shared_build, tmp_p
                                   build.selection.selectable, 196)
     always = Build(recompress_sun_bounce(shared_build, tmp_path / "always", 0.01,
                                          shared=groups, sharing="always"))
-    over = 0
+    over, texel_worst = 0, 0.0
     for atlas in always.atlases.values():
         for entry in atlas["sun_bounce"].values():
             shared = entry["compact"]["shared"]
             assert shared["images"] == len(groups.groups) and shared["split_out"] == 0
             assert len(_groups(entry["compact"]["lights"])) == len(groups.groups)
             over += entry["compact"]["error"]["displayed"]["shared"]["over_budget"]
+            texel_worst = max(texel_worst,
+                              entry["compact"]["error"]["displayed"]["shared"]["texel_p99"]["max"])
     assert over > 0
+    # and at single texels (as recorded: the test above checks the record from the masters)
+    assert texel_worst > TEXEL_BOUND_PER_BUDGET * 0.01, texel_worst

@@ -396,13 +396,14 @@ def test_sun_bounce_with_and_without_refinement_files(new_page, sun_build, sun_r
 
 def test_sun_bounce_from_etc1s_and_rdo_images(new_page, sun_build, sun_reference, tmp_path):
     """A build compressed with ``compression.sun_bounce_encoding = "smallest"`` (the site's
-    sun-bounce stacks compressed again so): the patch's lightmap image is ETC1S (its KTX2
-    header's supercompression scheme 1, BasisLZ), which the client tells from the file alone,
-    and the shaded face is shown as that build's compact oracle says."""
+    sun-bounce stacks compressed again so, at a budget of 5 %: at 1 % the bound at single
+    texels keeps the lightmap's images plain UASTC): the patch's lightmap image is ETC1S (its
+    KTX2 header's supercompression scheme 1, BasisLZ), which the client tells from the file
+    alone, and the shaded face is shown as that build's compact oracle says."""
     from bake.evaluate import Build
     from tests.sunbounce_levels import is_etc1s, recompress_sun_bounce
 
-    smallest = recompress_sun_bounce(sun_build, tmp_path / "smallest", 0.01,
+    smallest = recompress_sun_bounce(sun_build, tmp_path / "smallest", 0.05,
                                      encoding="smallest")
     build = Build(smallest)
     s, _ = sun_and_sky(build)
@@ -417,13 +418,13 @@ def test_sun_bounce_from_an_image_shared_with_a_neighbouring_patch(new_page, sun
                                                                    sun_reference, tmp_path):
     """A build whose sun-bounce images are shared (manifest version 3, ``lights.image``):
     the sun's patch p grouped with its nearest sun-path neighbour q of lower index, whose
-    files hold the pair's image (bake.sunbounce.SharedImages). The client fetches q's files
+    files hold the pair's image (bake.sunshare.SharedImages). The client fetches q's files
     and never p's (there are none), and shows the shaded face as that build's compact oracle
     says (q's image with p's own scale), clearly brighter than the sky alone; in lightmap mode
     it fetches no hull-plane sun-bounce image. (A client that asked for p's own files, as
     before version 3, got 404 and no bounce.)"""
     from bake.evaluate import Build
-    from bake.sunbounce import SharedImages
+    from bake.sunshare import SharedImages
     from tests.sunbounce_levels import recompress_sun_bounce
 
     build = Build(sun_build)
@@ -438,7 +439,7 @@ def test_sun_bounce_from_an_image_shared_with_a_neighbouring_patch(new_page, sun
     groups[q] = [q, p]
     shared = SharedImages(groups, build.solid_angles, "test", 0)
     # "always": the pair stays one group whatever sharing costs (by default the bake takes a
-    # patch out of its group where sharing would show: bake.sunbounce.groups_within).
+    # patch out of its group where sharing would show: bake.sunshare.groups_within).
     pair = recompress_sun_bounce(sun_build, tmp_path / "shared", 0.01, shared=shared,
                                  sharing="always")
     pair_build = Build(pair)
