@@ -191,7 +191,7 @@ class DisplayCheck:
         of ``master`` (both (H, W, 3)); ``but_bounce`` (V, 3) from
         :meth:`shown_but_bounce`."""
         shown, err = self._displayed(light, but_bounce, master, decoded)
-        return float(np.sqrt((err**2).mean()) / max(float(shown.mean()), 1e-30))
+        return _rms_over_mean(shown, err)
 
     def texel_error(self, light: int, but_bounce: np.ndarray, master, decoded) -> float:
         """The error at single texels that :meth:`error`'s mean hides: the 99th percentile,
@@ -199,10 +199,24 @@ class DisplayCheck:
         that value floored at a tenth of its mean (a texel in deep shade is not judged
         against nothing; as benchmarks/sun_bounce_display.py's judge)."""
         shown, err = self._displayed(light, but_bounce, master, decoded)
-        if not len(shown):
-            return 0.0
-        floor = max(0.1 * float(shown.mean()), 1e-30)
-        return float(np.percentile(np.abs(err) / np.maximum(shown, floor), TEXEL_PERCENTILE))
+        return _texel_p99(shown, err)
+
+    def errors(self, light: int, but_bounce: np.ndarray, master, decoded
+               ) -> tuple[float, float]:
+        """(:meth:`error`, :meth:`texel_error`), the displayed value made once."""
+        shown, err = self._displayed(light, but_bounce, master, decoded)
+        return _rms_over_mean(shown, err), _texel_p99(shown, err)
+
+
+def _rms_over_mean(shown: np.ndarray, err: np.ndarray) -> float:
+    return float(np.sqrt((err**2).mean()) / max(float(shown.mean()), 1e-30))
+
+
+def _texel_p99(shown: np.ndarray, err: np.ndarray) -> float:
+    if not len(shown):
+        return 0.0
+    floor = max(0.1 * float(shown.mean()), 1e-30)
+    return float(np.percentile(np.abs(err) / np.maximum(shown, floor), TEXEL_PERCENTILE))
 
 
 def sun_bounce_errors(reader: CompactReader, image, valid, lights,
@@ -225,8 +239,9 @@ def sun_bounce_errors(reader: CompactReader, image, valid, lights,
             rms = np.sqrt(((decoded[i][valid] - truth) ** 2).mean())
             errors.append(rms / max(float(truth.mean()), 1e-30))
             if check is not None:
-                displayed.append(check.error(i, shown[j], columns[j], decoded[i]))
-                texel.append(check.texel_error(i, shown[j], columns[j], decoded[i]))
+                rms_shown, p99 = check.errors(i, shown[j], columns[j], decoded[i])
+                displayed.append(rms_shown)
+                texel.append(p99)
         reader.forget_lights()
     return np.array(errors), np.array(displayed), np.array(texel)
 

@@ -176,9 +176,8 @@ def groups_within(shared: SharedImages, own, check: DisplayCheck, budget: float
                 for p in members:
                     mean = total * omega[p]
                     shared_p = mean * least_squares_gain(mean[valid], columns[p][valid])
-                    over.append(max(
-                        check.error(p, shown[p], columns[p], shared_p) / limit,
-                        check.texel_error(p, shown[p], columns[p], shared_p) / texel_limit))
+                    rms, p99 = check.errors(p, shown[p], columns[p], shared_p)
+                    over.append(max(rms / limit, p99 / texel_limit))
                 worst = int(np.argmax(over))
                 if over[worst] <= 1.0:
                     break
