@@ -254,8 +254,9 @@ def shared_errors(out_dir: Path, entry: dict, own, check: DisplayCheck,
     displayed under its own display sky with the sun's direct term (``check``, made with
     ``bounce=own``). The images are judged against their group's column
     (:func:`compress_sun_bounce`), so this is the error the budget does not see (docs/sun.md,
-    "Shared images"). Returns ``{"max", "median", "worst_light", "lights", "over_budget"}``
-    (the last with a budget)."""
+    "Shared images"). Returns ``{"max", "median", "worst_light", "lights", "texel_p99",
+    "over_budget"}`` (``texel_p99``: max and median of :meth:`DisplayCheck.texel_error`;
+    ``over_budget`` with a budget)."""
     own = as_stack(own)
     lights = check.lights
     reader = CompactReader(out_dir, entry, own.shape[:2])
