@@ -226,7 +226,8 @@ def download_bytes(manifest: dict, build_dir: Path, visit_lights: int | None = N
 
 def _holders(table: dict, patches: list[int]) -> set[int]:
     """The lights whose files hold the images of ``patches`` in a sun-bounce ``lights``
-    table (``image[p]``, absent: ``p``), for the patches that have one."""
-    image = table.get("image")
-    return {p if image is None or image[p] is None else image[p]
-            for p in patches if table["scale"][p] is not None}
+    table (:func:`bake.compact_reader.image_holders`), for the patches that have one."""
+    from bake.compact_reader import image_holders
+
+    holders = image_holders(table)
+    return {holders[p] for p in patches if table["scale"][p] is not None}
