@@ -334,9 +334,8 @@ def _shown_coarse(lights, folder: Path, name: str, coarse_q: dict, image, check,
     """The ``lights`` whose coarse image in ``folder`` is off by more than ``budget`` as
     displayed (``check``: a :class:`DisplayCheck`; None: every light), or with
     ``texel_bounds`` ({light: bound}) by more than its bound at single texels
-    (:meth:`DisplayCheck.texel_error`),
-    the masters read from
-    ``image`` (a :mod:`bake.rowstore` stack). With ``refine_q``, the
+    (:meth:`DisplayCheck.texel_error`), the masters read from ``image`` (a
+    :mod:`bake.rowstore` stack). With ``refine_q``, the
     refinement image of each of them (what its coarse image lost) is written into ``tmp`` and
     listed there, as its chunk is decoded (not every decoded image held at once: memory)."""
     over = []
@@ -348,10 +347,14 @@ def _shown_coarse(lights, folder: Path, name: str, coarse_q: dict, image, check,
         for j, i in enumerate(chunk):
             coarse = coarse_q[i].value(decoded[j][0])
             # The coarse image alone is enough where its error does not show.
-            if check is not None and check.error(i, shown[j], columns[j], coarse) <= budget \
-                    and (texel_bounds is None or check.texel_error(
-                        i, shown[j], columns[j], coarse) <= texel_bounds[i]):
-                continue
+            if check is not None:
+                if texel_bounds is None:
+                    shows = check.error(i, shown[j], columns[j], coarse) > budget
+                else:
+                    rms, p99 = check.errors(i, shown[j], columns[j], coarse)
+                    shows = rms > budget or p99 > texel_bounds[i]
+                if not shows:
+                    continue
             over.append(i)
             if refine_q is not None:
                 refine_q[i] = refinement_png(
