@@ -44,15 +44,16 @@ def recompress_sun_bounce(build_dir: Path, copy: Path, budget: float,
         settings = replace(settings, sun_bounce_encoding=encoding)
     if sharing is not None:
         settings = replace(settings, sun_bounce_sharing=sharing)
-    views = {id(view) for view in manifest["views"]}
-    for owner in manifest["atlases"] + manifest["views"]:
-        for stack, entry in owner.get("sun_bounce", {}).items():
-            result = compress_sun_bounce(
-                read_stack_exr(copy / entry["master"]), f"{owner['id']}.sun_bounce.{stack}",
-                copy, lights, view_settings(settings) if id(owner) in views else settings,
-                read_stack_exr(copy / owner["stacks"][stack]["master"]), skies, shared,
-            )
-            entry["compact"] = result.entry
+    for owners, owner_settings in ((manifest["atlases"], settings),
+                                   (manifest["views"], view_settings(settings))):
+        for owner in owners:
+            for stack, entry in owner.get("sun_bounce", {}).items():
+                result = compress_sun_bounce(
+                    read_stack_exr(copy / entry["master"]),
+                    f"{owner['id']}.sun_bounce.{stack}", copy, lights, owner_settings,
+                    read_stack_exr(copy / owner["stacks"][stack]["master"]), skies, shared,
+                )
+                entry["compact"] = result.entry
     files = [f for f in manifest["files"] if ".sun_bounce." not in f["path"]
              or not f["path"].startswith("ktx2/")]
     for path in sorted((copy / "ktx2").glob("*.sun_bounce.*")):
