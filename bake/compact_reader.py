@@ -72,10 +72,14 @@ class CompactReader:
     images alone, as the sun-bounce stacks are stored
     (:func:`bake.sunbounce.compress_sun_bounce`; read a column with :meth:`lights`)."""
 
-    def __init__(self, build_dir: Path, entry: dict, shape: tuple[int, int]):
+    def __init__(self, build_dir: Path, entry: dict, shape: tuple[int, int],
+                 decoder=None):
+        """``decoder``: how the light images' files are decoded (:func:`decode`'s
+        signature, the default; bake.sunwritten gives one that decodes each file once)."""
         self.dir = Path(build_dir)
         self.entry = entry
         self.shape = shape
+        self._decode = decoder
         if "v" in entry:
             self.V = read_v(self.dir, entry["v"])
         else:
@@ -141,7 +145,7 @@ class CompactReader:
         holder = image_holders(table)
         files = [self.dir / pattern.format(index=holder[i]) for i in missing
                  for pattern in table["ktx2"][: levels[i]]]
-        decoded = iter(decode(files))
+        decoded = iter((self._decode or decode)(files))
         for i in missing:
             value = np.zeros(self.shape + (3,), dtype=np.float32)
             for level in range(levels[i]):

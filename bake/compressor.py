@@ -302,7 +302,7 @@ def ratio_line(atlas: dict, ratio: dict, skies: int) -> str:
 
 def shared_line(stack: str, shared: dict) -> str:
     """The bake's line on what sharing sun-bounce images costs as displayed (``shared``:
-    bake.sunshare.shared_errors), each sun-path patch against its own column: the images
+    bake.sunwritten.ReadBack.shared_record), each sun-path patch against its own column: the images
     themselves are judged against their group's (docs/sun.md, "Shared images")."""
     over = (f", {shared['over_budget']} of {shared['lights']} patches over the budget"
             if "over_budget" in shared else "")

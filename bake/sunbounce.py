@@ -17,7 +17,6 @@ from pathlib import Path
 import numpy as np
 
 from bake.basisu import encode
-from bake.compact_reader import CompactReader
 from bake.compress import CompactStack
 from bake.ktx2decoder import decode
 from bake.quantize import quantized_png, refinement_png
@@ -27,17 +26,15 @@ from bake.sundisplay import (
     DisplayCheck,
     DisplaySkies,
     max_median,
-    sun_bounce_errors,
 )
 from bake.sunshare import (
     SharedColumns,
     SharedImages,
     codec_texel_bounds,
-    fit_member_gains,
     groups_within,
     share_entry,
-    shared_errors,
 )
+from bake.sunwritten import ReadBack, read_back
 
 # How many of a stack's sun-bounce images are tried in cheaper encodings before the rest
 # (_cheaper_within).
@@ -67,15 +64,15 @@ def compress_sun_bounce(image, name, out_dir, lights, settings, sky=None,
     level ``settings.sun_bounce_level``, and where that is still off, what was lost is
     encoded as a refinement at level ``settings.refine_level``; without ``sky`` and
     ``skies``, or with the budget None, every light keeps its refinement. Every column is
-    then decoded as the client decodes it (:class:`CompactReader`) and checked against the
-    master: RMS error over the stack's valid texels relative to the column's mean there, and
-    as displayed.
+    then decoded as the client decodes it and checked against the master
+    (:func:`bake.sunwritten.read_back`): RMS error over the stack's valid texels relative to
+    the column's mean there, and as displayed.
 
     With ``shared`` (:class:`SharedImages`) the lights of a group share one image, their
     group's (:class:`SharedColumns`): only the representatives are encoded and judged (each
     against its group's column, under its own display sky), and the entry lists every
     member (:func:`share_entry`), each with its own gain per channel against its own column
-    (:func:`fit_member_gains`).
+    (:func:`bake.sunwritten.read_back`).
 
     Writes ``ktx2/<name>.L<i>.ktx2`` for each light ``i`` of ``lights`` and
     ``ktx2/<name>.L<i>r.ktx2`` for those that keep a refinement. Returns the
@@ -95,7 +92,7 @@ def compress_sun_bounce(image, name, out_dir, lights, settings, sky=None,
     budget = settings.sun_bounce_budget
     # One judge, one pass over the sky stack: with shared images it holds every drawn light,
     # the groups checked with it, the representatives' images judged with it and then every
-    # member's error against its own column (shared_errors).
+    # member's error against its own column (read_back).
     judged = lights
     if shared is not None:
         drawn = set(lights.tolist())
@@ -116,15 +113,21 @@ def compress_sun_bounce(image, name, out_dir, lights, settings, sky=None,
         lights = np.asarray(shared.representatives, dtype=int)
     texel_bounds = codec_texel_bounds(lights, budget, shared) if budget is not None else None
     try:
-        result = _compress_columns(image, name, out_dir, lights, settings, check, budget,
-                                   texel_bounds, started)
-        if result is not None and shared is not None:
-            share_entry(result.entry, shared, n)
-            result.entry["shared"]["split_out"] = split_out
-            fit_member_gains(out_dir, result.entry, own, judged)
+        result, judged_record = _compress_columns(image, name, out_dir, lights, settings,
+                                                  check, budget, texel_bounds, started)
+        entry = result.entry
+        if shared is not None:
+            share_entry(entry, shared, n)
+            entry["shared"]["split_out"] = split_out
+        # Every image decoded once, each against the column it was made of and, shared,
+        # each member given its gain and judged against its own column (bake.sunwritten).
+        measured = read_back(out_dir, entry, own, lights, check, shared)
+        entry["error"].update(_error_record(lights, measured, judged_record))
+        if shared is not None:
+            entry["shared"]["gains"] = list(measured.gains)
             if check is not None:
-                result.entry["error"]["displayed"]["shared"] = shared_errors(
-                    out_dir, result.entry, own, check, budget)
+                entry["error"]["displayed"]["shared"] = measured.shared_record(
+                    check.lights, budget)
         return result
     finally:
         if check is not None:
@@ -138,7 +141,6 @@ def _compress_columns(image, name, out_dir, lights, settings, check, budget, tex
     the bound at single texels on a cheaper codec} (:func:`bake.sunshare.codec_texel_bounds`).
     """
     H, W, n, _ = image.shape
-    valid = image.valid
     judged = check is not None and budget is not None
     # The selected lights' images' two levels (coarse at uastc_level, refinement at
     # refine_level), not the RMS stacks' cheaper refinement (rms_refine_level): a column's
@@ -212,29 +214,43 @@ def _compress_columns(image, name, out_dir, lights, settings, check, budget, tex
     patterns = [f"ktx2/{name}.L{{index:04d}}.ktx2"]
     if refine_q:
         patterns.append(f"ktx2/{name}.L{{index:04d}}r.ktx2")
-    entry = {"k": 0, "lights": {"ktx2": patterns, "scale": scales, "offset": offsets}}
-    reader = CompactReader(out_dir, entry, (H, W))
-    errors, displayed, texel = sun_bounce_errors(reader, image, valid, lights, check)
-    entry["error"] = {
-        "test_lights": int(len(lights)),
-        "max": round(float(errors.max()), 6),
-        "median": round(float(np.median(errors)), 6),
-        "worst_light": int(lights[int(np.argmax(errors))]),
-    }
+    # "error" is filled once the images are read back (compress_sun_bounce), before "shared"
+    # is added: the manifest's order.
+    entry = {"k": 0, "lights": {"ktx2": patterns, "scale": scales, "offset": offsets},
+             "error": {}}
+    compact = CompactStack(entry, light_files, encode_s=encode_s)
+    compact.light_bytes = sum(p.stat().st_size for p in light_files)
+    judged_record = None
     if check is not None:
-        entry["error"]["displayed"] = {
-            "max": round(float(displayed.max()), 6),
-            "median": round(float(np.median(displayed)), 6),
-            "worst_light": int(lights[int(np.argmax(displayed))]),
-            "texel_p99": max_median(texel),
+        judged_record = {
             "budget": budget,
             "refined": len(refined),
             "cheaper": {label: sum(v == label for v in cheaper.values())
                         for label, *_ in cheaper_encodings(settings)},
         }
-    compact = CompactStack(entry, light_files, encode_s=encode_s)
-    compact.light_bytes = sum(p.stat().st_size for p in light_files)
-    return compact
+    return compact, judged_record
+
+
+def _error_record(lights, measured: ReadBack, judged_record: dict | None) -> dict:
+    """The entry's ``error``: the images against the columns they were made of, and (with a
+    judge) as displayed, with what the judge decided (``judged_record``)."""
+    errors = measured.rms
+    record = {
+        "test_lights": int(len(lights)),
+        "max": round(float(errors.max()), 6),
+        "median": round(float(np.median(errors)), 6),
+        "worst_light": int(lights[int(np.argmax(errors))]),
+    }
+    if judged_record is not None:
+        displayed = measured.displayed
+        record["displayed"] = {
+            "max": round(float(displayed.max()), 6),
+            "median": round(float(np.median(displayed)), 6),
+            "worst_light": int(lights[int(np.argmax(displayed))]),
+            "texel_p99": max_median(measured.texel),
+            **judged_record,
+        }
+    return record
 
 
 def view_settings(settings):

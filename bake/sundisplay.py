@@ -12,7 +12,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bake.compact_reader import CompactReader
 from bake.rowstore import RowFile, as_stack, valid_blocks
 
 SUN_BOUNCE_DECODE_CHUNK = 16  # light images decoded at a time (memory: the lightmap is large)
@@ -217,33 +216,6 @@ def _texel_p99(shown: np.ndarray, err: np.ndarray) -> float:
         return 0.0
     floor = max(0.1 * float(shown.mean()), 1e-30)
     return float(np.percentile(np.abs(err) / np.maximum(shown, floor), TEXEL_PERCENTILE))
-
-
-def sun_bounce_errors(reader: CompactReader, image, valid, lights,
-                      check: DisplayCheck | None = None
-                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Each column ``p`` of ``lights`` decoded from its images as the client decodes it,
-    against the master ``image[:, :, p]`` (H, W, n, 3): RMS error over the ``valid`` texels
-    (H, W) relative to the column's mean there, and (with ``check``) as displayed
-    (:meth:`DisplayCheck.error`) and at single texels (:meth:`DisplayCheck.texel_error`;
-    both empty without). Returns three arrays (len(lights),)."""
-    image = as_stack(image)
-    errors, displayed, texel = [], [], []
-    for start in range(0, len(lights), SUN_BOUNCE_DECODE_CHUNK):
-        chunk = [int(i) for i in lights[start : start + SUN_BOUNCE_DECODE_CHUNK]]
-        decoded = reader.lights(chunk)
-        shown = check.shown_but_bounce(chunk) if check is not None else None
-        columns = image.columns(chunk)
-        for j, i in enumerate(chunk):
-            truth = columns[j][valid].astype(np.float64)
-            rms = np.sqrt(((decoded[i][valid] - truth) ** 2).mean())
-            errors.append(rms / max(float(truth.mean()), 1e-30))
-            if check is not None:
-                rms_shown, p99 = check.errors(i, shown[j], columns[j], decoded[i])
-                displayed.append(rms_shown)
-                texel.append(p99)
-        reader.forget_lights()
-    return np.array(errors), np.array(displayed), np.array(texel)
 
 
 def max_median(values: np.ndarray) -> dict:

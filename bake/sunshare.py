@@ -1,29 +1,22 @@
 """Neighbouring sun-path patches sharing one sun-bounce image (docs/sun.md, "Shared
 images"): which patches share (:class:`SharedImages`, grouped by a coarser dome's patches),
 the columns their images are made of (:class:`SharedColumns`), the patches taken out of
-their groups where sharing would show (:func:`groups_within`), each member's own gain
-(:func:`fit_member_gains`) and what sharing costs each patch as displayed
-(:func:`shared_errors`). bake.sunbounce encodes the images; bake.sundisplay judges them.
+their groups where sharing would show (:func:`groups_within`) and the gain that fits a
+member's image to its own column (:func:`least_squares_gain`). bake.sunbounce encodes the
+images; bake.sundisplay judges them; bake.sunwritten reads them back, gives each member its
+gain and measures what sharing costs each patch as displayed.
 Moved out of bake/sunbounce.py on 2026-12-07 (the module had grown past 500 lines).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from bake.compact_reader import CompactReader
 from bake.quantize import float32_list
 from bake.rowstore import as_stack
-from bake.sundisplay import (
-    SUN_BOUNCE_DECODE_CHUNK,
-    TEXEL_BOUND_PER_BUDGET,
-    DisplayCheck,
-    max_median,
-    sun_bounce_errors,
-)
+from bake.sundisplay import SUN_BOUNCE_DECODE_CHUNK, TEXEL_BOUND_PER_BUDGET, DisplayCheck
 
 # Of the budget as displayed, the share a patch's sharing of its group's image may take
 # before encoding (groups_within); the image's encoding error, judged against the group's
@@ -41,7 +34,7 @@ class SharedImages:
     client's ``E_sun / omega_p * column_p`` (``column_p``: the shared image scaled by
     ``omega_p / omega_rep``) is ``E_sun * sum_q B_q / sum_q omega_q``: the sun's bounce
     averaged over the group's patches; each member then scales it by its own least-squares
-    gain per channel (:func:`fit_member_gains`)."""
+    gain per channel (bake.sunwritten.read_back)."""
 
     groups: dict[int, list[int]]
     solid_angles_sr: np.ndarray  # (n,) the dome's
@@ -103,15 +96,24 @@ class SharedColumns:
         self.work = getattr(self.image, "work", None)
 
     def columns(self, lights) -> np.ndarray:
-        out = []
+        """(len(lights), H, W, 3) float32: each light's group column. Every member of every
+        group asked for is read in one call: a stack on disk reads each of its block files
+        whole for a call (bake.rowstore.StackStore.columns)."""
+        groups = [self.shared.groups.get(int(p), [int(p)]) for p in lights]
+        wanted = sorted({q for members in groups for q in members})
+        own = dict(zip(wanted, self.image.columns(wanted), strict=True))
+        return np.stack([self.group_column(int(p), members, own)
+                         for p, members in zip(lights, groups, strict=True)])
+
+    def group_column(self, light: int, members: list[int], own: dict) -> np.ndarray:
+        """(H, W, 3) float32 ``light``'s group column from its ``members``' own columns
+        ``own`` {member: (H, W, 3)}: summed in float64 in the members' order and scaled to
+        ``light``'s solid angle."""
         omega = self.shared.solid_angles_sr
-        for p in lights:
-            members = self.shared.groups.get(int(p), [int(p)])
-            total = np.zeros(self.shape[:2] + (3,), dtype=np.float64)
-            for column in self.image.columns(members):
-                total += column
-            out.append((total * (omega[p] / omega[members].sum())).astype(np.float32))
-        return np.stack(out)
+        total = np.zeros(self.shape[:2] + (3,), dtype=np.float64)
+        for q in members:
+            total += own[q]
+        return (total * (omega[light] / omega[members].sum())).astype(np.float32)
 
     def column(self, light: int) -> np.ndarray:
         return self.columns([light])[0]
@@ -144,7 +146,7 @@ def groups_within(shared: SharedImages, own, check: DisplayCheck, budget: float
     """``shared`` with the patches that sharing would put over :data:`SHARING_SHARE` of
     ``budget`` as displayed taken out of their groups, each to an image of its own: in each
     group, the group's column (the members' solid-angle mean) times each member's
-    least-squares gain (:func:`least_squares_gain`, as :func:`fit_member_gains` will give
+    least-squares gain (:func:`least_squares_gain`, as bake.sunwritten.read_back will give
     it) is judged against the member's own column of ``own`` (H, W, n, 3) by ``check`` (made
     with ``bounce=own``, holding every member), by its RMS (:meth:`DisplayCheck.error`) and at
     single texels (:meth:`DisplayCheck.texel_error`, against :data:`TEXEL_BOUND_PER_BUDGET`
@@ -156,15 +158,9 @@ def groups_within(shared: SharedImages, own, check: DisplayCheck, budget: float
     omega = shared.solid_angles_sr
     limit = SHARING_SHARE * budget
     texel_limit = SHARING_SHARE * TEXEL_BOUND_PER_BUDGET * budget
-    # Whole groups, about SUN_BOUNCE_DECODE_CHUNK lights at a time: a stack on disk reads
-    # every row of a block of lights for each call (bake.rowstore.StackStore.columns).
-    batches: list[list[list[int]]] = [[]]
-    for members in shared.groups.values():
-        if batches[-1] and sum(map(len, batches[-1])) + len(members) > SUN_BOUNCE_DECODE_CHUNK:
-            batches.append([])
-        batches[-1].append(list(members))
     groups: dict[int, list[int]] = {}
-    for batch in batches:
+    for reps in group_batches(list(shared.groups), shared.groups):
+        batch = [list(shared.groups[rep]) for rep in reps]
         lights = [p for members in batch for p in members]
         columns = dict(zip(lights, own.columns(lights), strict=True))
         shown = dict(zip(lights, check.shown_but_bounce(lights), strict=True))
@@ -187,6 +183,23 @@ def groups_within(shared: SharedImages, own, check: DisplayCheck, budget: float
     return SharedImages(dict(sorted(groups.items())), omega, shared.kind, shared.frequency)
 
 
+def group_batches(reps: list[int], groups: dict[int, list[int]]) -> list[list[int]]:
+    """``reps`` in batches of whole groups (``groups`` {rep: members}; a rep not in it is a
+    group of one) of about :data:`SUN_BOUNCE_DECODE_CHUNK` members: a batch's columns are
+    read at once, since a stack on disk reads every row of a block of lights for each call
+    (bake.rowstore.StackStore.columns)."""
+    batches: list[list[int]] = [[]]
+    size = 0
+    for rep in reps:
+        members = len(groups.get(rep, [rep]))
+        if batches[-1] and size + members > SUN_BOUNCE_DECODE_CHUNK:
+            batches.append([])
+            size = 0
+        batches[-1].append(rep)
+        size += members
+    return batches
+
+
 def codec_texel_bounds(lights, budget: float, shared: SharedImages | None) -> dict[int, float]:
     """{light: the error at single texels a codec cheaper than plain UASTC may make in its
     image} (:data:`TEXEL_BOUND_PER_BUDGET` times ``budget``): an image that a group shares
@@ -200,41 +213,6 @@ def codec_texel_bounds(lights, budget: float, shared: SharedImages | None) -> di
     return bounds
 
 
-def fit_member_gains(out_dir: Path, entry: dict, own, lights) -> None:
-    """Give each light ``p`` of ``lights`` that reads a shared image (``entry`` after
-    :func:`share_entry`) its own gain per channel: the least-squares one, over the valid
-    texels of ``own`` (H, W, n, 3, each patch's own column), of its decoded image against its
-    own master column, ``g_c = sum(decoded_c * own_c) / sum(decoded_c ** 2)``; its ``scale``
-    and ``offset`` (every level) are multiplied by it, so the client draws ``g`` times the
-    group's image with no change of its own.
-
-    The group's image is the members' mean; part of how a member's own bounce differs from it
-    is strength (the sun's cosine on the surfaces that throw it off changes across a group, up
-    to twice from the lowest row of patches to the next), which the gain restores; the rest is
-    pattern, which :func:`groups_within` judges.
-    As displayed, the relit sky and the direct term do not depend on the gain, so the
-    least-squares gain is the one with the smallest error the judge can see for that image
-    (docs/sun.md, "Shared images"). Records ``entry["shared"]["gains"]``: the smallest and
-    largest gain over lights and channels."""
-    own = as_stack(own)
-    valid = own.valid
-    table = entry["lights"]
-    reader = CompactReader(out_dir, entry, own.shape[:2])
-    lowest, highest = np.inf, -np.inf
-    for start in range(0, len(lights), SUN_BOUNCE_DECODE_CHUNK):
-        chunk = [int(i) for i in lights[start : start + SUN_BOUNCE_DECODE_CHUNK]]
-        decoded = reader.lights(chunk)
-        for p, column in zip(chunk, own.columns(chunk), strict=True):
-            gain = least_squares_gain(decoded[p][valid], column[valid])
-            table["scale"][p] = [float32_list(np.asarray(level) * gain)
-                                 for level in table["scale"][p]]
-            table["offset"][p] = [float32_list(np.asarray(level) * gain)
-                                  for level in table["offset"][p]]
-            lowest, highest = min(lowest, gain.min()), max(highest, gain.max())
-        reader.forget_lights()
-    entry["shared"]["gains"] = [round(float(lowest), 4), round(float(highest), 4)]
-
-
 def least_squares_gain(decoded: np.ndarray, truth: np.ndarray) -> np.ndarray:
     """(3,) per channel, the gain ``g >= 0`` that minimizes ``sum (g * decoded - truth)^2``
     over texels (``decoded``, ``truth``: (T, 3)); 1 for a channel whose decoded image is
@@ -244,28 +222,3 @@ def least_squares_gain(decoded: np.ndarray, truth: np.ndarray) -> np.ndarray:
     fit = (decoded * truth.astype(np.float64)).sum(axis=0)
     return np.where(power > 0.0, np.clip(fit / np.where(power > 0.0, power, 1.0), 0.0, None),
                     1.0)
-
-
-def shared_errors(out_dir: Path, entry: dict, own, check: DisplayCheck,
-                  budget: float | None) -> dict:
-    """What sharing costs a visitor: each sun-path light ``p`` of ``check.lights`` decoded as
-    the client decodes it (its group's image with its own scale, ``entry`` after
-    :func:`share_entry`) against its *own* master column of ``own`` (H, W, n, 3), as
-    displayed under its own display sky with the sun's direct term (``check``, made with
-    ``bounce=own``). The images are judged against their group's column
-    (:func:`compress_sun_bounce`), so this is the error the budget does not see (docs/sun.md,
-    "Shared images"). Returns ``{"max", "median", "worst_light", "lights", "texel_p99",
-    "over_budget"}`` (``texel_p99``: max and median of :meth:`DisplayCheck.texel_error`;
-    ``over_budget`` with a budget)."""
-    own = as_stack(own)
-    lights = check.lights
-    reader = CompactReader(out_dir, entry, own.shape[:2])
-    _, displayed, texel = sun_bounce_errors(reader, own, own.valid, lights, check)
-    out = {"max": round(float(displayed.max()), 6),
-           "median": round(float(np.median(displayed)), 6),
-           "worst_light": int(lights[int(np.argmax(displayed))]),
-           "lights": len(lights),
-           "texel_p99": max_median(texel)}
-    if budget is not None:
-        out["over_budget"] = int((displayed > budget).sum())
-    return out

@@ -185,7 +185,7 @@ def _errors_against_own_columns(build: Build, atlas_id: str, stack: str, lights,
 def test_the_bake_records_what_sharing_costs_each_patch_as_displayed(shared_build):
     """Each sun-path patch decoded from its group's image against its *own* master column,
     as displayed (:func:`_errors_against_own_columns`): it is what the bake recorded under
-    ``error.displayed.shared`` (bake.sunshare.shared_errors), larger than the images' own
+    ``error.displayed.shared`` (bake.sunwritten.read_back), larger than the images' own
     recorded error, which is judged against the group's column, where patches share (so the
     bake's report cannot hide the sharing); and a patch shares its group's image only where
     that keeps it within the budget, its RMS and at single texels
@@ -249,3 +249,60 @@ def test_always_shares_every_group_and_records_what_it_costs(shared_build, tmp_p
     assert over > 0
     # and at single texels (as recorded: the test above checks the record from the masters)
     assert texel_worst > TEXEL_BOUND_PER_BUDGET * 0.01, texel_worst
+
+
+def test_the_written_images_are_read_back_once(shared_build, monkeypatch):
+    """bake.sunwritten.read_back, as the bake runs it on a stack whose images are shared:
+    every image file is decoded once and every master column read once (a stack on disk
+    reads its block files whole for each read), and what it measures is what a reader of
+    its own, decoding every light's files again, gives: each image against its group's
+    column, and each patch's gain, which on the written build's table (its gains already
+    fitted) is 1 within float32 rounding."""
+    import copy
+
+    import bake.sunwritten as sunwritten
+    from bake.compact_reader import CompactReader
+    from bake.rowstore import ArrayStack
+    from bake.sunshare import SharedColumns, SharedImages
+    from daylit.stackio import read_stack_exr
+
+    build = Build(shared_build)
+    entry = build.atlases["ground"]["sun_bounce"]["I"]
+    compact = copy.deepcopy(entry["compact"])
+    groups = _groups(compact["lights"])
+    assert any(len(members) > 1 for members in groups.values())  # some patches share
+    shared = SharedImages({rep: sorted(m) for rep, m in sorted(groups.items())},
+                          build.solid_angles, "octahedral", 7)
+    master = read_stack_exr(shared_build / entry["master"])
+
+    class Counted(ArrayStack):
+        def __init__(self, image):
+            super().__init__(image)
+            self.read: list[int] = []
+
+        def columns(self, lights):
+            self.read.extend(int(i) for i in lights)
+            return super().columns(lights)
+
+    decoded: list[str] = []
+    real_decode = sunwritten.decode
+
+    def counted_decode(files):
+        decoded.extend(Path(f).name for f in files)
+        return real_decode(files)
+
+    monkeypatch.setattr(sunwritten, "decode", counted_decode)
+    own = Counted(master)
+    reps = shared.representatives
+    measured = sunwritten.read_back(shared_build, compact, own, reps, None, shared)
+    assert sorted(own.read) == sorted(p for m in groups.values() for p in m)
+    assert sorted(decoded) == sorted(f"ground.sun_bounce.I.L{rep:04d}.ktx2" for rep in reps)
+    lowest, highest = measured.gains
+    assert 1 - 1e-4 < lowest <= highest < 1 + 1e-4
+
+    fresh = CompactReader(shared_build, entry["compact"], master.shape[:2])
+    valid = own.valid
+    columns = SharedColumns(ArrayStack(master), shared).columns(reps)
+    for j, rep in enumerate(reps):
+        expected = sunwritten.column_error(fresh.lights([rep])[rep], columns[j], valid)
+        assert measured.rms[j] == pytest.approx(expected, rel=1e-6), rep
