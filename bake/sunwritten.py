@@ -93,7 +93,15 @@ def read_back(out_dir: Path, entry: dict, own, lights, check: DisplayCheck | Non
     ``scale[p]`` and ``offset[p]``, every level, multiplied by it), and is then judged
     against its own column by ``check`` (docs/sun.md, "Each patch's own gain, and sharing
     only within the budget"). A representative's own error is measured before its gain
-    (against its group's column: its image's encoding error)."""
+    (against its group's column: its image's encoding error).
+
+    Why a gain: the group's image is its members' mean, and part of how a member's own
+    bounce differs from it is strength (the sun's cosine on the surfaces that throw it off
+    changes across a group, up to twice from the lowest row of patches to the next), which
+    the gain restores; the rest is pattern, which :func:`bake.sunshare.groups_within` judges.
+    As displayed, the relit sky and the sun's direct term do not depend on the gain, so the
+    least-squares one is the gain with the smallest error the judge can see for that
+    image."""
     own = as_stack(own)
     valid = own.valid
     lights = [int(i) for i in lights]
@@ -102,8 +110,8 @@ def read_back(out_dir: Path, entry: dict, own, lights, check: DisplayCheck | Non
     decoder = DecodedOnce()
     reader = CompactReader(out_dir, entry, own.shape[:2], decoder=decoder)
     table = entry["lights"]
-    rms, displayed, texel = {}, {}, {}
-    out = ReadBack(np.empty(0), np.empty(0), np.empty(0))
+    rms, displayed, texel = {}, {}, {}  # {light: ...} of the images' lights
+    own_displayed, own_texel = {}, {}  # {member: ...} against its own column
     lowest, highest = np.inf, -np.inf
     for batch in group_batches(lights, groups):
         members = [q for p in batch for q in groups[p]]
@@ -129,13 +137,15 @@ def read_back(out_dir: Path, entry: dict, own, lights, check: DisplayCheck | Non
                 reader.forget_lights()  # drawn again with the gains
                 regained = reader.lights(members)
                 for q in members:
-                    out.own_displayed[q], out.own_texel[q] = check.errors(
+                    own_displayed[q], own_texel[q] = check.errors(
                         q, shown[q], columns[q], regained[q])
         reader.forget_lights()
         decoder.forget()
-    out.rms = np.array([rms[p] for p in lights])
-    out.displayed = np.array([displayed[p] for p in lights]) if check is not None else out.displayed
-    out.texel = np.array([texel[p] for p in lights]) if check is not None else out.texel
-    if shared is not None:
-        out.gains = (round(float(lowest), 4), round(float(highest), 4))
-    return out
+    return ReadBack(
+        rms=np.array([rms[p] for p in lights]),
+        displayed=np.array([displayed[p] for p in lights if p in displayed]),
+        texel=np.array([texel[p] for p in lights if p in texel]),
+        gains=(round(float(lowest), 4), round(float(highest), 4)) if shared is not None
+        else None,
+        own_displayed=own_displayed, own_texel=own_texel,
+    )
