@@ -130,15 +130,19 @@ def share_entry(entry: dict, shared: SharedImages, n: int) -> dict:
             if q == rep:
                 continue
             f = shared.ratio(q, rep)
-            table["scale"][q] = [float32_list(np.asarray(level) * f)
-                                 for level in table["scale"][rep]]
-            table["offset"][q] = [float32_list(np.asarray(level) * f)
-                                  for level in table["offset"][rep]]
+            table["scale"][q] = scaled_levels(table["scale"][rep], f)
+            table["offset"][q] = scaled_levels(table["offset"][rep], f)
     table["image"] = shared.image_of(n)
     entry["shared"] = {"kind": shared.kind, "frequency": shared.frequency,
                        "images": len(shared.groups),
                        "lights": sum(len(m) for m in shared.groups.values())}
     return entry
+
+
+def scaled_levels(levels: list, factor) -> list:
+    """A light's ``scale`` or ``offset`` (one list of 3 per level) times ``factor`` (a number
+    or (3,) per channel), as the manifest stores them (:func:`float32_list`)."""
+    return [float32_list(np.asarray(level) * factor) for level in levels]
 
 
 def groups_within(shared: SharedImages, own, check: DisplayCheck, budget: float

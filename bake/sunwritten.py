@@ -17,10 +17,15 @@ import numpy as np
 
 from bake.compact_reader import CompactReader
 from bake.ktx2decoder import decode
-from bake.quantize import float32_list
 from bake.rowstore import as_stack
 from bake.sundisplay import DisplayCheck, max_median
-from bake.sunshare import SharedColumns, SharedImages, group_batches, least_squares_gain
+from bake.sunshare import (
+    SharedColumns,
+    SharedImages,
+    group_batches,
+    least_squares_gain,
+    scaled_levels,
+)
 
 
 class DecodedOnce:
@@ -118,7 +123,7 @@ def read_back(out_dir: Path, entry: dict, own, lights, check: DisplayCheck | Non
         columns = dict(zip(members, own.columns(members), strict=True))
         shown = (dict(zip(members, check.shown_but_bounce(members), strict=True))
                  if check is not None else None)
-        decoded = reader.lights(members if shared is not None else batch)
+        decoded = reader.lights(members)  # unshared, the members are the batch
         for p in batch:
             made_of = (columns[p] if grouped is None
                        else grouped.group_column(p, groups[p], columns))
@@ -128,10 +133,8 @@ def read_back(out_dir: Path, entry: dict, own, lights, check: DisplayCheck | Non
         if shared is not None:
             for q in members:
                 gain = least_squares_gain(decoded[q][valid], columns[q][valid])
-                table["scale"][q] = [float32_list(np.asarray(level) * gain)
-                                     for level in table["scale"][q]]
-                table["offset"][q] = [float32_list(np.asarray(level) * gain)
-                                      for level in table["offset"][q]]
+                table["scale"][q] = scaled_levels(table["scale"][q], gain)
+                table["offset"][q] = scaled_levels(table["offset"][q], gain)
                 lowest, highest = min(lowest, gain.min()), max(highest, gain.max())
             if check is not None:
                 reader.forget_lights()  # drawn again with the gains
