@@ -64,8 +64,13 @@ def encode(
 
     Separate textures are split between one single-threaded encoder per core: basisu's own
     threads share out the blocks of one image and idle between images (less time for the
-    same bytes: docs/benchmarks.md, "Baking"). An array gets one encoder with its
-    threads; :func:`_run_encoders` restarts one that hangs."""
+    same bytes: docs/benchmarks.md, "Baking"). With RDO each image gets an encoder process
+    of its own (one per core at a time): basisu 1.16's RDO, after other images in the same
+    process, now and then writes an image differently from run to run (it follows the
+    addresses the process was given: with them fixed it does not), and a build must be the
+    same bytes every time (docs/benchmarks.md, "RDO images encoded one per process"). An
+    array gets one encoder with its threads; :func:`_run_encoders` restarts one that
+    hangs."""
     args = [
         str(basisu_binary()),
         "-ktx2",
@@ -88,7 +93,11 @@ def encode(
         return
     processes = max(1, min(os.cpu_count() or 1, len(pngs)))
     single = args + ["-no_multithreading", "-individual", "-output_path", str(out)]
-    _run_encoders([single + [str(p) for p in pngs[i::processes]] for i in range(processes)])
+    if rdo_lambda is None:
+        _run_encoders([single + [str(p) for p in pngs[i::processes]] for i in range(processes)])
+        return
+    for start in range(0, len(pngs), processes):
+        _run_encoders([single + [str(p)] for p in pngs[start : start + processes]])
 
 
 # Set when a bake is interrupted or one of its units failed: the other units then stop at

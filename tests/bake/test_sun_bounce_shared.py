@@ -306,3 +306,47 @@ def test_the_written_images_are_read_back_once(shared_build, monkeypatch):
     for j, rep in enumerate(reps):
         expected = sunwritten.column_error(fresh.lights([rep])[rep], columns[j], valid)
         assert measured.rms[j] == pytest.approx(expected, rel=1e-6), rep
+
+
+def test_an_rdo_image_is_encoded_as_it_is_alone(shared_build, tmp_path, monkeypatch):
+    """The sun-bounce images' cheaper tries include UASTC with RDO (bake.sunbounce
+    ``cheaper_encodings``). basisu 1.16's RDO writes an image after other images in the
+    same process differently now and then from run to run (this site's hull image 140: 7 of
+    100 runs; docs/benchmarks.md, "RDO images encoded one per process"), which made 2 of 9
+    bakes of this site differ in a file. So each RDO image has an encoder process of its
+    own: the hull's sun-bounce images, all in one bake.basisu.encode call, are each the
+    bytes that image gets encoded alone, and no encoder was given two of them."""
+    import bake.basisu as basisu
+    from bake.compresssettings import Settings
+    from bake.quantize import quantized_png
+    from daylit.stackio import read_stack_exr
+
+    build = Build(shared_build)
+    master = read_stack_exr(shared_build / build.atlases["hull"]["sun_bounce"]["I"]["master"])
+    drawn = [i for i in range(master.shape[2]) if master[:, :, i].max() > 0]
+    assert len(drawn) > 100  # the sun-path patches
+    pngs = [quantized_png(master[:, :, i], tmp_path / f"L{i:04d}.png").path for i in drawn]
+    settings = Settings()
+    rdo = settings.sun_bounce_rdo_lambdas[-1]
+
+    commands: list[list[str]] = []
+    real_start = basisu._start_encoder
+
+    def recorded(command):
+        commands.append(command)
+        return real_start(command)
+
+    monkeypatch.setattr(basisu, "_start_encoder", recorded)
+    together = tmp_path / "together"
+    together.mkdir()
+    basisu.encode(pngs, together, settings, array=False, level=0, rdo_lambda=rdo)
+    given = sorted(tuple(a for a in c if a.endswith(".png")) for c in commands)
+    assert given == sorted((str(p),) for p in pngs)  # one image per encoder, each once
+    monkeypatch.undo()
+
+    for png in pngs:
+        alone = tmp_path / "alone" / png.stem
+        alone.mkdir(parents=True)
+        basisu.encode([png], alone, settings, array=False, level=0, rdo_lambda=rdo)
+        name = png.stem + ".ktx2"
+        assert (together / name).read_bytes() == (alone / name).read_bytes(), name
