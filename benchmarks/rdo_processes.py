@@ -35,7 +35,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bake.basisu import basisu_binary, encode  # noqa: E402
+from bake.basisu import encode, separate_images_args  # noqa: E402
 from bake.compresssettings import Settings  # noqa: E402
 from bake.quantize import quantized_png  # noqa: E402
 from daylit.stackio import read_stack_exr  # noqa: E402
@@ -44,10 +44,7 @@ from daylit.stackio import read_stack_exr  # noqa: E402
 def _shared_out(pngs: list[Path], out: Path, settings: Settings, rdo: float,
                 prefix: list[str]) -> None:
     """The baseline: ``pngs`` shared out between one single-threaded encoder per core."""
-    args = [str(basisu_binary()), "-ktx2", "-linear", "-ktx2_zstandard_level",
-            str(settings.image_zstd_level), "-uastc", "-uastc_level", "0",
-            "-uastc_rdo_l", f"{rdo:g}", "-no_multithreading", "-individual",
-            "-output_path", str(out)]
+    args = separate_images_args(out, settings, level=0, rdo_lambda=rdo)
     processes = max(1, min(os.cpu_count() or 1, len(pngs)))
     running = [subprocess.Popen(prefix + args + [str(p) for p in pngs[i::processes]],
                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -108,8 +105,8 @@ def main() -> None:
             lights = [i for i in range(stack.shape[2]) if stack[:, :, i].max() > 0][:: a.every]
             pngs = [quantized_png(stack[:, :, i], tmp / f"{name}.L{i:04d}.png").path
                     for i in lights]
+            h, w = stack.shape[:2]
             del stack
-            h, w = read_shape(pngs[0]) if pngs else (0, 0)
             print(f"{name}: {len(pngs)} images of {w}x{h}, RDO {a.rdo:g}, {a.rounds} rounds",
                   flush=True)
             for label, once in _ways(pngs, settings, a.rdo, setarch):
@@ -118,13 +115,6 @@ def main() -> None:
                       f"encoder CPU {cpu:6.2f} s, wall {wall:6.2f} s per round", flush=True)
             for p in pngs:
                 p.unlink()
-
-
-def read_shape(png: Path) -> tuple[int, int]:
-    import cv2
-
-    image = cv2.imread(str(png))
-    return image.shape[:2]
 
 
 if __name__ == "__main__":
