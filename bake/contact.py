@@ -48,7 +48,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bake.denoise import channel_blocks, fitted_values, gaussian, plane_weights
+from bake.denoise import MomentBlurs, channel_blocks, fitted_values, plane_weights
 from bake.labelgroups import continuation_fits, label_boxes
 
 # False: texels at contact lines are treated as before issue 20 (buried texels dark, their
@@ -91,55 +91,46 @@ def continue_into_buried(image: np.ndarray, labels: np.ndarray,
     every other texel is unchanged. Each surface is fitted in the window its buried texels
     span, or, where those windows add up to many images (the palace's lightmap), in groups
     of surfaces' pieces that one blur fits (:func:`bake.labelgroups.continuation_fits`:
-    the same values but for the last bit of a texel within the kernel's radius of the
-    image's right edge).
+    the same bits).
     """
     if not ENABLED:
         return np.array(image, dtype=np.float32, copy=True)
     h, w = labels.shape
     flat = np.ascontiguousarray(image, dtype=np.float32).reshape(h, w, -1)
     out = flat.copy()
-    radius, blur = gaussian(sigma_px)
+    blurs = MomentBlurs(sigma_px)
     key = (sigma_px, rings)
     fits = None if plan is None else plan.get(key)
     if fits is None:
-        fits = _continuation_weights(labels, radius, rings, blur, sigma_px)
+        fits = _continuation_weights(labels, rings, blurs, sigma_px)
         if plan is not None:
             fits = plan[key] = list(fits)
     for (y0, y1, x0, x1), visible, targets, weights in fits:
-        mask, target, coordinates = _fit_images((y1 - y0, x1 - x0), visible, targets)
-        weights = list(zip(weights, [None, *coordinates], strict=True))
+        mask, target = _fit_images((y1 - y0, x1 - x0), visible, targets)
         for c0, c1 in channel_blocks(flat.shape[2], mask.size):
-            region = flat[y0:y1, x0:x1, c0:c1].astype(np.float64) * mask[:, :, None]
-            value = fitted_values(region, weights, blur, target)
+            region = flat[y0:y1, x0:x1, c0:c1] * mask[:, :, None].astype(np.float32)
+            value = fitted_values(region, weights, blurs, target)
             out[y0:y1, x0:x1, c0:c1][target] = np.maximum(value, 0.0)
     return out.reshape(image.shape)
 
 
-def _fit_images(shape: tuple, visible: tuple, targets: tuple):
-    """A fit's mask (``shape``, float64: 1 at its ``visible`` texels), its targets (bool)
-    and its coordinate images ``[x, y]`` (float64: each texel's coordinates in its own
-    surface's window at the visible texels and the targets); ``visible`` and ``targets``
-    ``(texels, local)`` from :func:`bake.labelgroups.continuation_fits`."""
+def _fit_images(shape: tuple, visible: np.ndarray, targets: np.ndarray):
+    """A fit's mask (``shape``, float64: 1 at its ``visible`` texels) and its targets
+    (bool); ``visible`` and ``targets`` flat indices into the box, from
+    :func:`bake.labelgroups.continuation_fits`."""
     mask = np.zeros(shape)
-    mask.flat[visible[0]] = 1.0
+    mask.flat[visible] = 1.0
     target = np.zeros(shape, bool)
-    target.flat[targets[0]] = True
-    coordinates = [np.zeros(shape), np.zeros(shape)]
-    for texels, local in (visible, targets):
-        for axis in range(2):
-            coordinates[axis].flat[texels] = local[axis]
-    return mask, target, coordinates
+    target.flat[targets] = True
+    return mask, target
 
 
-def _continuation_weights(labels, radius: int, rings: int, blur, sigma_px: float):
+def _continuation_weights(labels, rings: int, blurs: MomentBlurs, sigma_px: float):
     """Per fit of :func:`bake.labelgroups.continuation_fits`: its box, visible texels,
-    targets and plane-fit weights' (K,) arrays (:func:`plane_weights`)."""
-    for box, visible, targets in continuation_fits(labels, radius, rings):
-        mask, target, coordinates = _fit_images((box[1] - box[0], box[3] - box[2]), visible,
-                                                targets)
-        weights = plane_weights(mask, target, blur, sigma_px, coordinates)
-        yield box, visible, targets, [w for w, _ in weights]
+    targets and plane-fit weights (:func:`plane_weights`)."""
+    for box, visible, targets in continuation_fits(labels, blurs.radius, rings):
+        mask, target = _fit_images((box[1] - box[0], box[3] - box[2]), visible, targets)
+        yield box, visible, targets, plane_weights(mask, target, blurs, sigma_px)
 
 
 def continued_labels(labels: np.ndarray, rings: int = RINGS) -> np.ndarray:

@@ -20,6 +20,11 @@ the foot of a sunlit wall the ground's bounce halves within a metre):
   A Gaussian-weighted least-squares plane ``a + b dx + c dy`` has no first-order bias; its
   slopes are ridge-regularised (``RIDGE`` times the kernel's own second moment), so a strip
   one texel wide falls back to the weighted mean across it.
+
+The fit's sums are taken about each texel with the Gaussian's moment kernels (``d g(d)``,
+``d^2 g(d)``: :class:`MomentBlurs`), not as blurs of coordinate images less the texel's own
+coordinate times the plain blur: nothing cancels, so the values are blurred in float32, and
+a texel's fit depends only on the offsets within its window, never on where its label lies.
 """
 
 from __future__ import annotations
@@ -38,6 +43,9 @@ FIT_BYTES = 64 << 20
 # its weight): enough to keep a one-texel strip's fit finite (no spread across it: its slope
 # across is then 0), small enough not to shrink the slope that an edge's value needs.
 RIDGE = 1e-6
+# Elements (columns x channels) past a row's end that OpenCV's vector loops may leave to its
+# scalar code (at most 4 vectors of 8 floats on AVX2; 64 to spare).
+ROW_TAIL_ELEMENTS = 64
 
 
 def smooth_within_labels(
@@ -53,8 +61,8 @@ def smooth_within_labels(
 
     The labels are smoothed a group at a time (:func:`bake.labelgroups.label_groups`: pieces
     of labels more than the kernel's radius apart share one blur), with the values of a fit
-    of each label in its own bounding box (:func:`smooth_label_by_label`): the same bits but
-    within the kernel's radius of the image's right edge, where the last bit can differ.
+    of each label in its own bounding box (:func:`smooth_label_by_label`): the same bits
+    (:class:`MomentBlurs` pads each row past OpenCV's scalar tail).
 
     ``only`` (H, W) bool or None: the values are needed at these texels only; labels' pieces
     without one are left as they are (same values where they are needed).
@@ -70,65 +78,53 @@ def smooth_within_labels(
     h, w = labels.shape
     flat = np.ascontiguousarray(image, dtype=np.float32).reshape(h, w, -1)
     out = flat.copy()
-    radius, blur = gaussian(sigma_px)
+    blurs = MomentBlurs(sigma_px)
     key = (sigma_px, order, None if only is None else "only")
     groups = None if plan is None else plan.get(key)
     if groups is None:
-        groups = _fit_groups(labels, radius, blur, sigma_px, order, only)
+        groups = _fit_groups(labels, blurs, sigma_px, order, only)
         if plan is not None:
             groups = plan[key] = list(groups)
-    for (y0, y1, x0, x1), texels, local, kept in groups:
-        mask, coordinates = _group_images((y1 - y0, x1 - x0), texels, local, order)
-        weights = list(zip(kept, coordinates, strict=True))
-        _fit_box(flat, out, (y0, y1, x0, x1), mask, weights, blur, order)
+    for (y0, y1, x0, x1), texels, weights in groups:
+        mask = np.zeros((y1 - y0, x1 - x0), np.float32)
+        mask.flat[texels] = 1.0
+        _fit_box(flat, out, (y0, y1, x0, x1), mask, weights, blurs, order)
     return out.reshape(image.shape)
 
 
 def _fit_box(flat: np.ndarray, out: np.ndarray, box: tuple, mask: np.ndarray, weights: list,
-             blur, order: int) -> None:
+             blurs: MomentBlurs, order: int) -> None:
     """Fit the texels of ``mask`` (float32, 1 inside) in ``box`` (y0, y1, x0, x1) of ``flat``
     (H, W, C) into ``out`` (same shape), by blocks of channels (:func:`fitted_values`; order
-    1 in float64, clipped at 0)."""
+    1 clipped at 0)."""
     y0, y1, x0, x1 = box
     inside = mask > 0
     for c0, c1 in channel_blocks(flat.shape[2], mask.size):
         region = flat[y0:y1, x0:x1, c0:c1] * mask[:, :, None]
-        if order == 1:  # G(m x v) - x0 G(m v) cancels: float32 loses 1e-4 of v at x ~ 400
-            region = region.astype(np.float64)
-        value = fitted_values(region, weights, blur, inside)
+        value = fitted_values(region, weights, blurs, inside)
         if order == 1:
             value = np.maximum(value, 0.0)
         out[y0:y1, x0:x1, c0:c1][inside] = value
 
 
-def _group_images(shape: tuple, texels: np.ndarray, local: np.ndarray, order: int):
-    """A group's mask (``shape``, float32: 1 at its ``texels``, flat indices) and the
-    coordinate images each fit weight multiplies (:func:`plane_weights`' order): None for
-    the mean (order 0); None, x, y (float64, ``shape``; ``local`` (2, K) at the texels, the
-    coordinates in each texel's own label's box) for the plane (order 1)."""
-    mask = np.zeros(shape, np.float32)
-    mask.flat[texels] = 1.0
+def _weights(mask: np.ndarray, inside: np.ndarray, blurs: MomentBlurs, sigma_px: float,
+             order: int) -> list:
+    """The fit weights of :func:`fitted_values` at the ``inside`` texels of ``mask`` ((h, w)
+    float64, 1 at the texels fitted from): the normalised mean's (order 0) or the plane's
+    (order 1, :func:`plane_weights`)."""
     if order == 0:
-        return mask, [None]
-    xx, yy = np.zeros(shape), np.zeros(shape)
-    xx.flat[texels], yy.flat[texels] = local[0], local[1]
-    return mask, [None, xx, yy]
+        blurred = blurs.of_padded("1", blurs.padded(mask), mask.shape[1])
+        return [(blurred[inside] ** -1, "1")]
+    return plane_weights(mask, inside, blurs, sigma_px)
 
 
-def _fit_groups(labels, radius: int, blur, sigma_px: float, order: int, only=None):
-    """Per group of ``labels`` (:func:`bake.labelgroups.label_groups`): its box, texels,
-    local coordinates and its fit weights' (K,) arrays (:func:`plane_weights` or the
-    mean's, without their coordinate images: :func:`_group_images`)."""
-    for box, texels, local in label_groups(labels, radius, only):
-        mask, coordinates = _group_images((box[1] - box[0], box[3] - box[2]), texels, local,
-                                          order)
-        inside = mask > 0
-        if order == 0:
-            weights = [(blur(mask)[inside] ** -1, None)]
-        else:
-            weights = plane_weights(mask.astype(np.float64), inside, blur, sigma_px,
-                                    coordinates[1:])
-        yield box, texels, local, [w for w, _ in weights]
+def _fit_groups(labels, blurs: MomentBlurs, sigma_px: float, order: int, only=None):
+    """Per group of ``labels`` (:func:`bake.labelgroups.label_groups`): its box, texels (flat
+    indices into the box) and fit weights (:func:`_weights`)."""
+    for box, texels in label_groups(labels, blurs.radius, only):
+        mask = np.zeros((box[1] - box[0], box[3] - box[2]))
+        mask.flat[texels] = 1.0
+        yield box, texels, _weights(mask, mask > 0, blurs, sigma_px, order)
 
 
 def smooth_label_by_label(image: np.ndarray, labels: np.ndarray, sigma_px: float,
@@ -139,19 +135,16 @@ def smooth_label_by_label(image: np.ndarray, labels: np.ndarray, sigma_px: float
     h, w = labels.shape
     flat = np.ascontiguousarray(image, dtype=np.float32).reshape(h, w, -1)
     out = flat.copy()
-    radius, blur = gaussian(sigma_px)
+    blurs = MomentBlurs(sigma_px)
+    radius = blurs.radius
     boxes = label_boxes(labels)
     for label in np.unique(labels[labels >= 0]):
         rows, columns = boxes[label]
         y0, y1 = max(rows.start - radius, 0), min(rows.stop + radius, h)
         x0, x1 = max(columns.start - radius, 0), min(columns.stop + radius, w)
         mask = (labels[y0:y1, x0:x1] == label).astype(np.float32)
-        inside = mask > 0
-        if order == 0:
-            weights = [(blur(mask)[inside] ** -1, None)]
-        else:
-            weights = plane_weights(mask.astype(np.float64), inside, blur, sigma_px)
-        _fit_box(flat, out, (y0, y1, x0, x1), mask, weights, blur, order)
+        weights = _weights(mask.astype(np.float64), mask > 0, blurs, sigma_px, order)
+        _fit_box(flat, out, (y0, y1, x0, x1), mask, weights, blurs, order)
     return out.reshape(image.shape)
 
 
@@ -164,62 +157,73 @@ def channel_blocks(channels: int, texels: int) -> list[tuple[int, int]]:
     return [(c, min(c + step, channels)) for c in range(0, channels, step)]
 
 
-def gaussian(sigma_px: float):
-    """(radius, blur): a Gaussian of ``sigma_px`` texels cut at 3 sigma (``radius`` texels),
-    and ``blur(a)`` applying it to an (h, w) or (h, w, C) array, zero outside the array."""
-    radius = int(np.ceil(3.0 * sigma_px))
-    kernel = (2 * radius + 1, 2 * radius + 1)
+class MomentBlurs:
+    """A Gaussian ``g`` of ``sigma_px`` texels cut at 3 sigma (:attr:`radius` texels) and its
+    moment blurs by name, each of an (h, w) or (h, w, C) array (float32 or float64), zero
+    outside it: ``"1"`` the Gaussian, ``sum_d g(d) a(p + d)``; ``"x"``, ``"y"`` its first
+    moments, ``sum_d g(d) d_x a(p + d)`` (``d_x`` the offset in columns, ``d_y`` in rows);
+    ``"xx"``, ``"yy"``, ``"xy"`` the second, ``d_x^2``, ``d_y^2``, ``d_x d_y``. All separable
+    (OpenCV's ``sepFilter2D``).
 
-    def blur(a):
-        b = cv2.GaussianBlur(a, kernel, sigma_px, borderType=cv2.BORDER_CONSTANT)
-        return b.reshape(a.shape)  # OpenCV drops a single channel axis
+    The blurs read arrays with zero columns added on the right (:meth:`padded`; what the
+    border gives anyway) so that no texel is left to OpenCV's scalar row tail, which rounds
+    otherwise than its vector loop: a texel's bits then depend neither on the channels
+    blurred with it nor on where the image ends."""
 
-    return radius, blur
+    def __init__(self, sigma_px: float):
+        self.radius = int(np.ceil(3.0 * sigma_px))
+        g = cv2.getGaussianKernel(2 * self.radius + 1, sigma_px, cv2.CV_64F)[:, 0]
+        d = np.arange(-self.radius, self.radius + 1, dtype=np.float64)
+        self.kernels = {"1": (g, g), "x": (d * g, g), "y": (g, d * g), "xx": (d * d * g, g),
+                        "yy": (g, d * d * g), "xy": (d * g, d * g)}
+
+    @staticmethod
+    def padded(a: np.ndarray) -> np.ndarray:
+        """``a`` (h, w[, C]) with zero columns past :data:`ROW_TAIL_ELEMENTS` on the right."""
+        channels = a.shape[2] if a.ndim == 3 else 1
+        pad = -(-ROW_TAIL_ELEMENTS // channels)
+        return cv2.copyMakeBorder(a, 0, 0, 0, pad, cv2.BORDER_CONSTANT, value=0).reshape(
+            a.shape[0], a.shape[1] + pad, *a.shape[2:])  # OpenCV drops a single channel axis
+
+    def of_padded(self, name: str, padded: np.ndarray, width: int) -> np.ndarray:
+        """Blur ``name`` of an array :meth:`padded` made from one ``width`` columns wide:
+        (h, width[, C]), a view."""
+        kernel_x, kernel_y = self.kernels[name]
+        out = cv2.sepFilter2D(padded, -1, kernel_x, kernel_y, borderType=cv2.BORDER_CONSTANT)
+        return out.reshape(padded.shape)[:, :width]
 
 
-def fitted_values(region: np.ndarray, weights: list, blur, at: np.ndarray) -> np.ndarray:
+def fitted_values(region: np.ndarray, weights: list, blurs: MomentBlurs,
+                  at: np.ndarray) -> np.ndarray:
     """The local fit's value at the ``at`` texels, (K, C) float64: the sum over ``weights``
-    (:func:`plane_weights`, or one ``(w, None)``) of ``w G(region x coordinate)[at]``;
-    ``region`` (h, w, C) holds the masked values."""
+    (:func:`plane_weights`, or one ``(w, "1")``) of ``w`` times blur ``name`` of ``region``
+    at ``at``; ``region`` (h, w, C) holds the masked values (float32: the moment blurs
+    cancel nothing)."""
     value = np.zeros((int(at.sum()), region.shape[2]), dtype=np.float64)
-    for weight, coordinate in weights:
-        moment = region if coordinate is None else region * coordinate[:, :, None]
-        value += blur(moment)[at] * weight[:, None]
+    padded = blurs.padded(region)
+    for weight, name in weights:
+        value += blurs.of_padded(name, padded, region.shape[1])[at] * weight[:, None]
     return value
 
 
-def plane_weights(mask: np.ndarray, inside: np.ndarray, blur, sigma_px: float,
-                  coordinates: list | None = None) -> list:
-    """For a Gaussian-weighted plane fit ``a + b (x - x0) + c (y - y0)`` at every texel
-    ``(x0, y0)`` of ``mask``: ``a = w_0 G(m v) + w_x G(m x v) + w_y G(m y v)`` (``G`` the blur,
-    ``m`` the mask, ``v`` the values). Returns ``[(w_0, None), (w_x, x), (w_y, y)]``, the
-    weights (K,) at the ``inside`` texels and the coordinate images (texels, float64).
-    ``inside`` need not lie in the mask: the plane is then continued to those texels
-    (bake.contact). ``coordinates``: the images ``[x, y]`` (float64, as ``mask``) to use
-    instead of each texel's column and row in ``mask`` (a group of labels: each texel's
-    coordinates in its own label's box, :func:`smooth_within_labels`)."""
-    if coordinates is None:
-        hh, ww = mask.shape
-        yy, xx = np.mgrid[0:hh, 0:ww].astype(np.float64)
-    else:
-        xx, yy = coordinates
-    S = {k: blur(mask * f) for k, f in (("1", 1.0), ("x", xx), ("y", yy), ("xx", xx * xx),
-                                         ("xy", xx * yy), ("yy", yy * yy))}
-    S = {k: v[inside] for k, v in S.items()}
-    x0, y0 = xx[inside], yy[inside]
-    # Moments about each texel.
-    s00 = S["1"]
-    s10 = S["x"] - x0 * s00
-    s01 = S["y"] - y0 * s00
-    ridge = RIDGE * sigma_px**2 * s00
-    s20 = S["xx"] - 2 * x0 * S["x"] + x0 * x0 * s00 + ridge
-    s02 = S["yy"] - 2 * y0 * S["y"] + y0 * y0 * s00 + ridge
-    s11 = S["xy"] - x0 * S["y"] - y0 * S["x"] + x0 * y0 * s00
-    M = np.stack([np.stack([s00, s10, s01], -1), np.stack([s10, s20, s11], -1),
-                  np.stack([s01, s11, s02], -1)], -2)  # (K, 3, 3), symmetric
-    first = np.linalg.solve(M, np.broadcast_to(np.eye(3)[0], (len(s00), 3))[..., None])[..., 0]
-    w0, wx, wy = first[:, 0], first[:, 1], first[:, 2]
-    return [(w0 - wx * x0 - wy * y0, None), (wx, xx), (wy, yy)]
+def plane_weights(mask: np.ndarray, inside: np.ndarray, blurs: MomentBlurs,
+                  sigma_px: float) -> list:
+    """For a Gaussian-weighted plane fit ``a + b d_x + c d_y`` about every ``inside`` texel
+    ``p`` of ``mask`` ((h, w) float64, 1 at the texels fitted from; ``d`` the offset from
+    ``p``): ``a = w_1 G(m v) + w_x G_x(m v) + w_y G_y(m v)`` (``G`` the Gaussian, ``G_x``,
+    ``G_y`` its first moments: :class:`MomentBlurs`; ``m`` the mask, ``v`` the values).
+    Returns ``[(w_1, "1"), (w_x, "x"), (w_y, "y")]``, the weights (K,) float64 at the
+    ``inside`` texels by the blur each multiplies. ``inside`` need not lie in the mask: the
+    plane is then continued to those texels (bake.contact)."""
+    padded = blurs.padded(mask)
+    s = {name: blurs.of_padded(name, padded, mask.shape[1])[inside] for name in blurs.kernels}
+    ridge = RIDGE * sigma_px**2 * s["1"]
+    # The normal equations' moments about each texel: sum g m (1, d_x, d_y) (1, d_x, d_y)^T.
+    M = np.stack([np.stack([s["1"], s["x"], s["y"]], -1),
+                  np.stack([s["x"], s["xx"] + ridge, s["xy"]], -1),
+                  np.stack([s["y"], s["xy"], s["yy"] + ridge], -1)], -2)  # (K, 3, 3)
+    first = np.linalg.solve(M, np.broadcast_to(np.eye(3)[0], (len(s["1"]), 3))[..., None])[..., 0]
+    return [(first[:, 0], "1"), (first[:, 1], "x"), (first[:, 2], "y")]
 
 
 def fill_from_nearest(image: np.ndarray, labels: np.ndarray, keep: np.ndarray) -> np.ndarray:

@@ -28,11 +28,9 @@ from scipy.sparse.csgraph import connected_components
 # Labels are grouped only where their boxes add up to more than this many images: below it the
 # groups' blurs, most of them over nearly the whole image, save little (the demo's lightmap,
 # 15 images: 1.2 s against 2.0 s for 17 lights), and each label in its own box gives the bits
-# of the code before the groups exactly. Groups give them but for rounding: a box reaches
-# ``radius`` past its texels except where the image cuts it, and there OpenCV's border and
-# row-tail code meets the texel's window for boxes of other widths: texels within ``radius``
-# of the image's right edge can differ in their last bit (1 of 9.9 M values on the demo's
-# lightmap with groups forced; elsewhere the filter gives the same bits wherever the window).
+# of the code before the groups exactly. Groups give them too: the blurs pad each row past
+# OpenCV's scalar row tail (bake.denoise.MomentBlurs), which rounded otherwise than its vector
+# loop and made a texel within ``radius`` of the image's right edge differ in its last bit.
 GROUPS_FROM = 32
 # The continuation into buried texels (bake.contact) fits a few texels along contact lines
 # from windows spanning a surface's scattered pieces: on the palace's lightmap 22 images of
@@ -130,19 +128,16 @@ def greedy_colours(codes: list, n: int) -> np.ndarray:
 
 def label_groups(labels: np.ndarray, radius: int, only: np.ndarray | None = None):
     """The texels of ``labels`` (H, W; >= 0) in groups that one blur of ``radius`` smooths
-    at once (see the module's docstring), with each texel's coordinates as its label's box
-    made them: each label on its own in its box where those boxes add up to less than
-    :data:`GROUPS_FROM` images (the demo's atlases: at most 15; the same bits as before the
-    groups), or to less than the groups' boxes; else groups of clusters.
+    at once (see the module's docstring): each label on its own in its box where those boxes
+    add up to less than :data:`GROUPS_FROM` images (the demo's atlases: at most 15; the same
+    bits as before the groups), or to less than the groups' boxes; else groups of clusters.
 
     ``only`` (H, W) bool or None: labels (or clusters) without any such texel are left out
     (a caller that needs the values there alone).
 
-    Yields, per group: ``(box, texels, local)``: the group's bounding box grown by
-    ``radius`` and clipped to the image, ``(y0, y1, x0, x1)``; its texels as flat indices
-    into the box, (K,) int32, row-major; and their ``(x, y)`` relative to the origin of their
-    label's bounding box grown by ``radius`` (clipped), (2, K) int32, as a fit in that box
-    counted them."""
+    Yields, per group: ``(box, texels)``: the group's bounding box grown by ``radius`` and
+    clipped to the image, ``(y0, y1, x0, x1)``; its texels as flat indices into the box,
+    (K,) int32, row-major."""
     h, w = labels.shape
     boxes = _grown_boxes(labels, radius)
     wanted = np.zeros(len(boxes), bool)
@@ -151,8 +146,8 @@ def label_groups(labels: np.ndarray, radius: int, only: np.ndarray | None = None
     per_label = int(areas[wanted].sum())
     groups = None
     if per_label > GROUPS_FROM * h * w:
-        groups = list(_cluster_groups(labels, radius, only, boxes))
-        if sum((y1 - y0) * (x1 - x0) for (y0, y1, x0, x1), _, _ in groups) >= per_label:
+        groups = list(_cluster_groups(labels, radius, only))
+        if sum((y1 - y0) * (x1 - x0) for (y0, y1, x0, x1), _ in groups) >= per_label:
             groups = None
     if groups is not None:
         yield from groups
@@ -166,8 +161,7 @@ def label_groups(labels: np.ndarray, radius: int, only: np.ndarray | None = None
     for label in np.nonzero(wanted)[0]:
         y, x = ys[starts[label] : starts[label + 1]], xs[starts[label] : starts[label + 1]]
         y0, y1, x0, x1 = boxes[label]
-        yield ((y0, y1, x0, x1), ((y - y0) * (x1 - x0) + (x - x0)).astype(np.int32),
-               np.stack([x - x0, y - y0]).astype(np.int32))
+        yield (y0, y1, x0, x1), ((y - y0) * (x1 - x0) + (x - x0)).astype(np.int32)
 
 
 def label_boxes(labels: np.ndarray) -> list:
@@ -192,9 +186,9 @@ def _grown_boxes(labels: np.ndarray, radius: int) -> np.ndarray:
     return boxes
 
 
-def _cluster_groups(labels: np.ndarray, radius: int, only, boxes: np.ndarray):
+def _cluster_groups(labels: np.ndarray, radius: int, only):
     """:func:`label_groups`' groups of clusters (one per colour of
-    :func:`cluster_colours`); ``boxes`` from :func:`_grown_boxes`."""
+    :func:`cluster_colours`)."""
     h, w = labels.shape
     clusters, cluster_label = label_clusters(labels, radius)
     n = len(cluster_label)
@@ -214,10 +208,7 @@ def _cluster_groups(labels: np.ndarray, radius: int, only, boxes: np.ndarray):
             continue
         y0, y1 = max(ys.min() - radius, 0), min(ys.max() + radius + 1, h)
         x0, x1 = max(xs.min() - radius, 0), min(xs.max() + radius + 1, w)
-        own = labels[ys, xs]
-        local = np.stack([xs - boxes[own, 2], ys - boxes[own, 0]])
-        yield ((y0, y1, x0, x1), ((ys - y0) * (x1 - x0) + (xs - x0)).astype(np.int32),
-               local.astype(np.int32))
+        yield (y0, y1, x0, x1), ((ys - y0) * (x1 - x0) + (xs - x0)).astype(np.int32)
 
 
 def continuation_fits(labels: np.ndarray, radius: int, rings: int):
@@ -231,8 +222,7 @@ def continuation_fits(labels: np.ndarray, radius: int, rings: int):
     ``radius`` of them, clusters of a colour never within ``radius`` of another's targets).
 
     Yields, per fit: ``(box, visible, targets)``: the box ``(y0, y1, x0, x1)``; the visible
-    texels it reads and the targets, each ``(texels, local)`` as :func:`label_groups` gives
-    them, ``local`` relative to the origin of the texel's surface's own window."""
+    texels it reads and the targets, each as flat indices into the box, (K,) int32."""
     h, w = labels.shape
     surface = np.where(labels <= -2, -2 - labels, labels)
     buried = labels <= -2
@@ -250,7 +240,7 @@ def continuation_fits(labels: np.ndarray, radius: int, rings: int):
     visible = labels >= 0
     per_label = int(areas[present].sum())
     if per_label > CONTINUATION_GROUPS_FROM * h * w:
-        groups = list(_continuation_groups(labels, surface, target, windows, radius))
+        groups = list(_continuation_groups(labels, surface, target, radius))
         if sum((b[1] - b[0]) * (b[3] - b[2]) for b, _, _ in groups) < per_label:
             yield from groups
             return
@@ -270,12 +260,11 @@ def continuation_fits(labels: np.ndarray, radius: int, rings: int):
         for yy, xx in ((y[inside], x[inside]),
                        (ty[t_start[label] : t_start[label + 1]],
                         tx[t_start[label] : t_start[label + 1]])):
-            parts.append((((yy - y0) * (x1 - x0) + (xx - x0)).astype(np.int32),
-                          np.stack([xx - x0, yy - y0]).astype(np.int32)))
+            parts.append(((yy - y0) * (x1 - x0) + (xx - x0)).astype(np.int32))
         yield (y0, y1, x0, x1), parts[0], parts[1]
 
 
-def _continuation_groups(labels, surface, target, windows, radius: int):
+def _continuation_groups(labels, surface, target, radius: int):
     """:func:`continuation_fits` by groups of clusters (one per colour)."""
     h, w = labels.shape
     visible = labels >= 0
@@ -312,10 +301,5 @@ def _continuation_groups(labels, surface, target, windows, radius: int):
         read = visible[y0:y1, x0:x1] & (texel_colour[y0:y1, x0:x1] == c)
         vy, vx = np.nonzero(read)
         vy, vx = vy + y0, vx + x0
-        parts = []
-        for yy, xx in ((vy, vx), (ty, tx)):
-            own = surface[yy, xx]
-            local = np.stack([xx - windows[own, 2], yy - windows[own, 0]])
-            parts.append((((yy - y0) * (x1 - x0) + (xx - x0)).astype(np.int32),
-                          local.astype(np.int32)))
-        yield (y0, y1, x0, x1), parts[0], parts[1]
+        yield ((y0, y1, x0, x1), ((vy - y0) * (x1 - x0) + (vx - x0)).astype(np.int32),
+               ((ty - y0) * (x1 - x0) + (tx - x0)).astype(np.int32))

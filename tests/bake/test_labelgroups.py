@@ -53,11 +53,11 @@ def test_clusters_of_one_colour_lie_farther_apart_than_the_radius():
 
 
 @pytest.mark.parametrize("order", [0, 1])
-def test_groups_give_the_label_by_label_values_within_float_rounding(order):
+def test_groups_give_the_label_by_label_values_bit_for_bit(order):
     """300 labels in 3 x 3 pieces over a 90 x 120 atlas (boxes adding up to about 270
     atlases: groups are used), 40 channels: every value equal to one label at a time in its
-    own box, to the last bit but within the kernel's radius of the image's right edge
-    (there at most 2 float32 ulps)."""
+    own box, to the last bit, also within the kernel's radius of the image's right edge
+    (where OpenCV's row tail rounded otherwise before the blurs were padded)."""
     labels = _scattered(2)
     h, w = labels.shape
     boxes = sum(
@@ -70,8 +70,7 @@ def test_groups_give_the_label_by_label_values_within_float_rounding(order):
     values = rng.uniform(0.0, 4.0, (h, w, 40)).astype(np.float32)
     grouped = smooth_within_labels(values, labels, SIGMA, order=order)
     reference = smooth_label_by_label(values, labels, SIGMA, order=order)
-    assert np.array_equal(grouped[:, :-5], reference[:, :-5])
-    assert np.allclose(grouped, reference, rtol=2.5e-7, atol=0)
+    assert np.array_equal(grouped, reference)
     assert np.array_equal(grouped[labels < 0], values[labels < 0])
 
 
@@ -152,9 +151,8 @@ def _buried_scattered(seed: int):
 
 def test_continuation_in_groups_gives_each_surfaces_own_window_values(monkeypatch):
     """The continuation into buried texels (bake.contact) fitted in groups of surfaces'
-    pieces gives the values of each surface fitted in its own window: the same bits but
-    within the kernel's radius (3) of the image's right edge, there within 2 ulps; a plan
-    gives the same values again."""
+    pieces gives the values of each surface fitted in its own window, the same bits (at the
+    image's right edge too); a plan gives the same values again."""
     from bake import contact, labelgroups
 
     labels = _buried_scattered(10)
@@ -166,8 +164,7 @@ def test_continuation_in_groups_gives_each_surfaces_own_window_values(monkeypatc
     grouped = contact.continue_into_buried(values, labels, plan=plan)
     boxes = [fit[0] for fit in plan[(contact.FIT_SIGMA_TEXELS, contact.RINGS)]]
     assert len(boxes) < len(np.unique(labels[labels <= -2])) / 5  # groups, not surfaces
-    assert np.array_equal(grouped[:, :-3], own[:, :-3])
-    assert np.allclose(grouped, own, rtol=2.5e-7, atol=0)
+    assert np.array_equal(grouped, own)
     assert np.array_equal(contact.continue_into_buried(values, labels, plan=plan), grouped)
     changed = np.any(grouped != values, axis=(2, 3))
     assert changed.sum() > 100 and (labels[changed] <= -2).all()  # buried texels only
