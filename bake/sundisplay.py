@@ -121,6 +121,9 @@ class DisplayCheck:
     def __init__(self, sky, skies: DisplaySkies, lights, bounce=None):
         sky = as_stack(sky)
         self.valid = sky.valid
+        # The valid texels' flat indices: a gather by them is a third of a boolean mask's
+        # time on an atlas, and the judge gathers two images per call.
+        self.valid_index = np.flatnonzero(self.valid)
         self.skies = skies
         self.lights = [int(i) for i in lights]
         V = int(self.valid.sum())
@@ -180,9 +183,15 @@ class DisplayCheck:
         ``decoded`` instead of ``master`` (both (H, W, 3)) makes in it;
         ``but_bounce`` (V, 3) from :meth:`shown_but_bounce`."""
         weight = self.skies.weight[self.skies.row(light)]
-        truth = master[self.valid].astype(np.float64) * weight
-        err = decoded[self.valid].astype(np.float64) * weight - truth
+        truth = np.multiply(self._at_valid(master), weight, dtype=np.float64)
+        err = np.multiply(self._at_valid(decoded), weight, dtype=np.float64)
+        err -= truth
         return but_bounce + truth, err
+
+    def _at_valid(self, image: np.ndarray) -> np.ndarray:
+        """(V, 3) ``image`` (H, W, 3) at the valid texels, in row-major order (as
+        ``image[self.valid]``)."""
+        return np.take(image.reshape(-1, 3), self.valid_index, axis=0)
 
     def error(self, light: int, but_bounce: np.ndarray, master, decoded) -> float:
         """RMS error over the mean of the displayed value with the sun in ``light``'s patch
