@@ -44,8 +44,8 @@ FIT_BYTES = 64 << 20
 # across is then 0), small enough not to shrink the slope that an edge's value needs.
 RIDGE = 1e-6
 # Elements (columns x channels) past a row's end that OpenCV's vector loops may leave to its
-# scalar code (at most 4 vectors of 8 floats on AVX2; 64 to spare).
-ROW_TAIL_ELEMENTS = 64
+# scalar code: they step by one to a few vectors (8 floats each with AVX2, 16 with AVX-512).
+ROW_TAIL_ELEMENTS = 128
 
 
 def smooth_within_labels(
