@@ -109,3 +109,35 @@ def _array_bytes(held) -> int:
     if isinstance(held, (list, tuple)):
         return sum(_array_bytes(item) for item in held)
     return 0
+
+
+def test_a_moment_blur_is_the_same_bits_whatever_the_channels_and_the_images_end():
+    """The fit's blurs (bake.denoise.MomentBlurs) give a texel the same bits whether its
+    channel is blurred alone or with 1 to 128 others, and wherever its window lies: a
+    stack's blocks of lights, and groups of labels, then give the values of the whole
+    (OpenCV's scalar row tail, without the padding, rounded the last texels of a row
+    otherwise). The first moment of a ramp is the kernel's own second moment, away from the
+    image's edges."""
+    from bake.denoise import MomentBlurs
+
+    blurs = MomentBlurs(SIGMA)
+
+    def blur(name, a):
+        return blurs.of_padded(name, blurs.padded(a), a.shape[1])
+
+    rng = np.random.default_rng(4)
+    for h, w in [(37, 53), (12, 7), (64, 129)]:
+        values = rng.uniform(0.0, 1.0, (h, w, 128)).astype(np.float32)
+        wider = np.concatenate([values, np.zeros((h, blurs.radius, 128), np.float32),
+                                rng.uniform(0.0, 1.0, (h, 40, 128)).astype(np.float32)], 1)
+        for name in blurs.kernels:
+            whole = blur(name, values)
+            assert np.array_equal(blur(name, wider)[:, :w], whole)
+            for channels in (1, 2, 3, 5, 21, 64, 127):
+                part = blur(name, np.ascontiguousarray(values[:, :, :channels]))
+                assert np.array_equal(part, whole[:, :, :channels]), (h, w, name, channels)
+    g = np.exp(-0.5 * (np.arange(-blurs.radius, blurs.radius + 1) / SIGMA) ** 2)
+    second_moment = (g * np.arange(-blurs.radius, blurs.radius + 1) ** 2).sum() / g.sum()
+    ramp = np.tile(np.arange(40, dtype=np.float64), (30, 1))
+    inner = blur("x", ramp)[blurs.radius:-blurs.radius, blurs.radius:-blurs.radius]
+    assert np.allclose(inner, second_moment, rtol=1e-12)
