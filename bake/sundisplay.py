@@ -115,7 +115,7 @@ class DisplayCheck:
 
     What is displayed but the bounce (the relit sky plus the direct term) is made for every
     light of ``lights`` in one pass over the sky stack's rows (for each block of rows, a
-    matrix product per chunk of lights and channel) and kept, (len(lights), V, 3) float64:
+    matrix product per channel for every light at once) and kept, (len(lights), V, 3) float64:
     in memory, or beside a stack on disk."""
 
     def __init__(self, sky, skies: DisplaySkies, lights, bounce=None):
@@ -134,32 +134,33 @@ class DisplayCheck:
         else:
             self.shown = np.empty((len(self.lights) * V, 3), dtype=np.float64)
         self.V = V
-        weights = self.skies.weight[[self.skies.row(p) for p in self.lights]]  # (L, 3)
+        rows = [self.skies.row(p) for p in self.lights]
+        weights = self.skies.weight[rows]  # (L, 3)
+        # Each channel's display skies, (n, L) float32: one matrix product per block of rows
+        # and channel relights every light at once.
+        relight = [np.ascontiguousarray(self.skies.r[rows, :, c].T, dtype=np.float32)
+                   for c in range(3)]
         for t, block in valid_blocks(stacks, self.valid):
             direct = None
             if bounce is not None:
-                direct = np.clip(block[0][:, self.lights, :] - block[1][:, self.lights, :],
-                                 0.0, None)
-            # (3, b, n) per channel, contiguous: a chunk of lights is one matrix product each.
+                direct = np.take(block[0], self.lights, axis=1)
+                direct -= np.take(block[1], self.lights, axis=1)
+                np.clip(direct, 0.0, None, out=direct)
+            # (3, b, n) per channel, contiguous for the products.
             per_channel = np.stack([block[0][..., c] for c in range(3)])
             del block
-            for start in range(0, len(self.lights), SUN_BOUNCE_DECODE_CHUNK):
-                chunk = self.lights[start : start + SUN_BOUNCE_DECODE_CHUNK]
-                sky_rows = [self.skies.row(p) for p in chunk]
-                out = np.empty((len(chunk), per_channel.shape[1], 3), dtype=np.float64)
-                for c in range(3):
-                    out[:, :, c] = (
-                        per_channel[c] @ self.skies.r[sky_rows, :, c].T.astype(np.float32)
-                    ).T
-                if direct is not None:
-                    out += (direct[:, start : start + len(chunk), :].transpose(1, 0, 2)
-                            * weights[start : start + len(chunk), None, :])
-                for j in range(len(chunk)):
-                    at = (start + j) * V + t
-                    if isinstance(self.shown, RowFile):
-                        self.shown.write(at, out[j])
-                    else:
-                        self.shown[at : at + len(out[j])] = out[j]
+            out = np.empty((len(self.lights), per_channel.shape[1], 3), dtype=np.float64)
+            for c in range(3):
+                out[:, :, c] = (per_channel[c] @ relight[c]).T
+            del per_channel
+            if direct is not None:
+                out += direct.transpose(1, 0, 2) * weights[:, None, :]
+            for j in range(len(self.lights)):
+                at = j * V + t
+                if isinstance(self.shown, RowFile):
+                    self.shown.write(at, out[j])
+                else:
+                    self.shown[at : at + len(out[j])] = out[j]
 
     def shown_but_bounce(self, lights) -> np.ndarray:
         """(len(lights), V, 3) what is displayed with the sun in each light's patch but its
