@@ -113,8 +113,7 @@ def _weights(mask: np.ndarray, inside: np.ndarray, blurs: MomentBlurs, sigma_px:
     float64, 1 at the texels fitted from): the normalised mean's (order 0) or the plane's
     (order 1, :func:`plane_weights`)."""
     if order == 0:
-        blurred = blurs.of_padded("1", blurs.padded(mask), mask.shape[1])
-        return [(blurred[inside] ** -1, "1")]
+        return [(blurs.blur("1", mask)[inside] ** -1, "1")]
     return plane_weights(mask, inside, blurs, sigma_px)
 
 
@@ -184,6 +183,11 @@ class MomentBlurs:
         pad = -(-ROW_TAIL_ELEMENTS // channels)
         return cv2.copyMakeBorder(a, 0, 0, 0, pad, cv2.BORDER_CONSTANT, value=0).reshape(
             a.shape[0], a.shape[1] + pad, *a.shape[2:])  # OpenCV drops a single channel axis
+
+    def blur(self, name: str, a: np.ndarray) -> np.ndarray:
+        """Blur ``name`` of ``a`` (h, w[, C]), padded for it (:meth:`padded`); a caller that
+        blurs one array several ways pads it once and calls :meth:`of_padded`."""
+        return self.of_padded(name, self.padded(a), a.shape[1])
 
     def of_padded(self, name: str, padded: np.ndarray, width: int) -> np.ndarray:
         """Blur ``name`` of an array :meth:`padded` made from one ``width`` columns wide:
