@@ -36,12 +36,15 @@ class Settings:
     # turn), and keeps the first of those that is smaller than its plain UASTC image and
     # within ``sun_bounce_budget`` as displayed, its RMS and at single texels
     # (bake.sundisplay.TEXEL_BOUND_PER_BUDGET: these codecs' errors are blocky, and an RMS
-    # lets them gather in shade); the others go on to plain UASTC as above. The default since
-    # 2026-12-07: the ground's and the smooth stacks' images fit, the models' faces' and the
-    # kiosk view's do not (docs/benchmarks.md, "Sharing and cheaper codecs held at single
-    # texels"). "uastc": plain UASTC only.
+    # lets them gather in shade; where plain UASTC's own is over that bound, as on the
+    # models' faces, within bake.sunbounce.PLAIN_TEXEL_SLACK of plain's own); the others go
+    # on to plain UASTC as above. The default since 2026-12-07: the ground's and the smooth
+    # stacks' images fit, and since that afternoon the models' faces' with lambda 0.1
+    # (docs/benchmarks.md, "Sharing and cheaper codecs held at single texels", "The phone's
+    # visit under 4 MB"); the kiosk's views keep plain UASTC (bake.sunbounce.view_settings).
+    # "uastc": plain UASTC only.
     sun_bounce_encoding: str = "smallest"
-    sun_bounce_rdo_lambdas: tuple[float, ...] = (3.0, 1.0)
+    sun_bounce_rdo_lambdas: tuple[float, ...] = (3.0, 1.0, 0.1)
     # The same for stacks judged by their RMS error alone (lightmap, views): a refinement
     # layer spans a few steps of its coarse layer, so level 1's better worst texel does not
     # show there, and level 0 is faster.

@@ -478,8 +478,11 @@ def test_an_image_takes_a_smaller_encoding_where_that_is_within_the_budget(sun_s
     (gendaylit's sky, benchmarks/sun_bounce_display.py), within 1.1 times the budget and
     within 1.1 times the bound at single texels (bake.sundisplay.TEXEL_BOUND_PER_BUDGET:
     fails on the code before 2026-12-07, which judged the RMS alone and kept images at
-    several times it there); the others are that build's bytes; some of them are ETC1S
-    (their header says so); and the sun's bounce takes fewer bytes in all."""
+    several times it there) or, where the plain image itself is over that bound (judged the
+    same way), within 1.1 times ``PLAIN_TEXEL_SLACK`` of the plain image's own; the others
+    are that build's bytes; some of them are ETC1S (their header says so), some of the
+    models' faces' take UASTC with RDO; and the sun's bounce takes fewer bytes in all."""
+    from bake.sunbounce import PLAIN_TEXEL_SLACK
     from bake.sundisplay import TEXEL_BOUND_PER_BUDGET
     from tests.sunbounce_levels import is_etc1s, recompress_sun_bounce
 
@@ -488,6 +491,7 @@ def test_an_image_takes_a_smaller_encoding_where_that_is_within_the_budget(sun_s
     uastc = recompress_sun_bounce(sun_site_build, tmp_path / "uastc", BUDGET,
                                   encoding="uastc")
     rows = {(r["stack"], r["light"]): r for r in judged_by_gendaylit(smallest)}
+    plain_rows = {(r["stack"], r["light"]): r for r in judged_by_gendaylit(uastc)}
     cheaper, etc1s = [], []
     for stack, light in rows:
         owner, name = stack.split(".")
@@ -502,9 +506,19 @@ def test_an_image_takes_a_smaller_encoding_where_that_is_within_the_budget(sun_s
     assert len(etc1s) >= 10, len(etc1s)
     worst = max((rows[k] for k in cheaper), key=lambda r: r["stored"]["rms"])
     assert worst["stored"]["rms"] <= 1.1 * BUDGET, worst
-    worst = max((rows[k] for k in cheaper), key=lambda r: r["stored"]["p99"])
-    print(f"worst cheaper image at single texels: {worst}")
-    assert worst["stored"]["p99"] <= 1.1 * TEXEL_BOUND_PER_BUDGET * BUDGET, worst
+    bound = TEXEL_BOUND_PER_BUDGET * BUDGET
+
+    def over_its_bound(key) -> float:  # the image's p99 over what it is held to
+        plain = plain_rows[key]["stored"]["p99"]
+        return rows[key]["stored"]["p99"] / max(bound, PLAIN_TEXEL_SLACK * plain)
+
+    worst = max(cheaper, key=over_its_bound)
+    print(f"worst cheaper image at single texels: {rows[worst]}, plain UASTC's "
+          f"{plain_rows[worst]['stored']['p99']:.4f}")
+    assert over_its_bound(worst) <= 1.1, (rows[worst], plain_rows[worst])
+    faces_rdo = [k for k in cheaper if k[0] in ("lightmap.I", "hull.I")]
+    print(f"{len(faces_rdo)} of the models' faces' images cheaper")
+    assert faces_rdo
 
     def bounce_bytes(build_dir: Path) -> int:
         return sum(f.stat().st_size for f in (build_dir / "ktx2").glob("*.sun_bounce.*"))
