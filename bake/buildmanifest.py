@@ -19,9 +19,10 @@ def build_manifest(site, dome, nodes, atlases, views, compressor, bake_info) -> 
         # (compact.etc1s), which a version-1 client would not sum; 3 since neighbouring
         # sun-path patches share one sun-bounce image (lights.image), which a version-2
         # client would ask for under each patch's own name; 4 since a stack's V may be
-        # float16 (compact.v.dtype), which a version-3 client would read as float32
+        # float16 (compact.v.dtype), which a version-3 client would read as float32; 5 since
+        # it may be int8 with a scale per column, which a version-4 client refuses
         # (docs/manifest.md).
-        "version": 4,
+        "version": 5,
         "scene": {
             "id": site.scene_id,
             "name": site.name,

@@ -125,11 +125,14 @@ def write_coarse_stack(build_dir: Path, key: str, compact: dict,
     out.mkdir(exist_ok=True)
     (out / f"{key}.ktx2").write_bytes(cut)
     rows, k = compact["v"]["shape"]
-    # The first kc columns of V, stored as the stack's V is (type and scale: the same values).
+    # The first kc columns of V, stored as the stack's V is (type and scale, or the first kc
+    # columns' scales: the same values).
+    kc = 1 + max(layer["coefficient"] for layer in compact["layers"][:n])
     stored = {key: value for key, value in compact["v"].items() if key in ("dtype", "scale")}
+    if "scales" in compact["v"]:
+        stored["scales"] = compact["v"]["scales"][:kc]
     dtype = V_DTYPES[stored.get("dtype", "float32-le")]
     V = np.fromfile(build_dir / compact["v"]["path"], dtype=dtype).reshape(rows, k)
-    kc = 1 + max(layer["coefficient"] for layer in compact["layers"][:n])
     np.ascontiguousarray(V[:, :kc]).tofile(out / f"{key}.V.bin")
     return {"ktx2": f"{COARSE_DIR}/{key}.ktx2", "layers": n,
             "v": {"path": f"{COARSE_DIR}/{key}.V.bin", "shape": [rows, kc],

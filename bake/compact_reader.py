@@ -13,10 +13,12 @@ from bake.ktx2decoder import decode
 from daylit.selection import Selection
 
 # A compact stack's ``v.dtype`` and the numpy type its file holds: float32 always before
-# manifest version 4 (2026-12-06), float16 since (bake.compress.settle_v_dtype keeps float32
-# where float16 would put a stack over its budget).
-V_DTYPES = {"float32-le": "<f4", "float16-le": "<f2"}
+# manifest version 4 (2026-12-06), float16 in version 4, int8 with a scale per column since
+# version 5 (2026-12-07; bake.compress.settle_v_dtype takes the next of these where one
+# would put a stack over its budget).
+V_DTYPES = {"float32-le": "<f4", "float16-le": "<f2", "int8": "i1"}
 HALF_TOP_EXPONENT = 14  # a float16 V's largest |value| / scale is in [2^14, 2^15)
+INT8_TOP = 127  # an int8 V's column is stored divided by its largest |value| / 127
 
 
 def half_scale(V: np.ndarray) -> float:
@@ -32,29 +34,59 @@ def half_scale(V: np.ndarray) -> float:
     return float(2.0 ** (int(np.floor(np.log2(top))) - HALF_TOP_EXPONENT))
 
 
-def stored_v(V: np.ndarray, dtype: str, scale: float = 1.0) -> np.ndarray:
-    """V (n, k) float32 as it reads back from a file of type ``dtype`` holding ``V / scale``
-    (:func:`read_v`)."""
-    stored = (np.asarray(V, dtype=np.float32) / np.float32(scale)).astype(V_DTYPES[dtype])
-    return stored.astype(np.float32) * np.float32(scale)
+def column_scales(V: np.ndarray) -> np.ndarray:
+    """The ``scales`` (k,) float32 an int8 V (n, k) is stored divided by, one per column
+    (coefficient): its largest magnitude over 127 (1 for a zero column)."""
+    top = np.abs(np.asarray(V, dtype=np.float32)).max(axis=0, initial=0.0)
+    return np.where(top > 0.0, top / np.float32(INT8_TOP), np.float32(1.0)).astype(np.float32)
+
+
+def _stored(V: np.ndarray, dtype: str) -> tuple[np.ndarray, dict]:
+    """V (n, k) as its file holds it in ``dtype`` and the entry's ``dtype`` and scale(s)."""
+    V = np.asarray(V, dtype=np.float32)
+    if dtype == "int8":
+        scales = column_scales(V)
+        values = np.clip(np.rint(V / scales), -INT8_TOP, INT8_TOP).astype(np.int8)
+        return values, {"dtype": dtype, "scales": [float(s) for s in scales]}
+    if dtype == "float16-le":
+        scale = half_scale(V)
+        return (V / np.float32(scale)).astype(V_DTYPES[dtype]), {"dtype": dtype,
+                                                                 "scale": scale}
+    return V.astype(V_DTYPES[dtype]), {"dtype": dtype}
+
+
+def _widened(values: np.ndarray, v: dict) -> np.ndarray:
+    """A V file's ``values`` (n, k) as float32 read with its entry ``v``'s scale(s): exact
+    products, so the same values as the client's (web/src/assets.js ``matrix``)."""
+    if "scales" in v:
+        return values.astype(np.float32) * np.asarray(v["scales"], dtype=np.float32)
+    return values.astype(np.float32) * np.float32(v.get("scale", 1.0))
+
+
+def stored_v(V: np.ndarray, dtype: str) -> np.ndarray:
+    """V (n, k) float32 as it reads back from a file of type ``dtype`` (:func:`write_v`,
+    :func:`read_v`)."""
+    values, entry = _stored(V, dtype)
+    return _widened(values, entry)
 
 
 def write_v(path: Path, V: np.ndarray, dtype: str) -> dict:
-    """Write V (n, k) to ``path`` in ``dtype`` (float16: divided by :func:`half_scale`);
-    returns the entry's ``dtype`` and, for float16, ``scale``."""
-    scale = half_scale(V) if dtype == "float16-le" else 1.0
-    (np.asarray(V, dtype=np.float32) / np.float32(scale)).astype(V_DTYPES[dtype]).tofile(path)
-    return {"dtype": dtype, **({"scale": scale} if dtype == "float16-le" else {})}
+    """Write V (n, k) to ``path`` in ``dtype`` (float16: divided by :func:`half_scale`;
+    int8: each column divided by its :func:`column_scales`, rounded); returns the entry's
+    ``dtype`` and, for float16, ``scale``, for int8 ``scales``."""
+    values, entry = _stored(V, dtype)
+    values.tofile(path)
+    return entry
 
 
 def read_v(build_dir: Path, v: dict) -> np.ndarray:
     """A stack's V (n, k) float32 from its manifest entry ``v`` (``path``, ``shape``,
-    ``dtype``, ``scale``): the file's values, float16 widened exactly, times ``scale``
-    (default 1; a power of two, so exact)."""
+    ``dtype``, ``scale`` or ``scales``): the file's values widened exactly, times ``scale``
+    (default 1; a power of two, so exact) or each column's ``scales``."""
     n, k = v["shape"]
     dtype = V_DTYPES[v.get("dtype", "float32-le")]
     values = np.fromfile(Path(build_dir) / v["path"], dtype=dtype).reshape(n, k)
-    return values.astype(np.float32) * np.float32(v.get("scale", 1.0))
+    return _widened(values, v)
 
 
 def image_holders(table: dict) -> list:

@@ -45,7 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from bake.basisu import encode
-from bake.compact_reader import CompactReader, half_scale, stored_v, write_v
+from bake.compact_reader import CompactReader, stored_v, write_v
 from bake.compresssettings import Settings
 from bake.ktx2decoder import decode
 from bake.lowrank import (
@@ -66,6 +66,10 @@ from bake.stackerrors import record_errors, selected_by_any, within_budget
 from bake.testskies import TestSky, prior_skies, selectable_lights, test_skies
 from bake.uastclayers import UastcLayers
 from daylit.selection import Selection
+
+# The types a stack's V is tried in, in order (settle_v_dtype): int8 with a scale per column
+# since 2026-12-07 (manifest version 5), float16 with a power-of-two scale, float32.
+V_DTYPE_LADDER = ("int8", "float16-le", "float32-le")
 
 
 @dataclass
@@ -160,10 +164,11 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
       ``etc1s``; its layers follow the first array's in ``layers``);
     - ``ktx2/<name>.L<i>.ktx2`` and ``ktx2/<name>.L<i>r.ktx2``: light ``i``'s own
       (normalized) image and its refinement, for each selectable light ``i``;
-    - ``v/<name>.V.bin``: V, n x k, little-endian, row-major: float16, divided by a power of
-      two (the entry's ``v.scale``, bake.compact_reader.half_scale), since 2026-12-06
-      (manifest version 4); float32 where float16 put the stack over the budget on a test
-      sky and float32 did better (:func:`settle_v_dtype`).
+    - ``v/<name>.V.bin``: V, n x k, row-major: int8, each column divided by its own scale
+      (the entry's ``v.scales``, bake.compact_reader.column_scales), since 2026-12-07
+      (manifest version 5; float16 divided by a power of two in version 4); float16 or
+      float32 where int8 put the stack over the budget on a test sky and they did better
+      (:func:`settle_v_dtype`).
 
     Refinement (two-stage quantization): a texture is encoded, decoded, and what the codec
     and the 8-bit quantization lost is encoded again with its own, much smaller range. The
@@ -190,9 +195,9 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
     else:
         k, errors = rank, {}
     f = factors(spectrum, k, S, S_inv, errors)
-    # V in float16 (settle_v_dtype below may keep float32): the splits are judged with V as
-    # the client will read it.
-    dtype = "float16-le"
+    # V in int8 (settle_v_dtype below may take float16 or float32): the splits are judged
+    # with V as the client will read it.
+    dtype = V_DTYPE_LADDER[0]
     (out_dir / "ktx2").mkdir(exist_ok=True)
     (out_dir / "v").mkdir(exist_ok=True)
 
@@ -295,7 +300,7 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
                                                   refine),
                          "lights": lights, "error": {}}
             reader = CompactReader.decoded(out_dir, predicted, (H, W),
-                                           stored_v(f.V, dtype, half_scale(f.V)), raw)
+                                           stored_v(f.V, dtype), raw)
             reader.lights(selected_by_any(skies, selection))
             within, first = within_budget(
                 predicted, lambda sky: next(spectrum.absolute_truths([sky])),
@@ -321,7 +326,7 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
                                            None)
             encode_array([gain_q.path, gain_refine_q.path], written_gain)
     v_file = out_dir / "v" / f"{name}.V.bin"
-    v_type = write_v(v_file, f.V, dtype)  # {"dtype", "scale"}
+    v_type = write_v(v_file, f.V, dtype)  # {"dtype", "scales"}
     encode_s = time.perf_counter() - started
 
     entry = {
@@ -378,30 +383,41 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
 
 
 def settle_v_dtype(stacks, out_dir: Path, budget: float, judge) -> bool:
-    """Keep V in float16 unless that puts a stack over ``budget`` on a test sky: then V in
-    float32 is judged (``judge()`` records the errors again into the entries, with their
-    readers' V set to float32) and kept, its files rewritten, if the worst error is lower;
-    else float16 and its errors are restored. ``stacks``: (entry, V float32 (n, k), its
-    CompactReader) of the stacks judged together (a shadowing pair's two). Float16 changed
-    the demo's stacks' errors by < 1e-4 of the mean (docs/benchmarks.md): this is a guard.
-    Returns whether the files were rewritten as float32."""
-    half = [(e, V, r) for e, V, r in stacks if e["v"]["dtype"] == "float16-le"]
+    """Keep V in int8 unless that puts a stack over ``budget`` on a test sky: then each
+    later type of :data:`V_DTYPE_LADDER` (float16, float32) is judged in turn (``judge()``
+    records the errors again into the entries, with their readers' V set to it) until one
+    is within the budget; the type with the lowest worst error is kept, its files rewritten
+    (else int8 and its errors are restored). ``stacks``: (entry, V float32 (n, k), its
+    CompactReader) of the stacks judged together (a shadowing pair's two). Int8 moved the
+    demo's composites by about 3e-4 of the mean and its float16 by < 1e-4
+    (docs/benchmarks.md): this is a guard. Returns whether the files were rewritten."""
+    first = V_DTYPE_LADDER[0]
+    moved = [(e, V, r) for e, V, r in stacks if e["v"]["dtype"] == first]
     worst = max(e["error"]["max"] for e, _, _ in stacks)
-    if not half or worst <= budget:
+    if not moved or worst <= budget:
         return False
-    kept = [(dict(e["error"]), r.V) for e, _, r in half]
-    for _, V, reader in half:
-        reader.V = np.asarray(V, dtype=np.float32)
-    judge()
-    if max(e["error"]["max"] for e, _, _ in stacks) < worst:
-        for entry, V, _ in half:
-            entry["v"].pop("scale", None)
-            entry["v"].update(write_v(out_dir / entry["v"]["path"], V, "float32-le"))
-        return True
-    for (entry, _, reader), (error, V16) in zip(half, kept, strict=True):
-        entry["error"], reader.V = error, V16
-    return False
-
+    best, best_worst = None, worst
+    kept = [(dict(e["error"]), r.V) for e, _, r in moved]
+    for dtype in V_DTYPE_LADDER[1:]:
+        for _, V, reader in moved:
+            reader.V = stored_v(V, dtype)
+        judge()
+        now = max(e["error"]["max"] for e, _, _ in stacks)
+        if now < best_worst:
+            best, best_worst = (dtype, [dict(e["error"]) for e, _, _ in moved]), now
+        if now <= budget:
+            break
+    if best is None:
+        for (entry, _, reader), (error, V_first) in zip(moved, kept, strict=True):
+            entry["error"], reader.V = error, V_first
+        return False
+    dtype, errors = best
+    for (entry, V, reader), error in zip(moved, errors, strict=True):
+        path = entry["v"]["path"]
+        entry["v"] = {"path": path, "shape": entry["v"]["shape"],
+                      **write_v(out_dir / path, V, dtype)}
+        entry["error"], reader.V = error, stored_v(V, dtype)
+    return True
 
 def _etc1s_heads(k: int, settings: Settings, tries: list[int | None] | None) -> list[int]:
     """How many of k base layers go to the UASTC array, for each ETC1S split tried in order

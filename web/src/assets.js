@@ -76,8 +76,8 @@ export class Assets {
     // Version 2 (2026-11-24): a stack's base may also have an ETC1S array (compact.etc1s);
     // 3 (2026-12-06): shared sun-bounce images (lights.image); 4 (2026-12-06): a stack's V
     // may be float16 (compact.v.dtype, read by `matrix`). Docs/manifest.md.
-    if (manifest.format !== 'daylit-build' || ![1, 2, 3, 4].includes(manifest.version)) {
-      throw new AssetError(this.manifestUrl, `not a daylit build of version 1, 2, 3 or 4 (${manifest.format} ${manifest.version})`);
+    if (manifest.format !== 'daylit-build' || ![1, 2, 3, 4, 5].includes(manifest.version)) {
+      throw new AssetError(this.manifestUrl, `not a daylit build of version 1 to 5 (${manifest.format} ${manifest.version})`);
     }
     this.manifest = manifest;
     this.files = new Map(manifest.files.map((f) => [f.path, f]));
@@ -258,13 +258,16 @@ export class Assets {
 
   /**
    * A stack's V matrix (manifest `compact.v` or `compact.coarse.v`: {path, shape, dtype,
-   * scale}) as a Float32Array, n x k row-major: `float32-le` as it is; `float16-le` (builds of
-   * version 4) widened (three.js DataUtils.fromHalfFloat) and times `scale`, a power of two:
-   * exact, the same values as bake/compact_reader.py's read_v. Little-endian files.
+   * scale or scales}) as a Float32Array, n x k row-major: `float32-le` as it is; `float16-le`
+   * (builds of version 4) widened (three.js DataUtils.fromHalfFloat) and times `scale`, a
+   * power of two; `int8` (version 5) times its column's `scales[j]`. Each product is exact in
+   * a double, so its float32 is the same value as bake/compact_reader.py's read_v.
+   * Little-endian files.
    */
   async matrix(v) {
     const dtype = v.dtype ?? 'float32-le';
     if (dtype === 'float32-le') return this.float32(v.path);
+    if (dtype === 'int8') return this.int8Matrix(v);
     if (dtype !== 'float16-le') throw new AssetError(v.path, `V of an unknown type ${dtype}`);
     const buffer = await this.bytes(v.path);
     if (buffer.byteLength % 2) throw new AssetError(v.path, 'not a float16 array');
@@ -272,6 +275,20 @@ export class Assets {
     const scale = v.scale ?? 1;
     const out = new Float32Array(buffer.byteLength / 2);
     for (let i = 0; i < out.length; i++) out[i] = DataUtils.fromHalfFloat(view.getUint16(2 * i, true)) * scale;
+    return out;
+  }
+
+  /** An `int8` V (see `matrix`): each entry times its column's scale. */
+  async int8Matrix(v) {
+    const [n, k] = v.shape;
+    const buffer = await this.bytes(v.path);
+    if (buffer.byteLength !== n * k) throw new AssetError(v.path, `${buffer.byteLength} bytes, expected ${n} x ${k} int8 values`);
+    if (!Array.isArray(v.scales) || v.scales.length !== k) throw new AssetError(v.path, `int8 V without its ${k} column scales`);
+    const values = new Int8Array(buffer);
+    const out = new Float32Array(n * k);
+    for (let i = 0; i < n; i++) {
+      for (let j = 0; j < k; j++) out[i * k + j] = values[i * k + j] * v.scales[j];
+    }
     return out;
   }
 
