@@ -49,7 +49,7 @@ def test_cut_arrays_hold_the_first_layers_texel_for_texel(build):
         V = read_v(build, compact["v"])
         kc = compact["coarse"]["v"]["shape"][1]
         assert kc == 1 + max(layer["coefficient"] for layer in compact["layers"][:n])
-        # The coarse V is the first kc columns, in the stack's own type (float16 since v4).
+        # The coarse V is the first kc columns, in the stack's own type (int8 since v5).
         assert compact["coarse"]["v"]["dtype"] == compact["v"]["dtype"]
         Vc = read_v(build, compact["coarse"]["v"])
         np.testing.assert_array_equal(Vc, V[:, :kc])

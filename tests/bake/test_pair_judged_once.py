@@ -43,9 +43,9 @@ def judged(tmp_path_factory):
 
 def test_each_skys_composites_are_computed_once(judged):
     """Every reader computed each test sky's composite once: the pair's two readers, one
-    composite of each per sky (V stayed float16 here, so settle_v_dtype judged nothing
+    composite of each per sky (V stayed int8 here, so settle_v_dtype judged nothing
     again). On the code before, ``d``'s reader computed three per sky."""
-    assert all(e["v"]["dtype"] == "float16-le" for e in judged["entries"].values())
+    assert all(e["v"]["dtype"] == "int8" for e in judged["entries"].values())
     calls = judged["calls"]
     assert len(calls) == 2 * len(judged["skies"])
     assert max(calls.values()) == 1, collections.Counter(calls.values())

@@ -64,7 +64,7 @@ def test_neighbouring_patches_read_one_image_their_groups_mean(shared_build):
     ``omega_p / omega_rep``)."""
     build = Build(shared_build)
     manifest = build.manifest
-    assert manifest["version"] >= 3  # 4 since V may be float16
+    assert manifest["version"] >= 3  # 4 since V may be float16, 5 since int8
     lights = build.selection.selectable.tolist()
     omega = np.array([light["solid_angle_sr"] for light in manifest["dome"]["lights"]])
     centroid = np.array([light["centroid"] for light in manifest["dome"]["lights"]])
