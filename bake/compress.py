@@ -389,8 +389,8 @@ def settle_v_dtype(stacks, out_dir: Path, budget: float, judge) -> bool:
     is within the budget; the type with the lowest worst error is kept, its files rewritten
     (else int8 and its errors are restored). ``stacks``: (entry, V float32 (n, k), its
     CompactReader) of the stacks judged together (a shadowing pair's two). Int8 moved the
-    demo's composites by about 3e-4 of the mean and its float16 by < 1e-4
-    (docs/benchmarks.md): this is a guard. Returns whether the files were rewritten."""
+    demo's composites by at most 3.4e-4 of the mean, float16 by < 6e-6 (docs/benchmarks.md):
+    this is a guard. Returns whether the files were rewritten."""
     first = V_DTYPE_LADDER[0]
     moved = [(e, V, r) for e, V, r in stacks if e["v"]["dtype"] == first]
     worst = max(e["error"]["max"] for e, _, _ in stacks)
@@ -418,6 +418,7 @@ def settle_v_dtype(stacks, out_dir: Path, budget: float, judge) -> bool:
                       **write_v(out_dir / path, V, dtype)}
         entry["error"], reader.V = error, stored_v(V, dtype)
     return True
+
 
 def _etc1s_heads(k: int, settings: Settings, tries: list[int | None] | None) -> list[int]:
     """How many of k base layers go to the UASTC array, for each ETC1S split tried in order
