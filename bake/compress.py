@@ -299,17 +299,26 @@ that let go of the image holds one stack's valid texels, not its whole (H, W, n,
             predicted = {"layers": _layer_entries(base_q, [candidates[j] for j in refine], head,
                                                   refine),
                          "lights": lights, "error": {}}
-            reader = CompactReader.decoded(out_dir, predicted, (H, W),
-                                           stored_v(f.V, dtype), raw)
-            reader.lights(selected_by_any(skies, selection))
-            within, first = within_budget(
-                predicted, lambda sky: next(spectrum.absolute_truths([sky])),
-                lambda r, reader=reader: reader.composite(r, selection, at=valid), skies,
-                settings.budget, first,
-            )
-            del reader
+            # With V in each type of the ladder in turn, as settle_v_dtype would write this
+            # split alone: a split within the budget only with float16 V is kept with it.
+            within, rejected = False, first
+            for v_type in V_DTYPE_LADDER:
+                reader = CompactReader.decoded(out_dir, predicted, (H, W),
+                                               stored_v(f.V, v_type), raw)
+                reader.lights(selected_by_any(skies, selection))
+                within, at = within_budget(
+                    predicted, lambda sky: next(spectrum.absolute_truths([sky])),
+                    lambda r, reader=reader: reader.composite(r, selection, at=valid), skies,
+                    settings.budget, first,
+                )
+                del reader
+                if within:
+                    dtype = v_type
+                    break
+                rejected = at if v_type == V_DTYPE_LADDER[0] else rejected
             if within:
                 break
+            first = rejected
             predicted = raw = None
         del base
         if head == f.k:  # an earlier try's ETC1S array
