@@ -18,20 +18,27 @@ sky, plus the sun's direct term, plus the bounce). Each column is scaled by its 
 mean before the SVD, so that no column's error is sacrificed to a brighter one's. With
 ``--bits`` the coefficients are rounded to that many bits with one scale per tile and
 coefficient (as V in int8, docs/compact-assets.md) and the rows to float16 first. No
-texture codec: a lower bound of what a shipped encoding would add.
+texture codec: a lower bound of what a shipped encoding would add; with ``--codec`` (joint
+only) the coefficients are also written as RGBA PNGs (four per texel each, 8 bits with one
+scale per tile and coefficient), encoded in UASTC as the bake encodes its images
+(bake.basisu), decoded as the client decodes them (bake.ktx2decoder) and judged so, and
+their files' bytes are printed.
 
 Usage::
 
     PYTHONPATH=. .venv/bin/python benchmarks/sun_bounce_tiles.py BUILD [--owner lightmap]
         [--stack I] [--tiles 8,16,32] [--ranks 4,6,8,12,16,24] [--joint] [--bits 8]
+        [--codec [--level N]]
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+import tempfile
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 REPO = Path(__file__).resolve().parent.parent
@@ -71,10 +78,7 @@ def tile_errors(X: np.ndarray, valid: np.ndarray, tile: int, ranks: list[int], j
     """{k: (P,) each column's RMS error as displayed} with a rank-``k`` basis per tile of
     ``tile`` x ``tile`` texels (the module's docstring)."""
     V, _, P = X.shape
-    ys, xs = np.nonzero(valid)
-    index = (ys // tile) * (-(-valid.shape[1] // tile)) + xs // tile
-    order = np.argsort(index, kind="stable")
-    groups = np.split(order, np.flatnonzero(np.diff(index[order])) + 1)
+    groups = tile_groups(valid, tile)
     squared = {k: np.zeros(P) for k in ranks}
     for g in groups:
         # Rows: a texel (joint: its three channels side by side) or a texel's channel.
@@ -93,6 +97,58 @@ def tile_errors(X: np.ndarray, valid: np.ndarray, tile: int, ranks: list[int], j
     return {k: np.sqrt(v / (V * 3)) for k, v in squared.items()}
 
 
+def tile_groups(valid: np.ndarray, tile: int) -> list[np.ndarray]:
+    """The receiver texels (indices into the V valid ones, row-major) of each tile."""
+    ys, xs = np.nonzero(valid)
+    index = (ys // tile) * (-(-valid.shape[1] // tile)) + xs // tile
+    order = np.argsort(index, kind="stable")
+    return np.split(order, np.flatnonzero(np.diff(index[order])) + 1)
+
+
+def codec_errors(X: np.ndarray, valid: np.ndarray, tile: int, k: int, folder: Path,
+                 level: int | None = None) -> tuple[np.ndarray, int]:
+    """((P,) each column's RMS error as displayed, bytes of the coefficient files) with a
+    joint rank-``k`` basis per tile whose coefficients go through UASTC (``--codec``); the
+    files are written into ``folder``; ``level``: the UASTC level (None: the bake's)."""
+    from bake.basisu import encode
+    from bake.compresssettings import Settings
+    from bake.ktx2decoder import decode
+
+    V, _, P = X.shape
+    groups = tile_groups(valid, tile)
+    coefficients = np.zeros((V, -(-k // 4) * 4))
+    scales, rows = [], []
+    for g in groups:
+        U, s, Vt = np.linalg.svd(X[g].reshape(len(g), 3 * P).astype(np.float64),
+                                 full_matrices=False)
+        c = np.zeros((len(g), k))
+        c[:, : min(k, len(s))] = (U * s)[:, :k]
+        scale = np.maximum(np.abs(c).max(axis=0), 1e-30) / 127.0
+        coefficients[g, :k] = c / scale
+        scales.append(scale)
+        r = np.zeros((k, 3 * P))
+        r[: min(k, len(s))] = Vt[:k]
+        rows.append(r.astype(np.float16).astype(np.float64))
+    codes = np.clip(np.round(coefficients) + 128.0, 0, 255).astype(np.uint8)
+    H, W = valid.shape
+    pngs = []
+    for t in range(codes.shape[1] // 4):
+        image = np.zeros((H, W, 4), np.uint8)
+        image[valid] = codes[:, 4 * t : 4 * t + 4]
+        path = folder / f"coefficients{t}.png"
+        cv2.imwrite(str(path), cv2.cvtColor(image, cv2.COLOR_RGBA2BGRA))
+        pngs.append(path)
+    encode(pngs, folder, Settings(), array=False, level=level)
+    files = [folder / f"coefficients{t}.ktx2" for t in range(len(pngs))]
+    decoded = np.concatenate([d[0][valid] for d in decode(files)], axis=1)
+    squared = np.zeros(P)
+    for g, scale, r in zip(groups, scales, rows, strict=True):
+        c = (decoded[g, :k].astype(np.float64) - 128.0) * scale
+        err = c @ r - X[g].reshape(len(g), 3 * P)
+        squared += (err.reshape(len(g), 3, P) ** 2).sum(axis=(0, 1))
+    return np.sqrt(squared / (V * 3)), sum(f.stat().st_size for f in files)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("build", type=Path)
@@ -102,7 +158,13 @@ def main() -> None:
     parser.add_argument("--ranks", default="4,6,8,12,16,24")
     parser.add_argument("--joint", action="store_true", help="R, G, B share coefficients")
     parser.add_argument("--bits", type=int, default=None, help="round the coefficients")
+    parser.add_argument("--codec", action="store_true",
+                        help="the coefficients through UASTC as well (joint)")
+    parser.add_argument("--level", type=int, default=None,
+                        help="UASTC level of --codec (default: the bake's)")
     args = parser.parse_args()
+    if args.codec and not args.joint:
+        parser.error("--codec needs --joint")
     X, valid, lights = displayed_columns(args.build, args.owner, args.stack)
     V, _, P = X.shape
     ranks = [int(k) for k in args.ranks.split(",")]
@@ -111,8 +173,7 @@ def main() -> None:
           f"{'unrounded' if args.bits is None else f'{args.bits}-bit coefficients'}")
     print("tile | tiles | k | worst column | median | values per texel | values per patch")
     for tile in [int(t) for t in args.tiles.split(",")]:
-        tiles = len(np.unique((np.nonzero(valid)[0] // tile) * 100000
-                              + np.nonzero(valid)[1] // tile))
+        tiles = len(tile_groups(valid, tile))
         errors = tile_errors(X, valid, tile, ranks, args.joint, args.bits)
         for k in ranks:
             e = errors[k]
@@ -120,6 +181,11 @@ def main() -> None:
             per_patch = tiles * k * (3 if args.joint else 1)
             print(f"{tile} | {tiles} | {k} | {100 * e.max():.2f} % | {100 * np.median(e):.2f} % "
                   f"| {per_texel} | {per_patch:,}", flush=True)
+            if args.codec:
+                with tempfile.TemporaryDirectory() as folder:
+                    e, size = codec_errors(X, valid, tile, k, Path(folder), args.level)
+                print(f"  through UASTC: {100 * e.max():.2f} % | {100 * np.median(e):.2f} % "
+                      f"| {size:,} B of coefficients", flush=True)
 
 
 if __name__ == "__main__":
