@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from benchmarks.sun_bounce_tiles import tile_errors
+from benchmarks.sun_bounce_tiles import codec_errors, tile_errors
 
 
 def _valid(H: int, W: int) -> np.ndarray:
@@ -69,3 +69,20 @@ def test_rounded_coefficients_add_an_error_of_their_step():
     fine = tile_errors(X, valid, 16, [P], joint=False, bits=8)[P]
     assert 0 < fine.max() < coarse.max()
     assert coarse.max() < 0.2
+
+
+def test_coefficients_through_uastc_come_back_where_their_blocks_are_flat(tmp_path):
+    # One product per tile whose texel factor is constant over the tile: each tile's only
+    # coefficient is one value, +-127 codes, so every 4x4 block is flat and UASTC gives it
+    # back exactly; what is left is the rows' float16 rounding. A coefficient read from the
+    # wrong channel or texel would be a code of 128 or another tile's.
+    rng = np.random.default_rng(8)
+    H, W, P, tile = 32, 48, 20, 16
+    valid = np.ones((H, W), dtype=bool)
+    ys, xs = np.nonzero(valid)
+    tile_of = (ys // tile) * (W // tile) + xs // tile
+    level = rng.uniform(0.2, 1.0, tile_of.max() + 1)[tile_of]
+    X = (level[:, None, None] * rng.uniform(0.1, 1.0, (1, 3, P))).astype(np.float32)
+    errors, size = codec_errors(X, valid, tile, 1, tmp_path)
+    assert size > 0
+    assert errors.max() < 1e-3 * float(np.abs(X).mean())
