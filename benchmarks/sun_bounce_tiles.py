@@ -1,6 +1,7 @@
-"""How well a tile-local basis over the sun's path holds a build's sun-bounce stack, as
-displayed (issue 15 item 8: what a server would offer of the sun's bounce with it; not a
-design of the bake, a measurement).
+"""How well a basis per tile over the sun's path holds a sun-bounce stack as displayed.
+
+Issue 15 item 8: what a server would offer of the sun's bounce with it; not a design of the
+bake, a measurement.
 
 The stack's columns for the sun-path patches (``B_p``, H x W x 3) are split into square
 tiles of ``T`` x ``T`` texels; each tile's block is approximated by its best rank-``k``
@@ -47,6 +48,7 @@ sys.path.insert(0, str(REPO))
 from bake.evaluate import Build  # noqa: E402
 from bake.rowstore import as_stack  # noqa: E402
 from bake.sundisplay import DisplayCheck, DisplaySkies  # noqa: E402
+from daylit.manifest import ManifestError  # noqa: E402
 from daylit.stackio import read_stack_exr  # noqa: E402
 
 
@@ -165,7 +167,13 @@ def main() -> None:
     args = parser.parse_args()
     if args.codec and not args.joint:
         parser.error("--codec needs --joint")
-    X, valid, lights = displayed_columns(args.build, args.owner, args.stack)
+    try:
+        X, valid, lights = displayed_columns(args.build, args.owner, args.stack)
+    except ManifestError as exc:
+        parser.error(str(exc))
+    except (StopIteration, KeyError):
+        parser.error(f"{args.build} has no sun-bounce stack {args.owner}.sun_bounce."
+                     f"{args.stack} (its atlases and views: see its manifest.json)")
     V, _, P = X.shape
     ranks = [int(k) for k in args.ranks.split(",")]
     print(f"{args.owner}.sun_bounce.{args.stack}: {V} receiver texels, {P} sun-path patches; "
