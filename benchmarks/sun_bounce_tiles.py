@@ -45,6 +45,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
+from bake.compact_reader import INT8_TOP, column_scales  # noqa: E402
 from bake.evaluate import Build  # noqa: E402
 from bake.rowstore import as_stack  # noqa: E402
 from bake.sundisplay import DisplayCheck, DisplaySkies  # noqa: E402
@@ -90,13 +91,19 @@ def tile_errors(X: np.ndarray, valid: np.ndarray, tile: int, ranks: list[int], j
             coefficients = U[:, :k] * s[:k]  # (rows, k): a texel's k values
             rows = Vt[:k]  # (k, columns): the tile's values for each patch
             if bits is not None:
-                steps = 2 ** (bits - 1) - 1
-                scale = np.maximum(np.abs(coefficients).max(axis=0), 1e-30) / steps
-                coefficients = np.round(coefficients / scale) * scale
+                codes, scale = rounded(coefficients, bits)
+                coefficients = codes * scale
                 rows = rows.astype(np.float16).astype(np.float64)
             err = coefficients @ rows - M
             squared[k] += (err.reshape(len(g), 3, P) ** 2).sum(axis=(0, 1))
     return {k: np.sqrt(v / (V * 3)) for k, v in squared.items()}
+
+
+def rounded(coefficients: np.ndarray, bits: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """(codes, scales): ``coefficients`` (n, k) as signed ``bits``-bit codes, one scale per
+    column; at 8 bits V's int8 rule (:func:`bake.compact_reader.column_scales`)."""
+    scale = column_scales(coefficients) * (INT8_TOP / (2 ** (bits - 1) - 1))
+    return np.rint(coefficients / scale), scale
 
 
 def tile_groups(valid: np.ndarray, tile: int) -> list[np.ndarray]:
@@ -125,13 +132,12 @@ def codec_errors(X: np.ndarray, valid: np.ndarray, tile: int, k: int, folder: Pa
                                  full_matrices=False)
         c = np.zeros((len(g), k))
         c[:, : min(k, len(s))] = (U * s)[:, :k]
-        scale = np.maximum(np.abs(c).max(axis=0), 1e-30) / 127.0
-        coefficients[g, :k] = c / scale
+        coefficients[g, :k], scale = rounded(c)
         scales.append(scale)
         r = np.zeros((k, 3 * P))
         r[: min(k, len(s))] = Vt[:k]
         rows.append(r.astype(np.float16).astype(np.float64))
-    codes = np.clip(np.round(coefficients) + 128.0, 0, 255).astype(np.uint8)
+    codes = (coefficients + 128.0).astype(np.uint8)  # 1..255: rounded() keeps within +-127
     H, W = valid.shape
     pngs = []
     for t in range(codes.shape[1] // 4):
