@@ -109,7 +109,8 @@ def _encoder_args(settings: Settings, array: bool, level: int | None,
         level = settings.uastc_level if level is None else level
         args += ["-uastc", "-uastc_level", str(level)]
         if rdo_lambda is not None:
-            args += ["-uastc_rdo_l", f"{rdo_lambda:g}"]
+            args += ["-uastc_rdo_l", f"{rdo_lambda:g}",
+                     "-uastc_rdo_d", str(settings.sun_bounce_rdo_dictionary_bytes)]
     else:
         args += ["-q", "255", "-comp_level", "2"]
     return args

@@ -45,6 +45,10 @@ class Settings:
     # "uastc": plain UASTC only.
     sun_bounce_encoding: str = "smallest"
     sun_bounce_rdo_lambdas: tuple[float, ...] = (3.0, 1.0, 0.1)
+    # basisu's RDO dictionary (-uastc_rdo_d) for those encodings: 2048 bytes instead of the
+    # encoder's 4096 makes an RDO encode about a third faster for a fraction of a per cent
+    # more bytes (docs/benchmarks.md, "The RDO dictionary").
+    sun_bounce_rdo_dictionary_bytes: int = 2048
     # The same for stacks judged by their RMS error alone (lightmap, views): a refinement
     # layer spans a few steps of its coarse layer, so level 1's better worst texel does not
     # show there, and level 0 is faster.

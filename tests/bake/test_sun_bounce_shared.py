@@ -350,3 +350,39 @@ def test_an_rdo_image_is_encoded_as_it_is_alone(shared_build, tmp_path, monkeypa
         basisu.encode([png], alone, settings, array=False, level=0, rdo_lambda=rdo)
         name = png.stem + ".ktx2"
         assert (together / name).read_bytes() == (alone / name).read_bytes(), name
+
+
+def test_the_rdo_dictionary_setting_is_what_the_encoder_uses(tmp_path):
+    """``sun_bounce_rdo_dictionary_bytes`` reaches basisu (``-uastc_rdo_d``): on an image
+    whose blocks repeat two block rows down (64 x 384 texels: 96 blocks, 1536 bytes, a row;
+    so 3072 bytes back, within basisu's own default dictionary of 4096 and out of 2048)
+    the default (2048 bytes) writes the bytes of 2048 given explicitly and 4096 other bytes;
+    each decodes to the image's size (docs/benchmarks.md, "The RDO dictionary")."""
+    from dataclasses import replace
+
+    from bake.basisu import encode
+    from bake.compresssettings import Settings
+    from bake.ktx2decoder import decode
+    from bake.quantize import quantized_png
+
+    rng = np.random.default_rng(3)
+    y, x = np.mgrid[0:64, 0:384].astype(float)
+    rows = np.sin(2 * np.pi * y / 8) * np.cos(2 * np.pi * x / 37)  # period: two block rows
+    image = 0.5 + 0.3 * rows[..., None] * np.array([1.0, 0.9, 0.8])
+    image += 0.01 * rng.random(image.shape)
+    png = quantized_png(image.astype(np.float32), tmp_path / "x.png").path
+    settings = Settings()
+    assert settings.sun_bounce_rdo_dictionary_bytes == 2048
+    rdo = settings.sun_bounce_rdo_lambdas[-1]
+    written = {}
+    for label, dictionary in (("default", None), ("2048", 2048), ("4096", 4096)):
+        out = tmp_path / label
+        out.mkdir()
+        tried = settings if dictionary is None else replace(
+            settings, sun_bounce_rdo_dictionary_bytes=dictionary)
+        encode([png], out, tried, array=False, level=0, rdo_lambda=rdo)
+        written[label] = (out / "x.ktx2").read_bytes()
+        [decoded] = decode([out / "x.ktx2"])
+        assert decoded[0].shape[:2] == (64, 384)
+    assert written["default"] == written["2048"]
+    assert written["default"] != written["4096"]
