@@ -1,23 +1,28 @@
 """A build's sun-bounce images of a visit in plain UASTC and with RDO at several lambdas and
-UASTC levels: bytes, and the bake's own judge as displayed (RMS, and the 99th percentile per
-texel; bake.sundisplay.DisplayCheck) against each patch's master column (issue 15 item 8;
-what chose ``bake.sunbounce.PLAIN_TEXEL_SLACK``, docs/benchmarks.md "The phone's visit under
-4 MB").
+UASTC levels: bytes, the encoders' time, and the bake's own judge as displayed (RMS, and the
+99th percentile per texel; bake.sundisplay.DisplayCheck) against each patch's master column
+(issue 15 item 8; what chose ``bake.sunbounce.PLAIN_TEXEL_SLACK``, docs/benchmarks.md "The
+phone's visit under 4 MB", and the RDO dictionary, "The RDO dictionary").
 
 Usage::
 
     PYTHONPATH=. .venv/bin/python benchmarks/sun_bounce_rdo.py BUILD [--atlas lightmap]
-        [--lights 117,97,75,91,67,83] [--tries 0:,0:0.1,0:0.25,1:0.1]
+        [--lights 117,97,75,91,67,83] [--tries 0:,0:0.1,0:0.25,1:0.1:4096]
 
-``--tries``: ``LEVEL:LAMBDA`` (an empty lambda: no RDO); the visit's patches by default
-(``bake.downloads.VISIT``).
+``--tries``: ``LEVEL:LAMBDA[:DICTIONARY]`` (an empty lambda: no RDO; the dictionary in bytes,
+by default the bake's ``sun_bounce_rdo_dictionary_bytes``); the visit's patches by default
+(``bake.downloads.VISIT``). Each try's time is the wall time of its encode and its encoders'
+CPU, the tries run one after another in the same process (each the other's baseline).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import tempfile
+import time
+from dataclasses import replace
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
@@ -61,11 +66,15 @@ def main() -> None:
         quantized = {i: quantized_png(columns[j], tmp / f"x.L{i:04d}.png")
                      for j, i in enumerate(lights)}
         for n, tried in enumerate(args.tries.split(",")):
-            level, lam = tried.split(":")
+            level, lam, *dictionary = tried.split(":")
+            try_settings = settings if not dictionary else replace(
+                settings, sun_bounce_rdo_dictionary_bytes=int(dictionary[0]))
             out = tmp / f"try{n}"
             out.mkdir()
-            encode([q.path for q in quantized.values()], out, settings, array=False,
+            wall, cpu = time.perf_counter(), _children_cpu_s()
+            encode([q.path for q in quantized.values()], out, try_settings, array=False,
                    level=int(level), rdo_lambda=float(lam) if lam else None)
+            wall, cpu = time.perf_counter() - wall, _children_cpu_s() - cpu
             files = [out / f"x.L{i:04d}.ktx2" for i in lights]
             row = []
             for j, (i, decoded) in enumerate(zip(lights, decode(files), strict=True)):
@@ -74,9 +83,17 @@ def main() -> None:
                 row.append(f"{i}: {files[j].stat().st_size / 1e3:.1f} kB "
                            f"{100 * rms:.2f} / {100 * p99:.1f} %")
             total = sum(f.stat().st_size for f in files)
-            print(f"level {level}, RDO {lam or 'none'}: {total:,} B | " + " | ".join(row),
-                  flush=True)
+            rdo = (f"RDO {lam}, dictionary "
+                   f"{try_settings.sun_bounce_rdo_dictionary_bytes} B" if lam else "no RDO")
+            print(f"level {level}, {rdo}: {total:,} B, encode {wall:.1f} s "
+                  f"(encoders' CPU {cpu:.1f} s) | " + " | ".join(row), flush=True)
     check.remove()
+
+
+def _children_cpu_s() -> float:
+    """CPU seconds of this process's ended children (the encoders)."""
+    t = os.times()
+    return t.children_user + t.children_system
 
 
 if __name__ == "__main__":
