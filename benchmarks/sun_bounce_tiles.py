@@ -76,12 +76,11 @@ def displayed_columns(build_dir: Path, owner_id: str, stack: str):
     return X, check.valid, lights
 
 
-def tile_errors(X: np.ndarray, valid: np.ndarray, tile: int, ranks: list[int], joint: bool,
+def tile_errors(X: np.ndarray, groups: list[np.ndarray], ranks: list[int], joint: bool,
                 bits: int | None) -> dict[int, np.ndarray]:
-    """{k: (P,) each column's RMS error as displayed} with a rank-``k`` basis per tile of
-    ``tile`` x ``tile`` texels (the module's docstring)."""
+    """{k: (P,) each column's RMS error as displayed} with a rank-``k`` basis per tile, the
+    tiles' texels ``groups`` (:func:`tile_groups`; the module's docstring)."""
     V, _, P = X.shape
-    groups = tile_groups(valid, tile)
     squared = {k: np.zeros(P) for k in ranks}
     for g in groups:
         # Rows: a texel (joint: its three channels side by side) or a texel's channel.
@@ -187,8 +186,9 @@ def main() -> None:
           f"{'unrounded' if args.bits is None else f'{args.bits}-bit coefficients'}")
     print("tile | tiles | k | worst column | median | values per texel | values per patch")
     for tile in [int(t) for t in args.tiles.split(",")]:
-        tiles = len(tile_groups(valid, tile))
-        errors = tile_errors(X, valid, tile, ranks, args.joint, args.bits)
+        groups = tile_groups(valid, tile)
+        tiles = len(groups)
+        errors = tile_errors(X, groups, ranks, args.joint, args.bits)
         for k in ranks:
             e = errors[k]
             per_texel = k if args.joint else 3 * k

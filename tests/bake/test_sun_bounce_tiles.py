@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from benchmarks.sun_bounce_tiles import codec_errors, tile_errors
+from benchmarks.sun_bounce_tiles import codec_errors, tile_errors, tile_groups
 
 
 def _valid(H: int, W: int) -> np.ndarray:
@@ -36,14 +36,15 @@ def test_a_stack_of_two_products_per_tile_is_held_by_two_and_not_by_one():
     valid = _valid(H, W)
     for joint in (False, True):
         X = _products(valid, tile, P, joint, rng)
-        errors = tile_errors(X, valid, tile, [1, 2], joint=joint, bits=None)
+        tiles = tile_groups(valid, tile)
+        errors = tile_errors(X, tiles, [1, 2], joint=joint, bits=None)
         assert errors[2].max() < 1e-5
         assert errors[1].min() > 1e-3
         # The other layout of the rows needs more than two: a texel's three channels each
         # with its own weight (per channel) or a patch's three (joint) are three products.
-        assert tile_errors(X, valid, tile, [2], joint=not joint, bits=None)[2].min() > 1e-3
+        assert tile_errors(X, tiles, [2], joint=not joint, bits=None)[2].min() > 1e-3
         # One tile over the whole stack: the tiles' products are no longer few.
-        assert tile_errors(X, valid, 64, [2], joint=joint, bits=None)[2].min() > 1e-3
+        assert tile_errors(X, tile_groups(valid, 64), [2], joint=joint, bits=None)[2].min() > 1e-3
 
 
 def test_one_tile_gives_the_eckart_young_error():
@@ -53,7 +54,7 @@ def test_one_tile_gives_the_eckart_young_error():
     X = rng.random((int(valid.sum()), 3, P)).astype(np.float32)
     s = np.linalg.svd(X.reshape(-1, P).astype(np.float64), compute_uv=False)
     for k in (1, 4, 10):
-        errors = tile_errors(X, valid, 64, [k], joint=False, bits=None)[k]
+        errors = tile_errors(X, tile_groups(valid, 64), [k], joint=False, bits=None)[k]
         total = float((errors**2).sum()) * X.shape[0] * 3
         assert abs(total - float((s[k:] ** 2).sum())) < 1e-6 * float((s**2).sum())
 
@@ -63,10 +64,10 @@ def test_rounded_coefficients_add_an_error_of_their_step():
     H, W, P = 16, 16, 12
     valid = np.ones((H, W), dtype=bool)
     X = rng.random((H * W, 3, P)).astype(np.float32)
-    exact = tile_errors(X, valid, 16, [P], joint=False, bits=None)[P]
+    exact = tile_errors(X, tile_groups(valid, 16), [P], joint=False, bits=None)[P]
     assert exact.max() < 1e-5  # full rank: nothing lost
-    coarse = tile_errors(X, valid, 16, [P], joint=False, bits=4)[P]
-    fine = tile_errors(X, valid, 16, [P], joint=False, bits=8)[P]
+    coarse = tile_errors(X, tile_groups(valid, 16), [P], joint=False, bits=4)[P]
+    fine = tile_errors(X, tile_groups(valid, 16), [P], joint=False, bits=8)[P]
     assert 0 < fine.max() < coarse.max()
     assert coarse.max() < 0.2
 
