@@ -113,17 +113,17 @@ def tile_groups(valid: np.ndarray, tile: int) -> list[np.ndarray]:
     return np.split(order, np.flatnonzero(np.diff(index[order])) + 1)
 
 
-def codec_errors(X: np.ndarray, valid: np.ndarray, tile: int, k: int, folder: Path,
-                 level: int | None = None) -> tuple[np.ndarray, int]:
+def codec_errors(X: np.ndarray, valid: np.ndarray, groups: list[np.ndarray], k: int,
+                 folder: Path, level: int | None = None) -> tuple[np.ndarray, int]:
     """((P,) each column's RMS error as displayed, bytes of the coefficient files) with a
-    joint rank-``k`` basis per tile whose coefficients go through UASTC (``--codec``); the
+    joint rank-``k`` basis per tile (the tiles' texels ``groups``: :func:`tile_groups`; the
+    files laid out over ``valid``) whose coefficients go through UASTC (``--codec``); the
     files are written into ``folder``; ``level``: the UASTC level (None: the bake's)."""
     from bake.basisu import encode
     from bake.compresssettings import Settings
     from bake.ktx2decoder import decode
 
     V, _, P = X.shape
-    groups = tile_groups(valid, tile)
     coefficients = np.zeros((V, -(-k // 4) * 4))
     scales, rows = [], []
     for g in groups:
@@ -197,7 +197,7 @@ def main() -> None:
                   f"| {per_texel} | {per_patch:,}", flush=True)
             if args.codec:
                 with tempfile.TemporaryDirectory() as folder:
-                    e, size = codec_errors(X, valid, tile, k, Path(folder), args.level)
+                    e, size = codec_errors(X, valid, groups, k, Path(folder), args.level)
                 print(f"  through UASTC: {100 * e.max():.2f} % | {100 * np.median(e):.2f} % "
                       f"| {size:,} B of coefficients", flush=True)
 
