@@ -57,6 +57,15 @@ def add_subcommands(subparsers) -> None:
         help="trace on the workers of this Dask scheduler instead of local processes (the "
         "same output byte for byte; each worker needs the same daylit installed)",
     )
+    bake.add_argument(
+        "--sun-bounce-dates",
+        type=_sun_bounce_dates,
+        metavar="FIRST..LAST",
+        help="make sun-bounce images only for the dome patches the sun crosses on these local "
+        "dates (2026-06-01..2026-08-31, at most a year): a shorter write stage and fewer "
+        "files to serve; outside them a client draws no sun bounce (default: every patch "
+        "the sun crosses in a year)",
+    )
     bake.add_argument("--no-progress", action="store_true", help="no progress bar")
     bake.set_defaults(run=run_bake)
 
@@ -157,6 +166,7 @@ def run_bake(args) -> int:
             progress=not args.no_progress,
             budget=args.budget,
             cluster=args.cluster,
+            sun_bounce_dates=args.sun_bounce_dates,
         )
     except SceneError as exc:
         print(f"error: {exc}", file=sys.stderr)
@@ -165,6 +175,16 @@ def run_bake(args) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     return 0
+
+
+def _sun_bounce_dates(text: str):
+    """``--sun-bounce-dates``: "2026-06-01..2026-08-31" -> SunBounceDates."""
+    from bake.sundates import SunBounceDates
+
+    try:
+        return SunBounceDates.parse(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def _budget(text: str) -> float:

@@ -18,6 +18,7 @@ from bake import (
     compressjobs,
     stackkinds,
     sunbounce,
+    sundates,
     sundisplay,
     sunshare,
     testskies,
@@ -40,8 +41,11 @@ class Compressor:
     (bake.compressjobs), which return the files' bytes; they are written into the staging
     folder here, the same bytes as a local bake's."""
 
-    def __init__(self, site: Site, log, cluster=None):
+    def __init__(self, site: Site, log, cluster=None, sun_bounce_dates=None):
         self.cluster = cluster
+        # bake.sundates.SunBounceDates: only the patches the sun crosses then get sun-bounce
+        # images (None: every sun-path patch).
+        self.sun_bounce_dates = sun_bounce_dates
         c = site.settings.compression
         self.settings = compress.Settings(
             budget=c["budget"],
@@ -90,6 +94,17 @@ class Compressor:
             dome.kind, dome.frequency, self.selection.selectable,
             self.settings.sun_bounce_lights,
         )
+        # The lights the sun-bounce stacks get images for: every sun-path light, or those of
+        # the dates asked for (with their groups' other members).
+        self.lights_with_sun_images = self.selection.selectable
+        if self.sun_bounce_dates is not None:
+            patches = self.sun_bounce_dates.patches(site, dome.vertices)
+            self.lights_with_sun_images = sundates.lights_for_dates(
+                self.selection.selectable, patches, self.shared)
+            first, last = self.sun_bounce_dates.as_list()
+            self.log(f"  the sun's bounce from {first} to {last}: "
+                     f"{len(self.lights_with_sun_images)} of the "
+                     f"{len(self.selection.selectable)} sun-path lights get images")
         self.log(
             f"  {len(self.selection.selectable)} of {dome.count} lights can be selected "
             "(the sun's path and the brightest patches of the site's skies): only they get "
@@ -160,14 +175,14 @@ class Compressor:
         try:
             if self.cluster is None:
                 result = sunbounce.compress_sun_bounce(
-                    image, name, staging, self.selection.selectable, settings, sky, skies,
+                    image, name, staging, self.lights_with_sun_images, settings, sky, skies,
                     self.shared,
                 )
             else:
                 image = as_stack(image).array()
                 sky = None if sky is None else as_stack(sky).array()
                 result, files = self.cluster.compress(
-                    compressjobs.sun_bounce_job, image, name, self.selection.selectable,
+                    compressjobs.sun_bounce_job, image, name, self.lights_with_sun_images,
                     settings, sky, skies, self.shared,
                     label=f"the sun-bounce stack {name}",
                 )
@@ -204,6 +219,8 @@ class Compressor:
             "encoding": self.settings.encoding,
             "selected_lights": self.settings.selected_lights,
             "selectable_lights": self.selection.selectable.tolist(),
+            "sun_bounce_dates": (None if self.sun_bounce_dates is None
+                                 else self.sun_bounce_dates.as_list()),
             "selection": SELECTION_RULE,
             "test_skies": [s.name for s in self.skies],
             "report": self.report(),

@@ -86,27 +86,32 @@ def bake(
     log=None,
     budget=None,
     cluster=None,
+    sun_bounce_dates=None,
 ) -> BakeResult:
     """Bake a site. Raises ``SceneError`` (bad input, nothing written) or ``BakeError``.
 
     ``cluster``: the address of a Dask scheduler (``tcp://HOST:8786``) whose workers trace
     the chunks instead of a local pool of ``workers`` processes; it is reached before any
-    work, and a ``BakeError`` says what to do when it cannot be."""
+    work, and a ``BakeError`` says what to do when it cannot be. ``sun_bounce_dates``
+    (:class:`bake.sundates.SunBounceDates`): only the patches the sun crosses on those dates
+    get sun-bounce images (None: every patch it crosses in a year)."""
     log = log or (lambda msg: print(msg, file=sys.stderr))
     started = time.perf_counter()
-    resume = _resume_command(scene_dir, out_dir, lights, quality, budget)
+    resume = _resume_command(scene_dir, out_dir, lights, quality, budget, sun_bounce_dates)
     # Absolute from here on: helpers (the KTX2 decoder under Node) run in other directories.
     # The scene's path stays as given: it is only read here, and messages name it as typed.
     out_dir = Path(out_dir).absolute()
     site = load_site(scene_dir, lights=lights, quality=quality, budget=budget)
     _check_output(out_dir)
+    if sun_bounce_dates is not None:
+        _check_sun_up(site, sun_bounce_dates)
     client = None
     if cluster is not None:
         from bake.cluster import Cluster
 
         client = Cluster(cluster, log)
     try:
-        compressor = Compressor(site, log, client)
+        compressor = Compressor(site, log, client, sun_bounce_dates)
         return _bake(site, out_dir, compressor, started, workers, client, progress, log, resume)
     finally:
         if client is not None:
@@ -289,7 +294,16 @@ def _cluster_loss_is_a_bake_error(partial: Path, out_dir: Path, resume: str, clu
         ) from None
 
 
-def _resume_command(scene_dir, out_dir, lights, quality, budget) -> str:
+def _check_sun_up(site, dates) -> None:
+    """Refuse, before any work, dates on which the sun never rises at the site: their
+    sun-bounce stacks would have no image at all."""
+    if not dates.patches(site, Dome.for_light_count(site.settings.lights).vertices):
+        first, last = dates.as_list()
+        raise BakeError(f"the sun is never up at this site from {first} to {last}: choose "
+                        "dates when it is, or leave --sun-bounce-dates out")
+
+
+def _resume_command(scene_dir, out_dir, lights, quality, budget, sun_bounce_dates=None) -> str:
     """``daylit bake SCENE -o OUT`` and the options given (paths as the user gave them)."""
     words = ["daylit", "bake", str(scene_dir), "-o", str(out_dir)]
     if lights is not None:
@@ -298,6 +312,8 @@ def _resume_command(scene_dir, out_dir, lights, quality, budget) -> str:
         words += ["--quality", quality]
     if budget is not None:
         words += ["--budget", repr(budget)]
+    if sun_bounce_dates is not None:
+        words += ["--sun-bounce-dates", "..".join(sun_bounce_dates.as_list())]
     return shlex.join(words)
 
 
