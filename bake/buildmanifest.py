@@ -52,6 +52,11 @@ def write_manifest(build_dir: Path, manifest: dict) -> None:
     """List every file of ``build_dir`` with size and SHA-256, validate, write manifest.json."""
     files = sorted(p for p in build_dir.rglob("*") if p.is_file() and p.name != "manifest.json")
     manifest["files"] = [manifest_io.file_entry(build_dir, p) for p in files]
+    save_manifest(build_dir, manifest)
+
+
+def save_manifest(build_dir: Path, manifest: dict) -> None:
+    """Validate ``manifest`` (its files listed) and write it as manifest.json in one rename."""
     manifest_io.validate(manifest)
     tmp = build_dir / "manifest.json.tmp"
     # Compact separators: phones download this (indenting it would add a third).

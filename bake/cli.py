@@ -1,4 +1,4 @@
-"""``daylit bake`` and ``daylit probe``.
+"""``daylit bake``, ``daylit sun-bounce`` and ``daylit probe``.
 
 Exit status: 0 done; 2 bad input (the message names the file and key; nothing is written);
 130 interrupted (a later bake of the same scene resumes from the finished parts).
@@ -68,6 +68,28 @@ def add_subcommands(subparsers) -> None:
     )
     bake.add_argument("--no-progress", action="store_true", help="no progress bar")
     bake.set_defaults(run=run_bake)
+
+    sun = subparsers.add_parser(
+        "sun-bounce",
+        help="make a build's sun-bounce images again for other dates, from its masters",
+        description=(
+            "Make the sun-bounce images of a build again, for the dome patches the sun "
+            "crosses on the dates given, from the build's EXR masters (no tracing), judged "
+            "as the bake judges them under the scene's compression settings; the old images "
+            "are replaced in one step (the manifest is renamed into place) and deleted. Run it "
+            "ahead of the dates a site serves, then restart the server."
+        ),
+        epilog="example: daylit sun-bounce scenes/demo build/demo --dates 2027-04-01..2027-04-30",
+    )
+    sun.add_argument("scene", type=Path, help="the site folder (or scene.toml) the build was "
+                     "baked from")
+    sun.add_argument("build", type=Path, help="build directory (with manifest.json and its "
+                     "exr/ masters)")
+    sun.add_argument("--dates", type=_sun_bounce_dates, required=True, metavar="FIRST..LAST",
+                     help="local dates whose sun patches get images (2027-04-01..2027-04-30, "
+                     "at most a year)")
+    sun.add_argument("--no-progress", action="store_true", help="no progress bar")
+    sun.set_defaults(run=run_sun_bounce)
 
     probe = subparsers.add_parser(
         "probe",
@@ -172,6 +194,20 @@ def run_bake(args) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except BakeError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    return 0
+
+
+def run_sun_bounce(args) -> int:
+    from bake.errors import BakeError
+    from bake.scene import SceneError
+    from bake.sunremake import remake_sun_bounce
+    from daylit.manifest import ManifestError
+
+    try:
+        remake_sun_bounce(args.scene, args.build, args.dates, progress=not args.no_progress)
+    except (SceneError, BakeError, ManifestError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     return 0

@@ -53,6 +53,7 @@ from bake.ktx2decoder import close_decoders
 from bake.raytrace import Geometry, RayScene
 from bake.rowstore import release_freed_memory
 from bake.scene import Site, load_site
+from bake.sundates import check_sun_up
 from bake.tracework import TracedResults, TraceWork
 from bake.views import trace_view
 from bake.writers import SunBounce, swap_into_place, write_atlas, write_view
@@ -104,7 +105,7 @@ def bake(
     site = load_site(scene_dir, lights=lights, quality=quality, budget=budget)
     _check_output(out_dir)
     if sun_bounce_dates is not None:
-        _check_sun_up(site, sun_bounce_dates)
+        check_sun_up(site, sun_bounce_dates)
     client = None
     if cluster is not None:
         from bake.cluster import Cluster
@@ -292,15 +293,6 @@ def _cluster_loss_is_a_bake_error(partial: Path, out_dir: Path, resume: str, clu
             f"them with the cluster once its workers are back: `{resume} --cluster "
             f"{cluster.address}`, or on this machine: `{resume}`"
         ) from None
-
-
-def _check_sun_up(site, dates) -> None:
-    """Refuse, before any work, dates on which the sun never rises at the site: their
-    sun-bounce stacks would have no image at all."""
-    if not dates.patches(site, Dome.for_light_count(site.settings.lights).vertices):
-        first, last = dates.as_list()
-        raise BakeError(f"the sun is never up at this site from {first} to {last}: choose "
-                        "dates when it is, or leave --sun-bounce-dates out")
 
 
 def _resume_command(scene_dir, out_dir, lights, quality, budget, sun_bounce_dates=None) -> str:

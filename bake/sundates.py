@@ -87,3 +87,15 @@ def lights_for_dates(selectable: np.ndarray, patches: list[int], shared=None) ->
             if chosen.intersection(members):
                 chosen.update(members)
     return np.array(sorted(chosen), dtype=int)
+
+
+def check_sun_up(site, dates: SunBounceDates) -> None:
+    """Refuse (``BakeError``), before any work, dates on which the sun never rises at
+    ``site`` (a :class:`bake.scene.Site`): its sun-bounce stacks would have no image."""
+    from bake.dome import Dome
+    from bake.errors import BakeError
+
+    if not dates.patches(site, Dome.for_light_count(site.settings.lights).vertices):
+        first, last = dates.as_list()
+        raise BakeError(f"the sun is never up at this site from {first} to {last}: choose "
+                        "dates when it is, or leave --sun-bounce-dates out")

@@ -1,5 +1,6 @@
 """``daylit bake --sun-bounce-dates``: sun-bounce images only for the patches the sun crosses
-on the dates asked for (bake/sundates.py, docs/sun.md "The sun's bounce for the dates
+on the dates asked for (bake/sundates.py), and ``daylit sun-bounce``: made again for other
+dates from the masters (bake/sunremake.py; docs/sun.md "The sun's bounce for the dates
 served"). The patches are found here from pvlib's ephemeris sun (not the SPA the baker uses)
 and a point-in-triangle test on the manifest's dome written here."""
 
@@ -147,3 +148,87 @@ def test_the_command_line_says_what_is_wrong_with_the_dates(tmp_path, text, says
     assert done.returncode == 2
     assert "--sun-bounce-dates" in done.stderr and says in done.stderr
     assert not (tmp_path / "b").exists()
+
+
+WINTER = ("2026-12-20", "2026-12-22")
+
+
+def test_made_again_for_other_dates_from_the_masters(dated_build, tmp_path):
+    """``daylit sun-bounce`` on a copy of the June build, for three December days: the
+    December patches get images and nothing else does, the June-only files are gone, every
+    listed file has its size and hash, and each patch's image is its own master column's
+    (decoded as the client decodes it: nearer its own column than any other patch's)."""
+    import shutil
+
+    from bake.evaluate import Build
+    from daylit import manifest as manifest_io
+    from tests.bake.test_sun_bounce import column_error
+
+    build = tmp_path / "build"
+    shutil.copytree(dated_build, build)
+    before = json.loads((build / "manifest.json").read_text())
+    done = subprocess.run(
+        [sys.executable, "-m", "daylit.cli", "sun-bounce", str(dated_build.parent / "scene"),
+         str(build), "--no-progress", "--dates", "..".join(WINTER)],
+        capture_output=True, text=True, timeout=900,
+    )
+    assert done.returncode == 0, done.stderr
+    assert "Restart the server" in done.stderr
+    manifest = manifest_io.load(build, check_files=True)  # every listed file: size, SHA-256
+    assert manifest["compression"]["sun_bounce_dates"] == list(WINTER)
+    expected = patches_crossed(manifest, *WINTER)
+    assert expected and expected != patches_crossed(manifest, *DATES)
+    for stack, lights in lights_with_files(manifest).items():
+        assert lights == expected, stack
+    # Only the sun-bounce images changed: every other listed file is the same entry.
+    others = [f for f in manifest["files"] if ".sun_bounce." not in f["path"]
+              or not f["path"].endswith(".ktx2")]
+    assert others == [f for f in before["files"] if ".sun_bounce." not in f["path"]
+                      or not f["path"].endswith(".ktx2")]
+    on_disk = {p.relative_to(build).as_posix()
+               for p in (build / "ktx2").glob("*.sun_bounce.*.ktx2")}
+    listed = {f["path"] for f in manifest["files"] if f["path"] in on_disk}
+    assert on_disk == listed and all(".2026-12-20_2026-12-22.L" in p for p in on_disk)
+    reader_build = Build(build)
+    master = reader_build.sun_bounce_stack("lightmap", "I")
+    reader = reader_build.sun_bounce_compact("lightmap", "I")
+    lights = sorted(expected)
+    decoded = reader.lights(lights)
+    for p in lights:
+        own = column_error(decoded[p], master, p)
+        assert own < 0.3, (p, own)
+        assert all(own < column_error(decoded[p], master, q) for q in lights if q != p), p
+
+
+def test_a_scene_it_was_not_baked_from_is_refused_and_the_build_kept(dated_build, tmp_path):
+    import shutil
+
+    from tests.sites import make_site
+
+    build = tmp_path / "build"
+    shutil.copytree(dated_build, build)
+    before = (build / "manifest.json").read_bytes()
+    other = make_site(tmp_path / "other", site_id="elsewhere")
+    done = subprocess.run(
+        [sys.executable, "-m", "daylit.cli", "sun-bounce", str(other), str(build),
+         "--dates", "..".join(WINTER)],
+        capture_output=True, text=True, timeout=300,
+    )
+    assert done.returncode == 2
+    assert "baked from the site 'test', not 'elsewhere'" in done.stderr
+    assert (build / "manifest.json").read_bytes() == before
+    assert not list(tmp_path.glob(".build.sun-bounce.partial"))
+
+
+def test_a_patch_of_the_dates_brings_its_whole_sharing_group():
+    """A group's image is made from all its members' columns and judged on each: a date
+    window that reaches one member gets the group whole; groups it misses get nothing."""
+    from bake.sundates import lights_for_dates
+    from bake.sunshare import SharedImages
+
+    shared = SharedImages({3: [3, 4, 9], 5: [5, 6], 7: [7]}, np.ones(12), "icosahedral", 2)
+    selectable = np.array([3, 4, 5, 6, 7, 9])
+    assert lights_for_dates(selectable, [4], shared).tolist() == [3, 4, 9]
+    assert lights_for_dates(selectable, [4, 7, 11], shared).tolist() == [3, 4, 7, 9]
+    # Without groups: the dates' patches on the sun's path, nothing else.
+    assert lights_for_dates(selectable, [4, 7, 11]).tolist() == [4, 7]
