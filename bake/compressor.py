@@ -97,10 +97,12 @@ class Compressor:
         # The lights the sun-bounce stacks get images for: every sun-path light, or those of
         # the dates asked for (with their groups' other members).
         self.lights_with_sun_images = self.selection.selectable
+        self.dates_patches = None  # with dates: the patches the sun crosses on them
         if self.sun_bounce_dates is not None:
             patches = self.sun_bounce_dates.patches(site, dome.vertices)
             self.lights_with_sun_images = sundates.lights_for_dates(
                 self.selection.selectable, patches, self.shared)
+            self.dates_patches = set(patches)
             first, last = self.sun_bounce_dates.as_list()
             self.log(f"  the sun's bounce from {first} to {last}: "
                      f"{len(self.lights_with_sun_images)} of the "
@@ -195,6 +197,8 @@ class Compressor:
         if result is None:
             (staging / (master or f"exr/{name}.exr")).unlink(missing_ok=True)
             return None
+        if self.dates_patches is not None:
+            sundates.keep_patches(result, self.dates_patches, staging)
         error = result.entry["error"]
         self.rows[name] = {
             "stack": name,
@@ -225,6 +229,14 @@ class Compressor:
             "test_skies": [s.name for s in self.skies],
             "report": self.report(),
         }
+
+    def rename_rows(self, names: dict[str, str]) -> None:
+        """Report the stacks ``names`` (``{name: new name}``) under their new names (a build's
+        sun-bounce stacks made again under dated file names: bake.sunremake)."""
+        for old_name, new_name in names.items():
+            if old_name in self.rows:
+                self.rows[new_name] = {**self.rows.pop(old_name), "stack": new_name}
+        self.stack_names = [names.get(name, name) for name in self.stack_names]
 
     def report(self) -> list[dict]:
         """The report rows in the order of the stacks given to :meth:`start`."""
@@ -277,10 +289,12 @@ class Compressor:
                 e["bytes"] for e in manifest["files"] if ".sun_bounce." in e["path"]
                 and e["path"].startswith("exr/")
             )
+            dates = manifest["compression"].get("sun_bounce_dates")
+            when = f" (on {dates[0]}, the first of its dates)" if dates else ""
             self.log(
                 f"  the sun's bounce: one light's images per stack, fetched for the sun's "
                 f"patch: {per_light / 1e3:.0f} kB per patch without the hull, "
-                f"{mb('sun_bounce_visit')} over the visit ({sizes['visit_sun_patches']} "
+                f"{mb('sun_bounce_visit')} over the visit{when} ({sizes['visit_sun_patches']} "
                 f"patches, {sizes['visit_sun_images']} images per stack), "
                 f"{mb('sun_bounce_day')} over a day ({sizes['day_sun_patches']}); "
                 f"hull-plane mode adds {mb('sun_bounce_hull_visit')} over the visit; a phone "

@@ -21,6 +21,20 @@ KIOSK_DAY = ("2025-03-20 00:00", "2025-03-21 00:00")
 STEP = "10min"
 
 
+def visit_and_day(manifest: dict) -> tuple[tuple[str, str], tuple[str, str]]:
+    """The visit and the kiosk's day the figures are for: :data:`VISIT` and
+    :data:`KIOSK_DAY`, or in a build whose sun-bounce images are made for some dates
+    (``compression.sun_bounce_dates``) the same hours on the first of them."""
+    dates = manifest.get("compression", {}).get("sun_bounce_dates")
+    if not dates:
+        return VISIT, KIOSK_DAY
+    import datetime as dt
+
+    first = dt.date.fromisoformat(dates[0])
+    visit = tuple(f"{first} {t.split(' ')[1]}" for t in VISIT)
+    return visit, (f"{first} 00:00", f"{first + dt.timedelta(days=1)} 00:00")
+
+
 def stack_selected_lights(manifest: dict, compact: dict) -> int:
     """How many lights a client takes from a stack's own images: its entry's
     ``selected_lights`` (absent in builds made before 2026-11-24: the build's)."""
@@ -125,7 +139,9 @@ def download_bytes(manifest: dict, build_dir: Path, visit_lights: int | None = N
       ground/wall and lightmap atlases (the default shading) with the images of each
       stack's selected lights (:func:`stack_selected_lights`, at their average size; none
       since 2026-11-24);
-    - ``phone_visit``: the same over a two-hour visit (:data:`VISIT`): the images of every
+    - ``phone_visit``: the same over a two-hour visit (:data:`VISIT`, or those hours of
+      the first date a build's sun-bounce images are made for: :func:`visit_and_day`): the
+      images of every
       light selected meanwhile (``visit_lights`` of them per stack that selects any;
       computed if not given);
     - ``phone_hull``: ``phone`` plus the hull planes, fetched when hull-plane mode is chosen;
@@ -162,12 +178,13 @@ def download_bytes(manifest: dict, build_dir: Path, visit_lights: int | None = N
         return max((stack_selected_lights(manifest, s["compact"])
                     for o in owners for s in o["stacks"].values()), default=0)
 
+    visit, day = visit_and_day(manifest)
     if visit_lights is None:
         m = selecting(default)
-        visit_lights = len(lights_selected_over(manifest, *VISIT, m=m)) if m else 0
+        visit_lights = len(lights_selected_over(manifest, *visit, m=m)) if m else 0
     if day_lights is None:
         m = selecting(manifest["views"])
-        day_lights = len(lights_selected_over(manifest, *KIOSK_DAY, m=m)) if m else 0
+        day_lights = len(lights_selected_over(manifest, *day, m=m)) if m else 0
 
     def owner_bytes(owners, lights: int | None) -> float:
         """The owners' base files, and per stack the images of ``lights`` lights (None:
@@ -193,9 +210,9 @@ def download_bytes(manifest: dict, build_dir: Path, visit_lights: int | None = N
     )
     if any("sun_bounce" in o for o in manifest["atlases"] + manifest["views"]):
         if visit_sun is None:
-            visit_sun = sun_patches_over(manifest, *VISIT)
+            visit_sun = sun_patches_over(manifest, *visit)
         if day_sun is None:
-            day_sun = sun_patches_over(manifest, *KIOSK_DAY)
+            day_sun = sun_patches_over(manifest, *day)
     visit_sun, day_sun = visit_sun or [], day_sun or []
     visit_images = max((len(_holders(stack["compact"]["lights"], visit_sun))
                         for o in default for stack in o.get("sun_bounce", {}).values()),

@@ -230,7 +230,9 @@ class Build:
         ``without`` is NaN where the receiver has no ``d`` (the models' own surfaces). Zero
         with the sun below the horizon. Raises :class:`ProbeError` for a build without
         sun-bounce stacks (baked before 2026-11-24, or without a bounce) and for a sun in a
-        patch the sun never crosses at this site (its column was not baked).
+        patch the sun never crosses at this site (its column was not baked). ``"compact"`` in
+        a build made for some dates (``compression.sun_bounce_dates``) gives zero for a patch
+        without images, as the client draws it.
         """
         points = np.atleast_2d(np.asarray(points, dtype=np.float64))
         normals = np.atleast_2d(np.asarray(normals, dtype=np.float64))
@@ -270,8 +272,14 @@ class Build:
                     )
                     out[k] = column * r[p]
                 elif source == "compact":
+                    reader = self.sun_bounce_compact(sample.atlas, stack)
+                    if reader.entry["lights"]["scale"][p] is None:
+                        # A build made for some dates (compression.sun_bounce_dates) has no
+                        # image for a patch the sun crosses only on others: the client
+                        # draws no sun bounce there.
+                        continue
                     # Light p's own image (both levels), as the client fetches it.
-                    column = self.sun_bounce_compact(sample.atlas, stack).lights([p])[p]
+                    column = reader.lights([p])[p]
                     out[k] = _bilinear(column, sample.x, sample.y) * r[p]
                 else:
                     raise ProbeError(f"unknown source {source!r}: use master or compact")

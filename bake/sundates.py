@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import datetime as dt
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -77,10 +78,13 @@ class SunBounceDates:
 
 
 def lights_for_dates(selectable: np.ndarray, patches: list[int], shared=None) -> np.ndarray:
-    """The sun-path lights (``selectable``, sorted) that get sun-bounce images for the sun
-    in ``patches``: those patches, and with ``shared`` (:class:`bake.sunshare.SharedImages`)
-    every member of a group any of them is in (a group's image is made from all its
-    members' columns, and each member is judged on it). Sorted indices."""
+    """The sun-path lights (``selectable``, sorted) whose sun-bounce images are made and
+    judged for the sun in ``patches``: those patches, and with ``shared``
+    (:class:`bake.sunshare.SharedImages`) every member of a group any of them is in (a
+    group's image is made from all its members' columns, and whether a member shares it is
+    judged on each: the images of the dates' patches are those a bake for the whole year
+    would make of them). What the dates do not need is dropped after
+    (:func:`keep_patches`). Sorted indices."""
     chosen = set(patches) & {int(i) for i in selectable}
     if shared is not None:
         for members in shared.groups.values():
@@ -99,3 +103,42 @@ def check_sun_up(site, dates: SunBounceDates) -> None:
         first, last = dates.as_list()
         raise BakeError(f"the sun is never up at this site from {first} to {last}: choose "
                         "dates when it is, or leave --sun-bounce-dates out")
+
+
+def image_files(compact: dict) -> set[str]:
+    """The paths of a sun-bounce entry's image files: each light with images (``scale`` not
+    null), its levels' patterns at the light that holds its image (``image``, else itself)."""
+    table = compact["lights"]
+    holders = table.get("image") or list(range(len(table["scale"])))
+    return {pattern.format(index=holder)
+            for scale, holder in zip(table["scale"], holders, strict=True)
+            if scale is not None
+            for pattern in table["ktx2"][: len(scale)]}
+
+
+def keep_patches(result, patches: set[int], out_dir: Path) -> None:
+    """Keep of a compressed sun-bounce stack (``result``: :class:`bake.compress.CompactStack`
+    written under ``out_dir``) only what the sun in ``patches`` reads: the other lights'
+    ``scale``, ``offset`` and ``image`` become null, and the files no kept light reads (the
+    own images of a group's members the dates do not reach) are deleted. Its ``shared``
+    counts then say what is kept; its ``error`` is still that of every image judged."""
+    entry = result.entry
+    table = entry["lights"]
+    for i, scale in enumerate(table["scale"]):
+        if scale is not None and i not in patches:
+            table["scale"][i] = table["offset"][i] = None
+            if table.get("image") is not None:
+                table["image"][i] = None
+    needed = image_files(entry)
+    kept = []
+    for path in result.files:
+        if Path(path).relative_to(out_dir).as_posix() in needed:
+            kept.append(path)
+        else:
+            Path(path).unlink()
+    result.files = kept
+    result.light_bytes = sum(Path(path).stat().st_size for path in kept)
+    if "shared" in entry:
+        lights = [i for i, scale in enumerate(table["scale"]) if scale is not None]
+        entry["shared"]["images"] = len({table["image"][i] for i in lights})
+        entry["shared"]["lights"] = len(lights)

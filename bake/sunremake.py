@@ -24,7 +24,7 @@ from bake.compressor import Compressor
 from bake.dome import Dome
 from bake.errors import BakeError
 from bake.scene import load_site
-from bake.sundates import SunBounceDates, check_sun_up
+from bake.sundates import SunBounceDates, check_sun_up, image_files
 from daylit import manifest as manifest_io
 from daylit.stackio import read_stack_exr
 
@@ -86,6 +86,7 @@ def remake_sun_bounce(scene_dir, build_dir, dates: SunBounceDates, progress: boo
         compressor.close()
         manifest = _replace(build_dir, manifest, stacks, names, made, staging, compressor,
                             dates, tag)
+        compressor.rename_rows({name: name.removesuffix(f".{tag}") for name in names})
         compressor.print_report(manifest, build_dir)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
@@ -102,13 +103,13 @@ def _replace(build_dir: Path, manifest: dict, stacks, names, made: dict, staging
     old_files = set()
     for (owner, stack, _), name in zip(stacks, names, strict=True):
         compact = owner["sun_bounce"][stack]["compact"]
-        old_files |= _files_of(compact)
+        old_files |= image_files(compact)
         if made[name] is None:  # (never: the masters hold the sun's path; refused above)
             raise BakeError(f"{name}: no image for {dates.as_list()}")
         owner["sun_bounce"][stack]["compact"] = made[name]
     new_files = set()
     for (owner, stack, _) in stacks:
-        new_files |= _files_of(owner["sun_bounce"][stack]["compact"])
+        new_files |= image_files(owner["sun_bounce"][stack]["compact"])
     for path in sorted(new_files):
         (build_dir / path).parent.mkdir(parents=True, exist_ok=True)
         shutil.move(staging / path, build_dir / path)
@@ -117,27 +118,14 @@ def _replace(build_dir: Path, manifest: dict, stacks, names, made: dict, staging
                                        for p in new_files], key=lambda f: f["path"])
     compression = manifest["compression"]
     compression["sun_bounce_dates"] = dates.as_list()
-    rows = {row["stack"]: row for row in compressor.report()}
-    compression["report"] = [
-        {**rows[f"{row['stack']}.{tag}"], "stack": row["stack"]}
-        if f"{row['stack']}.{tag}" in rows else row
-        for row in compression["report"]
-    ]
+    rows = {row["stack"].removesuffix(f".{tag}"): row for row in compressor.report()}
+    compression["report"] = [{**rows[row["stack"]], "stack": row["stack"]}
+                             if row["stack"] in rows else row
+                             for row in compression["report"]]
     save_manifest(build_dir, manifest)
     for path in sorted(old_files - new_files):
         (build_dir / path).unlink(missing_ok=True)
     return manifest
-
-
-def _files_of(compact: dict) -> set[str]:
-    """The paths of a sun-bounce entry's image files (each light with images: its levels'
-    patterns at the light that holds its image)."""
-    table = compact["lights"]
-    holders = table.get("image") or list(range(len(table["scale"])))
-    return {pattern.format(index=holder)
-            for scale, holder in zip(table["scale"], holders, strict=True)
-            if scale is not None
-            for pattern in table["ktx2"][: len(scale)]}
 
 
 def _free_tag(manifest: dict, tag: str) -> str:

@@ -34,7 +34,7 @@ from aiohttp import web
 from daylit import __version__
 from daylit import manifest as manifest_io
 from daylit.sun import SunPath
-from server import protocol
+from server import protocol, sunbouncedates
 from server.access import AccessPolicy
 from server.backoff import Backoff
 from server.config import ConfigError, Settings, SourceSpec, load_settings
@@ -283,6 +283,8 @@ def create_app(
     build_dir = Path(build_dir)
     settings = settings or load_settings()
     manifest = manifest_io.load(build_dir)
+    if (late := sunbouncedates.warning(manifest, time.time())) is not None:
+        log.warning(late)
     scene = manifest["scene"]
     if site_source is None and settings.site_camera.source is not None:
         site_source = make_site_source(settings.site_camera.source, settings)
@@ -430,6 +432,7 @@ def status_body(app: web.Application) -> dict:
         "restarts": app[SUPERVISOR].restarts,
         "site_camera": feed.status() if feed is not None else None,
         "occlusion": occlusion_status(app),
+        "sun_bounce": sunbouncedates.coverage(app[MANIFEST], time.time()),
     }
     if pipeline.temporal.value is not None:
         body["mean_radiance"] = np.round(pipeline.temporal.value.mean(axis=0), 4).tolist()

@@ -232,3 +232,82 @@ def test_a_patch_of_the_dates_brings_its_whole_sharing_group():
     assert lights_for_dates(selectable, [4, 7, 11], shared).tolist() == [3, 4, 7, 9]
     # Without groups: the dates' patches on the sun's path, nothing else.
     assert lights_for_dates(selectable, [4, 7, 11]).tolist() == [4, 7]
+
+
+def test_the_days_left_count_the_sites_local_dates():
+    from server.sunbouncedates import coverage, warning
+
+    manifest = {"scene": {"timezone": "Asia/Tokyo"},
+                "compression": {"sun_bounce_dates": ["2026-12-01", "2026-12-10"]}}
+
+    def at(text):  # a local time in Tokyo (UTC+9), as seconds since the epoch
+        return pd.Timestamp(text, tz="Asia/Tokyo").timestamp()
+
+    assert coverage(manifest, at("2026-12-08 12:00"))["days_left"] == 3  # the 8th, 9th, 10th
+    assert coverage(manifest, at("2026-12-10 23:59"))["days_left"] == 1
+    # 2026-12-10 20:00 UTC is already the 11th in Tokyo: past the last date.
+    assert coverage(manifest, pd.Timestamp("2026-12-10 20:00", tz="UTC").timestamp()) == {
+        "dates": ["2026-12-01", "2026-12-10"], "days_left": 0}
+    assert coverage(manifest, at("2026-11-30 23:00"))["days_left"] == 0
+    assert coverage(manifest, at("2026-12-01 00:00"))["days_left"] == 10
+    assert warning(manifest, at("2026-12-01 00:00")) is None  # 10 days: no warning yet
+    assert "3 days left" in warning(manifest, at("2026-12-08 12:00"))
+    assert "today is not among them" in warning(manifest, at("2026-12-11 00:01"))
+    whole = {"scene": {"timezone": "Asia/Tokyo"}, "compression": {"sun_bounce_dates": None}}
+    assert coverage(whole, at("2026-12-08 12:00")) == {"dates": None, "days_left": None}
+    assert warning(whole, at("2026-12-08 12:00")) is None
+
+
+async def test_the_server_tells_the_operator_the_dates_it_serves(dated_build, aiohttp_client,
+                                                                 tmp_path, caplog):
+    """The real server on the June build (the tests run after June 2026): a warning at
+    start that names the dates and the command, and ``/api/status`` says so."""
+    import logging
+
+    from server.app import create_app
+    from tests.server.helpers import ManualSource, settings_for
+
+    caplog.set_level(logging.WARNING, logger="daylit.server")
+    client = await aiohttp_client(create_app(dated_build, settings_for(tmp_path),
+                                             sky_source=ManualSource()))
+    said = [r.getMessage() for r in caplog.records if "sun-bounce images" in r.getMessage()]
+    assert len(said) == 1 and "2026-06-20 to 2026-06-22" in said[0]
+    assert "daylit sun-bounce" in said[0]
+    status = await (await client.get("/api/status")).json()
+    assert status["sun_bounce"] == {"dates": list(DATES), "days_left": 0}
+
+
+def test_what_the_dates_do_not_read_is_dropped(tmp_path):
+    """Group {3, 4, 9} shares light 3's image but 9 has its own (split out); light 5 alone
+    has a refinement. Dates that reach patches 4 and 5: 4 keeps reading 3's file, 5 keeps
+    both its levels; 3 and 9 lose their tables and 9's own file goes; 3's file stays (4 reads
+    it)."""
+    from bake.compress import CompactStack
+    from bake.sundates import keep_patches
+
+    (tmp_path / "ktx2").mkdir()
+    patterns = ["ktx2/s.L{index:04d}.ktx2", "ktx2/s.L{index:04d}r.ktx2"]
+    names = ["ktx2/s.L0003.ktx2", "ktx2/s.L0009.ktx2", "ktx2/s.L0005.ktx2",
+             "ktx2/s.L0005r.ktx2"]
+    for k, name in enumerate(names):
+        (tmp_path / name).write_bytes(bytes(10 + k))
+    one, two = [[1.0, 1.0, 1.0]], [[1.0, 1.0, 1.0], [0.1, 0.1, 0.1]]
+    scale = [None] * 10
+    scale[3], scale[4], scale[9], scale[5] = one, one, one, two
+    image = [None] * 10
+    image[3], image[4], image[9], image[5] = 3, 3, 9, 5
+    entry = {"k": 0, "lights": {"ktx2": patterns, "scale": scale, "offset": list(scale),
+                                "image": image},
+             "error": {}, "shared": {"images": 3, "lights": 4}}
+    result = CompactStack(entry, [tmp_path / n for n in names], light_bytes=1)
+    keep_patches(result, {4, 5, 7}, tmp_path)
+    table = entry["lights"]
+    assert [i for i, s in enumerate(table["scale"]) if s is not None] == [4, 5]
+    assert table["image"][4] == 3 and table["image"][3] is None and table["image"][9] is None
+    assert table["offset"][9] is None
+    left = sorted(p.relative_to(tmp_path).as_posix() for p in (tmp_path / "ktx2").iterdir())
+    assert left == ["ktx2/s.L0003.ktx2", "ktx2/s.L0005.ktx2", "ktx2/s.L0005r.ktx2"]
+    assert sorted(p.name for p in result.files) == ["s.L0003.ktx2", "s.L0005.ktx2",
+                                                    "s.L0005r.ktx2"]
+    assert result.light_bytes == 10 + 12 + 13
+    assert entry["shared"] == {"images": 2, "lights": 2}

@@ -461,6 +461,49 @@ def test_sun_bounce_from_an_image_shared_with_a_neighbouring_patch(new_page, sun
     assert not errors, errors
 
 
+def test_no_sun_bounce_where_the_builds_dates_leave_the_suns_patch_out(new_page, sun_build,
+                                                                      sun_reference, tmp_path):
+    """A copy of the site whose sun-bounce images were made again (``daylit sun-bounce``,
+    bake/sunremake.py) for three days on which the sun never crosses the test's sun patch p
+    (found with pvlib's ephemeris sun, tests/bake/test_sun_bounce_dates.py): the client
+    fetches no sun-bounce image, shows the shaded face lit by the sky alone (its west face
+    has no direct sun) as the compact oracle says, and reports no error."""
+    import shutil
+
+    from bake.evaluate import Build
+    from bake.sundates import SunBounceDates
+    from bake.sunremake import remake_sun_bounce
+    from tests.bake.test_sun_bounce_dates import patches_crossed
+
+    build = Build(sun_build)
+    s, _ = sun_and_sky(build)
+    p = build.sun_patch(s)
+    candidates = [("2026-12-20", "2026-12-22"), ("2026-06-20", "2026-06-22"),
+                  ("2026-02-01", "2026-02-03")]
+    dates = next((d for d in candidates if p not in patches_crossed(build.manifest, *d)), None)
+    assert dates is not None, p  # a precondition: some dates leave p out
+    dated = tmp_path / "build"
+    shutil.copytree(sun_build, dated)
+    remake_sun_bounce(sun_build.parent / "scene", dated, SunBounceDates.parse("..".join(dates)),
+                      progress=False, log=lambda msg: None)
+    dated_build = Build(dated)
+    tables = [e["compact"]["lights"] for o in dated_build.manifest["atlases"]
+              for e in o["sun_bounce"].values()]
+    assert all(t["scale"][p] is None for t in tables)
+    assert sum(t["scale"].count(None) < len(t["scale"]) for t in tables)  # others have images
+    _, casters = sun_reference
+    served: list[str] = []
+    shown, expected, no_bounce, share, errors = shaded_face_shown(new_page, dated, dated_build,
+                                                                  casters, served)
+    bounce_files = [f for f in served if ".sun_bounce." in f]
+    print(f"patch {p} has no images for {dates}; fetched {bounce_files}")
+    assert not bounce_files, bounce_files
+    assert share.max() < 0.01, share  # the oracle: no bounce (and no direct sun on the face)
+    assert np.abs(shown - expected).max() <= 3.0, (shown, expected)
+    assert np.abs(shown - no_bounce).max() <= 3.0, (shown, no_bounce)
+    assert not errors, errors
+
+
 def test_hull_sun_bounce_only_once_hull_plane_mode_is_chosen(new_page, sun_build,
                                                               sun_reference):
     """In lightmap mode the client fetches no hull-plane sun-bounce image (they serve only
