@@ -197,8 +197,9 @@ class Compressor:
         if result is None:
             (staging / (master or f"exr/{name}.exr")).unlink(missing_ok=True)
             return None
+        images = result.entry["error"]["test_lights"]  # judged: one per image
         if self.dates_patches is not None:
-            sundates.keep_patches(result, self.dates_patches, staging)
+            images = sundates.keep_patches(result, self.dates_patches, staging)
         error = result.entry["error"]
         self.rows[name] = {
             "stack": name,
@@ -207,9 +208,7 @@ class Compressor:
             "error": error.get("displayed", error)["max"],
             "base_bytes": 0,
             "light_bytes": result.light_bytes,
-            "light_bytes_per_light": round(
-                result.light_bytes / max(result.entry["error"]["test_lights"], 1)
-            ),
+            "light_bytes_per_light": round(result.light_bytes / max(images, 1)),
             "encode_s": round(result.encode_s, 2),
         }
         return result.entry

@@ -65,9 +65,13 @@ class SunBounceDates:
         from daylit import sky as skies
         from daylit.spherical import PatchLookup
 
-        times = pd.date_range(pd.Timestamp(self.first),
-                              pd.Timestamp(self.last + dt.timedelta(days=1)),
-                              freq=SAMPLE_STEP, inclusive="left", tz=site.timezone)
+        def midnight(day: dt.date):
+            # Where the clocks change at midnight, the day starts at the first time there is.
+            return pd.Timestamp(day).tz_localize(site.timezone, nonexistent="shift_forward",
+                                                 ambiguous=True)
+
+        times = pd.date_range(midnight(self.first), midnight(self.last + dt.timedelta(days=1)),
+                              freq=SAMPLE_STEP, inclusive="left")
         az, el = skies.sun_positions(site.latitude_deg, site.longitude_deg, site.elevation_m,
                                      times)
         up = el > 0.0
@@ -116,12 +120,13 @@ def image_files(compact: dict) -> set[str]:
             for pattern in table["ktx2"][: len(scale)]}
 
 
-def keep_patches(result, patches: set[int], out_dir: Path) -> None:
+def keep_patches(result, patches: set[int], out_dir: Path) -> int:
     """Keep of a compressed sun-bounce stack (``result``: :class:`bake.compress.CompactStack`
     written under ``out_dir``) only what the sun in ``patches`` reads: the other lights'
     ``scale``, ``offset`` and ``image`` become null, and the files no kept light reads (the
     own images of a group's members the dates do not reach) are deleted. Its ``shared``
-    counts then say what is kept; its ``error`` is still that of every image judged."""
+    counts then say what is kept; its ``error`` is still that of every image judged.
+    Returns how many images are kept."""
     entry = result.entry
     table = entry["lights"]
     for i, scale in enumerate(table["scale"]):
@@ -138,7 +143,9 @@ def keep_patches(result, patches: set[int], out_dir: Path) -> None:
             Path(path).unlink()
     result.files = kept
     result.light_bytes = sum(Path(path).stat().st_size for path in kept)
+    lights = [i for i, scale in enumerate(table["scale"]) if scale is not None]
+    images = len({(table.get("image") or list(range(len(table["scale"]))))[i] for i in lights})
     if "shared" in entry:
-        lights = [i for i, scale in enumerate(table["scale"]) if scale is not None]
-        entry["shared"]["images"] = len({table["image"][i] for i in lights})
+        entry["shared"]["images"] = images
         entry["shared"]["lights"] = len(lights)
+    return images

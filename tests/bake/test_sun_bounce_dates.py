@@ -300,7 +300,7 @@ def test_what_the_dates_do_not_read_is_dropped(tmp_path):
                                 "image": image},
              "error": {}, "shared": {"images": 3, "lights": 4}}
     result = CompactStack(entry, [tmp_path / n for n in names], light_bytes=1)
-    keep_patches(result, {4, 5, 7}, tmp_path)
+    kept = keep_patches(result, {4, 5, 7}, tmp_path)
     table = entry["lights"]
     assert [i for i, s in enumerate(table["scale"]) if s is not None] == [4, 5]
     assert table["image"][4] == 3 and table["image"][3] is None and table["image"][9] is None
@@ -310,4 +310,5 @@ def test_what_the_dates_do_not_read_is_dropped(tmp_path):
     assert sorted(p.name for p in result.files) == ["s.L0003.ktx2", "s.L0005.ktx2",
                                                     "s.L0005r.ktx2"]
     assert result.light_bytes == 10 + 12 + 13
+    assert kept == 2  # the images of 3 (read by 4) and of 5
     assert entry["shared"] == {"images": 2, "lights": 2}
