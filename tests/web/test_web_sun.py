@@ -490,7 +490,7 @@ def test_no_sun_bounce_where_the_builds_dates_leave_the_suns_patch_out(new_page,
     tables = [e["compact"]["lights"] for o in dated_build.manifest["atlases"]
               for e in o["sun_bounce"].values()]
     assert all(t["scale"][p] is None for t in tables)
-    assert sum(t["scale"].count(None) < len(t["scale"]) for t in tables)  # others have images
+    assert any(t["scale"].count(None) < len(t["scale"]) for t in tables)  # others have images
     _, casters = sun_reference
     served: list[str] = []
     shown, expected, no_bounce, share, errors = shaded_face_shown(new_page, dated, dated_build,
