@@ -104,9 +104,11 @@ class Compressor:
                 self.selection.selectable, patches, self.shared)
             self.dates_patches = set(patches)
             first, last = self.sun_bounce_dates.as_list()
-            self.log(f"  the sun's bounce from {first} to {last}: "
-                     f"{len(self.lights_with_sun_images)} of the "
-                     f"{len(self.selection.selectable)} sun-path lights get images")
+            crossed = self.dates_patches & set(self.selection.selectable.tolist())
+            self.log(f"  the sun's bounce from {first} to {last}: the {len(crossed)} patches "
+                     f"the sun crosses then get images ({len(self.lights_with_sun_images)} "
+                     f"of the {len(self.selection.selectable)} sun-path lights judged, with "
+                     "their sharing groups)")
         self.log(
             f"  {len(self.selection.selectable)} of {dome.count} lights can be selected "
             "(the sun's path and the brightest patches of the site's skies): only they get "

@@ -86,8 +86,9 @@ def lights_for_dates(selectable: np.ndarray, patches: list[int], shared=None) ->
     judged for the sun in ``patches``: those patches, and with ``shared``
     (:class:`bake.sunshare.SharedImages`) every member of a group any of them is in (a
     group's image is made from all its members' columns, and whether a member shares it is
-    judged on each: the images of the dates' patches are those a bake for the whole year
-    would make of them). What the dates do not need is dropped after
+    judged on each, as in a bake for the whole year; which cheaper encodings are tried
+    first is sampled from these lights, so an image's encoding may differ from that bake's).
+    What the dates do not need is dropped after
     (:func:`keep_patches`). Sorted indices."""
     chosen = set(patches) & {int(i) for i in selectable}
     if shared is not None:
