@@ -105,13 +105,20 @@ def sun_bounce_files(manifest: dict, atlases: list[dict], patches: list[int]) ->
     files: set[str] = set()
     for atlas in atlases:
         for stack in atlas.get("sun_bounce", {}).values():
-            table = stack["compact"]["lights"]
-            for p in patches:
-                if table["scale"][p] is not None:
-                    levels = table["ktx2"][: len(table["scale"][p])]
-                    (holder,) = _holders(table, [p])
-                    files |= {pattern.format(index=holder) for pattern in levels}
+            files |= table_files(stack["compact"]["lights"], patches)
     return files
+
+
+def table_files(table: dict, patches) -> set[str]:
+    """The files of a sun-bounce ``lights`` table that the sun in ``patches`` reads: for
+    each patch with images, the levels it has (``len(scale[p])``) at the light that holds
+    its image (:func:`bake.compact_reader.image_holders`)."""
+    from bake.compact_reader import image_holders
+
+    holders = image_holders(table)
+    return {pattern.format(index=holders[p])
+            for p in patches if table["scale"][p] is not None
+            for pattern in table["ktx2"][: len(table["scale"][p])]}
 
 
 def sun_bounce_bytes(manifest: dict, atlases: list[dict], patches: list[int]) -> int:

@@ -111,14 +111,11 @@ def check_sun_up(site, dates: SunBounceDates) -> None:
 
 
 def image_files(compact: dict) -> set[str]:
-    """The paths of a sun-bounce entry's image files: each light with images (``scale`` not
-    null), its levels' patterns at the light that holds its image (``image``, else itself)."""
-    table = compact["lights"]
-    holders = table.get("image") or list(range(len(table["scale"])))
-    return {pattern.format(index=holder)
-            for scale, holder in zip(table["scale"], holders, strict=True)
-            if scale is not None
-            for pattern in table["ktx2"][: len(scale)]}
+    """The paths of a sun-bounce entry's image files: those of every light with images
+    (:func:`bake.downloads.table_files`)."""
+    from bake.downloads import table_files
+
+    return table_files(compact["lights"], range(len(compact["lights"]["scale"])))
 
 
 def keep_patches(result, patches: set[int], out_dir: Path) -> int:
@@ -144,8 +141,11 @@ def keep_patches(result, patches: set[int], out_dir: Path) -> int:
             Path(path).unlink()
     result.files = kept
     result.light_bytes = sum(Path(path).stat().st_size for path in kept)
+    from bake.compact_reader import image_holders
+
     lights = [i for i, scale in enumerate(table["scale"]) if scale is not None]
-    images = len({(table.get("image") or list(range(len(table["scale"]))))[i] for i in lights})
+    holders = image_holders(table)
+    images = len({holders[i] for i in lights})
     if "shared" in entry:
         entry["shared"]["images"] = images
         entry["shared"]["lights"] = len(lights)

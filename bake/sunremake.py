@@ -84,9 +84,10 @@ def remake_sun_bounce(scene_dir, build_dir, dates: SunBounceDates, progress: boo
                                                        view=view)
                 del image, sky
         compressor.close()
-        manifest = _replace(build_dir, manifest, stacks, names, made, staging, compressor,
-                            dates, tag)
+        # Reported (and written into the manifest's report) under the stacks' own names.
         compressor.rename_rows({name: name.removesuffix(f".{tag}") for name in names})
+        manifest = _replace(build_dir, manifest, stacks, names, made, staging, compressor,
+                            dates)
         compressor.print_report(manifest, build_dir)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
@@ -97,7 +98,7 @@ def remake_sun_bounce(scene_dir, build_dir, dates: SunBounceDates, progress: boo
 
 
 def _replace(build_dir: Path, manifest: dict, stacks, names, made: dict, staging: Path,
-             compressor: Compressor, dates: SunBounceDates, tag: str) -> dict:
+             compressor: Compressor, dates: SunBounceDates) -> dict:
     """Move the new images into the build, write the manifest that lists them (one rename),
     then delete the old ones."""
     old_files = set()
@@ -118,10 +119,8 @@ def _replace(build_dir: Path, manifest: dict, stacks, names, made: dict, staging
                                        for p in new_files], key=lambda f: f["path"])
     compression = manifest["compression"]
     compression["sun_bounce_dates"] = dates.as_list()
-    rows = {row["stack"].removesuffix(f".{tag}"): row for row in compressor.report()}
-    compression["report"] = [{**rows[row["stack"]], "stack": row["stack"]}
-                             if row["stack"] in rows else row
-                             for row in compression["report"]]
+    rows = {row["stack"]: row for row in compressor.report()}
+    compression["report"] = [rows.get(row["stack"], row) for row in compression["report"]]
     save_manifest(build_dir, manifest)
     for path in sorted(old_files - new_files):
         (build_dir / path).unlink(missing_ok=True)
